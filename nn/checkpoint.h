@@ -1,0 +1,43 @@
+#pragma once
+// HDF5 checkpoints, readable with h5py:
+//   /config          attributes: unet.in_channels, unet.out_channels, unet.base, unet.depth,
+//                    optimizer.* and every entry of Checkpoint::attributes (string values;
+//                    the input encoder, beam layout, lambda, seed travel here as text/JSON)
+//   /params/<layer>/<field>       float32 datasets with the parameter's shape
+//   /optimizer/m/<layer>/<field>, /optimizer/v/<layer>/<field>, attribute steps
+//   /state           attributes epoch, step; dataset rng (the training RNG state as text)
+// Written to a temporary file and renamed; loading validates every shape and names the first
+// mismatch in a lidarsim::Error that names the file.
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+
+#include "nn/optim.h"
+#include "nn/unet.h"
+
+namespace lidarsim::nn {
+
+struct TrainState {
+  std::int64_t epoch = 0;
+  std::int64_t step = 0;
+  std::string rng;  // serialised RNG state (std::mt19937_64 << stream)
+};
+
+struct Checkpoint {
+  UNetConfig unet;
+  std::map<std::string, std::string> attributes;  // free-form config from the layers above
+  TrainState state;
+};
+
+void save_checkpoint(const std::filesystem::path& path, const UNet& model, const Optimizer* optimizer,
+                     const Checkpoint& meta);
+
+// Reads only /config and /state (to build the model before loading its weights).
+Checkpoint read_checkpoint_meta(const std::filesystem::path& path);
+
+// Loads parameters into `model` (whose config must match) and, when given, the optimizer state.
+void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* optimizer);
+
+}  // namespace lidarsim::nn

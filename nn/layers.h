@@ -1,0 +1,42 @@
+#pragma once
+// Layer ops in the style of llm.c: each a forward/backward pair over raw NCHW buffers.
+// Backward writes (=) input gradients and accumulates (+=) parameter gradients.
+// Shapes in comments: N batch, C/Ci/Co channels, H/W height/width.
+#include <cstdint>
+#include <vector>
+
+#include "nn/tensor.h"
+
+namespace lidarsim::nn {
+
+// conv2d, stride 1, zero padding `pad`, square kernel k (odd k with pad = k/2 keeps H, W).
+//   in [N, Ci, H, W], weight [Co, Ci, k, k], bias [Co] -> out [N, Co, Ho, Wo],
+//   Ho = H + 2 pad - k + 1. `relu` fuses a ReLU after the bias.
+void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
+                    bool relu);
+// d_out is the gradient w.r.t. the (post-ReLU when relu) output; `out` is the forward output
+// (used for the ReLU mask). d_in may be null (first layer).
+void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
+                     const Tensor& in, const float* weight, int k, int pad, bool relu);
+
+// Transposed conv 2x2, stride 2 (no overlap): in [N, Ci, H, W], weight [Ci, Co, 2, 2], bias [Co]
+//   -> out [N, Co, out_h, out_w] with out_h >= 2H, out_w >= 2W (extra rows/cols are zero: the
+//   UNet's pad-to-skip).
+void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co,
+                               int out_h, int out_w);
+void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, const Tensor& d_out,
+                                const Tensor& in, const float* weight);
+
+// Max-pool 2x2 stride 2 (floor): in [N, C, H, W] -> out [N, C, H/2, W/2]; argmax [N, C, H/2, W/2]
+// holds the flat index within the input plane.
+void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const Tensor& in);
+void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax);
+
+void relu_forward(Tensor& out, const Tensor& in);
+void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out);
+
+// Channel concat: a [N, Ca, H, W], b [N, Cb, H, W] -> out [N, Ca + Cb, H, W].
+void concat_forward(Tensor& out, const Tensor& a, const Tensor& b);
+void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out);
+
+}  // namespace lidarsim::nn

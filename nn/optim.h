@@ -1,0 +1,41 @@
+#pragma once
+// Optimizers over a ParamArena: one loop over one buffer. State is exposed for checkpoints.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "nn/params.h"
+
+namespace lidarsim::nn {
+
+struct OptimizerConfig {
+  std::string kind = "adam";  // "adam" or "sgd" (with momentum)
+  float lr = 1e-3f;
+  float beta1 = 0.9f, beta2 = 0.999f, eps = 1e-8f;  // Adam, PyTorch's defaults
+  float momentum = 0.9f;                              // SGD
+  float clip_norm = 0.f;                              // global gradient-norm clip; 0 = off
+};
+
+class Optimizer {
+ public:
+  Optimizer(const OptimizerConfig& config, std::size_t num_params);
+  // One update from arena.grads() (PyTorch semantics, bias-corrected Adam); step() counts from 1.
+  void step(ParamArena& params);
+  const OptimizerConfig& config() const { return config_; }
+  void set_lr(float lr) { config_.lr = lr; }
+
+  // Checkpointed state: Adam m and v (or SGD velocity in m), and the step count.
+  std::vector<float>& m() { return m_; }
+  std::vector<float>& v() { return v_; }
+  const std::vector<float>& m() const { return m_; }
+  const std::vector<float>& v() const { return v_; }
+  std::int64_t steps() const { return steps_; }
+  void set_steps(std::int64_t s) { steps_ = s; }
+
+ private:
+  OptimizerConfig config_;
+  std::vector<float> m_, v_;
+  std::int64_t steps_ = 0;
+};
+
+}  // namespace lidarsim::nn

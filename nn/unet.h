@@ -1,0 +1,63 @@
+#pragma once
+// A configurable UNet as a fixed graph of layer calls (no general autograd).
+//
+// Architecture (matches tests/fixtures/torch_unet.py, parameter names included):
+//   level l = 0..depth, channels c_l = base * 2^l
+//   enc{l}.conv1, enc{l}.conv2: conv 3x3, padding 1, ReLU after each
+//     (enc0.conv1 takes in_channels; enc{l}.conv1 takes c_{l-1} after a 2x2 max-pool; level
+//      `depth` is the bottleneck)
+//   for l = depth-1 .. 0:
+//     dec{l}.up: transposed conv 2x2 stride 2, c_{l+1} -> c_l; its output is zero-padded at the
+//       bottom/right to the skip's height/width (inputs need not be divisible by 2^depth)
+//     concat([skip_l, up], channels) -> 2 c_l
+//     dec{l}.conv1 (2 c_l -> c_l), dec{l}.conv2 (c_l -> c_l): conv 3x3, padding 1, ReLU
+//   head: conv 1x1, c_0 -> out_channels, no activation
+// Default: depth 4, base 16 ("unet-ref" with 3 input channels: 6.07 GFLOP forward at 64 x 1024).
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "nn/params.h"
+#include "nn/tensor.h"
+
+namespace lidarsim::nn {
+
+struct UNetConfig {
+  int in_channels = 3;
+  int out_channels = 1;
+  int base = 16;
+  int depth = 4;
+  bool operator==(const UNetConfig&) const = default;
+};
+
+class UNet {
+ public:
+  explicit UNet(const UNetConfig& config);
+  ~UNet();
+  UNet(UNet&&) noexcept;
+  UNet& operator=(UNet&&) noexcept;
+
+  const UNetConfig& config() const { return config_; }
+  ParamArena& params() { return params_; }
+  const ParamArena& params() const { return params_; }
+
+  // He-normal weights (std = sqrt(2 / fan_in)), zero biases; deterministic for a seed.
+  void init(std::uint64_t seed);
+
+  // x: [N, in_channels, H, W] -> y: [N, out_channels, H, W]. Keeps activations for backward().
+  void forward(const Tensor& x, Tensor& y);
+  // Inference only: same result as forward(), without keeping what backward() needs.
+  void predict(const Tensor& x, Tensor& y);
+  // dy: [N, out_channels, H, W] of the last forward(); accumulates (+=) into params().grads().
+  void backward(const Tensor& dy);
+
+  double forward_flops(int n, int h, int w) const;  // multiply-adds x 2 of one forward pass
+
+ private:
+  UNetConfig config_;
+  ParamArena params_;
+  struct Workspace;  // activations, caches, argmax indices; reused across calls
+  std::unique_ptr<Workspace> ws_;
+};
+
+}  // namespace lidarsim::nn

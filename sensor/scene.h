@@ -1,0 +1,58 @@
+#pragma once
+// Scene types shared by every stage of the phenomenological model. ISO 8855 axes (x forward,
+// y left, z up), SI units, radians inside; degrees only at the edges (files, CLI).
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <string>
+#include <vector>
+
+namespace lidarsim::sensor {
+
+enum class ObjectClass { Car, Truck, Van, Bus, Pedestrian, Cyclist, Motorcycle, Misc };
+std::string to_string(ObjectClass c);
+ObjectClass object_class_from_string(const std::string& name);  // throws lidarsim::Error
+
+struct Pose {  // rigid transform: p_parent = rotation * p_child + translation
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
+};
+
+// A ground-truth or reported object: a box whose centre is the box's geometric centre.
+struct Object {
+  int id = -1;                 // ground-truth id (or track id after tracking)
+  ObjectClass cls = ObjectClass::Car;
+  std::string material = "car_paint";
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();      // box centre, in the frame of the list
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
+  Eigen::Vector3d acceleration = Eigen::Vector3d::Zero();
+  Eigen::Vector3d size = Eigen::Vector3d::Ones();          // length (x), width (y), height (z)
+  double heading = 0;          // yaw about z, radians
+  double visible_fraction = 1; // set by occlusion
+  double score = 1;            // detection confidence, for reported objects
+};
+
+enum class LaneType { Solid, Dashed, RoadEdge };
+
+struct LanePolyline {
+  int id = -1;
+  LaneType type = LaneType::Solid;
+  std::vector<Eigen::Vector3d> points;  // in the frame of the frame they belong to
+};
+
+// A visible lane marking as y(x) = c0 + c1 x + c2 x^2 + c3 x^3 in the sensor frame.
+struct LanePolynomial {
+  int id = -1;
+  LaneType type = LaneType::Solid;
+  double c0 = 0, c1 = 0, c2 = 0, c3 = 0;
+  double x_min = 0, x_max = 0;  // valid range
+};
+
+struct Frame {
+  double time = 0;             // seconds
+  Pose ego_in_map;             // ego pose at this time
+  std::vector<Object> objects;
+  std::vector<LanePolyline> lanes;
+};
+
+}  // namespace lidarsim::sensor
