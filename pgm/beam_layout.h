@@ -3,6 +3,11 @@
 // Row 0 is the top beam (highest elevation), rows grow downwards, as in a range image.
 // Column = floor(az / 2pi * columns), az = atan2(y, x) mod 2pi: column 0 looks straight ahead
 // and columns grow to the left (counter-clockwise seen from above).
+//
+// Layouts travel in checkpoints, datasets and scenarios as JSON (degrees at the edge):
+//   {"name": "hdl64e", "columns": 1024, "elevations_deg": [2.61, 2.23, ...]}
+// or, for a uniform layout, {"name": "uniform", "columns": 1024, "rows": 32,
+//   "top_deg": 15, "bottom_deg": -15} (the explicit list wins when both are given).
 #include <string>
 #include <vector>
 
@@ -16,10 +21,28 @@ struct BeamLayout {
   int rows() const { return static_cast<int>(elevations_rad.size()); }
   // Uniform spacing from top to bottom elevation (degrees at the edge, radians inside).
   static BeamLayout uniform(int rows, double top_deg, double bottom_deg, int columns);
-  // Velodyne HDL-64E as mounted on KITTI (approximately +2 to -24.9 deg).
+  // Velodyne HDL-64E as mounted on KITTI: the median elevation of each firing-order row measured
+  // on KITTI sequence 00 (+2.61 deg to -23.74 deg; the nominal spec is about +2 to -24.9 deg, but
+  // KITTI's points are motion-corrected and carry per-laser offsets, so the measured medians are
+  // what the rows of a real scan look like).
   static BeamLayout hdl64e(int columns = 1024);
+  // Any sensor from its list of elevations in degrees (sorted descending here; must be finite).
+  static BeamLayout from_elevations_deg(std::string name, std::vector<double> elevations_deg, int columns);
+
   int column_of(double x, double y) const;  // azimuth bin of a direction
   double azimuth_of_column(int col) const;  // centre of a bin, radians in [0, 2pi)
+  // Row whose elevation is nearest; -1 when the elevation lies more than one row spacing
+  // beyond the top or bottom beam.
+  int nearest_row(double elevation_rad) const;
+
+  // Throws lidarsim::Error (naming `where`) unless rows >= 1, columns >= 1, elevations finite
+  // and strictly descending.
+  void validate(const std::string& where = "beam layout") const;
+
+  std::string to_json() const;  // compact JSON, degrees
+  // `where` names the file (or checkpoint attribute) the text came from, for error messages.
+  static BeamLayout from_json(const std::string& text, const std::string& where = "beam layout");
+  bool operator==(const BeamLayout&) const = default;
 };
 
 }  // namespace lidarsim::pgm
