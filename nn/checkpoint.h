@@ -3,7 +3,8 @@
 //   /config          attributes: unet.in_channels, unet.out_channels, unet.base, unet.depth,
 //                    optimizer.* and every entry of Checkpoint::attributes (string values;
 //                    the input encoder, beam layout, lambda, seed travel here as text/JSON)
-//   /params/<layer>/<field>       float32 datasets with the parameter's shape
+//   /params/<layer>/<field>       float32 datasets with the parameter's shape (PyTorch layouts:
+//                                 conv [out, in, k, k], transposed conv [in, out, 2, 2], bias [out])
 //   /optimizer/m/<layer>/<field>, /optimizer/v/<layer>/<field>, attribute steps
 //   /state           attributes epoch, step; dataset rng (the training RNG state as text)
 // Written to a temporary file and renamed; loading validates every shape and names the first
@@ -29,6 +30,9 @@ struct Checkpoint {
   UNetConfig unet;
   std::map<std::string, std::string> attributes;  // free-form config from the layers above
   TrainState state;
+  // Filled by read_checkpoint_meta() when the file holds an optimizer (save takes it from the
+  // Optimizer itself and ignores this field), so training can resume with the same settings.
+  std::optional<OptimizerConfig> optimizer;
 };
 
 void save_checkpoint(const std::filesystem::path& path, const UNet& model, const Optimizer* optimizer,
@@ -38,6 +42,7 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
 Checkpoint read_checkpoint_meta(const std::filesystem::path& path);
 
 // Loads parameters into `model` (whose config must match) and, when given, the optimizer state.
+// Everything is validated before anything is copied: on an Error the model is unchanged.
 void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* optimizer);
 
 }  // namespace lidarsim::nn
