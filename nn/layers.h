@@ -1,7 +1,10 @@
 #pragma once
-// Layer ops in the style of llm.c: each a forward/backward pair over raw NCHW buffers.
-// Backward writes (=) input gradients and accumulates (+=) parameter gradients.
-// Shapes in comments: N batch, C/Ci/Co channels, H/W height/width.
+// Layer ops in the style of llm.c: each a forward/backward pair over NCHW buffers.
+// Backward writes (=) input gradients (or adds, where a flag says so) and accumulates (+=)
+// parameter gradients. Shapes in comments: N batch, C/Ci/Co channels, H/W height/width.
+// Output tensors are reshaped when their shape differs (that allocates only when they grow).
+// Parallel with OpenMP; reductions over pixels go through per-thread partials summed in thread
+// order, so a fixed thread count gives bit-identical results.
 #include <cstdint>
 #include <vector>
 
@@ -10,26 +13,31 @@
 namespace lidarsim::nn {
 
 // conv2d, stride 1, zero padding `pad`, square kernel k (odd k with pad = k/2 keeps H, W).
-//   in [N, Ci, H, W], weight [Co, Ci, k, k], bias [Co] -> out [N, Co, Ho, Wo],
+//   in [N, Ci, H, W], weight [Co, Ci, k, k], bias [Co] (may be null) -> out [N, Co, Ho, Wo],
 //   Ho = H + 2 pad - k + 1. `relu` fuses a ReLU after the bias.
 void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
                     bool relu);
 // d_out is the gradient w.r.t. the (post-ReLU when relu) output; `out` is the forward output
-// (used for the ReLU mask). d_in may be null (first layer).
+// (used for the ReLU mask). d_in may be null (first layer); d_bias may be null.
 void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
                      const Tensor& in, const float* weight, int k, int pad, bool relu);
 
 // Transposed conv 2x2, stride 2 (no overlap): in [N, Ci, H, W], weight [Ci, Co, 2, 2], bias [Co]
 //   -> out [N, Co, out_h, out_w] with out_h >= 2H, out_w >= 2W (extra rows/cols are zero: the
-//   UNet's pad-to-skip).
+//   UNet's pad-to-skip; they carry no bias and pass no gradient).
 void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co,
                                int out_h, int out_w);
 void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, const Tensor& d_out,
                                 const Tensor& in, const float* weight);
 
 // Max-pool 2x2 stride 2 (floor): in [N, C, H, W] -> out [N, C, H/2, W/2]; argmax [N, C, H/2, W/2]
-// holds the flat index within the input plane.
+// holds the flat index within the input plane. Ties go to the first element in row order.
 void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const Tensor& in);
+// d_in gets the input shape from `in_shape`; with accumulate the gradient is added to d_in
+// (which must already have that shape) instead of overwriting it.
+void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax,
+                          Shape in_shape, bool accumulate = false);
+// Shorthand: in_shape = [N, C, 2 Ho, 2 Wo] (the input had even sizes).
 void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax);
 
 void relu_forward(Tensor& out, const Tensor& in);
@@ -37,6 +45,25 @@ void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out);
 
 // Channel concat: a [N, Ca, H, W], b [N, Cb, H, W] -> out [N, Ca + Cb, H, W].
 void concat_forward(Tensor& out, const Tensor& a, const Tensor& b);
-void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out);
+// Splits d_out into d_a and d_b; with accumulate d_a gets += (d_b is always written).
+void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool accumulate_a = false);
+void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out);  // ca from d_a's shape
+
+// Test-only fault injection: when set, the named backward pass puts one value at a wrong index,
+// so the gradient-check tests can prove that they catch such a bug. Never set outside tests.
+namespace testhook {
+enum class Fault {
+  none,
+  conv2d_input,
+  conv2d_weight,
+  conv2d_bias,
+  conv_transpose_input,
+  conv_transpose_weight,
+  max_pool,
+  relu,
+  concat,
+};
+extern Fault fault;
+}  // namespace testhook
 
 }  // namespace lidarsim::nn

@@ -1,0 +1,467 @@
+#include "nn/layers.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "common/error.h"
+
+namespace lidarsim::nn {
+
+namespace testhook {
+Fault fault = Fault::none;
+}  // namespace testhook
+
+namespace {
+
+using Mat = Eigen::Map<Eigen::MatrixXf, 0, Eigen::OuterStride<>>;
+using CMat = Eigen::Map<const Eigen::MatrixXf, 0, Eigen::OuterStride<>>;
+using RowMat = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+bool fault(testhook::Fault f) { return testhook::fault == f; }
+
+void ensure(Tensor& t, Shape s) {
+  if (!(t.shape() == s)) t.resize(s);
+}
+
+// Grow-only scratch: steady-state steps allocate nothing.
+float* grow(std::vector<float>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+  return v.data();
+}
+
+// Per-thread im2col tiles and the shared buffers of one op at a time (ops run one after another).
+thread_local std::vector<float> tl_col;
+std::vector<float> g_masked;    // relu-masked d_out
+std::vector<float> g_wflip;     // flipped, transposed conv weights for the input gradient
+std::vector<float> g_partials;  // per-thread weight-gradient partials
+
+constexpr std::size_t kColFloats = 1 << 17;  // one thread's im2col tile: 512 KB, stays in L2
+
+int tile_pixels(int kdim, int hw) {
+  int t = static_cast<int>(kColFloats / static_cast<std::size_t>(std::max(kdim, 1)));
+  t = std::max(64, t / 16 * 16);
+  return std::min(t, hw);
+}
+
+// im2col for output pixels [p0, p0 + t) of one image: col is t x (ci k k), column-major, i.e.
+// col[kk * t + j] = img[c, y + kh - pad, x + kw - pad] with kk = (c k + kh) k + kw, (y, x) of p0 + j.
+void im2col(float* col, const float* img, int ci, int h, int w, int k, int pad, int wo, int p0, int t) {
+  int j = 0;
+  while (j < t) {
+    const int p = p0 + j;
+    const int y = p / wo, x0 = p % wo;
+    const int len = std::min(t - j, wo - x0);
+    for (int c = 0; c < ci; ++c)
+      for (int kh = 0; kh < k; ++kh) {
+        const int iy = y + kh - pad;
+        for (int kw = 0; kw < k; ++kw) {
+          float* dst = col + ((static_cast<std::size_t>(c) * k + kh) * k + kw) * t + j;
+          if (iy < 0 || iy >= h) {
+            std::fill(dst, dst + len, 0.f);
+            continue;
+          }
+          const float* src = img + (static_cast<std::size_t>(c) * h + iy) * w + (kw - pad);
+          const int xs = std::clamp(pad - kw, x0, x0 + len);      // first x with ix >= 0
+          const int xe = std::clamp(w + pad - kw, x0, x0 + len);  // end of x with ix < w
+          std::fill(dst, dst + (xs - x0), 0.f);
+          std::copy(src + xs, src + xe, dst + (xs - x0));
+          std::fill(dst + (xe - x0), dst + len, 0.f);
+        }
+      }
+    j += len;
+  }
+}
+
+// Forward convolution of n images [ci, h, w] into [co, ho, wo] with wmat the (ci k k) x co
+// column-major weight matrix (= a [co, ci, k, k] row-major weight). Tiles of output pixels are
+// the parallel tasks; each thread runs its own GEMM.
+void conv_core(float* out, const float* in, int n, int ci, int h, int w, const float* wmat, const float* bias,
+               int co, int k, int pad, bool relu) {
+  const int ho = h + 2 * pad - k + 1, wo = w + 2 * pad - k + 1;
+  const int kdim = ci * k * k, hw = ho * wo;
+  const bool direct = k == 1 && pad == 0;  // a 1x1 conv reads the input as its own im2col
+  const int t = direct ? std::min(hw, 4096) : tile_pixels(kdim, hw);
+  const int tiles = (hw + t - 1) / t;
+  const std::size_t in_image = static_cast<std::size_t>(ci) * h * w;
+  const std::size_t out_image = static_cast<std::size_t>(co) * hw;
+#pragma omp parallel for schedule(static)
+  for (int task = 0; task < n * tiles; ++task) {
+    const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
+    const float* src = in + img * in_image;
+    const float* a_ptr;
+    Eigen::Index a_stride;
+    if (direct) {
+      a_ptr = src + p0;
+      a_stride = hw;
+    } else {
+      float* col = grow(tl_col, static_cast<std::size_t>(kdim) * len);
+      im2col(col, src, ci, h, w, k, pad, wo, p0, len);
+      a_ptr = col;
+      a_stride = len;
+    }
+    CMat a(a_ptr, len, kdim, Eigen::OuterStride<>(a_stride));  // [len, K]
+    CMat b(wmat, kdim, co, Eigen::OuterStride<>(kdim));        // [K, Co]
+    Mat c(out + img * out_image + p0, len, co, Eigen::OuterStride<>(hw));  // [len, Co]
+    c.noalias() = a * b;
+    if (bias || relu) {
+      for (int o = 0; o < co; ++o) {
+        float* col_o = c.col(o).data();
+        const float bo = bias ? bias[o] : 0.f;
+        if (relu)
+          for (int j = 0; j < len; ++j) col_o[j] = std::max(col_o[j] + bo, 0.f);
+        else
+          for (int j = 0; j < len; ++j) col_o[j] += bo;
+      }
+    }
+  }
+}
+
+void check_finite_shape(const Tensor& t, const char* op, const char* field) {
+  if (t.numel() == 0) throw Error(std::string(op) + ": " + field + ": empty tensor " + t.shape().str());
+}
+
+}  // namespace
+
+void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
+                    bool relu) {
+  check_finite_shape(in, "conv2d_forward", "in");
+  const Shape s = in.shape();
+  const int ho = s.h + 2 * pad - k + 1, wo = s.w + 2 * pad - k + 1;
+  if (k < 1 || pad < 0 || ho < 1 || wo < 1 || co < 1)
+    throw Error("conv2d_forward: kernel: k " + std::to_string(k) + ", pad " + std::to_string(pad) +
+                " does not fit input " + s.str());
+  ensure(out, Shape{s.n, co, ho, wo});
+  conv_core(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, k, pad, relu);
+}
+
+void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
+                     const Tensor& in, const float* weight, int k, int pad, bool relu) {
+  const Shape s = in.shape(), so = d_out.shape();
+  const int n = s.n, ci = s.c, co = so.c, ho = so.h, wo = so.w, hw = ho * wo;
+  const int kdim = ci * k * k;
+  if (so.n != n || ho != s.h + 2 * pad - k + 1 || wo != s.w + 2 * pad - k + 1)
+    throw Error("conv2d_backward: d_out: shape " + so.str() + " does not match input " + s.str());
+  if (relu && !(out.shape() == so))
+    throw Error("conv2d_backward: out: expected shape " + so.str() + ", got " + out.shape().str());
+
+  // g = d_out masked by the ReLU (d pre-activation).
+  const float* g = d_out.data();
+  if (relu) {
+    float* m = grow(g_masked, so.numel());
+    const float* o = out.data();
+    const float* d = d_out.data();
+    const std::size_t total = so.numel();
+#pragma omp parallel for simd schedule(static)
+    for (std::size_t i = 0; i < total; ++i) m[i] = o[i] > 0.f ? d[i] : 0.f;
+    g = m;
+  }
+  const std::size_t out_image = static_cast<std::size_t>(co) * hw;
+
+  if (d_bias) {
+#pragma omp parallel for schedule(static)
+    for (int o = 0; o < co; ++o) {
+      float acc = 0.f;
+      for (int i = 0; i < n; ++i) {
+        Eigen::Map<const Eigen::VectorXf> plane(g + i * out_image + static_cast<std::size_t>(o) * hw, hw);
+        acc += plane.sum();
+      }
+      d_bias[o] += acc;
+    }
+    if (fault(testhook::Fault::conv2d_bias) && co > 1) d_bias[1] = d_bias[0];
+  }
+
+  if (d_weight) {
+    // dW [K, Co] += im2col(in)^T [K, len] * g [len, Co], per thread, then summed in thread order.
+    const bool direct = k == 1 && pad == 0;
+    const int t = direct ? std::min(hw, 4096) : tile_pixels(kdim, hw);
+    const int tiles = (hw + t - 1) / t;
+    const int threads = omp_get_max_threads();
+    const std::size_t wsize = static_cast<std::size_t>(kdim) * co;
+    float* parts = grow(g_partials, wsize * threads);
+    std::fill(parts, parts + wsize * threads, 0.f);
+    const std::size_t in_image = s.image();
+#pragma omp parallel
+    {
+      Mat part(parts + wsize * omp_get_thread_num(), kdim, co, Eigen::OuterStride<>(kdim));
+#pragma omp for schedule(static)
+      for (int task = 0; task < n * tiles; ++task) {
+        const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
+        const float* src = in.data() + img * in_image;
+        const float* a_ptr;
+        Eigen::Index a_stride;
+        if (direct) {
+          a_ptr = src + p0;
+          a_stride = hw;
+        } else {
+          float* col = grow(tl_col, static_cast<std::size_t>(kdim) * len);
+          im2col(col, src, ci, s.h, s.w, k, pad, wo, p0, len);
+          a_ptr = col;
+          a_stride = len;
+        }
+        CMat a(a_ptr, len, kdim, Eigen::OuterStride<>(a_stride));
+        CMat gm(g + img * out_image + p0, len, co, Eigen::OuterStride<>(hw));
+        part.noalias() += a.transpose() * gm;
+      }
+    }
+#pragma omp parallel for simd schedule(static)
+    for (std::size_t e = 0; e < wsize; ++e) {
+      float acc = 0.f;
+      for (int th = 0; th < threads; ++th) acc += parts[th * wsize + e];
+      d_weight[e] += acc;
+    }
+    if (fault(testhook::Fault::conv2d_weight) && wsize > 1) d_weight[wsize - 1] = d_weight[0];
+  }
+
+  if (d_in) {
+    // d_in = conv(g, flipped weights with in/out swapped, padding k - 1 - pad).
+    ensure(*d_in, s);
+    const int kk = k * k;
+    float* wf = grow(g_wflip, static_cast<std::size_t>(co) * kk * ci);
+    // wf as [co k k, ci] column-major: wf[c * (co k k) + (o k + kh) k + kw] = W[o, c, k-1-kh, k-1-kw]
+    for (int c = 0; c < ci; ++c)
+      for (int o = 0; o < co; ++o)
+        for (int kh = 0; kh < k; ++kh)
+          for (int kw = 0; kw < k; ++kw)
+            wf[static_cast<std::size_t>(c) * co * kk + (o * k + kh) * k + kw] =
+                weight[(static_cast<std::size_t>(o) * ci + c) * kk + (k - 1 - kh) * k + (k - 1 - kw)];
+    conv_core(d_in->data(), g, n, co, ho, wo, wf, nullptr, ci, k, k - 1 - pad, false);
+    if (fault(testhook::Fault::conv2d_input) && d_in->numel() > 1) d_in->data()[1] = d_in->data()[0];
+  }
+}
+
+void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co,
+                               int out_h, int out_w) {
+  check_finite_shape(in, "conv_transpose2x2_forward", "in");
+  const Shape s = in.shape();
+  if (out_h < 2 * s.h || out_w < 2 * s.w)
+    throw Error("conv_transpose2x2_forward: out: " + std::to_string(out_h) + " x " + std::to_string(out_w) +
+                " is smaller than twice the input " + s.str());
+  ensure(out, Shape{s.n, co, out_h, out_w});
+  const int ci = s.c, h = s.h, w = s.w, hw = h * w, co4 = 4 * co;
+  const int rows = std::max(1, std::min(h, 2048 / w));  // input rows per task
+  const int tiles = (h + rows - 1) / rows;
+  const std::size_t oplane = static_cast<std::size_t>(out_h) * out_w;
+  Eigen::Map<const RowMat> wm(weight, ci, co4);  // [Ci, Co 2 2]
+#pragma omp parallel for schedule(static)
+  for (int task = 0; task < s.n * tiles; ++task) {
+    const int img = task / tiles, y0 = (task % tiles) * rows, y1 = std::min(h, y0 + rows);
+    const int len = (y1 - y0) * w;
+    float* y = grow(tl_col, static_cast<std::size_t>(len) * co4);
+    CMat x(in.image(img) + y0 * w, len, ci, Eigen::OuterStride<>(hw));  // [len, Ci]
+    Mat ym(y, len, co4, Eigen::OuterStride<>(len));                       // [len, Co 2 2]
+    ym.noalias() = x * wm;
+    float* dst = out.image(img);
+    for (int o = 0; o < co; ++o) {
+      const float bo = bias ? bias[o] : 0.f;
+      float* plane = dst + o * oplane;
+      for (int iy = y0; iy < y1; ++iy)
+        for (int a = 0; a < 2; ++a) {
+          float* row = plane + static_cast<std::size_t>(2 * iy + a) * out_w;
+          const float* y_0 = y + static_cast<std::size_t>(o * 4 + a * 2 + 0) * len + (iy - y0) * w;
+          const float* y_1 = y + static_cast<std::size_t>(o * 4 + a * 2 + 1) * len + (iy - y0) * w;
+          for (int ix = 0; ix < w; ++ix) {
+            row[2 * ix] = y_0[ix] + bo;
+            row[2 * ix + 1] = y_1[ix] + bo;
+          }
+          std::fill(row + 2 * w, row + out_w, 0.f);
+        }
+      if (y1 == h)  // the zero padding below the up-sampled map
+        std::fill(plane + static_cast<std::size_t>(2 * h) * out_w, plane + oplane, 0.f);
+    }
+  }
+}
+
+void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, const Tensor& d_out,
+                                const Tensor& in, const float* weight) {
+  const Shape s = in.shape(), so = d_out.shape();
+  const int n = s.n, ci = s.c, h = s.h, w = s.w, hw = h * w, co = so.c, co4 = 4 * co;
+  if (so.n != n || so.h < 2 * h || so.w < 2 * w)
+    throw Error("conv_transpose2x2_backward: d_out: shape " + so.str() + " does not match input " + s.str());
+  ensure(d_in, s);
+  const int out_w = so.w;
+  const std::size_t oplane = so.plane();
+  const int rows = std::max(1, std::min(h, 2048 / w));
+  const int tiles = (h + rows - 1) / rows;
+  const int threads = omp_get_max_threads();
+  const std::size_t wsize = static_cast<std::size_t>(ci) * co4;
+  // Per-thread partials: weight gradient, then bias gradient.
+  const std::size_t psize = wsize + co;
+  float* parts = grow(g_partials, psize * threads);
+  std::fill(parts, parts + psize * threads, 0.f);
+  Eigen::Map<const RowMat> wm(weight, ci, co4);
+#pragma omp parallel
+  {
+    float* part = parts + psize * omp_get_thread_num();
+    Eigen::Map<RowMat> dw(part, ci, co4);
+    float* db = part + wsize;
+#pragma omp for schedule(static)
+    for (int task = 0; task < n * tiles; ++task) {
+      const int img = task / tiles, y0 = (task % tiles) * rows, y1 = std::min(h, y0 + rows);
+      const int len = (y1 - y0) * w;
+      float* gy = grow(tl_col, static_cast<std::size_t>(len) * co4);
+      const float* src = d_out.image(img);
+      for (int o = 0; o < co; ++o) {
+        const float* plane = src + o * oplane;
+        float bsum = 0.f;
+        for (int iy = y0; iy < y1; ++iy)
+          for (int a = 0; a < 2; ++a) {
+            const float* row = plane + static_cast<std::size_t>(2 * iy + a) * out_w;
+            float* g0 = gy + static_cast<std::size_t>(o * 4 + a * 2 + 0) * len + (iy - y0) * w;
+            float* g1 = gy + static_cast<std::size_t>(o * 4 + a * 2 + 1) * len + (iy - y0) * w;
+            for (int ix = 0; ix < w; ++ix) {
+              g0[ix] = row[2 * ix];
+              g1[ix] = row[2 * ix + 1];
+              bsum += row[2 * ix] + row[2 * ix + 1];
+            }
+          }
+        db[o] += bsum;
+      }
+      CMat g(gy, len, co4, Eigen::OuterStride<>(len));                       // [len, Co 2 2]
+      CMat x(in.image(img) + y0 * w, len, ci, Eigen::OuterStride<>(hw));      // [len, Ci]
+      Mat dx(d_in.image(img) + y0 * w, len, ci, Eigen::OuterStride<>(hw));    // [len, Ci]
+      dx.noalias() = g * wm.transpose();
+      dw.noalias() += x.transpose() * g;
+    }
+  }
+#pragma omp parallel for schedule(static)
+  for (std::size_t e = 0; e < psize; ++e) {
+    float acc = 0.f;
+    for (int th = 0; th < threads; ++th) acc += parts[th * psize + e];
+    if (e < wsize) {
+      if (d_weight) d_weight[e] += acc;
+    } else if (d_bias) {
+      d_bias[e - wsize] += acc;
+    }
+  }
+  if (fault(testhook::Fault::conv_transpose_weight) && d_weight && wsize > 2) d_weight[2] = d_weight[1];
+  if (fault(testhook::Fault::conv_transpose_input) && d_in.numel() > 1) d_in.data()[d_in.numel() - 1] = d_in.data()[0];
+}
+
+void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const Tensor& in) {
+  check_finite_shape(in, "max_pool2x2_forward", "in");
+  const Shape s = in.shape();
+  const int ho = s.h / 2, wo = s.w / 2;
+  if (ho < 1 || wo < 1) throw Error("max_pool2x2_forward: in: expected at least 2 x 2, got " + s.str());
+  ensure(out, Shape{s.n, s.c, ho, wo});
+  if (argmax.size() != out.numel()) argmax.resize(out.numel());
+  const int planes = s.n * s.c;
+#pragma omp parallel for schedule(static)
+  for (int p = 0; p < planes; ++p) {
+    const float* src = in.data() + p * s.plane();
+    float* dst = out.data() + p * out.shape().plane();
+    std::int32_t* am = argmax.data() + p * out.shape().plane();
+    for (int y = 0; y < ho; ++y) {
+      const float* r0 = src + static_cast<std::size_t>(2 * y) * s.w;
+      const float* r1 = r0 + s.w;
+      for (int x = 0; x < wo; ++x) {
+        // Row order, first wins on ties (NaN never wins: comparisons with NaN are false).
+        int best = 2 * y * s.w + 2 * x;
+        float v = r0[2 * x];
+        if (r0[2 * x + 1] > v) v = r0[2 * x + 1], best = 2 * y * s.w + 2 * x + 1;
+        if (r1[2 * x] > v) v = r1[2 * x], best = (2 * y + 1) * s.w + 2 * x;
+        if (r1[2 * x + 1] > v) v = r1[2 * x + 1], best = (2 * y + 1) * s.w + 2 * x + 1;
+        dst[y * wo + x] = v;
+        am[y * wo + x] = best;
+      }
+    }
+  }
+}
+
+void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax,
+                          Shape in_shape, bool accumulate) {
+  const Shape so = d_out.shape();
+  if (argmax.size() != d_out.numel() || in_shape.n != so.n || in_shape.c != so.c || in_shape.h / 2 != so.h ||
+      in_shape.w / 2 != so.w)
+    throw Error("max_pool2x2_backward: d_out: shape " + so.str() + " does not match input " + in_shape.str());
+  if (accumulate) {
+    if (!(d_in.shape() == in_shape))
+      throw Error("max_pool2x2_backward: d_in: expected shape " + in_shape.str() + ", got " + d_in.shape().str());
+  } else {
+    ensure(d_in, in_shape);
+  }
+  const int planes = so.n * so.c;
+  const std::size_t ip = in_shape.plane(), op = so.plane();
+  const bool broken = fault(testhook::Fault::max_pool);
+#pragma omp parallel for schedule(static)
+  for (int p = 0; p < planes; ++p) {
+    float* dst = d_in.data() + p * ip;
+    if (!accumulate) std::fill(dst, dst + ip, 0.f);
+    const float* src = d_out.data() + p * op;
+    const std::int32_t* am = argmax.data() + p * op;
+    for (std::size_t i = 0; i < op; ++i) dst[am[i]] += src[i];
+    if (broken && p == 0 && op > 0) {  // route the first window's gradient to a neighbour
+      dst[am[0]] -= src[0];
+      dst[am[0] ^ 1] += src[0];
+    }
+  }
+}
+
+void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax) {
+  const Shape so = d_out.shape();
+  max_pool2x2_backward(d_in, d_out, argmax, Shape{so.n, so.c, 2 * so.h, 2 * so.w}, false);
+}
+
+void relu_forward(Tensor& out, const Tensor& in) {
+  ensure(out, in.shape());
+  const std::size_t n = in.numel();
+  const float* x = in.data();
+  float* y = out.data();
+#pragma omp parallel for simd schedule(static)
+  for (std::size_t i = 0; i < n; ++i) y[i] = std::max(x[i], 0.f);
+}
+
+void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out) {
+  if (!(d_out.shape() == out.shape()))
+    throw Error("relu_backward: d_out: expected shape " + out.shape().str() + ", got " + d_out.shape().str());
+  ensure(d_in, out.shape());
+  const std::size_t n = out.numel();
+  const float* d = d_out.data();
+  const float* y = out.data();
+  float* dx = d_in.data();
+#pragma omp parallel for simd schedule(static)
+  for (std::size_t i = 0; i < n; ++i) dx[i] = y[i] > 0.f ? d[i] : 0.f;
+  if (fault(testhook::Fault::relu) && n > 1) dx[1] = d[0];
+}
+
+void concat_forward(Tensor& out, const Tensor& a, const Tensor& b) {
+  const Shape sa = a.shape(), sb = b.shape();
+  if (sa.n != sb.n || sa.h != sb.h || sa.w != sb.w)
+    throw Error("concat_forward: b: shape " + sb.str() + " does not match a " + sa.str());
+  ensure(out, Shape{sa.n, sa.c + sb.c, sa.h, sa.w});
+  for (int i = 0; i < sa.n; ++i) {
+    std::copy(a.image(i), a.image(i) + sa.image(), out.image(i));
+    std::copy(b.image(i), b.image(i) + sb.image(), out.image(i) + sa.image());
+  }
+}
+
+void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool accumulate_a) {
+  const Shape s = d_out.shape();
+  if (ca < 0 || ca > s.c) throw Error("concat_backward: ca: " + std::to_string(ca) + " outside " + s.str());
+  const Shape sa{s.n, ca, s.h, s.w}, sb{s.n, s.c - ca, s.h, s.w};
+  if (accumulate_a) {
+    if (!(d_a.shape() == sa))
+      throw Error("concat_backward: d_a: expected shape " + sa.str() + ", got " + d_a.shape().str());
+  } else {
+    ensure(d_a, sa);
+  }
+  ensure(d_b, sb);
+  for (int i = 0; i < s.n; ++i) {
+    const float* src = d_out.image(i);
+    if (accumulate_a)
+      d_a.vec().segment(static_cast<Eigen::Index>(i * sa.image()), static_cast<Eigen::Index>(sa.image())) +=
+          Eigen::Map<const Eigen::VectorXf>(src, static_cast<Eigen::Index>(sa.image()));
+    else
+      std::copy(src, src + sa.image(), d_a.image(i));
+    std::copy(src + sa.image(), src + s.image(), d_b.image(i));
+  }
+  if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
+}
+
+void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out) {
+  concat_backward(d_a, d_b, d_out, d_a.shape().c, false);
+}
+
+}  // namespace lidarsim::nn

@@ -1,0 +1,73 @@
+#include "nn/loss.h"
+
+#include <cmath>
+#include <vector>
+
+#include "common/error.h"
+
+namespace lidarsim::nn {
+
+LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred) {
+  if (!(pred.shape() == target.shape()))
+    throw Error("masked_mse: target: expected shape " + pred.shape().str() + ", got " + target.shape().str());
+  if (!(pred.shape() == mask.shape()))
+    throw Error("masked_mse: mask: expected shape " + pred.shape().str() + ", got " + mask.shape().str());
+  const std::size_t n = pred.numel();
+  const float* p = pred.data();
+  const float* t = target.data();
+  const float* m = mask.data();
+  // Serial in double: cheap next to the network, and the same sum for every thread count.
+  double sum = 0;
+  long valid = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(m[i])) throw Error("masked_mse: mask: non-finite value at flat index " + std::to_string(i));
+    if (m[i] == 0.f) continue;
+    if (!std::isfinite(t[i]))
+      throw Error("masked_mse: target: non-finite value at flat index " + std::to_string(i));
+    if (!std::isfinite(p[i]))
+      throw Error("masked_mse: pred: non-finite value at flat index " + std::to_string(i) +
+                  " (training diverged?)");
+    const double d = static_cast<double>(p[i]) - t[i];
+    sum += m[i] * d * d;
+    ++valid;
+  }
+  const double denom = valid > 0 ? static_cast<double>(valid) : 1.0;
+  if (d_pred) {
+    if (!(d_pred->shape() == pred.shape())) d_pred->resize(pred.shape());
+    float* g = d_pred->data();
+    const float scale = static_cast<float>(2.0 / denom);
+    for (std::size_t i = 0; i < n; ++i) g[i] = m[i] == 0.f ? 0.f : scale * m[i] * (p[i] - t[i]);
+  }
+  LossParts parts;
+  parts.data = sum / denom;
+  parts.valid = valid;
+  return parts;
+}
+
+double l2_penalty(ParamArena& params, float lambda, bool grads) {
+  if (!std::isfinite(lambda) || lambda < 0)
+    throw Error("l2_penalty: lambda: expected a finite value >= 0, got " + std::to_string(lambda));
+  if (lambda == 0.f) return 0.0;
+  // Per-parameter sums in double, added in registration order: independent of thread count.
+  const auto& infos = params.infos();
+  std::vector<double> partial(infos.size(), 0.0);
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    if (!infos[i].decays) continue;
+    const float* w = params.values() + infos[i].offset;
+    float* g = params.grads() + infos[i].offset;
+    const std::size_t n = infos[i].shape.numel();
+    double s = 0;
+    for (std::size_t j = 0; j < n; ++j) s += static_cast<double>(w[j]) * w[j];
+    partial[i] = s;
+    if (grads) {
+      const float two_lambda = 2.f * lambda;
+      for (std::size_t j = 0; j < n; ++j) g[j] += two_lambda * w[j];
+    }
+  }
+  double total = 0;
+  for (double s : partial) total += s;
+  return lambda * total;
+}
+
+}  // namespace lidarsim::nn

@@ -1,0 +1,78 @@
+#include "nn/optim.h"
+
+#include <cmath>
+
+#include "common/error.h"
+
+namespace lidarsim::nn {
+
+Optimizer::Optimizer(const OptimizerConfig& config, std::size_t num_params) : config_(config) {
+  if (config_.kind != "adam" && config_.kind != "sgd")
+    throw Error("optimizer: kind: expected \"adam\" or \"sgd\", got \"" + config_.kind + "\"");
+  if (!std::isfinite(config_.lr) || config_.lr <= 0)
+    throw Error("optimizer: lr: expected a finite value > 0, got " + std::to_string(config_.lr));
+  m_.assign(num_params, 0.f);
+  v_.assign(num_params, 0.f);  // unused by SGD; kept so checkpoints have one layout
+}
+
+void Optimizer::step(ParamArena& params) {
+  const std::size_t n = params.size();
+  if (m_.size() != n)
+    throw Error("optimizer: state: expected " + std::to_string(n) + " values, got " + std::to_string(m_.size()));
+  float* p = params.values();
+  float* g = params.grads();
+  ++steps_;
+
+  if (config_.clip_norm > 0) {
+    // Global L2 norm in double over fixed chunks summed in order: the same for any thread count.
+    constexpr std::size_t kChunk = 1 << 14;
+    const std::size_t chunks = (n + kChunk - 1) / kChunk;
+    std::vector<double> partial(chunks, 0.0);
+#pragma omp parallel for schedule(static)
+    for (std::size_t c = 0; c < chunks; ++c) {
+      double s = 0;
+      for (std::size_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) s += double(g[i]) * g[i];
+      partial[c] = s;
+    }
+    double total = 0;
+    for (double s : partial) total += s;
+    const double norm = std::sqrt(total);
+    // torch.nn.utils.clip_grad_norm_: scale by max_norm / (norm + 1e-6) when that is < 1.
+    const double coef = config_.clip_norm / (norm + 1e-6);
+    if (coef < 1.0) {
+      const float c = static_cast<float>(coef);
+#pragma omp parallel for simd schedule(static)
+      for (std::size_t i = 0; i < n; ++i) g[i] *= c;
+    }
+  }
+
+  float* m = m_.data();
+  if (config_.kind == "sgd") {
+    // torch.optim.SGD, dampening 0, no Nesterov: buf = momentum buf + g (buf = g at step 1).
+    const float mu = config_.momentum, lr = config_.lr;
+#pragma omp parallel for simd schedule(static)
+    for (std::size_t i = 0; i < n; ++i) {
+      m[i] = mu * m[i] + g[i];
+      p[i] -= lr * m[i];
+    }
+    return;
+  }
+  // torch.optim.Adam (single-tensor path): scalars in double, tensor math in float.
+  float* v = v_.data();
+  const double t = static_cast<double>(steps_);
+  const double bc1 = 1.0 - std::pow(static_cast<double>(config_.beta1), t);
+  const double bc2 = 1.0 - std::pow(static_cast<double>(config_.beta2), t);
+  const float step_size = static_cast<float>(config_.lr / bc1);
+  const float bc2_sqrt = static_cast<float>(std::sqrt(bc2));
+  const float b1 = config_.beta1, b2 = config_.beta2, eps = config_.eps;
+  const float one_b1 = 1.f - b1, one_b2 = 1.f - b2;
+#pragma omp parallel for simd schedule(static)
+  for (std::size_t i = 0; i < n; ++i) {
+    m[i] = b1 * m[i] + one_b1 * g[i];
+    v[i] = b2 * v[i] + one_b2 * g[i] * g[i];
+    const float denom = std::sqrt(v[i]) / bc2_sqrt + eps;
+    p[i] -= step_size * (m[i] / denom);
+  }
+}
+
+}  // namespace lidarsim::nn

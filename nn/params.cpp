@@ -1,0 +1,34 @@
+#include "nn/params.h"
+
+#include <algorithm>
+
+#include "common/error.h"
+
+namespace lidarsim::nn {
+
+int ParamArena::add(const std::string& name, Shape shape, bool decays) {
+  if (finalized_) throw Error("ParamArena: " + name + ": cannot add a parameter after finalize()");
+  if (find(name) >= 0) throw Error("ParamArena: " + name + ": parameter registered twice");
+  if (shape.numel() == 0) throw Error("ParamArena: " + name + ": empty shape " + shape.str());
+  // Contiguous, no padding: offsets are the running sum of sizes, so the arena is exactly the
+  // concatenation of all parameters in registration order.
+  infos_.push_back(ParamInfo{name, shape, decays, total_});
+  total_ += shape.numel();
+  return static_cast<int>(infos_.size()) - 1;
+}
+
+void ParamArena::finalize() {
+  values_.resize(Shape{1, 1, 1, static_cast<int>(total_)});
+  grads_.resize(Shape{1, 1, 1, static_cast<int>(total_)});
+  finalized_ = true;
+}
+
+int ParamArena::find(const std::string& name) const {
+  for (std::size_t i = 0; i < infos_.size(); ++i)
+    if (infos_[i].name == name) return static_cast<int>(i);
+  return -1;
+}
+
+void ParamArena::zero_grads() { grads_.zero(); }
+
+}  // namespace lidarsim::nn

@@ -1,0 +1,224 @@
+#include "nn/unet.h"
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "common/error.h"
+#include "nn/layers.h"
+
+namespace lidarsim::nn {
+
+namespace {
+
+int channels(const UNetConfig& c, int level) { return c.base << level; }
+
+// Ids of one conv's parameters in the arena.
+struct ConvIds {
+  int w = -1, b = -1;
+};
+
+}  // namespace
+
+struct UNet::Workspace {
+  struct Level {
+    int h = 0, w = 0;
+    // Encoder: a1 [N, c, h, w] = relu(conv1), a2 [N, c, h, w] = relu(conv2) (the skip);
+    // pool [N, c, h/2, w/2] with argmax (levels < depth).
+    Tensor a1, a2, pool;
+    std::vector<std::int32_t> argmax;
+    // Decoder (levels < depth): up [N, c, h, w] (padded transposed conv of the level below),
+    // cat [N, 2c, h, w] = [skip, up], d1, d2 [N, c, h, w].
+    Tensor up, cat, d1, d2;
+    // Gradients of the tensors above, same shapes.
+    Tensor g_a1, g_a2, g_pool, g_up, g_cat, g_d1, g_d2;
+  };
+  std::vector<Level> levels;
+  Tensor x;  // [N, in, H, W] copy of the last forward's input (enc0.conv1's weight gradient)
+  Tensor y;  // [N, out, H, W] the last forward's output
+  bool have_forward = false;
+  std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
+  ConvIds head;
+};
+
+UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Workspace>()) {
+  const auto bad = [](const std::string& field, int v, const std::string& expected) {
+    return Error("UNet config: " + field + ": expected " + expected + ", got " + std::to_string(v));
+  };
+  if (config.in_channels < 1) throw bad("in_channels", config.in_channels, ">= 1");
+  if (config.out_channels < 1) throw bad("out_channels", config.out_channels, ">= 1");
+  if (config.base < 1) throw bad("base", config.base, ">= 1");
+  if (config.depth < 0 || config.depth > 10) throw bad("depth", config.depth, "0..10");
+
+  auto conv = [&](const std::string& name, int out, int in, int k) {
+    ConvIds ids;
+    ids.w = params_.add(name + "/weight", Shape{out, in, k, k}, true);
+    ids.b = params_.add(name + "/bias", Shape{out, 1, 1, 1}, false);
+    return ids;
+  };
+  Workspace& ws = *ws_;
+  ws.levels.resize(static_cast<std::size_t>(config.depth) + 1);
+  for (int l = 0; l <= config.depth; ++l) {
+    const int c = channels(config, l), cin = l == 0 ? config.in_channels : channels(config, l - 1);
+    ws.enc1.push_back(conv("enc" + std::to_string(l) + ".conv1", c, cin, 3));
+    ws.enc2.push_back(conv("enc" + std::to_string(l) + ".conv2", c, c, 3));
+  }
+  ws.up.resize(static_cast<std::size_t>(config.depth));
+  ws.dec1.resize(static_cast<std::size_t>(config.depth));
+  ws.dec2.resize(static_cast<std::size_t>(config.depth));
+  for (int l = config.depth - 1; l >= 0; --l) {
+    const int c = channels(config, l);
+    const std::string p = "dec" + std::to_string(l);
+    ConvIds up;
+    up.w = params_.add(p + ".up/weight", Shape{2 * c, c, 2, 2}, true);  // [in, out, 2, 2]
+    up.b = params_.add(p + ".up/bias", Shape{c, 1, 1, 1}, false);
+    ws.up[l] = up;
+    ws.dec1[l] = conv(p + ".conv1", c, 2 * c, 3);
+    ws.dec2[l] = conv(p + ".conv2", c, c, 3);
+  }
+  ws.head = conv("head", config.out_channels, channels(config, 0), 1);
+  params_.finalize();
+}
+
+UNet::~UNet() = default;
+UNet::UNet(UNet&&) noexcept = default;
+UNet& UNet::operator=(UNet&&) noexcept = default;
+
+void UNet::init(std::uint64_t seed) {
+  // He-normal from std::mt19937_64 through our own Box-Muller, so the weights do not depend on
+  // the standard library's distribution code. Transposed convs: each output sums `in` terms.
+  std::mt19937_64 rng(seed);
+  const auto uniform = [&rng]() { return static_cast<double>(rng() >> 11) * 0x1.0p-53; };  // [0, 1)
+  for (const ParamInfo& p : params_.infos()) {
+    float* v = params_.values() + p.offset;
+    const std::size_t n = p.shape.numel();
+    if (!p.decays) {
+      std::fill(v, v + n, 0.f);
+      continue;
+    }
+    const bool transposed = p.name.find(".up/") != std::string::npos;
+    const double fan_in = transposed ? p.shape.n : static_cast<double>(p.shape.c) * p.shape.h * p.shape.w;
+    const double stddev = std::sqrt(2.0 / fan_in);
+    for (std::size_t i = 0; i < n; i += 2) {
+      const double u1 = 1.0 - uniform();  // (0, 1]: log stays finite
+      const double u2 = uniform();
+      const double r = std::sqrt(-2.0 * std::log(u1));
+      v[i] = static_cast<float>(stddev * r * std::cos(2.0 * M_PI * u2));
+      if (i + 1 < n) v[i + 1] = static_cast<float>(stddev * r * std::sin(2.0 * M_PI * u2));
+    }
+  }
+  params_.zero_grads();
+}
+
+void UNet::forward(const Tensor& x, Tensor& y) {
+  const Shape s = x.shape();
+  const int min_size = 1 << config_.depth;
+  if (s.c != config_.in_channels)
+    throw Error("UNet forward: input: expected " + std::to_string(config_.in_channels) + " channels, got shape " +
+                s.str());
+  if (s.n < 1 || s.h < min_size || s.w < min_size)
+    throw Error("UNet forward: input: expected N >= 1 and H, W >= " + std::to_string(min_size) + " (2^depth), got " +
+                s.str());
+  for (std::size_t i = 0; i < x.numel(); ++i)
+    if (!std::isfinite(x.data()[i]))
+      throw Error("UNet forward: input: non-finite value at flat index " + std::to_string(i));
+
+  Workspace& ws = *ws_;
+  ws.x = x;
+  const float* pv = params_.values();
+  const auto W = [&](int id) { return pv + params_.info(id).offset; };
+  const int depth = config_.depth;
+  const Tensor* cur = &ws.x;
+  for (int l = 0; l <= depth; ++l) {
+    auto& L = ws.levels[l];
+    if (l > 0) {
+      auto& P = ws.levels[l - 1];
+      max_pool2x2_forward(P.pool, P.argmax, P.a2);
+      cur = &P.pool;
+    }
+    L.h = cur->shape().h;
+    L.w = cur->shape().w;
+    const int c = channels(config_, l);
+    conv2d_forward(L.a1, *cur, W(ws.enc1[l].w), W(ws.enc1[l].b), c, 3, 1, true);
+    conv2d_forward(L.a2, L.a1, W(ws.enc2[l].w), W(ws.enc2[l].b), c, 3, 1, true);
+  }
+  const Tensor* below = &ws.levels[depth].a2;
+  for (int l = depth - 1; l >= 0; --l) {
+    auto& L = ws.levels[l];
+    const int c = channels(config_, l);
+    conv_transpose2x2_forward(L.up, *below, W(ws.up[l].w), W(ws.up[l].b), c, L.h, L.w);
+    concat_forward(L.cat, L.a2, L.up);
+    conv2d_forward(L.d1, L.cat, W(ws.dec1[l].w), W(ws.dec1[l].b), c, 3, 1, true);
+    conv2d_forward(L.d2, L.d1, W(ws.dec2[l].w), W(ws.dec2[l].b), c, 3, 1, true);
+    below = &L.d2;
+  }
+  conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+  ws.have_forward = true;
+}
+
+void UNet::predict(const Tensor& x, Tensor& y) {
+  // The graph keeps every activation anyway (they are reused buffers), so inference is forward().
+  forward(x, y);
+}
+
+void UNet::backward(const Tensor& dy) {
+  Workspace& ws = *ws_;
+  if (!ws.have_forward) throw Error("UNet backward: called before forward()");
+  const int depth = config_.depth;
+  const Shape expect{ws.x.shape().n, config_.out_channels, ws.x.shape().h, ws.x.shape().w};
+  if (!(dy.shape() == expect))
+    throw Error("UNet backward: dy: expected shape " + expect.str() + ", got " + dy.shape().str());
+  const float* pv = params_.values();
+  float* pg = params_.grads();
+  const auto W = [&](int id) { return pv + params_.info(id).offset; };
+  const auto G = [&](int id) { return pg + params_.info(id).offset; };
+
+  // Head (1x1, no activation): its "out" is unused without ReLU.
+  {
+    const Tensor& top = depth > 0 ? ws.levels[0].d2 : ws.levels[0].a2;
+    Tensor& g_top = depth > 0 ? ws.levels[0].g_d2 : ws.levels[0].g_a2;
+    conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), dy, dy, top, W(ws.head.w), 1, 0, false);
+  }
+  for (int l = 0; l < depth; ++l) {
+    auto& L = ws.levels[l];
+    auto& B = ws.levels[l + 1];
+    const int c = channels(config_, l);
+    conv2d_backward(&L.g_d1, G(ws.dec2[l].w), G(ws.dec2[l].b), L.g_d2, L.d2, L.d1, W(ws.dec2[l].w), 3, 1, true);
+    conv2d_backward(&L.g_cat, G(ws.dec1[l].w), G(ws.dec1[l].b), L.g_d1, L.d1, L.cat, W(ws.dec1[l].w), 3, 1, true);
+    concat_backward(L.g_a2, L.g_up, L.g_cat, c, false);
+    const bool bottom = l + 1 == depth;
+    conv_transpose2x2_backward(bottom ? B.g_a2 : B.g_d2, G(ws.up[l].w), G(ws.up[l].b), L.g_up,
+                               bottom ? B.a2 : B.d2, W(ws.up[l].w));
+  }
+  for (int l = depth; l >= 0; --l) {
+    auto& L = ws.levels[l];
+    conv2d_backward(&L.g_a1, G(ws.enc2[l].w), G(ws.enc2[l].b), L.g_a2, L.a2, L.a1, W(ws.enc2[l].w), 3, 1, true);
+    if (l > 0) {
+      auto& P = ws.levels[l - 1];
+      conv2d_backward(&P.g_pool, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, P.pool, W(ws.enc1[l].w), 3, 1,
+                      true);
+      max_pool2x2_backward(P.g_a2, P.g_pool, P.argmax, P.a2.shape(), true);
+    } else {
+      conv2d_backward(nullptr, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, ws.x, W(ws.enc1[l].w), 3, 1, true);
+    }
+  }
+}
+
+double UNet::forward_flops(int n, int h, int w) const {
+  double macs = 0;
+  std::vector<double> hw;
+  for (int l = 0, hh = h, ww = w; l <= config_.depth; ++l, hh /= 2, ww /= 2) hw.push_back(double(hh) * ww);
+  for (int l = 0; l <= config_.depth; ++l) {
+    const double c = channels(config_, l), cin = l == 0 ? config_.in_channels : channels(config_, l - 1);
+    macs += (cin * c + c * c) * 9 * hw[l];
+  }
+  for (int l = 0; l < config_.depth; ++l) {
+    const double c = channels(config_, l);
+    macs += 2 * c * c * 4 * hw[l + 1];      // transposed conv
+    macs += (2 * c * c + c * c) * 9 * hw[l];  // conv1, conv2
+  }
+  macs += double(channels(config_, 0)) * config_.out_channels * hw[0];
+  return 2.0 * macs * n;
+}
+
+}  // namespace lidarsim::nn

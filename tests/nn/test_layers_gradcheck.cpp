@@ -1,0 +1,222 @@
+// Finite-difference gradient checks for every layer op: our float backward against central
+// differences (eps 1e-6) of an independent double-precision reference forward. The scalar is
+// L = sum(out * R) with a fixed random R, so d_out = R. Error = max |analytic - numeric| /
+// max |numeric| over all entries; tolerance kTol = 1e-4 (measured errors are ~1e-7..1e-6).
+// The Fault* tests turn on a test-only hook that puts one gradient value at a wrong index and
+// assert the same check then reports an error above kFaultMin: the check can fail.
+#include <gtest/gtest.h>
+
+#include "nn/layers.h"
+#include "reference.h"
+
+namespace lidarsim::nn {
+namespace {
+
+using namespace reference;
+
+constexpr double kTol = 1e-4;
+constexpr double kFaultMin = 1e-2;  // 100x the tolerance
+
+struct FaultGuard {
+  explicit FaultGuard(testhook::Fault f) { testhook::fault = f; }
+  ~FaultGuard() { testhook::fault = testhook::Fault::none; }
+};
+
+std::vector<double> to_double(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+std::vector<double> to_double(const Tensor& t) { return {t.begin(), t.end()}; }
+
+struct Errors {
+  double forward = 0, d_in = 0, d_weight = 0, d_bias = 0;
+  double worst_backward() const { return std::max({d_in, d_weight, d_bias}); }
+};
+
+struct ConvCase {
+  int n, ci, h, w, co, k, pad;
+  bool relu;
+};
+
+Errors check_conv2d(const ConvCase& c) {
+  const Tensor x = random_tensor(Shape{c.n, c.ci, c.h, c.w}, 1);
+  const std::vector<float> w = random_vector(std::size_t(c.co) * c.ci * c.k * c.k, 2, 0.5f);
+  const std::vector<float> b = random_vector(std::size_t(c.co), 3, 0.3f);
+  Tensor y;
+  conv2d_forward(y, x, w.data(), b.data(), c.co, c.k, c.pad, c.relu);
+  const Tensor r = random_tensor(y.shape(), 4);
+  const std::vector<double> rd = to_double(r);
+  Tensor d_in;
+  std::vector<float> dw(w.size(), 0.f), db(b.size(), 0.f);
+  conv2d_backward(&d_in, dw.data(), db.data(), r, y, x, w.data(), c.k, c.pad, c.relu);
+
+  DT xd = from(x);
+  std::vector<double> wd = to_double(w), bd = to_double(b);
+  auto f = [&] { return dot(conv2d(xd, wd, bd, c.co, c.k, c.pad, c.relu), rd); };
+  Errors e;
+  e.forward = max_rel_error(y.data(), conv2d(xd, wd, bd, c.co, c.k, c.pad, c.relu).v);
+  e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
+  e.d_weight = max_rel_error(dw.data(), numeric_gradient(wd, f));
+  e.d_bias = max_rel_error(db.data(), numeric_gradient(bd, f));
+  return e;
+}
+
+TEST(Conv2dGradCheck, EveryKernelPaddingAndReluMatchesFiniteDifferences) {
+  const ConvCase cases[] = {
+      {2, 3, 7, 9, 4, 3, 1, true},   // the UNet's conv, odd sizes
+      {2, 3, 5, 11, 5, 3, 1, false},
+      {2, 4, 7, 9, 3, 1, 0, false},  // 1x1 head
+      {2, 2, 6, 7, 3, 5, 2, true},   // 5x5
+      {2, 2, 7, 9, 3, 3, 0, false},  // valid conv, shrinks the map
+      {1, 3, 9, 5, 2, 3, 2, false},  // more padding than k/2: grows the map
+  };
+  for (const ConvCase& c : cases) {
+    SCOPED_TRACE("k " + std::to_string(c.k) + " pad " + std::to_string(c.pad) + " relu " + std::to_string(c.relu) +
+                 " input " + std::to_string(c.h) + "x" + std::to_string(c.w));
+    const Errors e = check_conv2d(c);
+    EXPECT_LT(e.forward, 1e-5);
+    EXPECT_LT(e.d_in, kTol);
+    EXPECT_LT(e.d_weight, kTol);
+    EXPECT_LT(e.d_bias, kTol);
+  }
+}
+
+Errors check_conv_transpose(int out_h, int out_w) {
+  const int n = 2, ci = 3, h = 3, w = 4, co = 2;
+  const Tensor x = random_tensor(Shape{n, ci, h, w}, 11);
+  const std::vector<float> wt = random_vector(std::size_t(ci) * co * 4, 12, 0.5f);
+  const std::vector<float> b = random_vector(std::size_t(co), 13, 0.3f);
+  Tensor y;
+  conv_transpose2x2_forward(y, x, wt.data(), b.data(), co, out_h, out_w);
+  const Tensor r = random_tensor(y.shape(), 14);
+  Tensor d_in;
+  std::vector<float> dw(wt.size(), 0.f), db(b.size(), 0.f);
+  conv_transpose2x2_backward(d_in, dw.data(), db.data(), r, x, wt.data());
+
+  DT xd = from(x);
+  std::vector<double> wd = to_double(wt), bd = to_double(b);
+  const std::vector<double> rd = to_double(r);
+  auto f = [&] { return dot(conv_transpose2x2(xd, wd, bd, co, out_h, out_w), rd); };
+  Errors e;
+  e.forward = max_rel_error(y.data(), conv_transpose2x2(xd, wd, bd, co, out_h, out_w).v);
+  e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
+  e.d_weight = max_rel_error(dw.data(), numeric_gradient(wd, f));
+  e.d_bias = max_rel_error(db.data(), numeric_gradient(bd, f));
+  return e;
+}
+
+TEST(ConvTransposeGradCheck, ExactAndZeroPaddedOutputsMatchFiniteDifferences) {
+  for (auto [oh, ow] : {std::pair{6, 8}, std::pair{7, 9}}) {
+    SCOPED_TRACE("output " + std::to_string(oh) + "x" + std::to_string(ow));
+    const Errors e = check_conv_transpose(oh, ow);
+    EXPECT_LT(e.forward, 1e-5);
+    EXPECT_LT(e.worst_backward(), kTol);
+  }
+}
+
+TEST(ConvTranspose, PaddedRowsAndColumnsAreZeroWithoutBias) {
+  const Tensor x = random_tensor(Shape{1, 2, 2, 3}, 5);
+  const std::vector<float> w = random_vector(2 * 3 * 4, 6), b{1.f, 2.f, 3.f};
+  Tensor y;
+  conv_transpose2x2_forward(y, x, w.data(), b.data(), 3, 5, 7);
+  for (int c = 0; c < 3; ++c) {
+    for (int xx = 0; xx < 7; ++xx) EXPECT_EQ(y.at(0, c, 4, xx), 0.f);
+    for (int yy = 0; yy < 5; ++yy) EXPECT_EQ(y.at(0, c, yy, 6), 0.f);
+  }
+}
+
+double check_max_pool(int h, int w) {
+  const Tensor x = random_tensor(Shape{2, 3, h, w}, 21);
+  Tensor y;
+  std::vector<std::int32_t> am;
+  max_pool2x2_forward(y, am, x);
+  const Tensor r = random_tensor(y.shape(), 22);
+  Tensor d_in;
+  max_pool2x2_backward(d_in, r, am, x.shape());
+  DT xd = from(x);
+  const std::vector<double> rd = to_double(r);
+  EXPECT_LT(max_rel_error(y.data(), max_pool2x2(xd).v), 1e-7);
+  return max_rel_error(d_in.data(), numeric_gradient(xd.v, [&] { return dot(max_pool2x2(xd), rd); }));
+}
+
+TEST(MaxPoolGradCheck, EvenAndOddInputsMatchFiniteDifferences) {
+  EXPECT_LT(check_max_pool(6, 8), kTol);
+  EXPECT_LT(check_max_pool(7, 9), kTol);  // the last row/column is dropped (floor)
+}
+
+TEST(MaxPool, ArgmaxIsTheFlatIndexOfTheMaximumInTheInputPlane) {
+  Tensor x(1, 1, 2, 4);
+  const float v[] = {1, 5, 2, 0, 3, 4, 9, 1};
+  std::copy(v, v + 8, x.begin());
+  Tensor y;
+  std::vector<std::int32_t> am;
+  max_pool2x2_forward(y, am, x);
+  EXPECT_EQ(y.at(0, 0, 0, 0), 5.f);
+  EXPECT_EQ(y.at(0, 0, 0, 1), 9.f);
+  EXPECT_EQ(am, (std::vector<std::int32_t>{1, 6}));
+}
+
+double check_relu() {
+  const Tensor x = random_tensor(Shape{2, 3, 5, 7}, 31);
+  Tensor y, d_in;
+  relu_forward(y, x);
+  const Tensor r = random_tensor(y.shape(), 32);
+  relu_backward(d_in, r, y);
+  DT xd = from(x);
+  const std::vector<double> rd = to_double(r);
+  return max_rel_error(d_in.data(), numeric_gradient(xd.v, [&] { return dot(relu(xd), rd); }));
+}
+
+TEST(ReluGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_relu(), kTol); }
+
+double check_concat() {
+  const Tensor a = random_tensor(Shape{2, 2, 3, 5}, 41), b = random_tensor(Shape{2, 3, 3, 5}, 42);
+  Tensor y;
+  concat_forward(y, a, b);
+  const Tensor r = random_tensor(y.shape(), 43);
+  Tensor da(a.shape()), db;
+  concat_backward(da, db, r);
+  DT ad = from(a), bd = from(b);
+  const std::vector<double> rd = to_double(r);
+  auto f = [&] { return dot(concat(ad, bd), rd); };
+  EXPECT_LT(max_rel_error(y.data(), concat(ad, bd).v), 1e-7);
+  return std::max(max_rel_error(da.data(), numeric_gradient(ad.v, f)),
+                  max_rel_error(db.data(), numeric_gradient(bd.v, f)));
+}
+
+TEST(ConcatGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_concat(), kTol); }
+
+// --- The checks can fail: each fault puts one value at a wrong index. ---
+
+TEST(GradCheckCatchesFaults, WrongIndexInConv2dInputGradient) {
+  FaultGuard g(testhook::Fault::conv2d_input);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_in, kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInConv2dWeightGradient) {
+  FaultGuard g(testhook::Fault::conv2d_weight);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_weight, kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInConv2dBiasGradient) {
+  FaultGuard g(testhook::Fault::conv2d_bias);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_bias, kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInConvTransposeGradients) {
+  {
+    FaultGuard g(testhook::Fault::conv_transpose_input);
+    EXPECT_GT(check_conv_transpose(7, 9).d_in, kFaultMin);
+  }
+  FaultGuard g(testhook::Fault::conv_transpose_weight);
+  EXPECT_GT(check_conv_transpose(7, 9).d_weight, kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInMaxPoolGradient) {
+  FaultGuard g(testhook::Fault::max_pool);
+  EXPECT_GT(check_max_pool(6, 8), kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInReluGradient) {
+  FaultGuard g(testhook::Fault::relu);
+  EXPECT_GT(check_relu(), kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInConcatGradient) {
+  FaultGuard g(testhook::Fault::concat);
+  EXPECT_GT(check_concat(), kFaultMin);
+}
+
+}  // namespace
+}  // namespace lidarsim::nn
