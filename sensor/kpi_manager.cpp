@@ -1,0 +1,174 @@
+#include "sensor/kpi_manager.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "common/error.h"
+
+namespace lidarsim::sensor {
+
+KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
+    : model_(std::move(model)), options_(options), rng_(seed) {
+  model_.validate();
+  class_slot_.fill(-1);
+  for (int k = 0; k < 8; ++k) {
+    const ClassModel* m = model_.find(static_cast<ObjectClass>(k));
+    if (!m) continue;
+    const auto it = std::find(class_models_.begin(), class_models_.end(), m);
+    class_slot_[k] = static_cast<int>(it - class_models_.begin());
+    if (it == class_models_.end()) class_models_.push_back(m);
+  }
+  controllers_.assign(class_models_.size() * kNumKpiParams, RunningTargetController(model_.controller));
+}
+
+const RunningTargetController& KpiManager::controller(ObjectClass cls, KpiParam p) const {
+  const int slot = class_slot_[static_cast<int>(cls)];
+  if (slot < 0) throw Error(std::string("kpi manager: no model for class ") + kpi_class_name(cls));
+  return controllers_[slot * kNumKpiParams + static_cast<int>(p)];
+}
+
+KpiManager::TrackState& KpiManager::state_for(int id) {
+  const auto it = slot_of_id_.find(id);
+  if (it != slot_of_id_.end()) return states_[it->second];
+  int slot;
+  if (!free_states_.empty()) {
+    slot = free_states_.back();
+    free_states_.pop_back();
+    states_[slot] = TrackState{};
+  } else {
+    slot = static_cast<int>(states_.size());
+    states_.emplace_back();
+  }
+  slot_of_id_.emplace(id, slot);
+  return states_[slot];
+}
+
+void KpiManager::forget_stale() {
+  for (auto it = slot_of_id_.begin(); it != slot_of_id_.end();) {
+    if (frame_ - states_[it->second].last_frame > options_.forget_after_frames) {
+      free_states_.push_back(it->second);
+      it = slot_of_id_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+}
+
+double KpiManager::sample_quantiles(const std::vector<double>& q, double fallback) {
+  if (q.size() < 2) return fallback;
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double x = u(rng_) * static_cast<double>(q.size() - 1);
+  const size_t i = std::min(static_cast<size_t>(x), q.size() - 2);
+  const double f = x - static_cast<double>(i);
+  return q[i] + f * (q[i + 1] - q[i]);
+}
+
+namespace {
+double wrap_angle(double a) {
+  constexpr double pi = std::numbers::pi;
+  a = std::fmod(a + pi, 2 * pi);
+  if (a < 0) a += 2 * pi;
+  return a - pi;
+}
+}  // namespace
+
+void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& reported) {
+  ++frame_;
+  reported.clear();
+  injections_.resize(truth.size());
+  std::normal_distribution<double> normal(0.0, 1.0);
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const Object& o = truth[i];
+    KpiInjection& inj = injections_[i];
+    inj = KpiInjection{};
+    inj.id = o.id;
+    inj.truth_index = static_cast<int>(i);
+    const int slot = class_slot_[static_cast<int>(o.cls)];
+    if (slot < 0) {  // no model for this class: reported as it is
+      reported.push_back(o);
+      continue;
+    }
+    if (!o.position.allFinite())
+      throw Error("kpi manager: object " + std::to_string(o.id) + ": position: must be finite");
+    const ClassModel& cm = *class_models_[slot];
+    inj.modelled = true;
+    const Eigen::Vector2d bev = o.position.head<2>();
+    const double range = bev.norm();
+    const int rb = model_.range_bin(range), vb = model_.visibility_bin(o.visible_fraction);
+    inj.range_bin = rb;
+    inj.visibility_bin = vb;
+
+    TrackState& st = state_for(o.id);
+    const bool fresh = st.last_frame < 0;
+    const int gap = fresh ? 1 : static_cast<int>(std::min<long>(frame_ - st.last_frame, 1000));
+    st.last_frame = frame_;
+    if (gap == 0) throw Error("kpi manager: object id " + std::to_string(o.id) + " appears twice in one frame");
+
+    // Errors: advance every parameter's AR(1) state, even when the object will be missed.
+    for (int p = 0; p < kNumKpiParams; ++p) {
+      const ErrorModel& em = cm.errors[p];
+      const double eps = sample_innovation(em.innovation, rng_);
+      if (fresh) {
+        st.z[p] = eps;  // stationary start
+        st.c[p] = normal(rng_);
+      } else {
+        st.z[p] = ar1_step(st.z[p], em.ar1, gap, eps);
+      }
+      const double z = controllers_[slot * kNumKpiParams + p].apply(st.z[p]);
+      inj.error[p] = options_.noise
+                         ? em.mean[rb] + em.sigma[rb] * em.visibility_std_scale[vb] * z + em.track_std * st.c[p]
+                         : 0.0;
+    }
+    const double pd = cm.detection_probability[rb][vb];
+    const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, rng_);
+    const bool flipped = st.flip.step(cm.heading_flip_probability, cm.flip_burst_mean, rng_);
+    inj.detected = !(options_.misses && missed);
+    inj.flipped = options_.flips && flipped;
+    if (!inj.detected) continue;
+
+    Object r = o;
+    const Eigen::Vector2d u = range > 1e-6 ? Eigen::Vector2d(bev / range) : Eigen::Vector2d(1, 0);
+    const Eigen::Vector2d left(-u.y(), u.x());
+    const auto& e = inj.error;
+    r.position.head<2>() += e[int(KpiParam::PositionAlong)] * u + e[int(KpiParam::PositionAcross)] * left;
+    r.position.z() += e[int(KpiParam::PositionVertical)];
+    r.velocity.head<2>() += e[int(KpiParam::VelocityAlong)] * u + e[int(KpiParam::VelocityAcross)] * left;
+    r.size.x() = std::max(0.05, r.size.x() + e[int(KpiParam::Length)]);
+    r.size.y() = std::max(0.05, r.size.y() + e[int(KpiParam::Width)]);
+    r.size.z() = std::max(0.05, r.size.z() + e[int(KpiParam::Height)]);
+    r.heading = wrap_angle(r.heading + e[int(KpiParam::Heading)] + (inj.flipped ? std::numbers::pi : 0.0));
+    r.score = sample_quantiles(cm.score_quantiles, 1.0);
+    reported.push_back(r);
+  }
+
+  if (options_.false_positives) {
+    for (int k = 0; k < 8; ++k) {
+      const int slot = class_slot_[k];
+      if (slot < 0) continue;
+      const ClassModel& cm = *class_models_[slot];
+      // Each model once, under its own class (not again for the classes that fall back to it).
+      if (model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) == 0) continue;
+      if (cm.false_positive_rate <= 0) continue;
+      std::poisson_distribution<int> poisson(cm.false_positive_rate);
+      const int n = poisson(rng_);
+      for (int f = 0; f < n; ++f) {
+        Object fp;
+        fp.id = next_fp_id_--;
+        if (next_fp_id_ < -1000000000) next_fp_id_ = -1000;
+        fp.cls = static_cast<ObjectClass>(k);
+        const double rr = sample_quantiles(cm.fp_range_quantiles, 20), az = sample_quantiles(cm.fp_azimuth_quantiles, 0);
+        fp.position = Eigen::Vector3d(rr * std::cos(az), rr * std::sin(az), cm.fp_z);
+        fp.size = cm.mean_size;
+        std::uniform_real_distribution<double> h(-std::numbers::pi, std::numbers::pi);
+        fp.heading = h(rng_);
+        fp.visible_fraction = 1;
+        fp.score = sample_quantiles(cm.fp_score_quantiles, 0.5);
+        reported.push_back(fp);
+      }
+    }
+  }
+  if (frame_ % 64 == 0) forget_stale();
+}
+
+}  // namespace lidarsim::sensor

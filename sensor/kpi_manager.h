@@ -1,0 +1,83 @@
+#pragma once
+// KPI manager: turns ground-truth (or tracked) objects into what a real detector reports.
+// Per object (keyed by its id, which must be stable over frames: a ground-truth or track id):
+//   - errors per parameter from the KpiModel (conditioned on class, range bin, visibility
+//     bin), AR(1) in time with heavy-tailed innovations, size errors mostly a per-track
+//     constant; position errors along/across the line of sight;
+//   - misses from a two-state Markov chain whose stationary rate is 1 - detection probability
+//     (range, visibility) and whose miss runs last miss_burst_mean frames on average;
+//   - 180-degree heading flips from a second chain (heading_flip_probability, flip_burst_mean);
+//   - a score drawn from the class's score quantiles;
+// and per frame a Poisson number of false positives per class. A feedback controller per
+// class and parameter keeps the running mean and spread of the injected standardized noise on
+// target (0, 1), so the injected errors keep the model's mean and std per bin.
+// Per-frame work allocates nothing once the per-object tables have grown.
+#include <array>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "sensor/kpi_model.h"
+#include "sensor/kpi_noise.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::sensor {
+
+struct KpiInjection {
+  int id = -1;               // object id
+  int truth_index = -1;      // index in this frame's input
+  bool modelled = false;     // false: class has no model, passed through unchanged
+  bool detected = true;
+  bool flipped = false;
+  int range_bin = 0, visibility_bin = 0;
+  std::array<double, kNumKpiParams> error{};  // injected error per parameter (reported - truth)
+};
+
+struct KpiOptions {
+  bool noise = true;
+  bool misses = true;
+  bool false_positives = true;
+  bool flips = true;
+  int forget_after_frames = 100;  // drop the noise state of ids absent this long
+};
+
+class KpiManager {
+ public:
+  explicit KpiManager(KpiModel model, std::uint64_t seed = 1, KpiOptions options = {});
+
+  // One frame. `truth` in the sensor frame (range and line of sight are taken from the
+  // sensor origin), visible_fraction set. `reported` is cleared and receives the detected
+  // objects (same id as their truth) followed by false positives (ids <= -1000).
+  void apply(const std::vector<Object>& truth, std::vector<Object>& reported);
+
+  const std::vector<KpiInjection>& injections() const { return injections_; }
+  const KpiModel& model() const { return model_; }
+  const RunningTargetController& controller(ObjectClass cls, KpiParam p) const;
+  long frame() const { return frame_; }
+
+ private:
+  struct TrackState {
+    std::array<double, kNumKpiParams> z{};      // AR(1) states
+    std::array<double, kNumKpiParams> c{};      // per-track constants
+    BurstChain miss, flip;
+    long last_frame = -1;
+  };
+  TrackState& state_for(int id);
+  void forget_stale();
+  double sample_quantiles(const std::vector<double>& q, double fallback);
+
+  KpiModel model_;
+  KpiOptions options_;
+  KpiRng rng_;
+  std::array<int, 8> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
+  std::vector<const ClassModel*> class_models_;
+  std::vector<RunningTargetController> controllers_;  // slot * kNumKpiParams + param
+  std::unordered_map<int, int> slot_of_id_;
+  std::vector<TrackState> states_;
+  std::vector<int> free_states_;
+  std::vector<KpiInjection> injections_;
+  long frame_ = 0;
+  int next_fp_id_ = -1000;
+};
+
+}  // namespace lidarsim::sensor

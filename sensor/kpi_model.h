@@ -1,0 +1,108 @@
+#pragma once
+// The KPI manager's error model: what a real detector gets wrong, per class and parameter,
+// conditioned on range bin and visibility bin. Stored as JSON (nlohmann-json); fitted from
+// KITTI tracking ground truth vs PointRCNN detections by `lidar-calibrate`
+// (data/models/kpi_pointrcnn.json is the shipped default).
+//
+// One parameter's error at frame t for track k, in range bin r and visibility bin v:
+//   e = mean[r] + sigma[r] * visibility_std_scale[v] * z_t + track_std * c_k
+// z_t: unit-variance AR(1), z_t = ar1 z_{t-1} + sqrt(1 - ar1^2) eps_t, eps_t from a heavy-tailed
+// unit-variance innovation (Gaussian, Student-t, or a two-scale Gaussian mixture);
+// c_k: a per-track constant ~ N(0, 1) (size errors are nearly constant along a track).
+#include <array>
+#include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "sensor/scene.h"
+
+namespace lidarsim::sensor {
+
+enum class KpiParam {
+  PositionAlong,    // along the line of sight (radial), m
+  PositionAcross,   // across the line of sight (left of it), m
+  PositionVertical, // z, m
+  VelocityAlong,    // m/s
+  VelocityAcross,   // m/s
+  Length,           // m
+  Width,            // m
+  Height,           // m
+  Heading,          // rad, excluding 180-degree flips (modelled separately)
+};
+inline constexpr int kNumKpiParams = 9;
+const char* to_string(KpiParam p);
+
+struct Innovation {
+  enum class Type { Gaussian, StudentT, Mixture };
+  Type type = Type::Gaussian;
+  double dof = 0;                  // Student-t degrees of freedom (> 2)
+  double outlier_probability = 0;  // mixture: weight of the wide component
+  double outlier_scale = 1;        // mixture: sigma_wide / sigma_core (> 1)
+  double excess_kurtosis() const;  // of the unit-variance innovation (inf for t with dof <= 4)
+};
+
+struct ErrorModel {
+  std::vector<double> mean;                  // per range bin
+  std::vector<double> sigma;                 // per range bin, >= 0 ("std" in the file)
+  std::vector<double> visibility_std_scale;  // per visibility bin, > 0
+  double ar1 = 0;                            // lag-1 autocorrelation of z, in (-1, 1)
+  double track_std = 0;                      // per-track constant component, >= 0
+  Innovation innovation;
+};
+
+struct ClassModel {
+  std::array<ErrorModel, kNumKpiParams> errors;
+  std::vector<std::vector<double>> detection_probability;  // [range bin][visibility bin]
+  double miss_burst_mean = 1;       // mean length of a run of misses, frames (>= 1)
+  double heading_flip_probability = 0;
+  double flip_burst_mean = 1;       // mean length of a run of flipped frames (>= 1)
+  std::vector<double> score_quantiles;  // true positives: scores at probabilities 0, 1/(n-1), ..., 1
+  // False positives: a Poisson number per frame, placed by range/azimuth quantiles.
+  double false_positive_rate = 0;   // per frame
+  std::vector<double> fp_range_quantiles;    // m
+  std::vector<double> fp_azimuth_quantiles;  // rad, atan2(y, x)
+  std::vector<double> fp_score_quantiles;
+  double fp_z = -0.9;               // m, box centre height in the sensor frame
+  Eigen::Vector3d mean_size = Eigen::Vector3d(4, 1.8, 1.5);
+};
+
+struct ControllerConfig {
+  bool enabled = true;
+  double window = 500;       // samples in the running (exponentially weighted) statistics
+  double mean_gain = 0.0005; // integral gain on the running mean, per sample (critically damped with window 500)
+  double std_gain = 0.0005;  // multiplicative gain on the running std, per sample
+};
+
+struct KpiModel {
+  std::string source;                          // free text: what it was fitted on
+  std::vector<double> range_bin_edges;         // lower edges, ascending from 0; last bin open
+  std::vector<double> visibility_bin_edges;    // lower edges, ascending from 0, within [0, 1]
+  std::map<std::string, ClassModel> classes;   // "Car", "Pedestrian", "Cyclist", ...
+  ControllerConfig controller;
+
+  int range_bins() const { return static_cast<int>(range_bin_edges.size()); }
+  int visibility_bins() const { return static_cast<int>(visibility_bin_edges.size()); }
+  int range_bin(double range) const;
+  int visibility_bin(double visible_fraction) const;
+  // The class model used for an object class: its own, else a fallback (Van, Truck, Bus, Misc
+  // -> Car; Motorcycle -> Cyclist), else nullptr (objects of that class pass through unchanged).
+  const ClassModel* find(ObjectClass cls) const;
+  // Throws lidarsim::Error "<file>: <field>: <what was expected>".
+  void validate(const std::string& file = "kpi model") const;
+};
+
+// Model class name used in files (ObjectClass names, independent of scene.cpp).
+const char* kpi_class_name(ObjectClass cls);
+
+KpiModel load_kpi_model(const std::filesystem::path& path);  // validates; throws lidarsim::Error
+KpiModel parse_kpi_model(const std::string& json_text, const std::string& file_name);
+std::string kpi_model_to_json(const KpiModel& model);
+void save_kpi_model(const KpiModel& model, const std::filesystem::path& path);  // atomic
+
+// A small hand-set model (no fit), for tests and when no file is given.
+KpiModel default_kpi_model();
+
+}  // namespace lidarsim::sensor

@@ -1,0 +1,69 @@
+#include "sensor/kpi_noise.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lidarsim::sensor {
+
+double sample_innovation(const Innovation& in, KpiRng& rng) {
+  std::normal_distribution<double> normal(0.0, 1.0);
+  switch (in.type) {
+    case Innovation::Type::Gaussian: return normal(rng);
+    case Innovation::Type::StudentT: {
+      // t = N / sqrt(chi2_dof / dof); variance dof / (dof - 2), scaled back to 1.
+      std::chi_squared_distribution<double> chi2(in.dof);
+      const double t = normal(rng) / std::sqrt(chi2(rng) / in.dof);
+      return t * std::sqrt((in.dof - 2) / in.dof);
+    }
+    case Innovation::Type::Mixture: {
+      const double p = in.outlier_probability, r = in.outlier_scale;
+      const double s_core = 1 / std::sqrt((1 - p) + p * r * r);  // unit total variance
+      std::uniform_real_distribution<double> u(0.0, 1.0);
+      const double s = u(rng) < p ? s_core * r : s_core;
+      return s * normal(rng);
+    }
+  }
+  return normal(rng);
+}
+
+double ar1_step(double z, double rho, int gap, double eps) {
+  const double a = gap == 1 ? rho : std::pow(rho, gap);
+  return a * z + std::sqrt(std::max(0.0, 1 - a * a)) * eps;
+}
+
+bool BurstChain::step(double rate, double burst_mean, KpiRng& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  rate = std::clamp(rate, 0.0, 1.0);
+  if (!started) {  // start from the stationary distribution
+    started = true;
+    on = u(rng) < rate;
+    return on;
+  }
+  if (rate <= 0) return on = false;
+  if (rate >= 1) return on = true;
+  double leave = 1 / std::max(1.0, burst_mean);      // on -> off
+  double enter = rate * leave / (1 - rate);           // off -> on, stationary rate = rate
+  if (enter > 1) {
+    enter = 1;
+    leave = (1 - rate) / rate;
+  }
+  on = on ? !(u(rng) < leave) : (u(rng) < enter);
+  return on;
+}
+
+double RunningTargetController::running_std() const { return std::sqrt(std::max(0.0, v_)); }
+
+double RunningTargetController::apply(double z) {
+  const double out = cfg_.enabled ? g_ * z + c_ : z;
+  const double a = 1 / cfg_.window;
+  const double d = out - m_;
+  m_ += a * d;
+  v_ += a * (d * (out - m_) - v_);
+  if (cfg_.enabled) {
+    c_ -= cfg_.mean_gain * m_;
+    g_ = std::clamp(g_ * std::exp(-cfg_.std_gain * (running_std() - 1)), 0.2, 5.0);
+  }
+  return out;
+}
+
+}  // namespace lidarsim::sensor
