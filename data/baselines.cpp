@@ -1,0 +1,119 @@
+#include "data/baselines.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+
+#include "common/error.h"
+#include "pgm/materials.h"
+
+namespace lidarsim::data {
+
+int range_bin(double range_m) {
+  const int b = static_cast<int>(std::floor(range_m / kRangeBinM));
+  return std::clamp(b, 0, kRangeBins - 1);
+}
+
+namespace {
+
+struct Cell {
+  int cls, row, bin;
+  float y;
+  bool validation;
+};
+
+struct Mean {
+  double sum = 0;
+  long n = 0;
+  void add(double v) { sum += v, ++n; }
+  double get(double fallback) const { return n ? sum / n : fallback; }
+};
+
+struct Accum {
+  double abs = 0, sq = 0;
+  long n = 0;
+  void add(double e) { abs += std::abs(e), sq += e * e, ++n; }
+  Metrics get() const { return {n ? abs / n : 0, n ? std::sqrt(sq / n) : 0, n}; }
+};
+
+}  // namespace
+
+std::vector<BaselineResult> evaluate_baselines(const Dataset& d, const SectorSplit& split) {
+  const int ci = d.channel_index("class"), ri = d.channel_index("range");
+  const int H = d.rows(), W = d.cols();
+  const auto val_cols = split.validation_columns(W);
+  std::vector<Cell> cells;
+  for (int n = 0; n < d.size(); ++n) {
+    const float* cls = d.pgm.channel(n, ci);
+    const float* rng = d.pgm.channel(n, ri);
+    const float* mask = d.mask.image(n);
+    const float* y = d.target.image(n);
+    for (int r = 0; r < H; ++r)
+      for (int c = 0; c < W; ++c) {
+        const std::size_t i = static_cast<std::size_t>(r) * W + c;
+        if (mask[i] <= 0) continue;
+        cells.push_back({static_cast<int>(cls[i]), r, range_bin(rng[i]), y[i], val_cols[c] != 0});
+      }
+  }
+  Mean global;
+  std::map<int, Mean> by_class;
+  std::map<std::pair<int, int>, Mean> by_class_bin, by_class_row;
+  for (const Cell& c : cells) {
+    if (c.validation) continue;
+    global.add(c.y);
+    by_class[c.cls].add(c.y);
+    by_class_bin[{c.cls, c.bin}].add(c.y);
+    by_class_row[{c.cls, c.row}].add(c.y);
+  }
+  if (global.n == 0) throw Error("baselines: no training cells with a return");
+  const double g = global.get(0);
+  auto class_mean = [&](int cls) {
+    auto it = by_class.find(cls);
+    return it == by_class.end() ? g : it->second.get(g);
+  };
+  auto lookup = [&](const std::map<std::pair<int, int>, Mean>& table, int cls, int key) {
+    auto it = table.find({cls, key});
+    return it == table.end() ? class_mean(cls) : it->second.get(class_mean(cls));
+  };
+  std::vector<BaselineResult> results = {{"global_mean", {}, {}}, {"class_mean", {}, {}},
+                                         {"class_x_range", {}, {}}, {"class_x_row", {}, {}}};
+  Accum acc[4][2];
+  for (const Cell& c : cells) {
+    const double pred[4] = {g, class_mean(c.cls), lookup(by_class_bin, c.cls, c.bin), lookup(by_class_row, c.cls, c.row)};
+    for (int k = 0; k < 4; ++k) acc[k][c.validation ? 1 : 0].add(pred[k] - c.y);
+  }
+  for (int k = 0; k < 4; ++k) {
+    results[k].training = acc[k][0].get();
+    results[k].validation = acc[k][1].get();
+  }
+  return results;
+}
+
+Metrics evaluate_prediction(const Dataset& d, const nn::Tensor& prediction, bool validation, const SectorSplit& split) {
+  const nn::Shape want{d.size(), 1, d.rows(), d.cols()};
+  if (!(prediction.shape() == want))
+    throw Error("evaluate_prediction: prediction shape " + prediction.shape().str() + ", expected " + want.str());
+  const auto val_cols = split.validation_columns(d.cols());
+  Accum acc;
+  const std::size_t plane = static_cast<std::size_t>(d.rows()) * d.cols();
+  for (int n = 0; n < d.size(); ++n)
+    for (std::size_t i = 0; i < plane; ++i) {
+      if (d.mask.image(n)[i] <= 0 || (val_cols[i % d.cols()] != 0) != validation) continue;
+      acc.add(static_cast<double>(prediction.image(n)[i]) - d.target.image(n)[i]);
+    }
+  return acc.get();
+}
+
+std::string baseline_table(const std::vector<BaselineResult>& results) {
+  std::string s = "| baseline | val MAE | val RMSE | val cells | train MAE | train cells |\n|---|---|---|---|---|---|\n";
+  char line[256];
+  for (const auto& r : results) {
+    std::snprintf(line, sizeof line, "| %s | %.4f | %.4f | %ld | %.4f | %ld |\n", r.name.c_str(), r.validation.mae,
+                  r.validation.rmse, r.validation.cells, r.training.mae, r.training.cells);
+    s += line;
+  }
+  return s;
+}
+
+}  // namespace lidarsim::data

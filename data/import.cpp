@@ -1,0 +1,84 @@
+#include "data/import.h"
+
+#include <algorithm>
+
+#include "common/error.h"
+#include "data/kitti_object.h"
+#include "data/semantickitti.h"
+
+namespace lidarsim::data {
+namespace {
+
+Dataset empty_dataset(const ImportOptions& options, const std::string& format) {
+  if (options.columns < 16 || options.columns % 16 != 0)
+    throw Error("import: columns: must be a positive multiple of 16 (the validation split cuts 16 sectors), got " +
+                std::to_string(options.columns));
+  Dataset d;
+  d.channels = dataset_channels(options);
+  d.layout = pgm::BeamLayout::hdl64e(options.columns);
+  d.source_format = format;
+  return d;
+}
+
+template <typename T>
+std::vector<T> window(const std::vector<T>& all, const ImportOptions& o) {
+  const std::size_t first = std::min<std::size_t>(std::max(o.first, 0), all.size());
+  std::size_t last = all.size();
+  if (o.max_frames > 0) last = std::min(last, first + static_cast<std::size_t>(o.max_frames));
+  return std::vector<T>(all.begin() + first, all.begin() + last);
+}
+
+void add_frame(Dataset& d, const std::vector<pgm::Point>& points, const ImportOptions& o, const std::string& id,
+               const std::string& source) {
+  pgm::ProjectOptions po;
+  po.row_mode = o.row_mode;
+  po.extra_channels = o.extra_channels;
+  po.min_range = o.min_range;
+  const auto result = pgm::project(points, d.layout, po, source);
+  d.append(result.pgm, id, pgm::to_string(result.row_mode));
+}
+
+}  // namespace
+
+std::vector<std::string> dataset_channels(const ImportOptions& options) {
+  std::vector<std::string> c = {"range", "class", "material"};
+  for (const auto& e : options.extra_channels) {
+    if (std::find(pgm::kEffectChannels.begin(), pgm::kEffectChannels.end(), e) == pgm::kEffectChannels.end())
+      throw Error("import: channel '" + e + "': unknown (known: elevation, azimuth, height, incidence, x, y, z)");
+    if (std::find(c.begin(), c.end(), e) == c.end()) c.push_back(e);
+  }
+  return c;
+}
+
+Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptions& options) {
+  Dataset d = empty_dataset(options, "semantickitti");
+  std::vector<ScanFiles> scans;
+  for (const auto& s : list_semantickitti(dir, options.sequences))
+    if (s.label || options.include_unlabelled) scans.push_back(s);
+  scans = window(scans, options);
+  if (scans.empty())
+    throw input_error(dir.string(), "scans", options.include_unlabelled ? "no velodyne/*.bin scans found"
+                                                                         : "no labelled scans (velodyne/*.bin with labels/*.label) found");
+  for (std::size_t i = 0; i < scans.size(); ++i) {
+    const LabelledScan scan = read_semantickitti_scan(scans[i]);
+    add_frame(d, scan.points, options, "semantickitti/" + scans[i].sequence + "/" + scans[i].id, scans[i].bin.string());
+    for (const auto& s : scan.sources) d.sources.push_back(s.string());
+    if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(scans.size()));
+  }
+  return d;
+}
+
+Dataset import_kitti_object(const std::filesystem::path& dir, const ImportOptions& options) {
+  Dataset d = empty_dataset(options, "kitti_object");
+  const auto frames = window(list_kitti_object(dir), options);
+  if (frames.empty()) throw input_error(dir.string(), "frames", "no velodyne/*.bin frames found");
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    const KittiObjectScan scan = read_kitti_object_scan(frames[i]);
+    add_frame(d, scan.points, options, "kitti_object/" + frames[i].id, frames[i].bin.string());
+    for (const auto& s : scan.sources) d.sources.push_back(s.string());
+    if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(frames.size()));
+  }
+  return d;
+}
+
+}  // namespace lidarsim::data
