@@ -1,0 +1,124 @@
+"""PyTorch peer for bench/unet_vs_torch.cpp: times the identical UNet in PyTorch.
+
+Run by bench_unet_vs_torch as a subprocess (OMP_NUM_THREADS set, OPENBLAS_CORETYPE and
+OPENBLAS_L2_SIZE unset for this process only); by hand:
+    OMP_NUM_THREADS=2 /usr/bin/python3 bench/torch_unet_bench.py --threads 2 --rows 64
+Prints human-readable notes on stderr and one JSON object on the last stdout line:
+    {"train_b1": s, "train_b4": s, "infer_b1": s, "blas": [...], "conv_ops": [...], ...}
+Each time is the median over --reps after --warmup untimed runs. With --mkldnn both (default)
+every row is timed with oneDNN convolutions on and off and the faster is reported, so the peer
+is measured at its best.
+"""
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+
+import torch
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "fixtures"))
+import torch_unet  # noqa: E402
+
+
+def timed(fn, warmup, reps):
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def make_batch(n, rows, cols, in_channels, seed):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn((n, in_channels, rows, cols), generator=g)
+    target = torch.rand((n, 1, rows, cols), generator=g)
+    mask = (torch.rand((n, 1, rows, cols), generator=g) < 0.7).float()
+    return x, target, mask
+
+
+def measure(args, model, opt):
+    out = {}
+    for n in (1, 4):
+        x, target, mask = make_batch(n, args.rows, args.cols, args.in_channels, seed=n)
+
+        def train_step():
+            opt.zero_grad(set_to_none=False)
+            pred = model(x)
+            loss, _, _ = torch_unet.loss_fn(model, pred, target, mask, args.lam)
+            loss.backward()
+            opt.step()
+
+        out[f"train_b{n}"] = timed(train_step, args.warmup, args.reps)
+    x, _, _ = make_batch(1, args.rows, args.cols, args.in_channels, seed=1)
+
+    def infer():
+        with torch.no_grad():
+            model(x)
+
+    out["infer_b1"] = timed(infer, args.warmup, args.reps)
+    return out
+
+
+def loaded_libraries(patterns):
+    with open("/proc/self/maps") as f:
+        paths = {line.split()[-1] for line in f if "/" in line}
+    return sorted(p for p in paths if any(s in os.path.basename(p) for s in patterns))
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--rows", type=int, default=64)
+    p.add_argument("--cols", type=int, default=1024)
+    p.add_argument("--in-channels", type=int, default=3)
+    p.add_argument("--base", type=int, default=16)
+    p.add_argument("--depth", type=int, default=4)
+    p.add_argument("--lam", type=float, default=1e-4)
+    p.add_argument("--reps", type=int, default=7)
+    p.add_argument("--warmup", type=int, default=2)
+    p.add_argument("--mkldnn", choices=["both", "on", "off"], default="both")
+    args = p.parse_args()
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    model = torch_unet.UNet(args.in_channels, 1, args.base, args.depth)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+    # Which kernels run: convolution ops seen by the profiler in one training step.
+    x, target, mask = make_batch(1, args.rows, args.cols, args.in_channels, seed=1)
+    with torch.autograd.profiler.profile() as prof:
+        loss, _, _ = torch_unet.loss_fn(model, model(x), target, mask, args.lam)
+        loss.backward()
+    conv_ops = sorted({e.name for e in prof.function_events if "conv" in e.name})
+
+    settings = {"both": [True, False], "on": [True], "off": [False]}[args.mkldnn]
+    per_setting = {}
+    for enabled in settings:
+        torch.backends.mkldnn.enabled = enabled
+        per_setting["mkldnn_on" if enabled else "mkldnn_off"] = measure(args, model, opt)
+        print(f"torch ({'oneDNN on' if enabled else 'oneDNN off'}): {per_setting}", file=sys.stderr)
+    best = {}
+    for row in ("train_b1", "train_b4", "infer_b1"):
+        key = min(per_setting, key=lambda k: per_setting[k][row])
+        best[row] = per_setting[key][row]
+        best[row + "_setting"] = key
+
+    result = dict(best)
+    result["all"] = per_setting
+    result["torch_version"] = torch.__version__
+    result["threads"] = torch.get_num_threads()
+    result["blas"] = loaded_libraries(["blas", "lapack"])
+    result["dnnl"] = loaded_libraries(["dnnl"])
+    result["conv_ops"] = conv_ops
+    result["blas_info"] = [s.strip() for s in torch.__config__.show().split(",") if "BLAS_INFO" in s]
+    result["env"] = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE")}
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

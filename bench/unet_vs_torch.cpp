@@ -1,0 +1,263 @@
+// Speed of the engine against PyTorch on "unet-ref" (3 -> 1 channels, base 16, depth 4,
+// rows x cols, masked MSE + L2, Adam), measured in the same run on the same machine:
+// a training step at batch 1 and 4 and inference at batch 1, median over --reps after
+// --warmup untimed runs. PyTorch runs as a subprocess (bench/torch_unet_bench.py) with
+// OMP_NUM_THREADS set and OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE unset for it alone, so it gets
+// OpenBLAS's own choice of kernels. A 4096^3 fp32 GEMM through Eigen gives the machine's
+// practical peak for context.
+#include <omp.h>
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cxxopts.hpp>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "common/atomic_file.h"
+#include "common/error.h"
+#include "nn/loss.h"
+#include "nn/optim.h"
+#include "nn/unet.h"
+
+#ifndef LIDARSIM_SOURCE_DIR
+#define LIDARSIM_SOURCE_DIR "."
+#endif
+
+using namespace lidarsim;
+using namespace lidarsim::nn;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double median_seconds(const std::function<void()>& fn, int warmup, int reps) {
+  for (int i = 0; i < warmup; ++i) fn();
+  std::vector<double> t;
+  for (int i = 0; i < reps; ++i) {
+    const auto t0 = Clock::now();
+    fn();
+    t.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
+  }
+  std::sort(t.begin(), t.end());
+  return t.size() % 2 ? t[t.size() / 2] : 0.5 * (t[t.size() / 2 - 1] + t[t.size() / 2]);
+}
+
+struct Batch {
+  Tensor x, target, mask;
+};
+
+Batch make_batch(int n, int channels, int rows, int cols, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> normal;
+  std::uniform_real_distribution<float> uniform;
+  Batch b{Tensor(n, channels, rows, cols), Tensor(n, 1, rows, cols), Tensor(n, 1, rows, cols)};
+  for (float& v : b.x) v = normal(rng);
+  for (float& v : b.target) v = uniform(rng);
+  for (float& v : b.mask) v = uniform(rng) < 0.7f ? 1.f : 0.f;
+  return b;
+}
+
+// 4096^3 fp32 through Eigen, threads splitting the columns of C (Eigen itself is built with
+// EIGEN_DONT_PARALLELIZE, as in the engine).
+double gemm_seconds(int size, int threads, int reps) {
+  Eigen::MatrixXf a = Eigen::MatrixXf::Random(size, size), b = Eigen::MatrixXf::Random(size, size);
+  Eigen::MatrixXf c(size, size);
+  auto run = [&] {
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int t = 0; t < threads; ++t) {
+      const Eigen::Index begin = static_cast<Eigen::Index>(size) * t / threads;
+      const Eigen::Index end = static_cast<Eigen::Index>(size) * (t + 1) / threads;
+      c.middleCols(begin, end - begin).noalias() = a * b.middleCols(begin, end - begin);
+    }
+  };
+  return median_seconds(run, 1, reps);
+}
+
+std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char ch : s) out += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
+  return out + "'";
+}
+
+// Runs the PyTorch peer and returns its JSON (the last line it prints on stdout).
+nlohmann::json run_torch(const std::string& python, const std::string& script, int threads, int rows, int cols,
+                         int reps, int warmup, float lambda, const std::string& mkldnn) {
+  std::ostringstream cmd;
+  cmd << "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OMP_NUM_THREADS=" << threads << " " << shell_quote(python)
+      << " " << shell_quote(script) << " --threads " << threads << " --rows " << rows << " --cols " << cols
+      << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --mkldnn " << mkldnn;
+  std::cerr << "bench: running PyTorch: " << cmd.str() << "\n";
+  FILE* pipe = ::popen(cmd.str().c_str(), "r");
+  if (!pipe) throw Error(script + ": cannot start " + python);
+  std::string out;
+  char buf[4096];
+  while (std::fgets(buf, sizeof buf, pipe)) out += buf;
+  const int status = ::pclose(pipe);
+  if (status != 0) throw Error(script + ": PyTorch peer failed (exit status " + std::to_string(status) + ")");
+  const std::size_t end = out.find_last_not_of("\n");
+  const std::size_t start = out.rfind('\n', end);
+  const std::string last = out.substr(start == std::string::npos ? 0 : start + 1);
+  try {
+    return nlohmann::json::parse(last);
+  } catch (const std::exception& e) {
+    throw Error(script + ": output: expected one JSON line at the end, got \"" + last + "\"");
+  }
+}
+
+std::string loadavg() {
+  std::ifstream in("/proc/loadavg");
+  std::string a, b, c;
+  in >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    cxxopts::Options options("bench_unet_vs_torch", "unet-ref: engine vs PyTorch, same run, same threads");
+    options.add_options()
+      ("reps", "timed repetitions per row (median)", cxxopts::value<int>()->default_value("7"))
+      ("warmup", "untimed runs before timing", cxxopts::value<int>()->default_value("2"))
+      ("threads", "OpenMP threads for both engines", cxxopts::value<int>()->default_value("2"))
+      ("rows", "input rows (beams)", cxxopts::value<int>()->default_value("64"))
+      ("cols", "input columns (azimuth bins)", cxxopts::value<int>()->default_value("1024"))
+      ("lambda", "L2 weight", cxxopts::value<float>()->default_value("0.0001"))
+      ("python", "Python with torch", cxxopts::value<std::string>()->default_value("/usr/bin/python3"))
+      ("torch-script", "the PyTorch peer",
+       cxxopts::value<std::string>()->default_value(LIDARSIM_SOURCE_DIR "/bench/torch_unet_bench.py"))
+      ("mkldnn", "PyTorch oneDNN convolutions: both (report the faster), on, off",
+       cxxopts::value<std::string>()->default_value("both"))
+      ("no-torch", "time only our engine")
+      ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
+      ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
+      ("h,help", "show help");
+    const auto opt = options.parse(argc, argv);
+    if (opt.count("help")) {
+      std::cout << options.help() << "\n";
+      return 0;
+    }
+    const int reps = opt["reps"].as<int>(), warmup = opt["warmup"].as<int>();
+    const int threads = opt["threads"].as<int>(), rows = opt["rows"].as<int>(), cols = opt["cols"].as<int>();
+    const float lambda = opt["lambda"].as<float>();
+    if (reps < 1) throw Error("--reps: expected >= 1");
+    if (warmup < 0) throw Error("--warmup: expected >= 0");
+    if (threads < 1) throw Error("--threads: expected >= 1");
+    if (rows < 16 || cols < 16) throw Error("--rows/--cols: expected >= 16 (depth 4 halves four times)");
+    const std::string mkldnn = opt["mkldnn"].as<std::string>();
+    if (mkldnn != "both" && mkldnn != "on" && mkldnn != "off") throw Error("--mkldnn: expected both, on or off");
+    omp_set_num_threads(threads);
+    const std::string load_before = loadavg();
+
+    // --- our engine -----------------------------------------------------------------------
+    const UNetConfig cfg{3, 1, 16, 4};
+    UNet model(cfg);
+    model.init(1);
+    OptimizerConfig oc;
+    oc.kind = "adam";
+    Optimizer adam(oc, model.params().size());
+    struct Row {
+      std::string name;
+      int batch;
+      bool train;
+      double ours = 0, torch = 0;
+    };
+    std::vector<Row> table{{"train_b1", 1, true}, {"train_b4", 4, true}, {"infer_b1", 1, false}};
+    for (Row& row : table) {
+      const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
+      Tensor y, dy;
+      if (row.train) {
+        row.ours = median_seconds(
+            [&] {
+              model.params().zero_grads();
+              model.forward(b.x, y);
+              dy.resize(y.shape());
+              masked_mse(y, b.target, b.mask, &dy);
+              l2_penalty(model.params(), lambda, true);
+              model.backward(dy);
+              adam.step(model.params());
+            },
+            warmup, reps);
+      } else {
+        row.ours = median_seconds([&] { model.predict(b.x, y); }, warmup, reps);
+      }
+      std::cerr << "bench: ours " << row.name << " " << row.ours << " s\n";
+    }
+
+    // --- PyTorch, same run ----------------------------------------------------------------
+    nlohmann::json peer;
+    const bool with_torch = !opt.count("no-torch");
+    if (with_torch) {
+      peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
+                       reps, warmup, lambda, mkldnn);
+      for (Row& row : table) row.torch = peer.at(row.name).get<double>();
+    }
+
+    // --- GEMM peak ------------------------------------------------------------------------
+    const int gemm_n = opt["gemm"].as<int>();
+    double gemm_s = 0;
+    if (gemm_n > 0) gemm_s = gemm_seconds(gemm_n, threads, std::max(1, std::min(reps, 3)));
+    const std::string load_after = loadavg();
+
+    // --- report ---------------------------------------------------------------------------
+    std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", rows,
+                cols, threads, reps, warmup);
+    std::printf("%-10s %10s %10s %12s %12s %12s\n", "row", "ours (s)", "torch (s)", "ours/torch", "ours GFLOP/s",
+                "torch GFLOP/s");
+    nlohmann::json out_rows = nlohmann::json::array();
+    for (const Row& row : table) {
+      // A training step counts as 3 forward passes (forward, backward to inputs, to weights).
+      const double flops = (row.train ? 3.0 : 1.0) * model.forward_flops(row.batch, rows, cols);
+      const double ratio = with_torch ? row.ours / row.torch : 0;
+      if (with_torch)
+        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %12.1f\n", row.name.c_str(), row.ours, row.torch, ratio,
+                    flops / row.ours * 1e-9, flops / row.torch * 1e-9);
+      else
+        std::printf("%-10s %10.4f %10s %12s %12.1f %12s\n", row.name.c_str(), row.ours, "-", "-",
+                    flops / row.ours * 1e-9, "-");
+      out_rows.push_back({{"row", row.name}, {"ours_s", row.ours}, {"torch_s", row.torch}, {"ratio", ratio},
+                          {"ours_gflops", flops / row.ours * 1e-9}, {"flops", flops}});
+    }
+    if (gemm_n > 0) {
+      const double gf = 2.0 * gemm_n * double(gemm_n) * gemm_n / gemm_s * 1e-9;
+      std::printf("GEMM %d^3 fp32 (Eigen, %d threads over columns): %.3f s, %.1f GFLOP/s\n", gemm_n, threads, gemm_s,
+                  gf);
+    }
+    std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, rows, cols) * 1e-9);
+    if (with_torch) {
+      std::printf("torch %s, %d threads; fastest oneDNN setting per row: train_b1 %s, train_b4 %s, infer_b1 %s\n",
+                  peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
+                  peer.value("train_b1_setting", std::string("?")).c_str(),
+                  peer.value("train_b4_setting", std::string("?")).c_str(),
+                  peer.value("infer_b1_setting", std::string("?")).c_str());
+      std::string libs;
+      for (const auto& l : peer["blas"]) libs += " " + l.get<std::string>();
+      std::printf("torch BLAS libraries loaded:%s\n", libs.c_str());
+      std::string ops;
+      for (const auto& o : peer["conv_ops"]) ops += " " + o.get<std::string>();
+      std::printf("torch convolution ops:%s\n", ops.c_str());
+    }
+    std::printf("load average before / after: %s / %s (numbers are only meaningful on an idle machine)\n",
+                load_before.c_str(), load_after.c_str());
+
+    if (opt.count("json")) {
+      nlohmann::json j{{"rows", rows},         {"cols", cols},   {"threads", threads},
+                       {"reps", reps},         {"warmup", warmup}, {"table", out_rows},
+                       {"gemm_n", gemm_n},     {"gemm_s", gemm_s}, {"torch", peer},
+                       {"loadavg_before", load_before}, {"loadavg_after", load_after}};
+      write_file_atomically(opt["json"].as<std::string>(), j.dump(2) + "\n");
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  }
+}
