@@ -35,6 +35,8 @@ struct Checkpoint {
   std::optional<OptimizerConfig> optimizer;
 };
 
+// Writes the model's own config (meta.unet is not consulted), meta.attributes (names starting
+// with "unet." or "optimizer." and "format" are reserved) and meta.state; optimizer may be null.
 void save_checkpoint(const std::filesystem::path& path, const UNet& model, const Optimizer* optimizer,
                      const Checkpoint& meta);
 
