@@ -72,7 +72,9 @@ TEST(Projection, FiringOrderCutGivesRowPerRingEvenWithStragglersAtTheWrap) {
   // Intensity carries the true ring: every filled cell's ring equals its row.
   for (int r = 0; r < 8; ++r) {
     for (int c = 0; c < 256; ++c) {
-      if (m.at(m.channel_index("mask"), r, c) > 0) EXPECT_EQ(m.at(m.channel_index("intensity"), r, c), float(r));
+      if (m.at(m.channel_index("mask"), r, c) > 0) {
+        EXPECT_EQ(m.at(m.channel_index("intensity"), r, c), float(r));
+      }
     }
   }
 }
