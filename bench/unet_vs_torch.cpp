@@ -38,7 +38,12 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double median_seconds(const std::function<void()>& fn, int warmup, int reps) {
+struct Timing {
+  double median = 0, min = 0;
+};
+
+// Median (the reported number) and minimum (less sensitive to a busy machine) over reps.
+Timing time_it(const std::function<void()>& fn, int warmup, int reps) {
   for (int i = 0; i < warmup; ++i) fn();
   std::vector<double> t;
   for (int i = 0; i < reps; ++i) {
@@ -47,7 +52,8 @@ double median_seconds(const std::function<void()>& fn, int warmup, int reps) {
     t.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
   }
   std::sort(t.begin(), t.end());
-  return t.size() % 2 ? t[t.size() / 2] : 0.5 * (t[t.size() / 2 - 1] + t[t.size() / 2]);
+  const double median = t.size() % 2 ? t[t.size() / 2] : 0.5 * (t[t.size() / 2 - 1] + t[t.size() / 2]);
+  return {median, t.front()};
 }
 
 struct Batch {
@@ -78,7 +84,7 @@ double gemm_seconds(int size, int threads, int reps) {
       c.middleCols(begin, end - begin).noalias() = a * b.middleCols(begin, end - begin);
     }
   };
-  return median_seconds(run, 1, reps);
+  return time_it(run, 1, reps).median;
 }
 
 std::string shell_quote(const std::string& s) {
@@ -168,14 +174,14 @@ int main(int argc, char** argv) {
       std::string name;
       int batch;
       bool train;
-      double ours = 0, torch = 0;
+      Timing ours, torch;
     };
-    std::vector<Row> table{{"train_b1", 1, true}, {"train_b4", 4, true}, {"infer_b1", 1, false}};
+    std::vector<Row> table{{"train_b1", 1, true, {}, {}}, {"train_b4", 4, true, {}, {}}, {"infer_b1", 1, false, {}, {}}};
     for (Row& row : table) {
       const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
       Tensor y, dy;
       if (row.train) {
-        row.ours = median_seconds(
+        row.ours = time_it(
             [&] {
               model.params().zero_grads();
               model.forward(b.x, y);
@@ -187,9 +193,9 @@ int main(int argc, char** argv) {
             },
             warmup, reps);
       } else {
-        row.ours = median_seconds([&] { model.predict(b.x, y); }, warmup, reps);
+        row.ours = time_it([&] { model.predict(b.x, y); }, warmup, reps);
       }
-      std::cerr << "bench: ours " << row.name << " " << row.ours << " s\n";
+      std::cerr << "bench: ours " << row.name << " " << row.ours.median << " s\n";
     }
 
     // --- PyTorch, same run ----------------------------------------------------------------
@@ -198,7 +204,8 @@ int main(int argc, char** argv) {
     if (with_torch) {
       peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
                        reps, warmup, lambda, mkldnn);
-      for (Row& row : table) row.torch = peer.at(row.name).get<double>();
+      for (Row& row : table)
+        row.torch = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>()};
     }
 
     // --- GEMM peak ------------------------------------------------------------------------
@@ -210,21 +217,25 @@ int main(int argc, char** argv) {
     // --- report ---------------------------------------------------------------------------
     std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", rows,
                 cols, threads, reps, warmup);
-    std::printf("%-10s %10s %10s %12s %12s %12s\n", "row", "ours (s)", "torch (s)", "ours/torch", "ours GFLOP/s",
-                "torch GFLOP/s");
+    std::printf("%-10s %10s %10s %12s %12s %13s %12s\n", "row", "ours (s)", "torch (s)", "ours/torch", "ours GFLOP/s",
+                "torch GFLOP/s", "min ratio");
     nlohmann::json out_rows = nlohmann::json::array();
     for (const Row& row : table) {
       // A training step counts as 3 forward passes (forward, backward to inputs, to weights).
       const double flops = (row.train ? 3.0 : 1.0) * model.forward_flops(row.batch, rows, cols);
-      const double ratio = with_torch ? row.ours / row.torch : 0;
+      const double ratio = with_torch ? row.ours.median / row.torch.median : 0;
+      const double min_ratio = with_torch ? row.ours.min / row.torch.min : 0;
       if (with_torch)
-        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %12.1f\n", row.name.c_str(), row.ours, row.torch, ratio,
-                    flops / row.ours * 1e-9, flops / row.torch * 1e-9);
+        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f\n", row.name.c_str(), row.ours.median,
+                    row.torch.median, ratio, flops / row.ours.median * 1e-9, flops / row.torch.median * 1e-9,
+                    min_ratio);
       else
-        std::printf("%-10s %10.4f %10s %12s %12.1f %12s\n", row.name.c_str(), row.ours, "-", "-",
-                    flops / row.ours * 1e-9, "-");
-      out_rows.push_back({{"row", row.name}, {"ours_s", row.ours}, {"torch_s", row.torch}, {"ratio", ratio},
-                          {"ours_gflops", flops / row.ours * 1e-9}, {"flops", flops}});
+        std::printf("%-10s %10.4f %10s %12s %12.1f %13s %12s\n", row.name.c_str(), row.ours.median, "-", "-",
+                    flops / row.ours.median * 1e-9, "-", "-");
+      out_rows.push_back({{"row", row.name}, {"ours_s", row.ours.median}, {"ours_min_s", row.ours.min},
+                          {"torch_s", row.torch.median}, {"torch_min_s", row.torch.min}, {"ratio", ratio},
+                          {"min_ratio", min_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
+                          {"flops", flops}});
     }
     if (gemm_n > 0) {
       const double gf = 2.0 * gemm_n * double(gemm_n) * gemm_n / gemm_s * 1e-9;
