@@ -1,0 +1,70 @@
+#pragma once
+// Occlusion in the sensor's angular (canonical) grid with a depth test.
+//
+// The grid is uniform in azimuth (full circle) and elevation (the field of view's vertical
+// limits), 0.25 deg by default. Each box is rasterised exactly: for every cell inside its
+// conservative angular footprint (azimuth from its vertical edges, elevation from its corners and
+// the top/bottom points nearest the sensor), the ray through the cell centre is cast against the
+// box (slab test); a hit makes the cell part of the box's footprint and enters the per-cell
+// nearest-depth test. Visible fraction = cells the box wins / cells of its footprint. A box too
+// small to cover any cell centre is judged by the cell of its centre direction (fraction 0 or 1).
+// Lane points whose cell holds a box nearer than the point are dropped.
+#include <vector>
+
+#include "sensor/fov.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::sensor {
+
+// An oriented (yaw-only) box prepared for ray casting.
+struct RayBox {
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  Eigen::Vector3d half = Eigen::Vector3d::Ones();
+  double cos_h = 1, sin_h = 0;
+  static RayBox of(const Object& o);
+};
+
+// Ray o + t d (d need not be unit; t in units of |d|) against the box: true and the entry
+// distance t_hit (0 when o is inside) when it hits with t_hit <= t_max. normal_axis (0, 1, 2 =
+// box x, y, z) and normal_sign tell the face that was entered, in box coordinates.
+bool ray_box(const RayBox& b, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_max, double& t_hit,
+             int* normal_axis = nullptr, int* normal_sign = nullptr);
+
+struct OcclusionConfig {
+  double azimuth_resolution = 0.25 * 3.14159265358979323846 / 180;    // rad
+  double elevation_resolution = 0.25 * 3.14159265358979323846 / 180;  // rad
+  double elevation_min = -30 * 3.14159265358979323846 / 180;          // grid limits, rad
+  double elevation_max = 10 * 3.14159265358979323846 / 180;
+  static OcclusionConfig for_fov(const FieldOfView& fov, double resolution_rad = 0.25 * 3.14159265358979323846 / 180);
+};
+
+class Occlusion {
+ public:
+  explicit Occlusion(const OcclusionConfig& config = {});
+
+  // Objects and lanes in the sensor frame. Sets each object's visible_fraction; drops lane
+  // points behind a box (lanes left with < 2 points are removed). Allocation-free once warm.
+  void apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes);
+
+  // After apply(): per object (same order), cells of its footprint and cells it won.
+  const std::vector<int>& footprint_cells() const { return footprint_; }
+  const std::vector<int>& visible_cells() const { return visible_; }
+  int rows() const { return rows_; }
+  int cols() const { return cols_; }
+  // The object index owning each cell (-1 = none) and its depth, [rows * cols], row 0 = top.
+  const std::vector<int>& owner() const { return owner_; }
+  const std::vector<float>& depth() const { return depth_; }
+
+ private:
+  bool cell_of(const Eigen::Vector3d& p, int& row, int& col) const;
+  void rasterise(const Object& o, int index);
+
+  OcclusionConfig cfg_;
+  int rows_ = 0, cols_ = 0;
+  std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_;
+  std::vector<float> depth_;
+  std::vector<int> owner_;
+  std::vector<int> footprint_, visible_;
+};
+
+}  // namespace lidarsim::sensor

@@ -1,0 +1,429 @@
+#include "sensor/scenario.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cctype>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <numbers>
+#include <set>
+#include <sstream>
+
+#include "common/error.h"
+#include "pgm/materials.h"
+#include "sensor/frames.h"
+
+namespace lidarsim::sensor {
+
+namespace {
+
+using nlohmann::json;
+constexpr double kDeg = std::numbers::pi / 180.0;
+// Marks a NaN/Infinity/overflowing literal replaced by a string before parsing, so the reader
+// can name the field that held it (standard JSON has no such numbers; Python writes them).
+const std::string kNonFinite = "@@lidarsim-nonfinite@@:";
+
+std::string mark_non_finite(const std::string& text) {
+  std::string out;
+  out.reserve(text.size());
+  std::size_t i = 0;
+  const auto n = text.size();
+  while (i < n) {
+    const char c = text[i];
+    if (c == '"') {  // copy a string literal verbatim
+      std::size_t j = i + 1;
+      while (j < n && text[j] != '"') j += (text[j] == '\\') ? 2 : 1;
+      out.append(text, i, std::min(j + 1, n) - i);
+      i = j + 1;
+      continue;
+    }
+    const bool starts_number = c == '-' || std::isdigit(static_cast<unsigned char>(c));
+    const bool starts_word = std::isalpha(static_cast<unsigned char>(c));
+    if (starts_number || starts_word) {
+      std::size_t j = i + 1;
+      while (j < n && (std::isalnum(static_cast<unsigned char>(text[j])) || text[j] == '.' ||
+                       text[j] == '+' || text[j] == '-' || text[j] == '_'))
+        ++j;
+      const std::string token = text.substr(i, j - i);
+      bool bad = false;
+      if (starts_word) {
+        bad = token != "true" && token != "false" && token != "null";
+      } else {
+        const char* first_alpha = token.c_str() + (token[0] == '-' ? 1 : 0);
+        if (std::isalpha(static_cast<unsigned char>(*first_alpha))) {
+          bad = true;  // -Infinity, -nan
+        } else {
+          char* end = nullptr;
+          const double v = std::strtod(token.c_str(), &end);
+          bad = !std::isfinite(v);
+        }
+      }
+      // Only NaN/Inf-like words are marked; other bare words stay and fail in the parser.
+      if (bad) {
+        std::string low;
+        for (char ch : token) low += static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+        const bool nonfinite_word = low.find("nan") != std::string::npos || low.find("inf") != std::string::npos;
+        if (starts_word && !nonfinite_word) bad = false;
+      }
+      if (bad) out += "\"" + kNonFinite + token + "\"";
+      else out += token;
+      i = j;
+      continue;
+    }
+    out += c;
+    ++i;
+  }
+  return out;
+}
+
+class Reader {
+ public:
+  explicit Reader(std::string file) : file_(std::move(file)) {}
+
+  [[noreturn]] void fail(const std::string& path, const std::string& msg) const {
+    throw input_error(file_, path.empty() ? "(top level)" : path, msg);
+  }
+
+  static std::string describe(const json& j) {
+    if (j.is_string()) {
+      const auto& s = j.get_ref<const std::string&>();
+      if (s.rfind(kNonFinite, 0) == 0) return s.substr(kNonFinite.size());
+      return "\"" + s + "\"";
+    }
+    return j.dump();
+  }
+
+  const json& field(const json& obj, const std::string& path, const char* key) const {
+    if (!obj.is_object()) fail(path, "must be an object, got " + describe(obj));
+    const auto it = obj.find(key);
+    if (it == obj.end()) fail(join(path, key), "missing (required field)");
+    return *it;
+  }
+  const json* optional(const json& obj, const char* key) const {
+    const auto it = obj.find(key);
+    return it == obj.end() ? nullptr : &*it;
+  }
+  static std::string join(const std::string& path, const char* key) {
+    return path.empty() ? std::string(key) : path + "." + key;
+  }
+  static std::string index(const std::string& path, std::size_t i) { return path + "[" + std::to_string(i) + "]"; }
+
+  double number(const json& j, const std::string& path) const {
+    if (j.is_string() && j.get_ref<const std::string&>().rfind(kNonFinite, 0) == 0)
+      fail(path, "must be a finite number, got " + describe(j));
+    if (!j.is_number()) fail(path, "must be a number, got " + describe(j));
+    const double v = j.get<double>();
+    if (!std::isfinite(v)) fail(path, "must be a finite number, got " + describe(j));
+    return v;
+  }
+  double number(const json& obj, const std::string& path, const char* key) const {
+    return number(field(obj, path, key), join(path, key));
+  }
+  double positive(const json& obj, const std::string& path, const char* key) const {
+    const double v = number(obj, path, key);
+    if (!(v > 0)) fail(join(path, key), "must be positive, got " + fmt(v));
+    return v;
+  }
+  int integer(const json& obj, const std::string& path, const char* key, int min_value) const {
+    const auto& j = field(obj, path, key);
+    const double v = number(j, join(path, key));
+    if (v != std::floor(v) || std::abs(v) > 1e9) fail(join(path, key), "must be an integer, got " + describe(j));
+    if (v < min_value) fail(join(path, key), "must be at least " + std::to_string(min_value) + ", got " + describe(j));
+    return static_cast<int>(v);
+  }
+  std::string string(const json& obj, const std::string& path, const char* key) const {
+    const auto& j = field(obj, path, key);
+    if (!j.is_string() || j.get_ref<const std::string&>().rfind(kNonFinite, 0) == 0)
+      fail(join(path, key), "must be a string, got " + describe(j));
+    return j.get<std::string>();
+  }
+  const json& array(const json& obj, const std::string& path, const char* key, std::size_t min_size) const {
+    const auto& j = field(obj, path, key);
+    if (!j.is_array()) fail(join(path, key), "must be an array, got " + describe(j));
+    if (j.size() < min_size)
+      fail(join(path, key), "must have at least " + std::to_string(min_size) + " entries, got " + std::to_string(j.size()));
+    return j;
+  }
+  Eigen::Vector3d vec(const json& j, const std::string& path, std::size_t min_len = 3) const {
+    if (!j.is_array() || j.size() < min_len || j.size() > 3)
+      fail(path, (min_len == 3 ? "must be an array of 3 numbers, got " : "must be an array of 2 or 3 numbers, got ") +
+                     describe(j));
+    Eigen::Vector3d v = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < j.size(); ++i) v[static_cast<int>(i)] = number(j[i], index(path, i));
+    return v;
+  }
+  Eigen::Vector3d vec(const json& obj, const std::string& path, const char* key) const {
+    return vec(field(obj, path, key), join(path, key));
+  }
+  static std::string fmt(double v) {
+    std::ostringstream s;
+    s << v;
+    return s.str();
+  }
+
+ private:
+  std::string file_;
+};
+
+KinematicState read_state(const Reader& r, const json& j, const std::string& path) {
+  KinematicState s;
+  s.t = r.number(j, path, "t");
+  s.position = r.vec(j, path, "position");
+  s.velocity = r.vec(j, path, "velocity");
+  if (const json* a = r.optional(j, "acceleration")) s.acceleration = r.vec(*a, Reader::join(path, "acceleration"));
+  s.heading = r.number(j, path, "heading_deg") * kDeg;
+  return s;
+}
+
+std::vector<KinematicState> read_states(const Reader& r, const json& obj, const std::string& path) {
+  const json& arr = r.array(obj, path, "states", 1);
+  const std::string apath = Reader::join(path, "states");
+  std::vector<KinematicState> states;
+  for (std::size_t i = 0; i < arr.size(); ++i) {
+    states.push_back(read_state(r, arr[i], Reader::index(apath, i)));
+    if (i > 0 && !(states[i].t > states[i - 1].t))
+      r.fail(Reader::index(apath, i) + ".t", "must be greater than the previous state's t (" +
+                                                 Reader::fmt(states[i - 1].t) + "), got " + Reader::fmt(states[i].t));
+  }
+  return states;
+}
+
+LaneType lane_type_from(const Reader& r, const std::string& s, const std::string& path) {
+  if (s == "solid") return LaneType::Solid;
+  if (s == "dashed") return LaneType::Dashed;
+  if (s == "road_edge") return LaneType::RoadEdge;
+  r.fail(path, "must be \"solid\", \"dashed\" or \"road_edge\", got \"" + s + "\"");
+}
+
+// Inserts points so that no two consecutive points are more than `step` apart.
+std::vector<Eigen::Vector3d> resample(const std::vector<Eigen::Vector3d>& pts, double step) {
+  std::vector<Eigen::Vector3d> out;
+  out.push_back(pts.front());
+  for (std::size_t i = 1; i < pts.size(); ++i) {
+    const Eigen::Vector3d d = pts[i] - pts[i - 1];
+    const int n = std::max(1, static_cast<int>(std::ceil(d.norm() / step)));
+    for (int k = 1; k <= n; ++k) out.push_back(pts[i - 1] + d * (static_cast<double>(k) / n));
+  }
+  return out;
+}
+
+double wrap_pi(double a) { return std::remainder(a, 2 * std::numbers::pi); }
+
+void extrapolate(const KinematicState& s, double t, KinematicState& out) {
+  const double dt = t - s.t;
+  out = s;
+  out.t = t;
+  out.position = s.position + s.velocity * dt + 0.5 * s.acceleration * dt * dt;
+  out.velocity = s.velocity + s.acceleration * dt;
+}
+
+}  // namespace
+
+pgm::BeamLayout BeamSpec::layout() const {
+  if (kind == "hdl64e") return pgm::BeamLayout::hdl64e(columns);
+  return pgm::BeamLayout::uniform(rows, top_deg, bottom_deg, columns);
+}
+
+int Scenario::frame_count() const { return static_cast<int>(std::floor(duration * rate_hz + 1e-9)); }
+
+std::string default_material(ObjectClass cls) {
+  return pgm::material_name(pgm::default_material(pgm::class_from_object_type(to_string(cls))));
+}
+
+Scenario parse_scenario(const std::string& text, const std::string& file) {
+  json root;
+  try {
+    root = json::parse(mark_non_finite(text), nullptr, true, /*ignore_comments=*/true);
+  } catch (const json::exception& e) {
+    throw input_error(file, "(json)", std::string("not valid JSON: ") + e.what());
+  }
+  const Reader r(file);
+  Scenario sc;
+  sc.source = file;
+  if (!root.is_object()) r.fail("", "must be a JSON object, got " + Reader::describe(root));
+  if (const json* name = r.optional(root, "name")) {
+    if (!name->is_string()) r.fail("name", "must be a string, got " + Reader::describe(*name));
+    sc.name = name->get<std::string>();
+  }
+  sc.duration = r.positive(root, "", "duration");
+  sc.rate_hz = r.positive(root, "", "rate_hz");
+
+  // Sensor.
+  const json& sj = r.field(root, "", "sensor");
+  const json& mj = r.field(sj, "sensor", "mount");
+  const Eigen::Vector3d mt(r.number(mj, "sensor.mount", "x"), r.number(mj, "sensor.mount", "y"),
+                           r.number(mj, "sensor.mount", "z"));
+  sc.sensor.mount = make_pose(mt, r.number(mj, "sensor.mount", "roll_deg") * kDeg,
+                              r.number(mj, "sensor.mount", "pitch_deg") * kDeg,
+                              r.number(mj, "sensor.mount", "yaw_deg") * kDeg);
+  const json& bj = r.field(sj, "sensor", "beams");
+  if (bj.is_string()) {
+    if (bj.get<std::string>() != "hdl64e")
+      r.fail("sensor.beams", "must be \"hdl64e\" or {rows, top_deg, bottom_deg}, got " + Reader::describe(bj));
+    sc.sensor.beams.kind = "hdl64e";
+  } else {
+    sc.sensor.beams.kind = "uniform";
+    sc.sensor.beams.rows = r.integer(bj, "sensor.beams", "rows", 1);
+    sc.sensor.beams.top_deg = r.number(bj, "sensor.beams", "top_deg");
+    sc.sensor.beams.bottom_deg = r.number(bj, "sensor.beams", "bottom_deg");
+    if (!(sc.sensor.beams.top_deg > sc.sensor.beams.bottom_deg) && sc.sensor.beams.rows > 1)
+      r.fail("sensor.beams.top_deg", "must be above bottom_deg (" + Reader::fmt(sc.sensor.beams.bottom_deg) +
+                                         "), got " + Reader::fmt(sc.sensor.beams.top_deg));
+    if (std::abs(sc.sensor.beams.top_deg) > 90 || std::abs(sc.sensor.beams.bottom_deg) > 90)
+      r.fail("sensor.beams", "elevations must lie within [-90, 90] degrees");
+  }
+  sc.sensor.beams.columns = r.integer(sj, "sensor", "columns", 1);
+  const json& fj = r.field(sj, "sensor", "fov");
+  const json& hj = r.array(fj, "sensor.fov", "horizontal_deg", 2);
+  const json& vj = r.array(fj, "sensor.fov", "vertical_deg", 2);
+  auto& fov = sc.sensor.fov;
+  fov.azimuth_min = r.number(hj[0], "sensor.fov.horizontal_deg[0]") * kDeg;
+  fov.azimuth_max = r.number(hj[1], "sensor.fov.horizontal_deg[1]") * kDeg;
+  fov.elevation_min = r.number(vj[0], "sensor.fov.vertical_deg[0]") * kDeg;
+  fov.elevation_max = r.number(vj[1], "sensor.fov.vertical_deg[1]") * kDeg;
+  if (!(fov.azimuth_max > fov.azimuth_min) || fov.azimuth_max - fov.azimuth_min > 2 * std::numbers::pi + 1e-9)
+    r.fail("sensor.fov.horizontal_deg", "must be [min, max] with min < max and at most 360 degrees wide, got " +
+                                            Reader::describe(hj));
+  if (!(fov.elevation_max > fov.elevation_min) || fov.elevation_min < -std::numbers::pi / 2 - 1e-9 ||
+      fov.elevation_max > std::numbers::pi / 2 + 1e-9)
+    r.fail("sensor.fov.vertical_deg", "must be [min, max] with -90 <= min < max <= 90, got " + Reader::describe(vj));
+  fov.range_max = r.positive(sj, "sensor", "max_range");
+  if (const json* mr = r.optional(sj, "min_range")) {
+    fov.range_min = r.number(*mr, "sensor.min_range");
+    if (fov.range_min < 0 || fov.range_min >= fov.range_max)
+      r.fail("sensor.min_range", "must be in [0, max_range), got " + Reader::fmt(fov.range_min));
+  }
+
+  // Ego.
+  sc.ego = read_states(r, r.field(root, "", "ego"), "ego");
+
+  // Objects.
+  const json& oj = r.array(root, "", "objects", 0);
+  std::set<int> ids;
+  for (std::size_t i = 0; i < oj.size(); ++i) {
+    const std::string p = Reader::index("objects", i);
+    ScenarioObject o;
+    o.id = r.integer(oj[i], p, "id", 0);
+    if (!ids.insert(o.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(o.id) + " twice");
+    const std::string cls = r.string(oj[i], p, "class");
+    try {
+      o.cls = object_class_from_string(cls);
+    } catch (const Error& e) {
+      r.fail(p + ".class", e.what());
+    }
+    const json& size = r.field(oj[i], p, "size");
+    o.size = r.vec(size, p + ".size");
+    for (int k = 0; k < 3; ++k)
+      if (!(o.size[k] > 0)) r.fail(p + ".size[" + std::to_string(k) + "]", "must be positive, got " + Reader::fmt(o.size[k]));
+    if (r.optional(oj[i], "material")) {
+      o.material = r.string(oj[i], p, "material");
+      try {
+        pgm::material_from_name(o.material);
+      } catch (const Error& e) {
+        r.fail(p + ".material", e.what());
+      }
+    } else {
+      o.material = default_material(o.cls);
+    }
+    o.states = read_states(r, oj[i], p);
+    sc.objects.push_back(std::move(o));
+  }
+
+  // Lanes.
+  const json& lj = r.array(root, "", "lanes", 0);
+  std::set<int> lane_ids;
+  for (std::size_t i = 0; i < lj.size(); ++i) {
+    const std::string p = Reader::index("lanes", i);
+    LanePolyline lane;
+    lane.id = r.integer(lj[i], p, "id", 0);
+    if (!lane_ids.insert(lane.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(lane.id) + " twice");
+    lane.type = lane_type_from(r, r.string(lj[i], p, "type"), p + ".type");
+    const json& pts = r.array(lj[i], p, "points", 2);
+    std::vector<Eigen::Vector3d> raw;
+    for (std::size_t k = 0; k < pts.size(); ++k) raw.push_back(r.vec(pts[k], Reader::index(p + ".points", k), 2));
+    lane.points = resample(raw, 0.5);
+    sc.lanes.push_back(std::move(lane));
+  }
+  return sc;
+}
+
+Scenario read_scenario(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw input_error(path.string(), "(file)", "cannot open the scenario file");
+  std::stringstream buf;
+  buf << in.rdbuf();
+  return parse_scenario(buf.str(), path.string());
+}
+
+bool sample_state(const std::vector<KinematicState>& states, double t, KinematicState& out, bool extrapolate_always) {
+  if (states.empty()) return false;
+  if (states.size() == 1 || t <= states.front().t || t >= states.back().t) {
+    const bool single = states.size() == 1;
+    if (!single && !extrapolate_always) {
+      // Keyframe tracks exist on [first, last]; the ends themselves are exact keyframes.
+      if (t < states.front().t - 1e-9 || t > states.back().t + 1e-9) return false;
+    }
+    const KinematicState& s = (single || t <= states.front().t) ? states.front() : states.back();
+    extrapolate(s, t, out);
+    return true;
+  }
+  // Keyframe interval [k, k+1] containing t.
+  std::size_t k = 0;
+  std::size_t lo = 0, hi = states.size() - 1;
+  while (hi - lo > 1) {
+    const std::size_t mid = (lo + hi) / 2;
+    (states[mid].t <= t ? lo : hi) = mid;
+  }
+  k = lo;
+  const KinematicState& a = states[k];
+  const KinematicState& b = states[k + 1];
+  const double h = b.t - a.t, s = (t - a.t) / h;
+  // Quintic Hermite: p(s) = sum c_i s^i matching p, h v, h^2 a at both ends.
+  const Eigen::Vector3d dp = b.position - a.position;
+  const Eigen::Vector3d hv0 = h * a.velocity, hv1 = h * b.velocity;
+  const Eigen::Vector3d ha0 = h * h * a.acceleration, ha1 = h * h * b.acceleration;
+  const Eigen::Vector3d c0 = a.position, c1 = hv0, c2 = 0.5 * ha0;
+  const Eigen::Vector3d c3 = 10 * dp - 6 * hv0 - 4 * hv1 - 1.5 * ha0 + 0.5 * ha1;
+  const Eigen::Vector3d c4 = -15 * dp + 8 * hv0 + 7 * hv1 + 1.5 * ha0 - ha1;
+  const Eigen::Vector3d c5 = 6 * dp - 3 * hv0 - 3 * hv1 - 0.5 * ha0 + 0.5 * ha1;
+  out.t = t;
+  out.position = c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5))));
+  out.velocity = (c1 + s * (2 * c2 + s * (3 * c3 + s * (4 * c4 + s * 5 * c5)))) / h;
+  out.acceleration = (2 * c2 + s * (6 * c3 + s * (12 * c4 + s * 20 * c5))) / (h * h);
+  out.heading = wrap_pi(a.heading + s * wrap_pi(b.heading - a.heading));
+  return true;
+}
+
+void sample_frame(const Scenario& sc, double t, Frame& out) {
+  out.time = t;
+  KinematicState ego;
+  sample_state(sc.ego, t, ego, /*extrapolate=*/true);
+  out.ego_in_map = make_pose(ego.position, 0, 0, ego.heading);
+  std::size_t n = 0;
+  KinematicState s;
+  for (const auto& o : sc.objects) {
+    if (!sample_state(o.states, t, s, false)) continue;
+    if (out.objects.size() <= n) out.objects.emplace_back();
+    Object& dst = out.objects[n++];
+    dst.id = o.id;
+    dst.cls = o.cls;
+    dst.material = o.material;
+    dst.position = s.position;
+    dst.velocity = s.velocity;
+    dst.acceleration = s.acceleration;
+    dst.size = o.size;
+    dst.heading = s.heading;
+    dst.visible_fraction = 1;
+    dst.score = 1;
+  }
+  out.objects.resize(n);
+  out.lanes.resize(sc.lanes.size());
+  for (std::size_t i = 0; i < sc.lanes.size(); ++i) {
+    out.lanes[i].id = sc.lanes[i].id;
+    out.lanes[i].type = sc.lanes[i].type;
+    out.lanes[i].points.assign(sc.lanes[i].points.begin(), sc.lanes[i].points.end());
+  }
+}
+
+}  // namespace lidarsim::sensor
