@@ -38,6 +38,11 @@ std::vector<float> g_masked;    // relu-masked d_out
 std::vector<float> g_wflip;     // flipped, transposed conv weights for the input gradient
 std::vector<float> g_partials;  // per-thread weight-gradient partials
 
+// Below these sizes a parallel region costs more than it saves (and, on a loaded machine,
+// spinning threads cost far more): run serially.
+constexpr double kParallelFlops = 2e6;
+constexpr std::size_t kParallelElems = 1 << 15;
+
 constexpr std::size_t kColFloats = 1 << 17;  // one thread's im2col tile: 512 KB, stays in L2
 
 int tile_pixels(int kdim, int hw) {
@@ -87,7 +92,8 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
   const int tiles = (hw + t - 1) / t;
   const std::size_t in_image = static_cast<std::size_t>(ci) * h * w;
   const std::size_t out_image = static_cast<std::size_t>(co) * hw;
-#pragma omp parallel for schedule(static)
+  const bool par = 2.0 * n * hw * kdim * co > kParallelFlops;
+#pragma omp parallel for schedule(static) if (par)
   for (int task = 0; task < n * tiles; ++task) {
     const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
     const float* src = in + img * in_image;
@@ -154,14 +160,15 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     const float* o = out.data();
     const float* d = d_out.data();
     const std::size_t total = so.numel();
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (total > kParallelElems)
     for (std::size_t i = 0; i < total; ++i) m[i] = o[i] > 0.f ? d[i] : 0.f;
     g = m;
   }
   const std::size_t out_image = static_cast<std::size_t>(co) * hw;
 
+  const bool par = 2.0 * n * hw * kdim * co > kParallelFlops;
   if (d_bias) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (par)
     for (int o = 0; o < co; ++o) {
       float acc = 0.f;
       for (int i = 0; i < n; ++i) {
@@ -183,7 +190,7 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     float* parts = grow(g_partials, wsize * threads);
     std::fill(parts, parts + wsize * threads, 0.f);
     const std::size_t in_image = s.image();
-#pragma omp parallel
+#pragma omp parallel if (par)
     {
       Mat part(parts + wsize * omp_get_thread_num(), kdim, co, Eigen::OuterStride<>(kdim));
 #pragma omp for schedule(static)
@@ -206,7 +213,7 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
         part.noalias() += a.transpose() * gm;
       }
     }
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (wsize > kParallelElems)
     for (std::size_t e = 0; e < wsize; ++e) {
       float acc = 0.f;
       for (int th = 0; th < threads; ++th) acc += parts[th * wsize + e];
@@ -245,7 +252,8 @@ void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weigh
   const int tiles = (h + rows - 1) / rows;
   const std::size_t oplane = static_cast<std::size_t>(out_h) * out_w;
   Eigen::Map<const RowMat> wm(weight, ci, co4);  // [Ci, Co 2 2]
-#pragma omp parallel for schedule(static)
+  const bool par = 2.0 * s.n * hw * ci * co4 > kParallelFlops;
+#pragma omp parallel for schedule(static) if (par)
   for (int task = 0; task < s.n * tiles; ++task) {
     const int img = task / tiles, y0 = (task % tiles) * rows, y1 = std::min(h, y0 + rows);
     const int len = (y1 - y0) * w;
@@ -292,7 +300,8 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
   float* parts = grow(g_partials, psize * threads);
   std::fill(parts, parts + psize * threads, 0.f);
   Eigen::Map<const RowMat> wm(weight, ci, co4);
-#pragma omp parallel
+  const bool par = 2.0 * n * hw * ci * co4 > kParallelFlops;
+#pragma omp parallel if (par)
   {
     float* part = parts + psize * omp_get_thread_num();
     Eigen::Map<RowMat> dw(part, ci, co4);
@@ -326,7 +335,7 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
       dw.noalias() += x.transpose() * g;
     }
   }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (psize > kParallelElems)
   for (std::size_t e = 0; e < psize; ++e) {
     float acc = 0.f;
     for (int th = 0; th < threads; ++th) acc += parts[th * psize + e];
@@ -348,7 +357,7 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
   ensure(out, Shape{s.n, s.c, ho, wo});
   if (argmax.size() != out.numel()) argmax.resize(out.numel());
   const int planes = s.n * s.c;
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (in.numel() > kParallelElems)
   for (int p = 0; p < planes; ++p) {
     const float* src = in.data() + p * s.plane();
     float* dst = out.data() + p * out.shape().plane();
@@ -385,7 +394,7 @@ void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<s
   const int planes = so.n * so.c;
   const std::size_t ip = in_shape.plane(), op = so.plane();
   const bool broken = fault(testhook::Fault::max_pool);
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (d_out.numel() > kParallelElems / 4)
   for (int p = 0; p < planes; ++p) {
     float* dst = d_in.data() + p * ip;
     if (!accumulate) std::fill(dst, dst + ip, 0.f);
@@ -409,7 +418,7 @@ void relu_forward(Tensor& out, const Tensor& in) {
   const std::size_t n = in.numel();
   const float* x = in.data();
   float* y = out.data();
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (n > kParallelElems)
   for (std::size_t i = 0; i < n; ++i) y[i] = std::max(x[i], 0.f);
 }
 
@@ -421,7 +430,7 @@ void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out) {
   const float* d = d_out.data();
   const float* y = out.data();
   float* dx = d_in.data();
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (n > kParallelElems)
   for (std::size_t i = 0; i < n; ++i) dx[i] = y[i] > 0.f ? d[i] : 0.f;
   if (fault(testhook::Fault::relu) && n > 1) dx[1] = d[0];
 }

@@ -51,7 +51,7 @@ double l2_penalty(ParamArena& params, float lambda, bool grads) {
   // Per-parameter sums in double, added in registration order: independent of thread count.
   const auto& infos = params.infos();
   std::vector<double> partial(infos.size(), 0.0);
-#pragma omp parallel for schedule(dynamic)
+#pragma omp parallel for schedule(dynamic) if (params.size() > (1u << 15))
   for (std::size_t i = 0; i < infos.size(); ++i) {
     if (!infos[i].decays) continue;
     const float* w = params.values() + infos[i].offset;

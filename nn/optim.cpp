@@ -28,7 +28,7 @@ void Optimizer::step(ParamArena& params) {
     constexpr std::size_t kChunk = 1 << 14;
     const std::size_t chunks = (n + kChunk - 1) / kChunk;
     std::vector<double> partial(chunks, 0.0);
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (n > (1u << 15))
     for (std::size_t c = 0; c < chunks; ++c) {
       double s = 0;
       for (std::size_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) s += double(g[i]) * g[i];
@@ -41,7 +41,7 @@ void Optimizer::step(ParamArena& params) {
     const double coef = config_.clip_norm / (norm + 1e-6);
     if (coef < 1.0) {
       const float c = static_cast<float>(coef);
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
       for (std::size_t i = 0; i < n; ++i) g[i] *= c;
     }
   }
@@ -50,7 +50,7 @@ void Optimizer::step(ParamArena& params) {
   if (config_.kind == "sgd") {
     // torch.optim.SGD, dampening 0, no Nesterov: buf = momentum buf + g (buf = g at step 1).
     const float mu = config_.momentum, lr = config_.lr;
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
     for (std::size_t i = 0; i < n; ++i) {
       m[i] = mu * m[i] + g[i];
       p[i] -= lr * m[i];
@@ -66,7 +66,7 @@ void Optimizer::step(ParamArena& params) {
   const float bc2_sqrt = static_cast<float>(std::sqrt(bc2));
   const float b1 = config_.beta1, b2 = config_.beta2, eps = config_.eps;
   const float one_b1 = 1.f - b1, one_b2 = 1.f - b2;
-#pragma omp parallel for simd schedule(static)
+#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
   for (std::size_t i = 0; i < n; ++i) {
     m[i] = b1 * m[i] + one_b1 * g[i];
     v[i] = b2 * v[i] + one_b2 * g[i] * g[i];

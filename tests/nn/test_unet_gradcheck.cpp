@@ -1,0 +1,172 @@
+// The whole UNet with the masked MSE + L2 loss against central differences (eps 1e-6) of the
+// double-precision reference UNet (reference.h, written from nn/unet.h's comment), for EVERY
+// parameter, at odd input sizes with batch 2. Error = max |analytic - numeric| / max |numeric|,
+// tolerance 1e-4. A fault injected into one layer's backward must push the error above 1e-2.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cstring>
+
+#include "common/error.h"
+#include "nn/layers.h"
+#include "nn/loss.h"
+#include "nn/unet.h"
+#include "reference.h"
+
+namespace lidarsim::nn {
+namespace {
+
+using namespace reference;
+
+struct Case {
+  UNetConfig cfg;
+  Shape x;
+  float lambda;
+};
+
+struct Result {
+  double forward = 0, grad = 0;
+};
+
+Result check_unet(const Case& c) {
+  UNet model(c.cfg);
+  model.init(7);
+  // Non-zero biases so their gradients are exercised through every ReLU pattern.
+  ParamArena& arena = model.params();
+  const std::vector<float> bias_noise = random_vector(arena.size(), 8, 0.1f);
+  for (const ParamInfo& p : arena.infos())
+    if (!p.decays)
+      for (std::size_t i = 0; i < p.shape.numel(); ++i) arena.values()[p.offset + i] = bias_noise[p.offset + i];
+
+  const Tensor x = random_tensor(c.x, 9);
+  const Shape ys{c.x.n, c.cfg.out_channels, c.x.h, c.x.w};
+  const Tensor target = random_tensor(ys, 10);
+  Tensor mask(ys);
+  const Tensor u = random_tensor(ys, 11);
+  for (std::size_t i = 0; i < mask.numel(); ++i) mask.data()[i] = u.data()[i] > -0.2f ? 1.f : 0.f;  // ~60 %
+
+  Tensor y, dy;
+  model.forward(x, y);
+  arena.zero_grads();
+  masked_mse(y, target, mask, &dy);
+  model.backward(dy);
+  l2_penalty(arena, c.lambda, true);
+
+  std::vector<double> p(arena.values(), arena.values() + arena.size());
+  const DT xd = from(x);
+  double valid = 0;
+  for (float m : mask) valid += m;
+  auto loss = [&] {
+    const DT out = unet(model, p, xd);
+    double data = 0;
+    for (std::size_t i = 0; i < out.v.size(); ++i) {
+      const double d = out.v[i] - target.data()[i];
+      data += mask.data()[i] * d * d;
+    }
+    double l2 = 0;
+    for (const ParamInfo& info : arena.infos())
+      if (info.decays)
+        for (std::size_t i = 0; i < info.shape.numel(); ++i) l2 += p[info.offset + i] * p[info.offset + i];
+    return data / valid + c.lambda * l2;
+  };
+  Result r;
+  r.forward = max_rel_error(y.data(), unet(model, p, xd).v);
+  r.grad = max_rel_error(arena.grads(), numeric_gradient(p, loss));
+  std::printf("[ measured ] UNet %s: forward error %.2e, gradient error %.2e over %zu parameters\n",
+              c.x.str().c_str(), r.forward, r.grad, arena.size());
+  return r;
+}
+
+const Case kOdd7x9{{3, 1, 2, 2}, {2, 3, 7, 9}, 1e-2f};
+const Case kOdd5x11{{2, 2, 3, 2}, {2, 2, 5, 11}, 1e-2f};
+
+TEST(UNetGradCheck, OddSize7x9Batch2AllParametersMatchFiniteDifferences) {
+  const Result r = check_unet(kOdd7x9);
+  EXPECT_LT(r.forward, 1e-5);
+  EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNetGradCheck, OddSize5x11TwoOutputsAllParametersMatchFiniteDifferences) {
+  const Result r = check_unet(kOdd5x11);
+  EXPECT_LT(r.forward, 1e-5);
+  EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNetGradCheck, DetectsAWrongIndexInsideTheNetwork) {
+  testhook::fault = testhook::Fault::max_pool;
+  const Result r = check_unet(kOdd7x9);
+  testhook::fault = testhook::Fault::none;
+  EXPECT_GT(r.grad, 1e-2);
+}
+
+TEST(UNet, ForwardFlopsOfUnetRefAre6Point07Giga) {
+  UNet model(UNetConfig{});
+  EXPECT_NEAR(model.forward_flops(1, 64, 1024) / 1e9, 6.07, 0.01);
+}
+
+TEST(UNet, ParameterNamesAndLayoutsFollowTheHeader) {
+  UNet model(UNetConfig{3, 1, 16, 4});
+  const ParamArena& a = model.params();
+  ASSERT_GE(a.find("enc0.conv1/weight"), 0);
+  EXPECT_EQ(a.info(a.find("enc0.conv1/weight")).shape, (Shape{16, 3, 3, 3}));
+  EXPECT_EQ(a.info(a.find("enc4.conv2/weight")).shape, (Shape{256, 256, 3, 3}));
+  EXPECT_EQ(a.info(a.find("dec3.up/weight")).shape, (Shape{256, 128, 2, 2}));
+  EXPECT_EQ(a.info(a.find("dec0.conv1/weight")).shape, (Shape{16, 32, 3, 3}));
+  EXPECT_EQ(a.info(a.find("head/weight")).shape, (Shape{1, 16, 1, 1}));
+  EXPECT_EQ(a.info(a.find("head/bias")).shape, (Shape{1, 1, 1, 1}));
+  EXPECT_FALSE(a.info(a.find("head/bias")).decays);
+  EXPECT_TRUE(a.info(a.find("dec3.up/weight")).decays);
+}
+
+TEST(UNet, HeInitHasTheFanInStandardDeviationAndZeroBiases) {
+  UNet model(UNetConfig{3, 1, 16, 4});
+  model.init(42);
+  const ParamArena& a = model.params();
+  const ParamInfo& w = a.info(a.find("enc4.conv2/weight"));  // 589824 values, fan_in 2304
+  double s = 0, s2 = 0;
+  const std::size_t n = w.shape.numel();
+  for (std::size_t i = 0; i < n; ++i) {
+    s += a.values()[w.offset + i];
+    s2 += double(a.values()[w.offset + i]) * a.values()[w.offset + i];
+  }
+  const double mean = s / n, sd = std::sqrt(s2 / n - mean * mean);
+  const double expect = std::sqrt(2.0 / 2304);
+  EXPECT_NEAR(mean, 0.0, 5 * expect / std::sqrt(double(n)));  // 5 standard errors
+  EXPECT_NEAR(sd / expect, 1.0, 0.01);                        // ~11 standard errors of sd
+  const ParamInfo& b = a.info(a.find("enc4.conv2/bias"));
+  for (std::size_t i = 0; i < b.shape.numel(); ++i) EXPECT_EQ(a.values()[b.offset + i], 0.f);
+}
+
+TEST(UNet, InitIsDeterministicPerSeedAndDiffersBetweenSeeds) {
+  UNet a(UNetConfig{3, 1, 4, 2}), b(UNetConfig{3, 1, 4, 2}), c(UNetConfig{3, 1, 4, 2});
+  a.init(5);
+  b.init(5);
+  c.init(6);
+  const std::size_t bytes = a.params().size() * sizeof(float);
+  EXPECT_EQ(std::memcmp(a.params().values(), b.params().values(), bytes), 0);
+  EXPECT_NE(std::memcmp(a.params().values(), c.params().values(), bytes), 0);
+}
+
+TEST(UNet, RejectsWrongChannelsTooSmallInputsAndNonFiniteValues) {
+  UNet model(UNetConfig{3, 1, 4, 2});
+  model.init(1);
+  Tensor y;
+  EXPECT_THROW(model.forward(Tensor(1, 2, 8, 8), y), Error);
+  EXPECT_THROW(model.forward(Tensor(1, 3, 3, 8), y), Error);  // needs H, W >= 4
+  Tensor x(1, 3, 8, 8);
+  x.at(0, 1, 2, 3) = std::nanf("");
+  EXPECT_THROW(model.forward(x, y), Error);
+}
+
+TEST(UNet, PredictEqualsForward) {
+  UNet model(UNetConfig{3, 1, 4, 2});
+  model.init(3);
+  const Tensor x = random_tensor(Shape{2, 3, 9, 13}, 4);
+  Tensor y1, y2;
+  model.forward(x, y1);
+  model.predict(x, y2);
+  EXPECT_EQ(std::memcmp(y1.data(), y2.data(), y1.numel() * sizeof(float)), 0);
+}
+
+}  // namespace
+}  // namespace lidarsim::nn
