@@ -1,6 +1,7 @@
 #include "data/kitti_tracking.h"
 
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -122,8 +123,10 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     o.object.cls = cls;
     o.object.id = track;
     o.object.material = material_for(cls);
-    // KITTI occlusion levels as a visible fraction for the KPI model's visibility bins.
-    o.object.visible_fraction = o.occluded == 0 ? 1.0 : o.occluded == 1 ? 0.6 : 0.2;
+    // KITTI occlusion level and truncation (the part outside the camera image, which the
+    // camera-bounded labels and detector do not see) as a visible fraction for the KPI model.
+    const double occl = o.occluded == 0 ? 1.0 : o.occluded == 1 ? 0.6 : 0.2;
+    o.object.visible_fraction = occl * std::clamp(1.0 - o.truncated, 0.0, 1.0);
     out.push_back(std::move(o));
   }
   return out;
@@ -224,6 +227,27 @@ KittiTrackingSequence read_kitti_tracking_sequence(const fs::path& root, const s
     seq.frames[o.frame].detections.push_back(std::move(o));
   }
   return seq;
+}
+
+sensor::CalibrationSequence to_calibration_sequence(const KittiTrackingSequence& seq) {
+  sensor::CalibrationSequence out;
+  out.name = seq.name;
+  out.frame_dt = 0.1;  // KITTI tracking: 10 Hz
+  out.frames.resize(seq.frames.size());
+  for (size_t f = 0; f < seq.frames.size(); ++f) {
+    const KittiTrackingFrame& in = seq.frames[f];
+    sensor::CalibrationFrame& fr = out.frames[f];
+    for (const auto& o : in.truth) {
+      if (o.type == "Car" || o.type == "Pedestrian" || o.type == "Cyclist") {
+        fr.truth.push_back(o.object);
+        fr.occlusion.push_back(o.occluded);
+      } else {
+        fr.others.push_back(o.object);
+      }
+    }
+    for (const auto& d : in.detections) fr.detections.push_back(d.object);
+  }
+  return out;
 }
 
 }  // namespace lidarsim::data

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "data/kitti_object.h"
+#include "sensor/kpi_fit.h"
 #include "sensor/scene.h"
 
 namespace lidarsim::data {
@@ -62,5 +63,11 @@ std::vector<std::string> read_kitti_seqmap(const std::filesystem::path& path);
 // Detection files that do not exist give no detections for that class.
 KittiTrackingSequence read_kitti_tracking_sequence(const std::filesystem::path& root, const std::string& name,
                                                    const std::string& detector = "pointrcnn");
+
+// For the KPI calibration: truth = Car, Pedestrian, Cyclist (exact KITTI types, visible
+// fraction = (1.0, 0.6, 0.2 for occlusion level 0, 1, 2-3) x (1 - truncated)); every other type (Van, Truck,
+// Person_sitting, Tram, Misc) goes to `others`, so a Car detection on a Van is not counted as a
+// false positive; all detections are kept (the fit applies its score threshold).
+sensor::CalibrationSequence to_calibration_sequence(const KittiTrackingSequence& seq);
 
 }  // namespace lidarsim::data

@@ -61,7 +61,9 @@ double RunningTargetController::apply(double z) {
   v_ += a * (d * (out - m_) - v_);
   if (cfg_.enabled) {
     c_ -= cfg_.mean_gain * m_;
-    g_ = std::clamp(g_ * std::exp(-cfg_.std_gain * (running_std() - 1)), 0.2, 5.0);
+    // On the variance, not the std: E[sqrt(v)] < 1 at unit variance (Jensen, strongly so for
+    // heavy tails), so a std target would inflate the injected spread.
+    g_ = std::clamp(g_ * std::exp(-0.5 * cfg_.std_gain * (v_ - 1)), 0.2, 5.0);
   }
   return out;
 }

@@ -31,7 +31,7 @@ struct BurstChain {
 // Discrete feedback controller on a standardized signal (target mean 0, std 1): out = g z + c.
 // Running mean m and variance v of `out` are exponentially weighted over `window` samples;
 // each sample the offset integrates the mean error (c -= mean_gain m) and the gain is corrected
-// multiplicatively on the spread (g *= exp(-std_gain (sqrt(v) - 1))), bounded to [0.2, 5].
+// multiplicatively on the spread (g *= exp(-std_gain (v - 1) / 2)), bounded to [0.2, 5].
 class RunningTargetController {
  public:
   explicit RunningTargetController(ControllerConfig cfg = {}) : cfg_(cfg) {}

@@ -1,0 +1,550 @@
+#include "sensor/kpi_fit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <limits>
+#include <numbers>
+#include <numeric>
+#include <sstream>
+
+#include "common/error.h"
+#include "sensor/hungarian.h"
+#include "sensor/kpi_manager.h"
+
+namespace lidarsim::sensor {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kPi = std::numbers::pi;
+
+double wrap(double a) {
+  a = std::fmod(a + kPi, 2 * kPi);
+  if (a < 0) a += 2 * kPi;
+  return a - kPi;
+}
+
+int bin_of(const std::vector<double>& edges, double x) {
+  const auto it = std::upper_bound(edges.begin(), edges.end(), x);
+  return std::max(0, static_cast<int>(it - edges.begin()) - 1);
+}
+
+// One ground-truth object in one frame.
+struct Rec {
+  int cls = 0, seq = 0, track = 0, frame = 0;
+  int rb = 0, vb = 0, occ = 0;
+  double range = 0;
+  bool detected = false, flipped = false;
+  double score = 0;
+  std::array<double, kNumKpiParams> e;
+  Eigen::Vector2d bev_err = Eigen::Vector2d::Zero(), u = Eigen::Vector2d(1, 0);
+};
+struct Fp {
+  int cls = 0;
+  double range = 0, az = 0, z = 0, score = 0;
+};
+struct Collected {
+  std::vector<Rec> recs;  // sorted by class, sequence, track, frame
+  std::vector<Fp> fps;
+  long frames = 0;
+  std::vector<Eigen::Vector3d> size_sum;
+  std::vector<long> size_n;
+};
+
+int class_index(const FitOptions& opt, ObjectClass c) {
+  const std::string name = kpi_class_name(c);
+  for (size_t i = 0; i < opt.classes.size(); ++i)
+    if (opt.classes[i] == name) return static_cast<int>(i);
+  return -1;
+}
+
+Collected collect(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt) {
+  Collected c;
+  const int nc = static_cast<int>(opt.classes.size());
+  c.size_sum.assign(nc, Eigen::Vector3d::Zero());
+  c.size_n.assign(nc, 0);
+  for (size_t s = 0; s < seqs.size(); ++s) {
+    const CalibrationSequence& seq = seqs[s];
+    for (size_t f = 0; f < seq.frames.size(); ++f) {
+      const CalibrationFrame& fr = seq.frames[f];
+      ++c.frames;
+      const std::vector<int> match = match_truth_to_detections(fr.truth, fr.detections, opt.gate, opt.min_score);
+      std::vector<char> used(fr.detections.size(), 0);
+      for (size_t i = 0; i < fr.truth.size(); ++i) {
+        const Object& g = fr.truth[i];
+        const int ci = class_index(opt, g.cls);
+        if (ci < 0) continue;
+        Rec r;
+        r.cls = ci;
+        r.seq = static_cast<int>(s);
+        r.track = g.id;
+        r.frame = static_cast<int>(f);
+        const Eigen::Vector2d bev = g.position.head<2>();
+        r.range = bev.norm();
+        r.u = r.range > 1e-6 ? Eigen::Vector2d(bev / r.range) : Eigen::Vector2d(1, 0);
+        r.rb = bin_of(opt.range_bin_edges, r.range);
+        r.vb = bin_of(opt.visibility_bin_edges, g.visible_fraction);
+        r.occ = i < fr.occlusion.size() ? std::clamp(fr.occlusion[i], 0, 3) : 0;
+        r.e.fill(kNaN);
+        c.size_sum[ci] += g.size;
+        ++c.size_n[ci];
+        if (match[i] >= 0) {
+          used[match[i]] = 1;
+          const Object& d = fr.detections[match[i]];
+          r.detected = true;
+          r.score = d.score;
+          const Eigen::Vector2d left(-r.u.y(), r.u.x());
+          r.bev_err = (d.position - g.position).head<2>();
+          r.e[int(KpiParam::PositionAlong)] = r.bev_err.dot(r.u);
+          r.e[int(KpiParam::PositionAcross)] = r.bev_err.dot(left);
+          r.e[int(KpiParam::PositionVertical)] = d.position.z() - g.position.z();
+          r.e[int(KpiParam::Length)] = d.size.x() - g.size.x();
+          r.e[int(KpiParam::Width)] = d.size.y() - g.size.y();
+          r.e[int(KpiParam::Height)] = d.size.z() - g.size.z();
+          double h = wrap(d.heading - g.heading);
+          r.flipped = std::abs(h) > kPi / 2;
+          if (r.flipped) h = wrap(h - kPi);
+          r.e[int(KpiParam::Heading)] = h;
+        }
+        c.recs.push_back(r);
+      }
+      for (size_t j = 0; j < fr.detections.size(); ++j) {
+        const Object& d = fr.detections[j];
+        if (used[j] || d.score <= opt.min_score) continue;
+        const int ci = class_index(opt, d.cls);
+        if (ci < 0) continue;
+        bool near_other = false;
+        for (const Object& o : fr.others)
+          if ((o.position - d.position).head<2>().norm() <= opt.gate) near_other = true;
+        if (near_other) continue;
+        c.fps.push_back({ci, d.position.head<2>().norm(), std::atan2(d.position.y(), d.position.x()), d.position.z(),
+                         d.score});
+      }
+    }
+  }
+  std::sort(c.recs.begin(), c.recs.end(), [](const Rec& a, const Rec& b) {
+    return std::tie(a.cls, a.seq, a.track, a.frame) < std::tie(b.cls, b.seq, b.track, b.frame);
+  });
+  // Velocity errors: change of the position error between consecutive matched frames.
+  for (size_t i = 1; i < c.recs.size(); ++i) {
+    Rec& r = c.recs[i];
+    const Rec& p = c.recs[i - 1];
+    if (p.cls != r.cls || p.seq != r.seq || p.track != r.track || p.frame + 1 != r.frame) continue;
+    if (!p.detected || !r.detected) continue;
+    const double dt = seqs[r.seq].frame_dt;
+    const Eigen::Vector2d dv = (r.bev_err - p.bev_err) / dt;
+    r.e[int(KpiParam::VelocityAlong)] = dv.dot(r.u);
+    r.e[int(KpiParam::VelocityAcross)] = dv.dot(Eigen::Vector2d(-r.u.y(), r.u.x()));
+  }
+  return c;
+}
+
+bool consecutive(const Rec& p, const Rec& r) {
+  return p.cls == r.cls && p.seq == r.seq && p.track == r.track && p.frame + 1 == r.frame;
+}
+
+// Pooled mean/std/kurtosis and lag-1 autocorrelation along tracks of value(rec) (NaN = none).
+template <class F>
+ErrorStats error_stats(const std::vector<Rec>& recs, size_t begin, size_t end, F value) {
+  ErrorStats s;
+  double sum = 0;
+  for (size_t i = begin; i < end; ++i) {
+    const double v = value(recs[i]);
+    if (std::isnan(v)) continue;
+    sum += v;
+    ++s.n;
+  }
+  if (s.n < 2) return s;
+  s.mean = sum / s.n;
+  double m2 = 0, m4 = 0, cross = 0, a2 = 0, b2 = 0;
+  for (size_t i = begin; i < end; ++i) {
+    const double v = value(recs[i]);
+    if (std::isnan(v)) continue;
+    const double d = v - s.mean;
+    m2 += d * d;
+    m4 += d * d * d * d;
+    if (i > begin && consecutive(recs[i - 1], recs[i])) {
+      const double w = value(recs[i - 1]);
+      if (!std::isnan(w)) {
+        cross += d * (w - s.mean);
+        a2 += d * d;
+        b2 += (w - s.mean) * (w - s.mean);
+      }
+    }
+  }
+  m2 /= s.n;
+  m4 /= s.n;
+  s.std = std::sqrt(m2);
+  s.excess_kurtosis = m2 > 0 ? m4 / (m2 * m2) - 3 : 0;
+  s.lag1 = a2 > 0 && b2 > 0 ? cross / std::sqrt(a2 * b2) : 0;
+  return s;
+}
+
+std::vector<double> quantiles(std::vector<double> v, int n) {
+  if (v.size() < 2 || n < 2) return {};
+  std::sort(v.begin(), v.end());
+  std::vector<double> q(n);
+  for (int i = 0; i < n; ++i) {
+    const double x = double(i) / (n - 1) * (v.size() - 1);
+    const size_t k = std::min(static_cast<size_t>(x), v.size() - 2);
+    q[i] = v[k] + (x - k) * (v[k + 1] - v[k]);
+  }
+  return q;
+}
+
+// Innovation distribution with unit variance and the kurtosis of eps (already ~unit variance).
+Innovation fit_innovation(std::vector<double> eps) {
+  Innovation in;
+  if (eps.size() < 50) return in;
+  double m2 = 0, m4 = 0;
+  for (double x : eps) m2 += x * x;
+  m2 /= eps.size();
+  const double sd = std::sqrt(m2);
+  for (double& x : eps) x /= sd;
+  for (double x : eps) m4 += x * x * x * x;
+  const double K = m4 / eps.size();  // raw kurtosis (3 for Gaussian)
+  if (K < 3.3) return in;
+  std::vector<double> a(eps.size());
+  for (size_t i = 0; i < eps.size(); ++i) a[i] = std::abs(eps[i]);
+  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+  const double s1 = std::min(0.98, 1.4826 * a[a.size() / 2]);  // core sigma from the MAD
+  const double s1sq = s1 * s1;
+  // Two-scale mixture with core variance s1^2, total variance 1, raw kurtosis K.
+  const double wide = (K / 3 - s1sq * s1sq) / (1 - s1sq) - s1sq;  // sigma_wide^2
+  const double p = (1 - s1sq) / (wide - s1sq);
+  if (wide > 1 && p > 0 && p < 0.5) {
+    in.type = Innovation::Type::Mixture;
+    in.outlier_probability = p;
+    in.outlier_scale = std::sqrt(wide) / s1;
+    return in;
+  }
+  in.type = Innovation::Type::StudentT;
+  in.dof = std::clamp(4 + 6 / (K - 3), 4.2, 100.0);
+  return in;
+}
+
+// Fits one parameter of one class from recs[begin, end).
+ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int p, const FitOptions& opt,
+                     bool per_track_constant) {
+  const int nr = static_cast<int>(opt.range_bin_edges.size()), nv = static_cast<int>(opt.visibility_bin_edges.size());
+  ErrorModel em;
+  auto val = [&](const Rec& r) { return r.e[p]; };
+  const ErrorStats pooled = error_stats(recs, begin, end, val);
+  const double pooled_std = pooled.n > 1 && pooled.std > 0 ? pooled.std : 1e-3;
+  em.mean.assign(nr, pooled.mean);
+  // Range-bin means first.
+  std::vector<double> sum(nr, 0), sum2(nr, 0);
+  std::vector<long> n(nr, 0);
+  for (size_t i = begin; i < end; ++i) {
+    const double v = val(recs[i]);
+    if (std::isnan(v)) continue;
+    sum[recs[i].rb] += v;
+    ++n[recs[i].rb];
+  }
+  for (int r = 0; r < nr; ++r)
+    if (n[r] >= opt.min_samples) em.mean[r] = sum[r] / n[r];
+  // Per-track constant (sizes): offset of each track's mean from the bin means.
+  std::vector<double> offset(end - begin, 0.0);
+  if (per_track_constant) {
+    std::vector<double> offsets;
+    for (size_t i = begin; i < end;) {
+      size_t j = i;
+      double s = 0;
+      long k = 0;
+      while (j < end && recs[j].seq == recs[i].seq && recs[j].track == recs[i].track) {
+        if (!std::isnan(val(recs[j]))) s += val(recs[j]) - em.mean[recs[j].rb], ++k;
+        ++j;
+      }
+      if (k >= 3) {
+        for (size_t q = i; q < j; ++q) offset[q - begin] = s / k;
+        offsets.push_back(s / k);
+      }
+      i = j;
+    }
+    if (offsets.size() >= 5) {
+      double m = 0, v = 0;
+      for (double o : offsets) m += o;
+      m /= offsets.size();
+      for (double o : offsets) v += (o - m) * (o - m);
+      em.track_std = std::sqrt(v / (offsets.size() - 1));
+    }
+  }
+  auto resid = [&](size_t i) { return val(recs[i]) - em.mean[recs[i].rb] - offset[i - begin]; };
+  std::fill(sum2.begin(), sum2.end(), 0.0);
+  std::fill(n.begin(), n.end(), 0);
+  double all2 = 0;
+  long all_n = 0;
+  for (size_t i = begin; i < end; ++i) {
+    const double v = resid(i);
+    if (std::isnan(v)) continue;
+    sum2[recs[i].rb] += v * v;
+    ++n[recs[i].rb];
+    all2 += v * v;
+    ++all_n;
+  }
+  const double all_std = all_n > 1 ? std::sqrt(all2 / all_n) : pooled_std;
+  em.sigma.assign(nr, all_std);
+  for (int r = 0; r < nr; ++r)
+    if (n[r] >= opt.min_samples) em.sigma[r] = std::max(1e-4, std::sqrt(sum2[r] / n[r]));
+  // Visibility: scale of the range-standardized residual per visibility bin.
+  em.visibility_std_scale.assign(nv, 1.0);
+  {
+    std::vector<double> s2(nv, 0);
+    std::vector<long> k(nv, 0);
+    for (size_t i = begin; i < end; ++i) {
+      const double v = resid(i);
+      if (std::isnan(v)) continue;
+      const double z = v / em.sigma[recs[i].rb];
+      s2[recs[i].vb] += z * z;
+      ++k[recs[i].vb];
+    }
+    for (int b = 0; b < nv; ++b)
+      if (k[b] >= opt.min_samples) em.visibility_std_scale[b] = std::max(0.05, std::sqrt(s2[b] / k[b]));
+  }
+  auto z_of = [&](size_t i) {
+    return resid(i) / (em.sigma[recs[i].rb] * em.visibility_std_scale[recs[i].vb]);
+  };
+  // Lag-1 autocorrelation of z along tracks, then the innovations it implies.
+  double cross = 0, a2 = 0, b2 = 0;
+  for (size_t i = begin + 1; i < end; ++i) {
+    if (!consecutive(recs[i - 1], recs[i])) continue;
+    const double a = z_of(i), b = z_of(i - 1);
+    if (std::isnan(a) || std::isnan(b)) continue;
+    cross += a * b;
+    a2 += a * a;
+    b2 += b * b;
+  }
+  em.ar1 = a2 > 0 && b2 > 0 ? std::clamp(cross / std::sqrt(a2 * b2), -0.9, 0.98) : 0.0;
+  std::vector<double> eps;
+  const double norm = std::sqrt(1 - em.ar1 * em.ar1);
+  for (size_t i = begin + 1; i < end; ++i) {
+    if (!consecutive(recs[i - 1], recs[i])) continue;
+    const double a = z_of(i), b = z_of(i - 1);
+    if (std::isnan(a) || std::isnan(b)) continue;
+    eps.push_back((a - em.ar1 * b) / norm);
+  }
+  em.innovation = fit_innovation(std::move(eps));
+  return em;
+}
+
+// Mean length of runs of `flag` over consecutive frames of a track, and the share of flagged
+// frames in runs of length >= 2.
+template <class F>
+std::pair<double, double> burst_stats(const std::vector<Rec>& recs, size_t begin, size_t end, F flag) {
+  long runs = 0, frames = 0, in_long = 0, cur = 0;
+  auto close = [&] {
+    if (cur > 0) {
+      ++runs;
+      frames += cur;
+      if (cur >= 2) in_long += cur;
+    }
+    cur = 0;
+  };
+  for (size_t i = begin; i < end; ++i) {
+    if (i > begin && !consecutive(recs[i - 1], recs[i])) close();
+    if (flag(recs[i])) ++cur;
+    else close();
+  }
+  close();
+  return {runs ? double(frames) / runs : 1.0, frames ? double(in_long) / frames : 0.0};
+}
+
+std::pair<size_t, size_t> class_range(const std::vector<Rec>& recs, int ci) {
+  const auto lo = std::lower_bound(recs.begin(), recs.end(), ci, [](const Rec& r, int c) { return r.cls < c; });
+  const auto hi = std::upper_bound(recs.begin(), recs.end(), ci, [](int c, const Rec& r) { return c < r.cls; });
+  return {static_cast<size_t>(lo - recs.begin()), static_cast<size_t>(hi - recs.begin())};
+}
+
+}  // namespace
+
+std::vector<int> match_truth_to_detections(const std::vector<Object>& truth, const std::vector<Object>& dets,
+                                           double gate, double min_score) {
+  std::vector<int> out(truth.size(), -1);
+  if (truth.empty() || dets.empty()) return out;
+  const double big = gate * 1000 + 1e6;
+  Eigen::MatrixXd cost(truth.size(), dets.size());
+  for (size_t i = 0; i < truth.size(); ++i)
+    for (size_t j = 0; j < dets.size(); ++j) {
+      const double d = (truth[i].position - dets[j].position).head<2>().norm();
+      const bool ok = dets[j].cls == truth[i].cls && dets[j].score > min_score && d <= gate;
+      cost(i, j) = ok ? d : big;
+    }
+  HungarianSolver solver;
+  const auto& a = solver.solve(cost);
+  for (size_t i = 0; i < truth.size(); ++i)
+    if (a[i] >= 0 && cost(i, a[i]) <= gate) out[i] = a[i];
+  return out;
+}
+
+CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt) {
+  const Collected c = collect(seqs, opt);
+  CalibrationStats st;
+  st.range_bin_edges = opt.range_bin_edges;
+  st.frames = c.frames;
+  const int nr = static_cast<int>(opt.range_bin_edges.size());
+  for (int ci = 0; ci < static_cast<int>(opt.classes.size()); ++ci) {
+    ClassStats cs;
+    cs.truth_by_range.assign(nr, 0);
+    cs.detected_by_range.assign(nr, 0);
+    const auto [b, e] = class_range(c.recs, ci);
+    long flips = 0, matched = 0;
+    double score = 0;
+    for (size_t i = b; i < e; ++i) {
+      const Rec& r = c.recs[i];
+      ++cs.truth;
+      ++cs.truth_by_range[r.rb];
+      ++cs.truth_by_occlusion[r.occ];
+      if (r.range > 50) ++cs.truth_beyond_50;
+      if (!r.detected) continue;
+      ++cs.detected;
+      ++cs.detected_by_range[r.rb];
+      ++cs.detected_by_occlusion[r.occ];
+      if (r.range > 50) ++cs.detected_beyond_50;
+      ++matched;
+      flips += r.flipped;
+      score += r.score;
+    }
+    cs.flip_rate = matched ? double(flips) / matched : 0;
+    cs.score_mean = matched ? score / matched : 0;
+    std::tie(cs.miss_burst_mean, cs.misses_in_bursts) = burst_stats(c.recs, b, e, [](const Rec& r) { return !r.detected; });
+    for (const Fp& f : c.fps) cs.false_positives += f.cls == ci;
+    for (int p = 0; p < kNumKpiParams; ++p)
+      cs.errors[p] = error_stats(c.recs, b, e, [p](const Rec& r) { return r.e[p]; });
+    st.classes[opt.classes[ci]] = cs;
+  }
+  return st;
+}
+
+KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt) {
+  const Collected c = collect(seqs, opt);
+  if (c.frames == 0) throw Error("kpi calibration: no frames to fit");
+  KpiModel m;
+  m.range_bin_edges = opt.range_bin_edges;
+  m.visibility_bin_edges = opt.visibility_bin_edges;
+  const int nr = m.range_bins(), nv = m.visibility_bins();
+  for (int ci = 0; ci < static_cast<int>(opt.classes.size()); ++ci) {
+    const auto [b, e] = class_range(c.recs, ci);
+    long matched = 0;
+    for (size_t i = b; i < e; ++i) matched += c.recs[i].detected;
+    if (matched < opt.min_samples) continue;  // too little data: the class stays unmodelled
+    ClassModel cm;
+    for (int p = 0; p < kNumKpiParams; ++p) {
+      const bool size = p == int(KpiParam::Length) || p == int(KpiParam::Width) || p == int(KpiParam::Height);
+      cm.errors[p] = fit_error(c.recs, b, e, p, opt, size);
+    }
+    // Detection probability by range x visibility, falling back to the range row, then the class.
+    std::vector<std::vector<long>> n(nr, std::vector<long>(nv, 0)), d = n;
+    for (size_t i = b; i < e; ++i) {
+      ++n[c.recs[i].rb][c.recs[i].vb];
+      d[c.recs[i].rb][c.recs[i].vb] += c.recs[i].detected;
+    }
+    const double overall = double(matched) / std::max<size_t>(1, e - b);
+    cm.detection_probability.assign(nr, std::vector<double>(nv, overall));
+    const int min_n = 15;
+    for (int r = 0; r < nr; ++r) {
+      const long rn = std::accumulate(n[r].begin(), n[r].end(), 0L), rd = std::accumulate(d[r].begin(), d[r].end(), 0L);
+      const double row = rn >= min_n ? double(rd) / rn : overall;
+      for (int v = 0; v < nv; ++v) cm.detection_probability[r][v] = n[r][v] >= min_n ? double(d[r][v]) / n[r][v] : row;
+    }
+    cm.miss_burst_mean = std::max(1.0, burst_stats(c.recs, b, e, [](const Rec& r) { return !r.detected; }).first);
+    long flips = 0;
+    std::vector<double> scores;
+    for (size_t i = b; i < e; ++i)
+      if (c.recs[i].detected) {
+        flips += c.recs[i].flipped;
+        scores.push_back(c.recs[i].score);
+      }
+    cm.heading_flip_probability = std::min(0.99, double(flips) / matched);
+    cm.flip_burst_mean =
+        std::max(1.0, burst_stats(c.recs, b, e, [](const Rec& r) { return r.detected && r.flipped; }).first);
+    cm.score_quantiles = quantiles(scores, opt.quantiles);
+    std::vector<double> fr, fa, fs;
+    double fz = 0;
+    for (const Fp& f : c.fps)
+      if (f.cls == ci) fr.push_back(f.range), fa.push_back(f.az), fs.push_back(f.score), fz += f.z;
+    cm.false_positive_rate = fr.size() >= 2 ? double(fr.size()) / c.frames : 0.0;
+    if (cm.false_positive_rate > 0) {
+      cm.fp_range_quantiles = quantiles(fr, opt.quantiles);
+      cm.fp_azimuth_quantiles = quantiles(fa, opt.quantiles);
+      cm.fp_score_quantiles = quantiles(fs, opt.quantiles);
+      cm.fp_z = fz / fr.size();
+    }
+    if (c.size_n[ci] > 0) cm.mean_size = c.size_sum[ci] / double(c.size_n[ci]);
+    m.classes[opt.classes[ci]] = std::move(cm);
+  }
+  if (m.classes.empty()) throw Error("kpi calibration: no class had enough matched detections to fit");
+  m.validate("fitted model");
+  return m;
+}
+
+std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,
+                                            std::uint64_t seed) {
+  KpiManager kpi(model, seed);
+  std::vector<CalibrationSequence> out = seqs;
+  std::vector<Object> truth, reported;
+  for (size_t s = 0; s < out.size(); ++s) {
+    for (CalibrationFrame& fr : out[s].frames) {
+      truth = fr.truth;
+      // Ids unique across sequences, so each track keeps its own noise state.
+      for (Object& o : truth) o.id = static_cast<int>(s) * 100000 + o.id;
+      kpi.apply(truth, reported);
+      fr.detections = reported;
+    }
+  }
+  return out;
+}
+
+std::string format_comparison(const CalibrationStats& meas, const CalibrationStats& sim) {
+  std::ostringstream o;
+  o << std::fixed;
+  const auto& edges = meas.range_bin_edges;
+  auto bin_name = [&](size_t r) {
+    std::ostringstream b;
+    b << int(edges[r]) << "-";
+    if (r + 1 < edges.size()) b << int(edges[r + 1]);
+    b << " m";
+    return b.str();
+  };
+  for (const auto& [name, mc] : meas.classes) {
+    const auto it = sim.classes.find(name);
+    if (it == sim.classes.end() || mc.truth == 0) continue;
+    const ClassStats& sc = it->second;
+    o << "\n### " << name << " (" << mc.truth << " ground-truth boxes)\n\n";
+    o << "| range | GT boxes | measured detection rate | simulated detection rate |\n|---|---|---|---|\n";
+    for (size_t r = 0; r < mc.truth_by_range.size(); ++r) {
+      if (mc.truth_by_range[r] == 0) continue;
+      o << "| " << bin_name(r) << " | " << mc.truth_by_range[r] << " | " << std::setprecision(3)
+        << double(mc.detected_by_range[r]) / mc.truth_by_range[r] << " | "
+        << (sc.truth_by_range[r] ? double(sc.detected_by_range[r]) / sc.truth_by_range[r] : 0.0) << " |\n";
+    }
+    o << "| all | " << mc.truth << " | " << mc.recall() << " | " << sc.recall() << " |\n";
+    o << "| > 50 m | " << mc.truth_beyond_50 << " | " << mc.recall_beyond_50() << " | " << sc.recall_beyond_50()
+      << " |\n";
+    static const char* occ_names[4] = {"occlusion 0 (visible)", "occlusion 1 (partly)", "occlusion 2 (largely)",
+                                       "occlusion 3 (unknown)"};
+    for (int k = 0; k < 4; ++k) {
+      if (mc.truth_by_occlusion[k] == 0) continue;
+      o << "| " << occ_names[k] << " | " << mc.truth_by_occlusion[k] << " | "
+        << double(mc.detected_by_occlusion[k]) / mc.truth_by_occlusion[k] << " | "
+        << (sc.truth_by_occlusion[k] ? double(sc.detected_by_occlusion[k]) / sc.truth_by_occlusion[k] : 0.0) << " |\n";
+    }
+    o << "\n| statistic | measured | simulated |\n|---|---|---|\n";
+    o << "| mean miss-run length (frames) | " << mc.miss_burst_mean << " | " << sc.miss_burst_mean << " |\n";
+    o << "| share of misses in runs >= 2 | " << mc.misses_in_bursts << " | " << sc.misses_in_bursts << " |\n";
+    o << "| false positives per frame | " << double(mc.false_positives) / std::max(1L, meas.frames) << " | "
+      << double(sc.false_positives) / std::max(1L, sim.frames) << " |\n";
+    o << "| heading flip rate | " << mc.flip_rate << " | " << sc.flip_rate << " |\n";
+    o << "| mean score of matches | " << mc.score_mean << " | " << sc.score_mean << " |\n";
+    for (int p = 0; p < kNumKpiParams; ++p) {
+      const ErrorStats &a = mc.errors[p], &b = sc.errors[p];
+      o << "| " << to_string(static_cast<KpiParam>(p)) << " mean / std / lag-1 / excess kurtosis | "
+        << std::setprecision(3) << a.mean << " / " << a.std << " / " << a.lag1 << " / " << std::setprecision(1)
+        << a.excess_kurtosis << " | " << std::setprecision(3) << b.mean << " / " << b.std << " / " << b.lag1 << " / "
+        << std::setprecision(1) << b.excess_kurtosis << " |\n";
+    }
+  }
+  return o.str();
+}
+
+}  // namespace lidarsim::sensor

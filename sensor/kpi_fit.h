@@ -1,0 +1,82 @@
+#pragma once
+// Calibration of the KPI model from measured data: ground truth vs real detections, frame by
+// frame along tracks. Generic over the source (data/kitti_tracking.h turns KITTI tracking +
+// AB3DMOT detections into CalibrationSequence). Also measures the same statistics on any
+// sequence, so a model can be re-simulated on the same ground truth and compared.
+#include <array>
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "sensor/kpi_model.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::sensor {
+
+struct CalibrationFrame {
+  std::vector<Object> truth;       // classes to fit; id = track id (stable in the sequence);
+                                   // visible_fraction set (for KITTI from the occlusion level)
+  std::vector<int> occlusion;      // per truth: KITTI occlusion level 0..3 (reporting only)
+  std::vector<Object> others;      // other ground truth (Van, Person_sitting, ...): detections
+                                   // within the gate of one are neither matches nor false positives
+  std::vector<Object> detections;  // with score
+};
+
+struct CalibrationSequence {
+  std::string name;
+  double frame_dt = 0.1;  // s
+  std::vector<CalibrationFrame> frames;  // consecutive frames
+};
+
+struct FitOptions {
+  std::vector<std::string> classes = {"Car", "Pedestrian", "Cyclist"};
+  double gate = 2.0;       // m, bird's-eye-view centre distance for a match
+  double min_score = 0.0;  // detections with score <= min_score are ignored
+  std::vector<double> range_bin_edges = {0, 10, 20, 30, 40, 50, 60, 70};
+  std::vector<double> visibility_bin_edges = {0, 0.4, 0.8};
+  int min_samples = 20;    // fewer samples in a bin: use the pooled value
+  int quantiles = 21;      // score / false-positive quantiles stored
+};
+
+// Per frame: for each truth object the index of its matched detection or -1. Same class only,
+// score > min_score, BEV distance <= gate, minimum total distance (Hungarian).
+std::vector<int> match_truth_to_detections(const std::vector<Object>& truth, const std::vector<Object>& detections,
+                                           double gate, double min_score);
+
+// Measured statistics (what the report compares between real and simulated detections).
+struct ErrorStats {
+  long n = 0;
+  double mean = 0, std = 0, lag1 = 0, excess_kurtosis = 0;
+};
+struct ClassStats {
+  std::vector<long> truth_by_range, detected_by_range;  // per range bin
+  std::array<long, 4> truth_by_occlusion{}, detected_by_occlusion{};
+  long truth = 0, detected = 0, truth_beyond_50 = 0, detected_beyond_50 = 0;
+  double miss_burst_mean = 0;          // mean length of runs of consecutive misses along tracks
+  double misses_in_bursts = 0;         // fraction of missed frames in runs of length >= 2
+  long false_positives = 0;
+  double flip_rate = 0;
+  double score_mean = 0;
+  std::array<ErrorStats, kNumKpiParams> errors;
+  double recall() const { return truth ? double(detected) / truth : 0; }
+  double recall_beyond_50() const { return truth_beyond_50 ? double(detected_beyond_50) / truth_beyond_50 : 0; }
+};
+struct CalibrationStats {
+  std::vector<double> range_bin_edges;
+  long frames = 0;
+  std::map<std::string, ClassStats> classes;
+};
+
+CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
+
+KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
+
+// The same ground truth with detections replaced by the KPI manager's output (fixed seed).
+std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,
+                                            std::uint64_t seed);
+
+// Markdown table: measured vs simulated detection rate by range bin and the other statistics.
+std::string format_comparison(const CalibrationStats& measured, const CalibrationStats& simulated);
+
+}  // namespace lidarsim::sensor
