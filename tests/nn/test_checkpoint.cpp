@@ -336,3 +336,43 @@ TEST_F(CheckpointTest, ReservedAttributeNameIsRejectedWithoutTouchingTheOldFile)
   EXPECT_THROW(save_checkpoint(p, model, nullptr, m), Error);
   EXPECT_EQ(read_bytes(p), before);
 }
+
+TEST_F(CheckpointTest, SgdStateRoundTripsAndAKindMismatchIsNamed) {
+  UNet model(kSmall);
+  model.init(7);
+  OptimizerConfig sgd_config;
+  sgd_config.kind = "sgd";
+  sgd_config.lr = 0.01f;
+  Optimizer sgd(sgd_config, model.params().size());
+  train_one_step(model, sgd);
+  const fs::path p = dir_ / "sgd.h5";
+  save_checkpoint(p, model, &sgd, meta());
+
+  UNet loaded(kSmall);
+  Optimizer loaded_sgd(sgd_config, loaded.params().size());
+  load_checkpoint(p, loaded, &loaded_sgd);
+  EXPECT_EQ(loaded_sgd.m(), sgd.m());
+  EXPECT_EQ(read_checkpoint_meta(p).optimizer->kind, "sgd");
+
+  Optimizer adam(OptimizerConfig{}, loaded.params().size());
+  try {
+    load_checkpoint(p, loaded, &adam);
+    FAIL() << "an SGD state loaded into Adam";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("optimizer/kind"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(CheckpointTest, HdfFileThatIsNotACheckpointNamesTheMissingAttribute) {
+  // The PyTorch fixture is valid HDF5 with a /config group, but not a checkpoint.
+  const fs::path other = fs::path(LIDARSIM_SOURCE_DIR) / "tests/fixtures/unet_small_torch.h5";
+  ASSERT_TRUE(fs::exists(other));
+  try {
+    read_checkpoint_meta(other);
+    FAIL() << "read a non-checkpoint as a checkpoint";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(other.string()), std::string::npos) << msg;
+    EXPECT_NE(msg.find("config/unet.in_channels"), std::string::npos) << msg;
+  }
+}
