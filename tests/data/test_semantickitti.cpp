@@ -79,3 +79,18 @@ TEST(SemanticKittiReal, EveryScanCutsIntoExactly64FiringOrderRows) {
   }
   EXPECT_EQ(labelled, 3);
 }
+
+// The scan bundled for the demo (no ../shared needed) reads as a labelled 64-row scan.
+TEST(SemanticKittiBundled, SampleScanHasLabelsAnd64FiringOrderRows) {
+  const auto dir = lidarsim::testing::source_dir() / "data/samples/semantickitti";
+  const auto files = data::list_semantickitti(dir);
+  ASSERT_EQ(files.size(), 1u);
+  ASSERT_TRUE(files[0].label.has_value());
+  const auto scan = data::read_semantickitti_scan(files[0]);
+  EXPECT_EQ(scan.points.size(), 124668u);  // SOURCE.md's count for 000000
+  std::vector<int> rows;
+  EXPECT_EQ(pgm::firing_order_rows(scan.points, rows), 64);
+  std::size_t cars = 0;
+  for (const auto& p : scan.points) cars += p.class_id == pgm::cls::car;
+  EXPECT_EQ(cars, 4234u);  // SOURCE.md: car 4234 points in 000000
+}
