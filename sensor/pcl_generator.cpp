@@ -1,0 +1,263 @@
+#include "sensor/pcl_generator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+
+#include "common/error.h"
+#include "pgm/materials.h"
+#include "pgm/projection.h"
+#include "sensor/fov.h"
+#include "sensor/frames.h"
+
+namespace lidarsim::sensor {
+
+namespace {
+constexpr double kPi = std::numbers::pi;
+double wrap_pi(double a) { return std::remainder(a, 2 * kPi); }
+}  // namespace
+
+PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclConfig& config)
+    : layout_(std::move(layout)), mount_(mount), sensor_from_ego_(inverse(mount)), cfg_(config) {
+  layout_.validate("pcl generator");
+  const int H = layout_.rows(), W = layout_.columns;
+  dir_sensor_.resize(static_cast<std::size_t>(H) * W);
+  dir_ego_.resize(dir_sensor_.size());
+  for (int r = 0; r < H; ++r) {
+    const double el = layout_.elevations_rad[r];
+    for (int c = 0; c < W; ++c) {
+      const double az = layout_.azimuth_of_column(c);
+      const std::size_t i = static_cast<std::size_t>(r) * W + c;
+      dir_sensor_[i] = Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+      dir_ego_[i] = mount_.rotation * dir_sensor_[i];
+    }
+  }
+  col_start_.assign(W + 1, 0);
+  col_fill_.assign(W, 0);
+  const double reach = cfg_.max_range + cfg_.lane_width;
+  grid_n_ = std::max(1, static_cast<int>(std::ceil(2 * reach / grid_cell_)));
+  grid_origin_ = -reach;  // relative to the mount's ground point
+  cell_start_.assign(static_cast<std::size_t>(grid_n_) * grid_n_ + 1, 0);
+  cell_fill_.assign(static_cast<std::size_t>(grid_n_) * grid_n_, 0);
+}
+
+pgm::PolarGridMap PclGenerator::make_map(const std::vector<std::string>& extra) const {
+  std::vector<std::string> names = kPclChannels;
+  for (const auto& e : extra)
+    if (std::find(names.begin(), names.end(), e) == names.end()) names.push_back(e);
+  return pgm::PolarGridMap(layout_, names);
+}
+
+void PclGenerator::prepare_boxes(const std::vector<Object>& objects) {
+  const int W = layout_.columns;
+  const double res = 2 * kPi / W;
+  boxes_.clear();
+  box_cols_.clear();
+  std::fill(col_start_.begin(), col_start_.end(), 0);
+  Eigen::Vector3d corners[8];
+  for (const auto& o : objects) {
+    Box b;
+    b.ray = RayBox::of(o);
+    b.id = o.id;
+    b.class_id = pgm::class_from_object_type(to_string(o.cls));
+    b.material_id = pgm::material_from_name(o.material);
+    // Column span from the corners seen from the sensor (all columns when the sensor's vertical
+    // axis may pass through the box, where corners no longer bound the azimuth).
+    box_corners(o, corners);
+    const Eigen::Vector3d c_s = apply(sensor_from_ego_, o.position);
+    const double half_diag = 0.5 * o.size.norm();
+    int first = 0, count = W;
+    if (std::hypot(c_s.x(), c_s.y()) > half_diag + 1e-6) {
+      const double az_c = std::atan2(c_s.y(), c_s.x());
+      double lo = 0, hi = 0;
+      for (const auto& p : corners) {
+        const Eigen::Vector3d q = apply(sensor_from_ego_, p);
+        const double rel = wrap_pi(std::atan2(q.y(), q.x()) - az_c);
+        lo = std::min(lo, rel);
+        hi = std::max(hi, rel);
+      }
+      double az_lo = az_c + lo;
+      if (az_lo < 0) az_lo += 2 * kPi;
+      first = static_cast<int>(std::floor(az_lo / res)) % W;
+      count = std::min(W, static_cast<int>(std::ceil((hi - lo) / res)) + 2);
+    }
+    box_cols_.emplace_back(first, count);
+    for (int k = 0; k < count; ++k) ++col_start_[(first + k) % W + 1];
+    boxes_.push_back(b);
+  }
+  for (int c = 0; c < W; ++c) col_start_[c + 1] += col_start_[c];
+  box_index_.resize(col_start_[W]);
+  std::fill(col_fill_.begin(), col_fill_.end(), 0);
+  for (int i = 0; i < static_cast<int>(boxes_.size()); ++i) {
+    const auto [first, count] = box_cols_[i];
+    for (int k = 0; k < count; ++k) {
+      const int c = (first + k) % W;
+      box_index_[col_start_[c] + col_fill_[c]++] = i;
+    }
+  }
+}
+
+void PclGenerator::prepare_lanes(const std::vector<LanePolyline>& lanes) {
+  segments_.clear();
+  seg_cells_lo_.clear();
+  seg_cells_hi_.clear();
+  std::fill(cell_start_.begin(), cell_start_.end(), 0);
+  const double half_w = 0.5 * cfg_.lane_width;
+  const double ox = mount_.translation.x() + grid_origin_, oy = mount_.translation.y() + grid_origin_;
+  auto cell_of = [&](double v, double o) {
+    return std::clamp(static_cast<int>(std::floor((v - o) / grid_cell_)), -1, grid_n_);
+  };
+  for (const auto& lane : lanes) {
+    if (lane.type == LaneType::RoadEdge) continue;  // a kerb, not paint
+    double s = 0;
+    for (std::size_t i = 1; i < lane.points.size(); ++i) {
+      const auto& a = lane.points[i - 1];
+      const auto& b = lane.points[i];
+      const double len = std::hypot(b.x() - a.x(), b.y() - a.y());
+      const Segment seg{a.x(), a.y(), b.x(), b.y(), s, lane.type};
+      s += len;
+      const int x0 = cell_of(std::min(a.x(), b.x()) - half_w, ox), x1 = cell_of(std::max(a.x(), b.x()) + half_w, ox);
+      const int y0 = cell_of(std::min(a.y(), b.y()) - half_w, oy), y1 = cell_of(std::max(a.y(), b.y()) + half_w, oy);
+      if (x1 < 0 || y1 < 0 || x0 >= grid_n_ || y0 >= grid_n_) continue;  // beyond the sensor's reach
+      const std::pair<int, int> lo{std::max(0, x0), std::max(0, y0)}, hi{std::min(grid_n_ - 1, x1), std::min(grid_n_ - 1, y1)};
+      for (int gx = lo.first; gx <= hi.first; ++gx)
+        for (int gy = lo.second; gy <= hi.second; ++gy) ++cell_start_[static_cast<std::size_t>(gx) * grid_n_ + gy + 1];
+      segments_.push_back(seg);
+      seg_cells_lo_.push_back(lo);
+      seg_cells_hi_.push_back(hi);
+    }
+  }
+  const std::size_t n_cells = static_cast<std::size_t>(grid_n_) * grid_n_;
+  for (std::size_t c = 0; c < n_cells; ++c) cell_start_[c + 1] += cell_start_[c];
+  seg_index_.resize(cell_start_[n_cells]);
+  std::fill(cell_fill_.begin(), cell_fill_.end(), 0);
+  for (int i = 0; i < static_cast<int>(segments_.size()); ++i)
+    for (int gx = seg_cells_lo_[i].first; gx <= seg_cells_hi_[i].first; ++gx)
+      for (int gy = seg_cells_lo_[i].second; gy <= seg_cells_hi_[i].second; ++gy) {
+        const std::size_t c = static_cast<std::size_t>(gx) * grid_n_ + gy;
+        seg_index_[cell_start_[c] + cell_fill_[c]++] = i;
+      }
+}
+
+bool PclGenerator::painted(double x, double y) const {
+  const int gx = static_cast<int>(std::floor((x - mount_.translation.x() - grid_origin_) / grid_cell_));
+  const int gy = static_cast<int>(std::floor((y - mount_.translation.y() - grid_origin_) / grid_cell_));
+  if (gx < 0 || gy < 0 || gx >= grid_n_ || gy >= grid_n_) return false;
+  const std::size_t c = static_cast<std::size_t>(gx) * grid_n_ + gy;
+  const double half_w = 0.5 * cfg_.lane_width, period = cfg_.dash_length + cfg_.dash_gap;
+  for (int k = cell_start_[c]; k < cell_start_[c + 1]; ++k) {
+    const Segment& s = segments_[seg_index_[k]];
+    const double dx = s.bx - s.ax, dy = s.by - s.ay, len2 = dx * dx + dy * dy;
+    const double t = len2 > 0 ? std::clamp(((x - s.ax) * dx + (y - s.ay) * dy) / len2, 0.0, 1.0) : 0.0;
+    const double ex = s.ax + t * dx - x, ey = s.ay + t * dy - y;
+    if (ex * ex + ey * ey > half_w * half_w) continue;
+    if (s.type == LaneType::Dashed && std::fmod(s.s0 + t * std::sqrt(len2), period) >= cfg_.dash_length) continue;
+    return true;
+  }
+  return false;
+}
+
+int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
+                           pgm::PolarGridMap& out) {
+  if (!(out.layout() == layout_)) throw Error("pcl generator: the map's beam layout differs from the generator's");
+  for (const auto& name : kPclChannels)
+    if (!out.has_channel(name)) out.add_channel(name);
+  prepare_boxes(objects_ego);
+  if (cfg_.lanes) prepare_lanes(lanes_ego);
+  else segments_.clear();
+
+  const int H = layout_.rows(), W = layout_.columns;
+  float* ch_range = out.channel("range");
+  float* ch_class = out.channel("class");
+  float* ch_material = out.channel("material");
+  float* ch_intensity = out.channel("intensity");
+  float* ch_mask = out.channel("mask");
+  float* ch_id = out.channel("object_id");
+  auto optional = [&](const char* n) { return out.has_channel(n) ? out.channel(n) : nullptr; };
+  float* ch_el = optional("elevation");
+  float* ch_az = optional("azimuth");
+  float* ch_height = optional("height");
+  float* ch_x = optional("x");
+  float* ch_y = optional("y");
+  float* ch_z = optional("z");
+  auto& point_index = out.point_index();
+  const Eigen::Vector3d origin = mount_.translation;
+  const bool lanes_on = cfg_.lanes && !segments_.empty();
+  const int road_class = pgm::cls::road, road_material = pgm::material::asphalt;
+  const int lane_class = pgm::cls::lane_marking, lane_material = pgm::material::lane_paint;
+  int returns = 0;
+
+#pragma omp parallel for schedule(dynamic, 4) reduction(+ : returns)
+  for (int r = 0; r < H; ++r) {
+    for (int c = 0; c < W; ++c) {
+      const std::size_t cell = static_cast<std::size_t>(r) * W + c;
+      const Eigen::Vector3d& d = dir_ego_[cell];
+      double best = cfg_.max_range;
+      int hit = -1;  // box index, -2 road, -3 lane paint
+      for (int k = col_start_[c]; k < col_start_[c + 1]; ++k) {
+        double t = 0;
+        if (ray_box(boxes_[box_index_[k]].ray, origin, d, best, t) && t < best) {
+          best = t;
+          hit = box_index_[k];
+        }
+      }
+      if (cfg_.ground && d.z() < 0) {
+        const double t = (cfg_.ground_height - origin.z()) / d.z();
+        if (t >= 0 && t < best) {
+          best = t;
+          hit = -2;
+          if (lanes_on) {
+            const Eigen::Vector3d p = origin + t * d;
+            if (painted(p.x(), p.y())) hit = -3;
+          }
+        }
+      }
+      if (hit == -1 || best < cfg_.min_range) {
+        ch_range[cell] = ch_class[cell] = ch_material[cell] = ch_intensity[cell] = ch_mask[cell] = 0.f;
+        ch_id[cell] = -1.f;
+        for (float* ch : {ch_el, ch_az, ch_height, ch_x, ch_y, ch_z})
+          if (ch) ch[cell] = 0.f;
+        point_index[cell] = -1;
+        continue;
+      }
+      ++returns;
+      ch_range[cell] = static_cast<float>(best);
+      ch_intensity[cell] = 0.f;
+      ch_mask[cell] = 1.f;
+      if (hit >= 0) {
+        ch_class[cell] = static_cast<float>(boxes_[hit].class_id);
+        ch_material[cell] = static_cast<float>(boxes_[hit].material_id);
+        ch_id[cell] = static_cast<float>(boxes_[hit].id);
+      } else {
+        ch_class[cell] = static_cast<float>(hit == -3 ? lane_class : road_class);
+        ch_material[cell] = static_cast<float>(hit == -3 ? lane_material : road_material);
+        ch_id[cell] = -1.f;
+      }
+      point_index[cell] = static_cast<std::int64_t>(cell);
+      if (ch_el || ch_az || ch_height || ch_x || ch_y || ch_z) {
+        const Eigen::Vector3d p = best * dir_sensor_[cell];
+        if (ch_el) ch_el[cell] = static_cast<float>(layout_.elevations_rad[r]);
+        if (ch_az) ch_az[cell] = static_cast<float>(layout_.azimuth_of_column(c));
+        if (ch_height) ch_height[cell] = static_cast<float>(p.z());
+        if (ch_x) ch_x[cell] = static_cast<float>(p.x());
+        if (ch_y) ch_y[cell] = static_cast<float>(p.y());
+        if (ch_z) ch_z[cell] = static_cast<float>(p.z());
+      }
+    }
+  }
+  if (out.has_channel("incidence")) pgm::compute_incidence(out);
+  return returns;
+}
+
+void select_visible(const std::vector<Object>& ego_objects, const std::vector<Object>& visible, std::vector<Object>& out) {
+  out.clear();
+  for (const auto& o : ego_objects)
+    for (const auto& v : visible)
+      if (v.id == o.id && v.visible_fraction > 0) {
+        out.push_back(o);
+        break;
+      }
+}
+
+}  // namespace lidarsim::sensor

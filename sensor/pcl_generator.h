@@ -1,0 +1,93 @@
+#pragma once
+// PCL generator: casts the sensor's beam layout (rows x columns, one ray per cell through the
+// row's elevation and the column's centre azimuth) against boxes, a flat ground plane and lane
+// markings, and writes the nearest return per cell into a Polar Grid Map.
+//
+// Works in the EGO frame, where boxes are yaw-only and the road is the plane z = ground_height:
+// rays start at the mount position and point along mount.rotation * (sensor direction), so a
+// tilted mount is exact. Pass the ego-frame boxes of the objects the sensor model kept (see
+// select_visible); lanes are painted on the road (thin strips lane_width wide; dashed ones
+// painted dash_length then blank dash_gap along the polyline; road_edge lines are kerbs, not
+// paint, and return asphalt). Every return gets range (m, from the sensor), class and material
+// (pgm/materials.h ids: road/asphalt, lane_marking/lane_paint, objects by class and their
+// material), mask = 1, object_id (the object's id; -1 for road and lanes) and intensity = 0 (the
+// network predicts it). Effect channels present in the map are filled too: elevation, azimuth,
+// height/x/y/z (sensor frame, like pgm::project) and incidence, which is estimated from
+// neighbouring cells by pgm::compute_incidence exactly as for recorded scans, so simulated and
+// real inputs of the network are computed alike. point_index of a cell with a return is the
+// cell's own index (row * cols + col). Rows are parallel (OpenMP); no allocation per frame once
+// the internal buffers have grown.
+#include <vector>
+
+#include "pgm/beam_layout.h"
+#include "pgm/polar_grid_map.h"
+#include "sensor/occlusion.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::sensor {
+
+struct PclConfig {
+  bool ground = true;
+  bool lanes = true;
+  double ground_height = 0;  // road height in the ego frame, m
+  double lane_width = 0.15;  // m
+  double dash_length = 3.0, dash_gap = 6.0;  // m
+  double min_range = 0;      // returns nearer than this are dropped (the ray is still blocked)
+  double max_range = 120;    // m
+};
+
+// Channels a generated map has at least.
+inline const std::vector<std::string> kPclChannels = {"range", "class", "material", "intensity", "mask", "object_id"};
+
+class PclGenerator {
+ public:
+  PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclConfig& config = {});
+
+  // A map with kPclChannels plus `extra` (e.g. "incidence", "height") for this layout.
+  pgm::PolarGridMap make_map(const std::vector<std::string>& extra = {}) const;
+
+  // Fills `out` (made by make_map, or any map of this layout: missing base channels are added).
+  // Returns the number of cells with a return. Throws lidarsim::Error for an unknown material.
+  int generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
+               pgm::PolarGridMap& out);
+
+  const pgm::BeamLayout& layout() const { return layout_; }
+  const Pose& mount() const { return mount_; }
+  const PclConfig& config() const { return cfg_; }
+
+ private:
+  struct Box {
+    RayBox ray;
+    int id, class_id, material_id;
+  };
+  struct Segment {
+    double ax, ay, bx, by, s0;  // end points and arc length at a
+    LaneType type;
+  };
+  void prepare_boxes(const std::vector<Object>& objects_ego);
+  void prepare_lanes(const std::vector<LanePolyline>& lanes_ego);
+  bool painted(double x, double y) const;
+
+  pgm::BeamLayout layout_;
+  Pose mount_;
+  Pose sensor_from_ego_;
+  PclConfig cfg_;
+  std::vector<Eigen::Vector3d> dir_sensor_;  // [rows * cols] unit ray directions, sensor frame
+  std::vector<Eigen::Vector3d> dir_ego_;     // the same in the ego frame
+  // Boxes bucketed by column (CSR): column c holds box_index_[col_start_[c] .. col_start_[c+1]).
+  std::vector<Box> boxes_;
+  std::vector<int> col_start_, col_fill_, box_index_;
+  std::vector<std::pair<int, int>> box_cols_;  // per box: first column, column count
+  // Lane segments bucketed on a square grid over the ego's surroundings (CSR, like the boxes).
+  std::vector<Segment> segments_;
+  double grid_cell_ = 2.0, grid_origin_ = 0;
+  int grid_n_ = 0;
+  std::vector<int> cell_start_, cell_fill_, seg_index_;
+  std::vector<std::pair<int, int>> seg_cells_lo_, seg_cells_hi_;
+};
+
+// The ego-frame objects (from ego_objects) whose id is among `visible` (the sensor-frame list
+// after field of view and occlusion) with a visible fraction above zero.
+void select_visible(const std::vector<Object>& ego_objects, const std::vector<Object>& visible, std::vector<Object>& out);
+
+}  // namespace lidarsim::sensor
