@@ -409,8 +409,11 @@ CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence
     cs.score_mean = matched ? score / matched : 0;
     std::tie(cs.miss_burst_mean, cs.misses_in_bursts) = burst_stats(c.recs, b, e, [](const Rec& r) { return !r.detected; });
     for (const Fp& f : c.fps) cs.false_positives += f.cls == ci;
-    for (int p = 0; p < kNumKpiParams; ++p)
+    for (int p = 0; p < kNumKpiParams; ++p) {
       cs.errors[p] = error_stats(c.recs, b, e, [p](const Rec& r) { return r.e[p]; });
+      for (size_t i = b; i < e; ++i)
+        if (!std::isnan(c.recs[i].e[p])) cs.samples[p].push_back(c.recs[i].e[p]);
+    }
     st.classes[opt.classes[ci]] = cs;
   }
   return st;
@@ -476,6 +479,47 @@ KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOp
   if (m.classes.empty()) throw Error("kpi calibration: no class had enough matched detections to fit");
   m.validate("fitted model");
   return m;
+}
+
+KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt) {
+  FitOptions one = opt;
+  one.range_bin_edges = {0};
+  one.visibility_bin_edges = {0};
+  KpiModel m = fit_kpi_model(seqs, one);
+  for (auto& [name, c] : m.classes) {
+    for (auto& e : c.errors) {
+      e.sigma[0] = std::sqrt(e.sigma[0] * e.sigma[0] + e.track_std * e.track_std);
+      e.track_std = 0;
+      e.ar1 = 0;
+      e.innovation = Innovation{};
+    }
+    c.miss_burst_mean = 1;  // close to independent misses (a run of 1 on average)
+    c.heading_flip_probability = 0;
+  }
+  m.controller.enabled = false;
+  m.source = "Gaussian iid baseline";
+  return m;
+}
+
+double histogram_intersection(const std::vector<double>& ref, const std::vector<double>& other, int bins) {
+  if (ref.size() < 2 || other.empty() || bins < 1) return 0;
+  std::vector<double> sorted = ref;
+  std::sort(sorted.begin(), sorted.end());
+  const double lo = sorted[static_cast<size_t>(0.01 * (sorted.size() - 1))];
+  const double hi = sorted[static_cast<size_t>(0.99 * (sorted.size() - 1))];
+  const double width = hi > lo ? (hi - lo) / bins : 1.0;
+  auto hist = [&](const std::vector<double>& v) {
+    std::vector<double> h(bins + 2, 0.0);
+    for (double x : v) {
+      const int k = x < lo ? 0 : x >= hi ? bins + 1 : 1 + std::min(bins - 1, static_cast<int>((x - lo) / width));
+      h[k] += 1.0 / v.size();
+    }
+    return h;
+  };
+  const auto a = hist(ref), b = hist(other);
+  double s = 0;
+  for (int k = 0; k < bins + 2; ++k) s += std::min(a[k], b[k]);
+  return s;
 }
 
 std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,

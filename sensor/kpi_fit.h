@@ -59,6 +59,7 @@ struct ClassStats {
   double flip_rate = 0;
   double score_mean = 0;
   std::array<ErrorStats, kNumKpiParams> errors;
+  std::array<std::vector<double>, kNumKpiParams> samples;  // the matched errors themselves
   double recall() const { return truth ? double(detected) / truth : 0; }
   double recall_beyond_50() const { return truth_beyond_50 ? double(detected_beyond_50) / truth_beyond_50 : 0; }
 };
@@ -71,6 +72,14 @@ struct CalibrationStats {
 CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
 
 KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
+
+// The baseline DESIGN.md warns about: every error Gaussian and iid (one bin, no correlation,
+// no heavy tails, no per-track sizes), misses independent, no flips; same pooled mean and std.
+KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
+
+// Histogram intersection in [0, 1] of two samples over `bins` equal bins spanning the 1st-99th
+// percentile of `reference`, plus one overflow bin at each end.
+double histogram_intersection(const std::vector<double>& reference, const std::vector<double>& other, int bins = 40);
 
 // The same ground truth with detections replaced by the KPI manager's output (fixed seed).
 std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,

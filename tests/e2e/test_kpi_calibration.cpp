@@ -79,6 +79,39 @@ TEST(KpiCalibration, HeldOutSequencesKeepCarDetectionRateByRange) {
             << sensor::format_comparison(measured, sim);
   const auto &mc = measured.classes.at("Car"), &sc = sim.classes.at("Car");
   EXPECT_NEAR(sc.recall(), mc.recall(), 0.06);
+
+  // Shape of the errors on held-out data: histogram intersection with the real held-out errors,
+  // next to the real-vs-real ceiling (the fit half's real errors against the held-out ones) and
+  // the Gaussian iid baseline DESIGN.md quotes (~0.75).
+  const auto fit_real = sensor::measure_calibration_stats(fit_on, opt);
+  const auto gauss = sensor::measure_calibration_stats(
+      sensor::resimulate(held, sensor::gaussian_iid_model(fit_on, opt), 3), opt);
+  std::cout << "\n| class | parameter | ceiling (real vs real) | calibrated model | Gaussian iid |\n|---|---|---|---|---|\n";
+  double sum_model = 0, sum_gauss = 0, sum_ceiling = 0;
+  int n = 0;
+  for (const std::string cls : {"Car", "Pedestrian", "Cyclist"}) {
+    for (int p = 0; p < sensor::kNumKpiParams; ++p) {
+      const auto& real = measured.classes.at(cls).samples[p];
+      const double ceiling = sensor::histogram_intersection(real, fit_real.classes.at(cls).samples[p]);
+      const double model_hi = sensor::histogram_intersection(real, sim.classes.at(cls).samples[p]);
+      const double gauss_hi = sensor::histogram_intersection(real, gauss.classes.at(cls).samples[p]);
+      std::printf("| %s | %s | %.3f | %.3f | %.3f |\n", cls.c_str(), sensor::to_string(sensor::KpiParam(p)), ceiling,
+                  model_hi, gauss_hi);
+      sum_model += model_hi, sum_gauss += gauss_hi, sum_ceiling += ceiling, ++n;
+    }
+  }
+  std::printf("| mean | | %.3f | %.3f | %.3f |\n", sum_ceiling / n, sum_model / n, sum_gauss / n);
+  EXPECT_GT(sum_model, sum_gauss) << "the calibrated model must beat the Gaussian iid baseline on held-out data";
+}
+
+TEST(KpiCalibration, HistogramIntersectionOnHandWorkedSamples) {
+  // Identical samples: 1. Disjoint (all below the reference's range): 0. Half the mass moved
+  // below the range: 0.5.
+  const std::vector<double> a{0, 1, 2, 3, 4, 5, 6, 7, 8, 9};
+  EXPECT_NEAR(sensor::histogram_intersection(a, a, 9), 1.0, 1e-12);
+  EXPECT_NEAR(sensor::histogram_intersection(a, {-100, -200}, 9), 0.0, 1e-12);
+  std::vector<double> b{0, 1, 2, 3, 4, -100, -100, -100, -100, -100};
+  EXPECT_NEAR(sensor::histogram_intersection(a, b, 9), 0.5, 1e-12);
 }
 
 TEST(KpiCalibration, ShippedDefaultModelIsWhatLidarCalibrateProduces) {
