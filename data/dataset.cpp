@@ -240,6 +240,17 @@ void Dataset::append(const pgm::PolarGridMap& map, const std::string& frame_id, 
   row_modes.push_back(row_mode);
 }
 
+nn::Tensor encode_inputs(const Dataset& d, const pgm::EncoderConfig& config, const std::string& where) {
+  std::vector<std::string> available = d.channels;
+  available.push_back("intensity");  // the target lives in /target
+  config.check_channels(available, where);
+  if (config.target != "intensity")
+    throw input_error(where, "encoder target '" + config.target + "'", "datasets carry only intensity as target");
+  nn::Tensor out(d.size(), config.input_channels(), d.rows(), d.cols());
+  for (int n = 0; n < d.size(); ++n) pgm::encode_input(d.view(n), config, out, n);
+  return out;
+}
+
 void write_dataset(const fs::path& path, const Dataset& d) {
   quiet();
   const std::string fname = path.string();

@@ -49,6 +49,10 @@ struct Dataset {
   void append(const pgm::PolarGridMap& pgm, const std::string& frame_id, const std::string& row_mode);
 };
 
+// Every frame through the encoder: [N, config.input_channels(), H, W] (checks the channels first,
+// naming `where` and the missing channel).
+nn::Tensor encode_inputs(const Dataset& dataset, const pgm::EncoderConfig& config, const std::string& where = "dataset");
+
 void write_dataset(const std::filesystem::path& path, const Dataset& dataset);
 
 // `required_channels` (e.g. an encoder's inputs) must all be present in /pgm, else the error

@@ -1,6 +1,8 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <cmath>
+
 #include "common/error.h"
 #include "data/dataset.h"
 #include "pgm/projection.h"
@@ -101,4 +103,20 @@ TEST(Dataset, FailedWriteLeavesNoFileBehind) {
   d.frames.pop_back();  // inconsistent: refused before anything is written
   EXPECT_THROW(data::write_dataset(dir / "d.h5", d), Error);
   EXPECT_FALSE(std::filesystem::exists(dir / "d.h5"));
+}
+
+TEST(Dataset, EncodeInputsRunsEveryFrameThroughTheEncoderAndNamesMissingChannels) {
+  const auto d = two_frames();
+  pgm::EncoderConfig cfg;
+  cfg.channels = {"range", "class"};
+  cfg.range_max_m = 10;
+  const auto in = data::encode_inputs(d, cfg, "d.h5");
+  ASSERT_EQ(in.shape(), (nn::Shape{2, cfg.input_channels(), 4, 32}));
+  float range_sum = 0;
+  for (int n = 0; n < 2; ++n)
+    for (std::size_t i = 0; i < in.shape().plane(); ++i) range_sum += in.channel(n, 0)[i];
+  EXPECT_NEAR(range_sum, (std::hypot(5.f, 1.f) + std::hypot(6.f, 1.f)) / 10, 1e-5);
+  cfg.channels = {"range", "incidence"};
+  const std::string msg = error_of([&] { data::encode_inputs(d, cfg, "d.h5"); });
+  EXPECT_NE(msg.find("d.h5: channel 'incidence'"), std::string::npos) << msg;
 }
