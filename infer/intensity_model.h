@@ -1,0 +1,40 @@
+#pragma once
+// A trained intensity UNet ready for inference: the checkpoint's weights together with the input
+// encoder and beam layout that travelled in its /config, so a Polar Grid Map is encoded exactly
+// as in training. Shared by `lidar-infer predict` (recorded scans) and the simulation pipeline.
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "nn/unet.h"
+#include "pgm/beam_layout.h"
+#include "pgm/encoder.h"
+#include "pgm/polar_grid_map.h"
+
+namespace lidarsim::infer {
+
+class IntensityModel {
+ public:
+  // Throws lidarsim::Error naming the file and what is wrong (missing, torn, not a lidar-train
+  // checkpoint, shapes that do not match).
+  static IntensityModel load(const std::filesystem::path& checkpoint);
+
+  const pgm::EncoderConfig& encoder() const { return encoder_; }
+  const pgm::BeamLayout& layout() const { return layout_; }
+  const std::filesystem::path& path() const { return path_; }
+  // PGM channels beyond pgm::kBaseChannels the encoder reads (to ask the projection for them).
+  std::vector<std::string> extra_channels() const;
+
+  // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0.
+  void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out);
+
+ private:
+  IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::BeamLayout layout, std::filesystem::path path);
+  nn::UNet model_;
+  pgm::EncoderConfig encoder_;
+  pgm::BeamLayout layout_;
+  std::filesystem::path path_;
+  nn::Tensor input_, output_;
+};
+
+}  // namespace lidarsim::infer

@@ -1,0 +1,49 @@
+#pragma once
+// `lidar-infer predict`: intensity for recorded scans. Each scan is projected into a PGM as in
+// training, the UNet predicts every cell, and every point gets the prediction of its cell. Per
+// scan it writes a point cloud (x, y, z, intensity = measured, predicted, abs_error, class) and a
+// PNG with three rows — measured / predicted / absolute error — like the paper's Figures 9-10;
+// at the end summary.json and summary.md with MAE/RMSE overall and per class.
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace lidarsim::infer {
+
+struct PredictOptions {
+  std::filesystem::path model;
+  std::optional<std::filesystem::path> semantickitti;  // folder as lidar-data import takes it
+  std::optional<std::filesystem::path> kitti_object;
+  std::optional<std::filesystem::path> scan;   // one .bin
+  std::optional<std::filesystem::path> label;  // its .label (optional)
+  std::filesystem::path out = "out/predict";
+  std::string format = "pcd";  // or "ply"
+  int max_frames = 0;          // 0 = all
+  bool progress = true;
+};
+
+struct ClassError {
+  std::string name;
+  double mae = 0;
+  long cells = 0;
+};
+
+struct ScanResult {
+  std::string id;
+  double mae = 0, rmse = 0;  // over the grid cells with a return
+  long cells = 0;
+  std::filesystem::path cloud, image;
+};
+
+struct PredictSummary {
+  std::vector<ScanResult> scans;
+  std::vector<ClassError> per_class;
+  double mae = 0, rmse = 0;
+  long cells = 0;
+  double seconds_per_scan = 0;  // projection + inference, outputs excluded
+};
+
+PredictSummary predict_scans(const PredictOptions& options);
+
+}  // namespace lidarsim::infer

@@ -1,0 +1,302 @@
+#include "train/trainer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <numeric>
+#include <random>
+
+#include <nlohmann/json.hpp>
+
+#include "common/error.h"
+#include "common/progress.h"
+#include "nn/checkpoint.h"
+#include "nn/loss.h"
+#include "nn/optim.h"
+
+namespace lidarsim::train {
+namespace {
+
+// One frame, encoded once: network input, target, and the masks of the cells that train and
+// the cells that validate.
+struct EncodedFrame {
+  nn::Tensor input;       // [1, Cin, H, W]
+  nn::Tensor target;      // [1, 1, H, W]
+  nn::Tensor train_mask;  // [1, 1, H, W]
+};
+
+std::uint64_t splitmix64(std::uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+// Frame order of an epoch: a Fisher-Yates shuffle driven by (seed, epoch) alone.
+std::vector<int> epoch_order(int frames, std::uint64_t seed, std::int64_t epoch) {
+  std::vector<int> order(static_cast<std::size_t>(frames));
+  std::iota(order.begin(), order.end(), 0);
+  std::uint64_t state = splitmix64(seed ^ splitmix64(static_cast<std::uint64_t>(epoch) + 0x51ed));
+  for (int i = frames - 1; i > 0; --i) {
+    state = splitmix64(state);
+    std::swap(order[static_cast<std::size_t>(i)], order[state % static_cast<std::uint64_t>(i + 1)]);
+  }
+  return order;
+}
+
+float learning_rate(const TrainConfig& c, std::int64_t step, std::int64_t total_steps) {
+  const double progress = total_steps > 1 ? static_cast<double>(step) / (total_steps - 1) : 0.0;
+  const double floor = c.final_lr_fraction;
+  return static_cast<float>(c.lr * (floor + (1 - floor) * 0.5 * (1 + std::cos(M_PI * progress))));
+}
+
+// Copies columns of frame `f` into batch slot `b`: output column j takes source column
+// (offset + j) mod W, or (offset + width - 1 - j) mod W when mirrored.
+void place(const nn::Tensor& src, nn::Tensor& dst, int b, int offset, bool mirror) {
+  const int channels = src.shape().c, rows = src.shape().h, src_w = src.shape().w, dst_w = dst.shape().w;
+  for (int c = 0; c < channels; ++c)
+    for (int r = 0; r < rows; ++r) {
+      const float* in = src.channel(0, c) + static_cast<std::size_t>(r) * src_w;
+      float* out = dst.channel(b, c) + static_cast<std::size_t>(r) * dst_w;
+      for (int j = 0; j < dst_w; ++j) {
+        const int k = mirror ? offset + dst_w - 1 - j : offset + j;
+        out[j] = in[((k % src_w) + src_w) % src_w];
+      }
+    }
+}
+
+data::SectorSplit all_validation() {
+  data::SectorSplit split;
+  split.validation.resize(static_cast<std::size_t>(split.sectors));
+  std::iota(split.validation.begin(), split.validation.end(), 0);
+  return split;
+}
+
+// Cell-weighted merge of metrics from several datasets.
+data::Metrics merge(const std::vector<data::Metrics>& parts) {
+  data::Metrics m;
+  double abs_sum = 0, sq_sum = 0;
+  for (const auto& p : parts) {
+    abs_sum += p.mae * p.cells;
+    sq_sum += p.rmse * p.rmse * p.cells;
+    m.cells += p.cells;
+  }
+  if (m.cells > 0) {
+    m.mae = abs_sum / m.cells;
+    m.rmse = std::sqrt(sq_sum / m.cells);
+  }
+  return m;
+}
+
+std::vector<std::string> required_channels(const pgm::EncoderConfig& encoder) {
+  std::vector<std::string> names;
+  for (const auto& c : encoder.channels)
+    if (c != "mask") names.push_back(c);
+  return names;
+}
+
+std::string describe_config(const TrainConfig& c) {
+  nlohmann::json j;
+  std::vector<std::string> data;
+  for (const auto& p : c.data) data.push_back(p.string());
+  j["data"] = data;
+  j["validation"] = c.validation ? c.validation->string() : "sector split " + std::string("3,7,11,15 of 16");
+  j["epochs"] = c.epochs;
+  j["batch"] = c.batch;
+  j["crop_columns"] = c.crop_columns;
+  j["lr"] = c.lr;
+  j["final_lr_fraction"] = c.final_lr_fraction;
+  j["augment_roll"] = c.augment_roll;
+  j["augment_mirror"] = c.augment_mirror;
+  j["threads"] = c.threads;
+  return j.dump();
+}
+
+}  // namespace
+
+std::atomic<bool>& stop_requested() {
+  static std::atomic<bool> flag{false};
+  return flag;
+}
+
+nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
+  const int rows = dataset.rows(), cols = dataset.cols();
+  nn::Tensor out(dataset.size(), 1, rows, cols);
+  nn::Tensor input(1, encoder.input_channels(), rows, cols), pred;
+  for (int n = 0; n < dataset.size(); ++n) {
+    pgm::encode_input(dataset.view(n), encoder, input, 0);
+    model.predict(input, pred);
+    std::copy(pred.begin(), pred.end(), out.image(n));
+  }
+  return out;
+}
+
+pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoint) {
+  const nn::Checkpoint meta = nn::read_checkpoint_meta(checkpoint);
+  const auto it = meta.attributes.find("encoder");
+  if (it == meta.attributes.end())
+    throw input_error(checkpoint.string(), "/config/encoder", "missing: not a lidar-train checkpoint");
+  return pgm::EncoderConfig::from_json(it->second, checkpoint.string() + ": /config/encoder");
+}
+
+TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
+  if (config.data.empty()) throw Error("lidar-train: no training data given");
+  if (config.batch < 1 || config.epochs < 1 || config.threads < 1)
+    throw Error("lidar-train: batch, epochs and threads must be at least 1");
+  if (!(config.lr > 0) || !(config.lambda >= 0)) throw Error("lidar-train: lr must be > 0 and lambda >= 0");
+  omp_set_num_threads(config.threads);
+
+  // --- data: every frame encoded once ---------------------------------------------------------
+  const auto channels = required_channels(config.encoder);
+  std::vector<data::Dataset> train_sets;
+  for (const auto& path : config.data) train_sets.push_back(data::read_dataset(path, channels));
+  std::optional<data::Dataset> val_set;
+  if (config.validation) val_set = data::read_dataset(*config.validation, channels);
+  const int rows = train_sets[0].rows(), cols = train_sets[0].cols();
+  for (std::size_t i = 0; i < train_sets.size(); ++i)
+    if (train_sets[i].rows() != rows || train_sets[i].cols() != cols)
+      throw input_error(config.data[i].string(), "/pgm", "grid " + std::to_string(train_sets[i].rows()) + " x " +
+                                                          std::to_string(train_sets[i].cols()) + " differs from " +
+                                                          std::to_string(rows) + " x " + std::to_string(cols));
+  const bool sector_split = !val_set.has_value();
+  const data::SectorSplit split = data::reference_split();
+  const auto val_columns = split.validation_columns(cols);  // checks cols is a multiple of 16
+
+  std::vector<EncodedFrame> frames;
+  const int in_channels = config.encoder.input_channels();
+  for (const auto& set : train_sets)
+    for (int n = 0; n < set.size(); ++n) {
+      EncodedFrame f;
+      f.input.resize({1, in_channels, rows, cols});
+      pgm::encode_input(set.view(n), config.encoder, f.input, 0);
+      f.target.resize({1, 1, rows, cols});
+      f.train_mask.resize({1, 1, rows, cols});
+      const float* target = set.target.image(n);
+      const float* mask = set.mask.image(n);
+      for (std::size_t i = 0; i < static_cast<std::size_t>(rows) * cols; ++i) {
+        f.target.data()[i] = target[i];
+        const bool held_out = sector_split && val_columns[i % cols];
+        f.train_mask.data()[i] = (mask[i] > 0 && !held_out) ? 1.f : 0.f;
+      }
+      frames.push_back(std::move(f));
+    }
+  const int num_frames = static_cast<int>(frames.size());
+  const int width = config.crop_columns > 0 ? std::min(config.crop_columns, cols) : cols;
+
+  // --- model, optimizer, resume ----------------------------------------------------------------
+  nn::UNetConfig arch{in_channels, 1, config.base, config.depth};
+  nn::UNet model(arch);
+  model.init(config.seed);
+  nn::OptimizerConfig opt_config;
+  opt_config.kind = "adam";
+  opt_config.lr = config.lr;
+  nn::Optimizer optimizer(opt_config, model.params().size());
+
+  const std::int64_t steps_per_epoch =
+      config.steps_per_epoch > 0 ? config.steps_per_epoch : (num_frames + config.batch - 1) / config.batch;
+  const std::int64_t total_steps = steps_per_epoch * config.epochs;
+  std::int64_t step = 0;
+  if (config.resume && std::filesystem::exists(config.out)) {
+    const nn::Checkpoint meta = nn::read_checkpoint_meta(config.out);
+    if (!(meta.unet == arch))
+      throw input_error(config.out.string(), "/config/unet", "architecture differs from the requested one");
+    const auto enc = meta.attributes.find("encoder");
+    if (enc == meta.attributes.end() || enc->second != config.encoder.to_json())
+      throw input_error(config.out.string(), "/config/encoder", "input encoding differs from the requested one");
+    nn::load_checkpoint(config.out, model, &optimizer);
+    step = meta.state.step;
+    std::fprintf(stderr, "lidar-train: resuming %s at step %lld (epoch %lld)\n", config.out.c_str(),
+                 static_cast<long long>(step), static_cast<long long>(step / steps_per_epoch));
+  }
+
+  nn::Checkpoint meta;
+  meta.unet = arch;
+  meta.attributes["encoder"] = config.encoder.to_json();
+  meta.attributes["beam_layout"] = train_sets[0].layout.to_json();
+  meta.attributes["lambda"] = std::to_string(config.lambda);
+  meta.attributes["seed"] = std::to_string(config.seed);
+  meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
+  meta.attributes["train_config"] = describe_config(config);
+  auto save = [&](std::int64_t at_step) {
+    meta.state.step = at_step;
+    meta.state.epoch = at_step / steps_per_epoch;
+    meta.state.rng = "counter-based: seed " + std::to_string(config.seed) + ", step " + std::to_string(at_step);
+    nn::save_checkpoint(config.out, model, &optimizer, meta);
+  };
+
+  auto validate = [&]() {
+    std::vector<data::Metrics> parts;
+    if (val_set) {
+      parts.push_back(data::evaluate_prediction(*val_set, predict_dataset(model, config.encoder, *val_set), true,
+                                                all_validation()));
+    } else {
+      for (const auto& set : train_sets)
+        parts.push_back(data::evaluate_prediction(set, predict_dataset(model, config.encoder, set), true, split));
+    }
+    return merge(parts);
+  };
+
+  // --- the loop -------------------------------------------------------------------------------
+  nn::Tensor x(config.batch, in_channels, rows, width), y(config.batch, 1, rows, width),
+      m(config.batch, 1, rows, width), pred, d_pred;
+  TrainResult result;
+  ProgressBar bar("train", total_steps, config.progress);
+  double epoch_loss = 0;
+  int epoch_steps = 0;
+  while (step < total_steps) {
+    const std::int64_t epoch = step / steps_per_epoch;
+    const std::vector<int> order = epoch_order(num_frames, config.seed, epoch);
+    const std::int64_t in_epoch = step % steps_per_epoch;
+    std::uint64_t rng = splitmix64(config.seed * 0x9e3779b97f4a7c15ULL ^ static_cast<std::uint64_t>(step));
+    for (int b = 0; b < config.batch; ++b) {
+      const int f = order[static_cast<std::size_t>((in_epoch * config.batch + b) % num_frames)];
+      rng = splitmix64(rng);
+      const int offset = config.augment_roll ? static_cast<int>(rng % static_cast<std::uint64_t>(cols))
+                                             : (width < cols ? static_cast<int>(rng % (cols - width + 1)) : 0);
+      rng = splitmix64(rng);
+      const bool mirror = config.augment_mirror && (rng & 1);
+      place(frames[f].input, x, b, offset, mirror);
+      place(frames[f].target, y, b, offset, mirror);
+      place(frames[f].train_mask, m, b, offset, mirror);
+    }
+    model.params().zero_grads();
+    model.forward(x, pred);
+    const nn::LossParts loss = nn::masked_mse(pred, y, m, &d_pred);
+    const double l2 = nn::l2_penalty(model.params(), config.lambda, true);
+    model.backward(d_pred);
+    optimizer.set_lr(learning_rate(config, step, total_steps));
+    optimizer.step(model.params());
+    ++step;
+    epoch_loss += loss.data + l2;
+    ++epoch_steps;
+    char status[96];
+    std::snprintf(status, sizeof status, "epoch %lld loss %.5f", static_cast<long long>(epoch + 1), loss.data + l2);
+    bar.update(step, status);
+
+    const bool epoch_done = step % steps_per_epoch == 0;
+    if (epoch_done) {
+      EpochReport report;
+      report.epoch = static_cast<int>(step / steps_per_epoch);
+      report.step = step;
+      report.train_loss = epoch_loss / std::max(1, epoch_steps);
+      report.validation = validate();
+      epoch_loss = 0;
+      epoch_steps = 0;
+      save(step);
+      result.epochs.push_back(report);
+      if (on_epoch) on_epoch(report);
+    }
+    if (stop_requested().load()) {
+      if (!epoch_done) save(step);
+      result.interrupted = true;
+      break;
+    }
+  }
+  if (!result.interrupted) bar.finish();
+  result.steps = step;
+  return result;
+}
+
+}  // namespace lidarsim::train

@@ -1,0 +1,71 @@
+#pragma once
+// The training loop behind `lidar-train`: a UNet learns measured intensity from Polar Grid Map
+// datasets (data/dataset.h) with masked MSE + L2 on the weights.
+//
+// Randomness is a pure function of (seed, epoch, step): the frame order of an epoch comes from
+// (seed, epoch), each step's augmentation from (seed, step). A checkpoint therefore only needs
+// the step count to resume, and a resumed run ends with the same weights, bit for bit, as an
+// uninterrupted one (same thread count).
+#include <atomic>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "data/baselines.h"
+#include "data/dataset.h"
+#include "data/split.h"
+#include "nn/unet.h"
+#include "pgm/encoder.h"
+
+namespace lidarsim::train {
+
+struct TrainConfig {
+  std::vector<std::filesystem::path> data;         // training datasets (HDF5)
+  std::optional<std::filesystem::path> validation;  // separate validation dataset; else the sector split
+  pgm::EncoderConfig encoder;
+  int base = 16, depth = 4;
+  int epochs = 100;
+  int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
+  int batch = 1;
+  int crop_columns = 0;     // train on random azimuth crops this wide (0: whole scans)
+  float lr = 2e-3f;
+  float final_lr_fraction = 0.05f;  // cosine decay from lr to lr * this over the run
+  float lambda = 1e-6f;             // L2 weight on sum(w^2)
+  std::uint64_t seed = 1;
+  int threads = 2;
+  bool augment_roll = true;    // random rotation about z: a spinning sensor sees the scene at any azimuth
+  bool augment_mirror = true;  // left-right mirror
+  std::filesystem::path out = "checkpoint.h5";
+  bool resume = false;         // continue from `out` if it exists
+  bool progress = true;
+};
+
+struct EpochReport {
+  int epoch = 0;       // 1-based
+  std::int64_t step = 0;
+  double train_loss = 0;  // mean total loss over the epoch's steps
+  data::Metrics validation;
+};
+
+struct TrainResult {
+  std::vector<EpochReport> epochs;
+  bool interrupted = false;
+  std::int64_t steps = 0;
+};
+
+// Set from a SIGINT handler; the loop saves a checkpoint and returns at the next step boundary.
+std::atomic<bool>& stop_requested();
+
+// Runs training as configured; `on_epoch` is called after each epoch's validation.
+TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch = {});
+
+// Predicts the target channel for every frame of a dataset with a trained model: [N, 1, H, W].
+nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset);
+
+// Encoder and architecture stored in a checkpoint's /config attributes.
+pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoint);
+
+}  // namespace lidarsim::train
