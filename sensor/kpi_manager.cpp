@@ -89,8 +89,10 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       reported.push_back(o);
       continue;
     }
-    if (!o.position.allFinite())
-      throw Error("kpi manager: object " + std::to_string(o.id) + ": position: must be finite");
+    if (!o.position.allFinite() || !o.velocity.allFinite() || !o.size.allFinite() || !std::isfinite(o.heading))
+      throw Error("kpi manager: object " + std::to_string(o.id) + ": position/velocity/size/heading: must be finite");
+    if (!std::isfinite(o.visible_fraction))
+      throw Error("kpi manager: object " + std::to_string(o.id) + ": visible_fraction: must be finite");
     const ClassModel& cm = *class_models_[slot];
     inj.modelled = true;
     const Eigen::Vector2d bev = o.position.head<2>();
