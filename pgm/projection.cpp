@@ -16,6 +16,7 @@ double azimuth(double x, double y) {
   double az = std::atan2(y, x);
   return az < 0 ? az + kTwoPi : az;
 }
+void incidence_from_points(PolarGridMap& pgm, const std::vector<float>& xyz);
 }  // namespace
 
 std::string to_string(RowMode mode) {
@@ -163,25 +164,33 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
       pgm.channel(c)[cell] = v;
     }
   }
-  if (pgm.has_channel("incidence")) compute_incidence(pgm);
+  if (pgm.has_channel("incidence")) {
+    // The measured points, not the nominal beam directions: KITTI's rows wander by ~0.5 deg.
+    std::vector<float> xyz(3 * cells, 0.f);
+    for (std::size_t cell = 0; cell < cells; ++cell) {
+      if (index[cell] < 0) continue;
+      const Point& p = points[static_cast<std::size_t>(index[cell])];
+      xyz[cell] = p.x, xyz[cells + cell] = p.y, xyz[2 * cells + cell] = p.z;
+    }
+    incidence_from_points(pgm, xyz);
+  }
   return result;
 }
 
-void compute_incidence(PolarGridMap& pgm) {
-  if (!pgm.has_channel("incidence")) pgm.add_channel("incidence");
-  const BeamLayout& layout = pgm.layout();
+namespace {
+
+// Incidence per cell from the 3D points of the cell and its neighbours (`xyz` [3, H, W], valid
+// where range > 0).
+void incidence_from_points(PolarGridMap& pgm, const std::vector<float>& xyz) {
   const int H = pgm.rows(), W = pgm.cols();
+  const std::size_t plane = pgm.cells();
   const float* range = pgm.channel("range");
   float* out = pgm.channel("incidence");
-  // 3D point of a cell from its range and the cell's nominal direction.
-  auto point_of = [&](int r, int c, double p[3]) {
-    const double rg = range[static_cast<std::size_t>(r) * W + c];
-    const double el = layout.elevations_rad[r], az = layout.azimuth_of_column(c);
-    p[0] = rg * std::cos(el) * std::cos(az);
-    p[1] = rg * std::cos(el) * std::sin(az);
-    p[2] = rg * std::sin(el);
-  };
   auto valid = [&](int r, int c) { return r >= 0 && r < H && range[static_cast<std::size_t>(r) * W + c] > 0.f; };
+  auto point_of = [&](int r, int c, double p[3]) {
+    const std::size_t i = static_cast<std::size_t>(r) * W + c;
+    for (int k = 0; k < 3; ++k) p[k] = xyz[k * plane + i];
+  };
   for (int r = 0; r < H; ++r) {
     for (int c = 0; c < W; ++c) {
       const std::size_t cell = static_cast<std::size_t>(r) * W + c;
@@ -209,6 +218,27 @@ void compute_incidence(PolarGridMap& pgm) {
       out[cell] = static_cast<float>(std::acos(std::min(1.0, cosine)));
     }
   }
+}
+
+}  // namespace
+
+void compute_incidence(PolarGridMap& pgm) {
+  if (!pgm.has_channel("incidence")) pgm.add_channel("incidence");
+  const BeamLayout& layout = pgm.layout();
+  const int H = pgm.rows(), W = pgm.cols();
+  const std::size_t plane = pgm.cells();
+  const float* range = pgm.channel("range");
+  // Points from the cell's range along the row's elevation and the column's centre azimuth.
+  std::vector<float> xyz(3 * plane, 0.f);
+  for (int r = 0; r < H; ++r)
+    for (int c = 0; c < W; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * W + c;
+      const double rg = range[i], el = layout.elevations_rad[r], az = layout.azimuth_of_column(c);
+      xyz[i] = static_cast<float>(rg * std::cos(el) * std::cos(az));
+      xyz[plane + i] = static_cast<float>(rg * std::cos(el) * std::sin(az));
+      xyz[2 * plane + i] = static_cast<float>(rg * std::sin(el));
+    }
+  incidence_from_points(pgm, xyz);
 }
 
 std::vector<float> back_project(const float* plane, const std::vector<std::int64_t>& point_cell) {

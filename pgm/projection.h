@@ -40,8 +40,9 @@ std::string to_string(RowMode mode);
 // Channels every projection writes; more can be asked for by name (see kEffectChannels).
 inline const std::vector<std::string> kBaseChannels = {"range", "class", "material", "intensity", "mask"};
 // Optional geometric channels: elevation and azimuth of the point (rad), height = z (m),
-// incidence = angle between the beam and the surface normal estimated from neighbouring cells
-// (rad, 0 = head-on; cells without enough neighbours get 0), x, y, z (m).
+// incidence = angle between the beam and the surface normal estimated from the points of the
+// neighbouring cells (rad, 0 = head-on; cells without a neighbour in both the row and the column
+// direction get 0; columns wrap around), x, y, z (m).
 inline const std::vector<std::string> kEffectChannels = {"elevation", "azimuth", "height", "incidence", "x", "y", "z"};
 
 struct ProjectOptions {
@@ -65,7 +66,8 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
 // Row of each point by the azimuth-wrap cut (see FiringOrder above); returns the row count.
 int firing_order_rows(const std::vector<Point>& points, std::vector<int>& rows);
 
-// Fills the "incidence" channel from the "range" channel and the layout (adds it if missing).
+// Fills the "incidence" channel from the "range" channel along the layout's nominal beam
+// directions (adds it if missing); for grids without their points, e.g. simulated ones.
 void compute_incidence(PolarGridMap& pgm);
 
 // Per point, the value of `plane` ([rows * cols], e.g. a predicted intensity) at the point's cell;

@@ -152,3 +152,23 @@ TEST(Projection, IncidenceIsNearZeroHeadOnAndLargeOnGrazingGround) {
   // Ground at -4 deg elevation: incidence = 90 - 4 = 86 deg.
   EXPECT_NEAR(ground.at(ground.channel_index("incidence"), 8, 100), (90 - 4) * kPi / 180, 0.02);
 }
+
+TEST(Projection, IncidenceFromProjectedGroundPointsMatchesGeometry) {
+  // Flat ground 1.7 m below the sensor, one point per beam/column on the beams that hit it.
+  const auto l = BeamLayout::uniform(9, -4, -12, 360);
+  std::vector<Point> pts;
+  for (int r = 0; r < l.rows(); ++r)
+    for (int c = 0; c < l.columns; ++c) {
+      const double el = l.elevations_rad[r], az = l.azimuth_of_column(c), d = 1.7 / std::tan(-el);
+      Point p;
+      p.x = float(d * std::cos(az)), p.y = float(d * std::sin(az)), p.z = -1.7f;
+      pts.push_back(p);
+    }
+  ProjectOptions o;
+  o.extra_channels = {"incidence"};
+  const auto res = project(pts, l, o);
+  const auto& m = res.pgm;
+  // Incidence on flat ground = 90 deg - |elevation|: 82 deg on the -8 deg row (row 4).
+  EXPECT_NEAR(m.at(m.channel_index("incidence"), 4, 50), (90 - 8) * kPi / 180, 0.01);
+  EXPECT_NEAR(m.at(m.channel_index("incidence"), 0, 200), (90 - 4) * kPi / 180, 0.01);
+}
