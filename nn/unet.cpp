@@ -1,6 +1,10 @@
 #include "nn/unet.h"
 
+#include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
 #include <random>
 #include <vector>
 
@@ -39,6 +43,23 @@ struct UNet::Workspace {
   bool have_forward = false;
   std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
   ConvIds head;
+
+  // LIDARSIM_PROFILE=1: wall time per layer and pass, printed to stderr when the model goes.
+  bool profile = std::getenv("LIDARSIM_PROFILE") != nullptr;
+  std::map<std::string, double> seconds;
+  std::chrono::steady_clock::time_point t0;
+  void tic() {
+    if (profile) t0 = std::chrono::steady_clock::now();
+  }
+  void toc(const std::string& what) {
+    if (profile) seconds[what] += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  ~Workspace() {
+    if (!profile || seconds.empty()) return;
+    double total = 0;
+    for (const auto& [k, v] : seconds) total += v;
+    for (const auto& [k, v] : seconds) std::fprintf(stderr, "profile %-22s %8.4f s %5.1f %%\n", k.c_str(), v, 100 * v / total);
+  }
 };
 
 UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Workspace>()) {
@@ -133,26 +154,43 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     auto& L = ws.levels[l];
     if (l > 0) {
       auto& P = ws.levels[l - 1];
+      ws.tic();
       max_pool2x2_forward(P.pool, P.argmax, P.a2);
+      ws.toc("fwd pool");
       cur = &P.pool;
     }
     L.h = cur->shape().h;
     L.w = cur->shape().w;
     const int c = channels(config_, l);
+    ws.tic();
     conv2d_forward(L.a1, *cur, W(ws.enc1[l].w), W(ws.enc1[l].b), c, 3, 1, true);
+    ws.toc("fwd enc" + std::to_string(l) + ".conv1");
+    ws.tic();
     conv2d_forward(L.a2, L.a1, W(ws.enc2[l].w), W(ws.enc2[l].b), c, 3, 1, true);
+    ws.toc("fwd enc" + std::to_string(l) + ".conv2");
   }
   const Tensor* below = &ws.levels[depth].a2;
   for (int l = depth - 1; l >= 0; --l) {
     auto& L = ws.levels[l];
     const int c = channels(config_, l);
+    const std::string d = "dec" + std::to_string(l);
+    ws.tic();
     conv_transpose2x2_forward(L.up, *below, W(ws.up[l].w), W(ws.up[l].b), c, L.h, L.w);
+    ws.toc("fwd " + d + ".up");
+    ws.tic();
     concat_forward(L.cat, L.a2, L.up);
+    ws.toc("fwd concat");
+    ws.tic();
     conv2d_forward(L.d1, L.cat, W(ws.dec1[l].w), W(ws.dec1[l].b), c, 3, 1, true);
+    ws.toc("fwd " + d + ".conv1");
+    ws.tic();
     conv2d_forward(L.d2, L.d1, W(ws.dec2[l].w), W(ws.dec2[l].b), c, 3, 1, true);
+    ws.toc("fwd " + d + ".conv2");
     below = &L.d2;
   }
+  ws.tic();
   conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+  ws.toc("fwd head");
   ws.have_forward = true;
 }
 
@@ -177,29 +215,48 @@ void UNet::backward(const Tensor& dy) {
   {
     const Tensor& top = depth > 0 ? ws.levels[0].d2 : ws.levels[0].a2;
     Tensor& g_top = depth > 0 ? ws.levels[0].g_d2 : ws.levels[0].g_a2;
+    ws.tic();
     conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), dy, dy, top, W(ws.head.w), 1, 0, false);
+    ws.toc("bwd head");
   }
   for (int l = 0; l < depth; ++l) {
     auto& L = ws.levels[l];
     auto& B = ws.levels[l + 1];
     const int c = channels(config_, l);
+    const std::string d = "dec" + std::to_string(l);
+    ws.tic();
     conv2d_backward(&L.g_d1, G(ws.dec2[l].w), G(ws.dec2[l].b), L.g_d2, L.d2, L.d1, W(ws.dec2[l].w), 3, 1, true);
+    ws.toc("bwd " + d + ".conv2");
+    ws.tic();
     conv2d_backward(&L.g_cat, G(ws.dec1[l].w), G(ws.dec1[l].b), L.g_d1, L.d1, L.cat, W(ws.dec1[l].w), 3, 1, true);
+    ws.toc("bwd " + d + ".conv1");
+    ws.tic();
     concat_backward(L.g_a2, L.g_up, L.g_cat, c, false);
+    ws.toc("bwd concat");
     const bool bottom = l + 1 == depth;
+    ws.tic();
     conv_transpose2x2_backward(bottom ? B.g_a2 : B.g_d2, G(ws.up[l].w), G(ws.up[l].b), L.g_up,
                                bottom ? B.a2 : B.d2, W(ws.up[l].w));
+    ws.toc("bwd " + d + ".up");
   }
   for (int l = depth; l >= 0; --l) {
     auto& L = ws.levels[l];
+    const std::string e = "enc" + std::to_string(l);
+    ws.tic();
     conv2d_backward(&L.g_a1, G(ws.enc2[l].w), G(ws.enc2[l].b), L.g_a2, L.a2, L.a1, W(ws.enc2[l].w), 3, 1, true);
+    ws.toc("bwd " + e + ".conv2");
+    ws.tic();
     if (l > 0) {
       auto& P = ws.levels[l - 1];
       conv2d_backward(&P.g_pool, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, P.pool, W(ws.enc1[l].w), 3, 1,
                       true);
+      ws.toc("bwd " + e + ".conv1");
+      ws.tic();
       max_pool2x2_backward(P.g_a2, P.g_pool, P.argmax, P.a2.shape(), true);
+      ws.toc("bwd pool");
     } else {
       conv2d_backward(nullptr, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, ws.x, W(ws.enc1[l].w), 3, 1, true);
+      ws.toc("bwd " + e + ".conv1");
     }
   }
 }

@@ -1,0 +1,320 @@
+// GCC 12's AVX-512 intrinsic headers initialise "undefined" vectors from themselves, which its
+// own -W(maybe-)uninitialized then reports wherever they are inlined (Eigen's kernels included).
+// The pragma must precede the headers: diagnostics are judged at the header's lines.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#include "nn/conv3x3.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdlib>
+#include <cstring>
+#include <new>
+#include <vector>
+
+#ifdef __AVX512F__
+#include <immintrin.h>
+#endif
+
+namespace lidarsim::nn::detail {
+
+#ifndef __AVX512F__
+bool conv3x3_available() { return false; }
+void conv3x3_forward(float*, const float*, int, int, int, int, const float*, const float*, int, bool) {}
+void conv3x3_backward(float*, float*, float*, const float*, const float*, const float*, const float*, int, int, int,
+                      int, int, bool) {}
+#else
+
+bool conv3x3_available() { return true; }
+
+namespace {
+
+constexpr int kCB = 8;            // output channels per register block
+constexpr int kNV = 3;            // 16-float vectors per strip
+constexpr int kStrip = 16 * kNV;  // pixels per strip
+constexpr int kChunkStrips = 8;   // strips per forward task (its staging tile stays in L1)
+constexpr int kWgChunk = 8192;    // pixels per weight-gradient chunk (a multiple of 16)
+constexpr int kFront = 16;        // zero floats before each padded plane
+#ifndef LIDARSIM_PREFETCH
+#define LIDARSIM_PREFETCH 48
+#endif
+constexpr int kPrefetch = LIDARSIM_PREFETCH;  // floats ahead to prefetch in the forward kernel
+#ifndef LIDARSIM_WG_PREFETCH
+#define LIDARSIM_WG_PREFETCH 64
+#endif
+constexpr int kWgPrefetch = LIDARSIM_WG_PREFETCH;  // and in the weight-gradient kernel
+
+// Padded geometry of one h x w plane: rows of ws = w + 2 floats, h + 2 rows, kFront zeros before
+// and slack after, so strips that start at an aligned index or run past the last pixel read
+// finite zeros. Index q = (y + 1) ws + (x + 1) is pixel (y, x) relative to the plane start.
+struct Geom {
+  int h, w, ws;
+  std::size_t stride;  // floats per padded channel, a multiple of 16 (planes stay 64-byte aligned)
+  int q0, q_end;       // first valid index, one past the last
+  int qa;              // q0 rounded down to a multiple of 16
+  Geom(int h_, int w_) : h(h_), w(w_), ws(w_ + 2) {
+    stride = kFront + ((static_cast<std::size_t>(h + 2) * ws + 15) / 16) * 16 + 64;
+    q0 = ws + 1;
+    q_end = h * ws + w + 1;
+    qa = q0 / 16 * 16;
+  }
+};
+
+// Grow-only, 64-byte aligned scratch.
+struct Buf {
+  float* p = nullptr;
+  std::size_t n = 0;
+  float* get(std::size_t want) {
+    if (want > n) {
+      std::free(p);
+      p = static_cast<float*>(std::aligned_alloc(64, ((want * sizeof(float) + 63) / 64) * 64));
+      if (!p) throw std::bad_alloc();
+      n = want;
+    }
+    return p;
+  }
+  ~Buf() { std::free(p); }
+};
+
+Buf g_pad_in, g_pad_g, g_wpack, g_sums;
+
+// Copies c planes [h, w] into the padded layout, zero borders and slack included. With mask,
+// copies src only where mask > 0 (the ReLU backward).
+// With sums, sums[ch] gets the plane's sum (of the masked values), for the bias gradient.
+void pad_planes(float* dst, const float* src, const float* mask, int c, const Geom& g, bool parallel,
+                float* sums = nullptr) {
+#pragma omp parallel for schedule(static) if (parallel)
+  for (int ch = 0; ch < c; ++ch) {
+    float total = 0.f;
+    float* d = dst + ch * g.stride;
+    const float* s = src + static_cast<std::size_t>(ch) * g.h * g.w;
+    const float* m = mask ? mask + static_cast<std::size_t>(ch) * g.h * g.w : nullptr;
+    std::fill(d, d + kFront + g.ws + 1, 0.f);
+    d += kFront;
+    for (int y = 0; y < g.h; ++y) {
+      float* row = d + static_cast<std::size_t>(y + 1) * g.ws + 1;
+      const float* sr = s + static_cast<std::size_t>(y) * g.w;
+      if (m) {
+        const float* mr = m + static_cast<std::size_t>(y) * g.w;
+        for (int x = 0; x < g.w; ++x) row[x] = mr[x] > 0.f ? sr[x] : 0.f;
+      } else {
+        std::memcpy(row, sr, sizeof(float) * g.w);
+      }
+      if (sums) {
+        float rs = 0.f;
+        for (int x = 0; x < g.w; ++x) rs += row[x];
+        total += rs;
+      }
+      row[g.w] = 0.f;
+      row[g.w + 1] = 0.f;  // left border of the next row
+    }
+    std::fill(d + static_cast<std::size_t>(g.h + 1) * g.ws + 1, dst + (ch + 1) * g.stride, 0.f);
+    if (sums) sums[ch] = total;
+  }
+}
+
+// Packs w [co, ci, 3, 3] into blocks [out_blocks][in][9][kCB], zero-filled past the last output
+// channel. transpose_flip packs the input-gradient weights: out = ci, in = co, w[co, ci, 2-kh, 2-kw].
+void pack_weights(float* dst, const float* w, int co, int ci, bool transpose_flip) {
+  const int out_c = transpose_flip ? ci : co, in_c = transpose_flip ? co : ci;
+  const int blocks = (out_c + kCB - 1) / kCB;
+  for (int b = 0; b < blocks; ++b)
+    for (int c = 0; c < in_c; ++c)
+      for (int k = 0; k < 9; ++k)
+        for (int j = 0; j < kCB; ++j) {
+          const int o = b * kCB + j;
+          float v = 0.f;
+          if (o < out_c) {
+            v = transpose_flip ? w[(static_cast<std::size_t>(c) * ci + o) * 9 + (8 - k)]
+                               : w[(static_cast<std::size_t>(o) * ci + c) * 9 + k];
+          }
+          dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
+        }
+}
+
+// One strip: kCB output channels x kStrip pixels from index q of the padded input planes.
+inline void strip_kernel(float* stage, std::size_t stage_stride, const float* pin, std::size_t pstride,
+                         const float* wb, int in_c, int ws) {
+  __m512 acc[kCB][kNV];
+  for (int b = 0; b < kCB; ++b)
+    for (int v = 0; v < kNV; ++v) acc[b][v] = _mm512_setzero_ps();
+  const std::ptrdiff_t off[9] = {-ws - 1, -ws, -ws + 1, -1, 0, 1, ws - 1, ws, ws + 1};
+  for (int c = 0; c < in_c; ++c) {
+    const float* p = pin + c * pstride;
+    const float* wc = wb + static_cast<std::size_t>(c) * 9 * kCB;
+    if (kPrefetch) {  // the next strip's three rows: too many streams for the hardware prefetcher
+      for (int r = 0; r < 3; ++r)
+        for (int v = 0; v < kNV + 1; ++v)
+          _mm_prefetch(reinterpret_cast<const char*>(p + off[3 * r] + kPrefetch + 16 * v), _MM_HINT_T0);
+    }
+    for (int k = 0; k < 9; ++k) {
+      const float* s = p + off[k];
+      __m512 x[kNV];
+      for (int v = 0; v < kNV; ++v) x[v] = _mm512_loadu_ps(s + 16 * v);
+      for (int b = 0; b < kCB; ++b) {
+        const __m512 wv = _mm512_set1_ps(wc[k * kCB + b]);
+        for (int v = 0; v < kNV; ++v) acc[b][v] = _mm512_fmadd_ps(wv, x[v], acc[b][v]);
+      }
+    }
+  }
+  for (int b = 0; b < kCB; ++b)
+    for (int v = 0; v < kNV; ++v) _mm512_store_ps(stage + b * stage_stride + 16 * v, acc[b][v]);
+}
+
+// out [n, out_c, h, w] = conv of padded planes pin [n][in_c] with packed weights. Each task
+// (pixel chunk x output block) stages its tile in L1 and writes it out with bias/ReLU fused.
+void conv_padded(float* out, const float* pin, int n, int in_c, const Geom& g, const float* wpack, const float* bias,
+                 int out_c, bool relu) {
+  const int blocks = (out_c + kCB - 1) / kCB;
+  const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
+  const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;
+  constexpr int kTile = kStrip * kChunkStrips;
+  const double flops = 2.0 * n * (g.q_end - g.q0) * in_c * 9 * out_c;
+  const bool par = flops > 2e6;
+  const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
+#pragma omp parallel if (par)
+  {
+    alignas(64) float stage[kCB * kTile];
+#pragma omp for schedule(static)
+    for (int task = 0; task < n * chunks * blocks; ++task) {
+      const int img = task / (chunks * blocks), chunk = (task / blocks) % chunks, b = task % blocks;
+      const float* pimg = pin + static_cast<std::size_t>(img) * in_c * g.stride + kFront;
+      const float* wb = wpack + static_cast<std::size_t>(b) * in_c * 9 * kCB;
+      const int s_begin = chunk * kChunkStrips, s_end = std::min(strips, s_begin + kChunkStrips);
+      for (int s = s_begin; s < s_end; ++s)
+        strip_kernel(stage + (s - s_begin) * kStrip, kTile, pimg + g.qa + s * kStrip, g.stride, wb, in_c, g.ws);
+      // Write out the valid pixels of [qs, qe).
+      const int qs = g.qa + s_begin * kStrip, qe = g.qa + s_end * kStrip;
+      const int r_first = std::max(0, qs / g.ws - 1), r_last = std::min(g.h - 1, qe / g.ws);
+      for (int j = 0; j < kCB; ++j) {
+        const int o = b * kCB + j;
+        if (o >= out_c) break;
+        const float bo = bias ? bias[o] : 0.f;
+        float* op = out + (static_cast<std::size_t>(img) * out_c + o) * oplane;
+        const float* st = stage + j * kTile;
+        for (int r = r_first; r <= r_last; ++r) {
+          const int row_q = (r + 1) * g.ws + 1;
+          const int x0 = std::max(0, qs - row_q), x1 = std::min(g.w, qe - row_q);
+          if (x0 >= x1) continue;
+          float* orow = op + static_cast<std::size_t>(r) * g.w;
+          const float* srow = st + (row_q - qs);
+          if (relu)
+            for (int x = x0; x < x1; ++x) orow[x] = std::max(srow[x] + bo, 0.f);
+          else
+            for (int x = x0; x < x1; ++x) orow[x] = srow[x] + bo;
+        }
+      }
+    }
+  }
+}
+
+// Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
+inline float hsum(__m512 v) {
+  const __m512 t = _mm512_add_ps(v, _mm512_shuffle_f32x4(v, v, 0x4E));
+  const __m256 a = _mm512_castps512_ps256(t);
+  __m128 b = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
+  b = _mm_add_ps(b, _mm_movehl_ps(b, b));
+  b = _mm_add_ss(b, _mm_movehdup_ps(b));
+  return _mm_cvtss_f32(b);
+}
+
+// Weight gradient of CB output channels (from o0), input channel c, kernel row kh over the pixel
+// range [qa, qb): 3 CB dot products of g rows with the shifted input row.
+template <int CB>
+void wgrad_task(float* d_weight, const float* gimg, const float* pimg, const Geom& g, int ci, int o0, int c, int kh,
+                int qa, int qb) {
+  __m512 acc[CB][3];
+  for (int b = 0; b < CB; ++b) acc[b][0] = acc[b][1] = acc[b][2] = _mm512_setzero_ps();
+  const float* pr = pimg + c * g.stride + kFront + (kh - 1) * g.ws - 1;
+  const float* gr = gimg + o0 * g.stride + kFront;
+  for (int q = qa; q < qb; q += 16) {
+    if (kWgPrefetch) {
+      _mm_prefetch(reinterpret_cast<const char*>(pr + q + kWgPrefetch), _MM_HINT_T0);
+      for (int b = 0; b < CB; ++b)
+        _mm_prefetch(reinterpret_cast<const char*>(gr + b * g.stride + q + kWgPrefetch), _MM_HINT_T0);
+    }
+    const __m512 x0 = _mm512_loadu_ps(pr + q), x1 = _mm512_loadu_ps(pr + q + 1), x2 = _mm512_loadu_ps(pr + q + 2);
+    for (int b = 0; b < CB; ++b) {
+      const __m512 gv = _mm512_load_ps(gr + b * g.stride + q);
+      acc[b][0] = _mm512_fmadd_ps(gv, x0, acc[b][0]);
+      acc[b][1] = _mm512_fmadd_ps(gv, x1, acc[b][1]);
+      acc[b][2] = _mm512_fmadd_ps(gv, x2, acc[b][2]);
+    }
+  }
+  for (int b = 0; b < CB; ++b) {
+    float* d = d_weight + (static_cast<std::size_t>(o0 + b) * ci + c) * 9 + kh * 3;
+    for (int kw = 0; kw < 3; ++kw) d[kw] += hsum(acc[b][kw]);
+  }
+}
+
+using WgradFn = void (*)(float*, const float*, const float*, const Geom&, int, int, int, int, int, int);
+constexpr WgradFn kWgrad[kCB + 1] = {nullptr,        wgrad_task<1>, wgrad_task<2>, wgrad_task<3>, wgrad_task<4>,
+                                      wgrad_task<5>, wgrad_task<6>, wgrad_task<7>, wgrad_task<8>};
+
+}  // namespace
+
+void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
+                     const float* bias, int co, bool relu) {
+  const Geom g(h, w);
+  float* pin = g_pad_in.get(g.stride * ci * n);
+  const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
+  pad_planes(pin, in, nullptr, n * ci, g, par);
+  float* wp = g_wpack.get(static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9);
+  pack_weights(wp, weight, co, ci, false);
+  conv_padded(out, pin, n, ci, g, wp, bias, co, relu);
+}
+
+void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* d_out, const float* out,
+                      const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu) {
+  const Geom g(h, w);
+  const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
+  // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing).
+  float* gp = g_pad_g.get(g.stride * co * n);
+  float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
+  pad_planes(gp, d_out, relu ? out : nullptr, n * co, g, par, sums);
+
+  if (d_bias) {
+    for (int o = 0; o < co; ++o) {
+      float acc = 0.f;
+      for (int img = 0; img < n; ++img) acc += sums[img * co + o];
+      d_bias[o] += acc;
+    }
+  }
+
+  if (d_weight) {
+    float* pin = g_pad_in.get(g.stride * ci * n);
+    pad_planes(pin, in, nullptr, n * ci, g, par);
+    const int blocks = (co + kCB - 1) / kCB;
+    const int q_stop = g.qa + (g.q_end - g.qa + 15) / 16 * 16;
+    const bool wpar = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
+    // Pixel chunks in a fixed order; inside a chunk each (output block, input channel, kernel row)
+    // task owns its weights, so the sums do not depend on how tasks are spread over threads.
+    for (int img = 0; img < n; ++img) {
+      const float* gimg = gp + static_cast<std::size_t>(img) * co * g.stride;
+      const float* pimg = pin + static_cast<std::size_t>(img) * ci * g.stride;
+      for (int c0 = g.qa; c0 < q_stop; c0 += kWgChunk) {
+        const int c1 = std::min(q_stop, c0 + kWgChunk);
+#pragma omp parallel for schedule(static) if (wpar)
+        for (int task = 0; task < blocks * ci * 3; ++task) {
+          const int b = task / (ci * 3), c = (task / 3) % ci, kh = task % 3;
+          const int o0 = b * kCB, cb = std::min(kCB, co - o0);
+          kWgrad[cb](d_weight, gimg, pimg, g, ci, o0, c, kh, c0, c1);
+        }
+      }
+    }
+  }
+
+  if (d_in) {
+    float* wp = g_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
+    pack_weights(wp, weight, co, ci, true);
+    conv_padded(d_in, gp, n, co, g, wp, nullptr, ci, false);
+  }
+}
+
+#endif
+
+}  // namespace lidarsim::nn::detail

@@ -1,0 +1,21 @@
+#pragma once
+// Direct 3x3 convolution (stride 1, padding 1) with AVX-512 register blocking: the UNet's hot
+// path. Inputs are copied into zero-bordered planes whose rows are w + 2 wide, so every output
+// pixel (and every junk pixel in the border columns, computed and then dropped) reads its 3x3
+// window at fixed offsets: the kernel is a flat loop over pixels with no boundary tests.
+// layers.cpp falls back to im2col + GEMM for other kernels or without AVX-512.
+namespace lidarsim::nn::detail {
+
+bool conv3x3_available();
+
+// in [n, ci, h, w], weight [co, ci, 3, 3], bias [co] or null -> out [n, co, h, w].
+void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
+                     const float* bias, int co, bool relu);
+
+// d_out, out [n, co, h, w] (out used for the ReLU mask when relu); writes d_in (may be null),
+// adds to d_weight [co, ci, 3, 3] and d_bias [co] (may be null). The weight gradient is summed
+// in an order that does not depend on the thread count.
+void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* d_out, const float* out,
+                      const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu);
+
+}  // namespace lidarsim::nn::detail
