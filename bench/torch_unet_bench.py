@@ -5,9 +5,12 @@ OPENBLAS_L2_SIZE unset for this process only); by hand:
     OMP_NUM_THREADS=2 /usr/bin/python3 bench/torch_unet_bench.py --threads 2 --rows 64
 Prints human-readable notes on stderr and one JSON object on the last stdout line:
     {"train_b1": s, "train_b4": s, "infer_b1": s, "blas": [...], "conv_ops": [...], ...}
-Each time is the median over --reps after --warmup untimed runs (and <row>_min the fastest). With --mkldnn both (default)
-every row is timed with oneDNN convolutions on and off and the faster is reported, so the peer
-is measured at its best.
+Each time is the median over --reps after --warmup untimed runs (and <row>_min the fastest).
+Every row is timed under each of --settings (default: all three) and the fastest is reported,
+so the peer is measured at its best:
+  default        torch's defaults (oneDNN convolutions where torch picks them, NCHW)
+  no_onednn      torch.backends.mkldnn.enabled = False (im2col + BLAS convolutions)
+  channels_last  model and input in channels_last memory format (oneDNN's preferred layout)
 """
 import argparse
 import json
@@ -41,10 +44,13 @@ def make_batch(n, rows, cols, in_channels, seed):
     return x, target, mask
 
 
-def measure(args, model, opt):
+def measure(args, model, opt, channels_last):
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    model.to(memory_format=fmt)
     out = {}
     for n in (1, 4):
         x, target, mask = make_batch(n, args.rows, args.cols, args.in_channels, seed=n)
+        x = x.contiguous(memory_format=fmt)
 
         def train_step():
             opt.zero_grad(set_to_none=False)
@@ -55,6 +61,7 @@ def measure(args, model, opt):
 
         out[f"train_b{n}"], out[f"train_b{n}_min"] = timed(train_step, args.warmup, args.reps)
     x, _, _ = make_batch(1, args.rows, args.cols, args.in_channels, seed=1)
+    x = x.contiguous(memory_format=fmt)
 
     def infer():
         with torch.no_grad():
@@ -81,7 +88,8 @@ def main():
     p.add_argument("--lam", type=float, default=1e-4)
     p.add_argument("--reps", type=int, default=7)
     p.add_argument("--warmup", type=int, default=2)
-    p.add_argument("--mkldnn", choices=["both", "on", "off"], default="both")
+    p.add_argument("--settings", default="default,no_onednn,channels_last",
+                   help="comma-separated subset of default, no_onednn, channels_last")
     args = p.parse_args()
 
     torch.set_num_threads(args.threads)
@@ -96,12 +104,14 @@ def main():
         loss.backward()
     conv_ops = sorted({e.name for e in prof.function_events if "conv" in e.name})
 
-    settings = {"both": [True, False], "on": [True], "off": [False]}[args.mkldnn]
     per_setting = {}
-    for enabled in settings:
-        torch.backends.mkldnn.enabled = enabled
-        per_setting["mkldnn_on" if enabled else "mkldnn_off"] = measure(args, model, opt)
-        print(f"torch ({'oneDNN on' if enabled else 'oneDNN off'}): {per_setting}", file=sys.stderr)
+    for setting in args.settings.split(","):
+        if setting not in ("default", "no_onednn", "channels_last"):
+            sys.exit(f"error: --settings: unknown setting {setting!r}")
+        torch.backends.mkldnn.enabled = setting != "no_onednn"
+        per_setting[setting] = measure(args, model, opt, channels_last=setting == "channels_last")
+        print(f"torch {setting}: {per_setting[setting]}", file=sys.stderr)
+    torch.backends.mkldnn.enabled = True
     best = {}
     for row in ("train_b1", "train_b4", "infer_b1"):
         key = min(per_setting, key=lambda k: per_setting[k][row])

@@ -95,11 +95,11 @@ std::string shell_quote(const std::string& s) {
 
 // Runs the PyTorch peer and returns its JSON (the last line it prints on stdout).
 nlohmann::json run_torch(const std::string& python, const std::string& script, int threads, int rows, int cols,
-                         int reps, int warmup, float lambda, const std::string& mkldnn) {
+                         int reps, int warmup, float lambda, const std::string& settings) {
   std::ostringstream cmd;
   cmd << "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OMP_NUM_THREADS=" << threads << " " << shell_quote(python)
       << " " << shell_quote(script) << " --threads " << threads << " --rows " << rows << " --cols " << cols
-      << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --mkldnn " << mkldnn;
+      << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --settings " << shell_quote(settings);
   std::cerr << "bench: running PyTorch: " << cmd.str() << "\n";
   FILE* pipe = ::popen(cmd.str().c_str(), "r");
   if (!pipe) throw Error(script + ": cannot start " + python);
@@ -140,8 +140,8 @@ int main(int argc, char** argv) {
       ("python", "Python with torch", cxxopts::value<std::string>()->default_value("/usr/bin/python3"))
       ("torch-script", "the PyTorch peer",
        cxxopts::value<std::string>()->default_value(LIDARSIM_SOURCE_DIR "/bench/torch_unet_bench.py"))
-      ("mkldnn", "PyTorch oneDNN convolutions: both (report the faster), on, off",
-       cxxopts::value<std::string>()->default_value("both"))
+      ("torch-settings", "PyTorch settings to try, the fastest counts per row (default, no_onednn, channels_last)",
+       cxxopts::value<std::string>()->default_value("default,no_onednn,channels_last"))
       ("no-torch", "time only our engine")
       ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
       ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
@@ -158,8 +158,7 @@ int main(int argc, char** argv) {
     if (warmup < 0) throw Error("--warmup: expected >= 0");
     if (threads < 1) throw Error("--threads: expected >= 1");
     if (rows < 16 || cols < 16) throw Error("--rows/--cols: expected >= 16 (depth 4 halves four times)");
-    const std::string mkldnn = opt["mkldnn"].as<std::string>();
-    if (mkldnn != "both" && mkldnn != "on" && mkldnn != "off") throw Error("--mkldnn: expected both, on or off");
+    const std::string torch_settings = opt["torch-settings"].as<std::string>();
     omp_set_num_threads(threads);
     const std::string load_before = loadavg();
 
@@ -203,7 +202,7 @@ int main(int argc, char** argv) {
     const bool with_torch = !opt.count("no-torch");
     if (with_torch) {
       peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
-                       reps, warmup, lambda, mkldnn);
+                       reps, warmup, lambda, torch_settings);
       for (Row& row : table)
         row.torch = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>()};
     }
@@ -244,7 +243,7 @@ int main(int argc, char** argv) {
     }
     std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, rows, cols) * 1e-9);
     if (with_torch) {
-      std::printf("torch %s, %d threads; fastest oneDNN setting per row: train_b1 %s, train_b4 %s, infer_b1 %s\n",
+      std::printf("torch %s, %d threads; fastest setting per row: train_b1 %s, train_b4 %s, infer_b1 %s\n",
                   peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
                   peer.value("train_b1_setting", std::string("?")).c_str(),
                   peer.value("train_b4_setting", std::string("?")).c_str(),
