@@ -53,14 +53,22 @@ std::vector<std::string> dataset_channels(const ImportOptions& options) {
 Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptions& options) {
   Dataset d = empty_dataset(options, "semantickitti");
   std::vector<ScanFiles> scans;
-  for (const auto& s : list_semantickitti(dir, options.sequences))
+  int unlabelled = 0;
+  for (const auto& s : list_semantickitti(dir, options.sequences)) {
     if (s.label || options.include_unlabelled) scans.push_back(s);
+    else ++unlabelled;
+  }
+  if (unlabelled && options.note)
+    options.note("skipped " + std::to_string(unlabelled) + " scans without labels (--include-unlabelled reads them)");
   scans = window(scans, options);
   if (scans.empty())
     throw input_error(dir.string(), "scans", options.include_unlabelled ? "no velodyne/*.bin scans found"
                                                                          : "no labelled scans (velodyne/*.bin with labels/*.label) found");
   for (std::size_t i = 0; i < scans.size(); ++i) {
     const LabelledScan scan = read_semantickitti_scan(scans[i]);
+    if (scan.unknown_labels && options.note)
+      options.note(scans[i].label->string() + ": " + std::to_string(scan.unknown_labels) +
+                   " labels outside the SemanticKITTI classes, imported as unlabeled");
     add_frame(d, scan.points, options, "semantickitti/" + scans[i].sequence + "/" + scans[i].id, scans[i].bin.string());
     for (const auto& s : scan.sources) d.sources.push_back(s.string());
     if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(scans.size()));

@@ -25,6 +25,8 @@ struct ImportOptions {
   float min_range = 0.f;
   // Called after each frame with (done, total); e.g. a progress bar.
   std::function<void(int, int)> progress;
+  // Called with notes worth telling a user (scans skipped for lack of labels, unknown labels).
+  std::function<void(const std::string&)> note;
 };
 
 // Channels written to /pgm for these options.

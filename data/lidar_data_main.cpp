@@ -75,6 +75,8 @@ int run_import(int argc, char** argv) {
   o.row_mode = parse_row_mode(args["rows"].as<std::string>());
   o.include_unlabelled = args.count("include-unlabelled") > 0;
   if (args.count("sequences")) o.sequences = split_list(args["sequences"].as<std::string>());
+  std::vector<std::string> notes;
+  o.note = [&](const std::string& n) { notes.push_back(n); };
   std::unique_ptr<ProgressBar> bar;
   const bool show = !args.count("quiet");
   o.progress = [&](int done, int total) {
@@ -84,6 +86,7 @@ int run_import(int argc, char** argv) {
   data::Dataset d = sk ? data::import_semantickitti(args["semantickitti"].as<std::string>(), o)
                        : data::import_kitti_object(args["kitti-object"].as<std::string>(), o);
   if (bar) bar->finish(std::to_string(d.size()) + " scans");
+  for (const auto& n : notes) std::cerr << "note: " << n << "\n";
   const std::string out = args["out"].as<std::string>();
   data::write_dataset(out, d);
   long returns = 0;
