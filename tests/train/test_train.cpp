@@ -37,13 +37,14 @@ fs::path synthetic_dataset(const fs::path& dir, int frames) {
   d.channels = {"range", "class", "material"};
   const auto layout = pgm::BeamLayout::uniform(16, 2.0, -24.0, 64);
   std::mt19937 rng(7);
-  std::uniform_real_distribution<float> range(3.f, 60.f);
+  std::uniform_real_distribution<float> range(-1.f, 1.f);
   for (int f = 0; f < frames; ++f) {
     pgm::PolarGridMap map(layout, {"range", "class", "material", "intensity", "mask"});
     for (int r = 0; r < map.rows(); ++r)
       for (int c = 0; c < map.cols(); ++c) {
         if ((r * 7 + c * 3 + f) % 5 == 0) continue;  // some empty cells
-        const float rg = range(rng);
+        // Smooth over the grid, as real scenes are; the frame index shifts it.
+        const float rg = 4.f + 3.f * r + 8.f * std::sin(0.1f * c + f) + 0.2f * range(rng);
         const int cls = (c / 8) % 2 ? pgm::cls::road : pgm::cls::car;
         map.at(map.channel_index("range"), r, c) = rg;
         map.at(map.channel_index("class"), r, c) = static_cast<float>(cls);
@@ -121,13 +122,17 @@ TEST(Train, ValidationErrorFallsOnASyntheticClassRangeRule) {
   const fs::path dir = temp_dir("learns");
   train::TrainConfig c = small_config(synthetic_dataset(dir, 3), dir / "ck.h5");
   c.epochs = 30;
-  c.base = 8; c.lr = 1e-2f; c.augment_mirror = false; c.augment_roll = false;
-  const auto result = train::train(c, [](const train::EpochReport& r) {
-    std::printf("epoch %d loss %.5f val %.4f\n", r.epoch, r.train_loss, r.validation.mae);
-  });
+  c.steps_per_epoch = 10;
+  c.base = 8;
+  c.lr = 1e-2f;
+  double class_mean = 0;
+  for (const auto& b : data::evaluate_baselines(data::read_dataset(c.data[0])))
+    if (b.name == "class_mean") class_mean = b.validation.mae;
+  const auto result = train::train(c);
   ASSERT_EQ(result.epochs.size(), 30u);
-  EXPECT_LT(result.epochs.back().validation.mae, 0.5 * result.epochs.front().validation.mae);
-  EXPECT_LT(result.epochs.back().validation.mae, 0.05);
+  // Range explains most of what class leaves: the network must find it.
+  std::printf("val MAE %.4f, class-mean baseline %.4f\n", result.epochs.back().validation.mae, class_mean);
+  EXPECT_LT(result.epochs.back().validation.mae, 0.6 * class_mean);
 }
 
 TEST(Train, ResumingWithAnotherArchitectureNamesTheCheckpoint) {
