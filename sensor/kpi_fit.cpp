@@ -247,7 +247,10 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
   // Per-track constant (sizes): offset of each track's mean from the bin means.
   std::vector<double> offset(end - begin, 0.0);
   if (per_track_constant) {
-    std::vector<double> offsets;
+    // Weighted by track length, so between + within variance adds up to the total (short
+    // tracks' noisy means would otherwise inflate the per-track spread).
+    double wsum = 0, wmean = 0, wvar = 0;
+    std::vector<std::pair<double, long>> offsets;
     for (size_t i = begin; i < end;) {
       size_t j = i;
       double s = 0;
@@ -258,16 +261,16 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
       }
       if (k >= 3) {
         for (size_t q = i; q < j; ++q) offset[q - begin] = s / k;
-        offsets.push_back(s / k);
+        offsets.push_back({s / k, k});
+        wsum += k;
+        wmean += s;
       }
       i = j;
     }
     if (offsets.size() >= 5) {
-      double m = 0, v = 0;
-      for (double o : offsets) m += o;
-      m /= offsets.size();
-      for (double o : offsets) v += (o - m) * (o - m);
-      em.track_std = std::sqrt(v / (offsets.size() - 1));
+      wmean /= wsum;
+      for (const auto& [o, k] : offsets) wvar += k * (o - wmean) * (o - wmean);
+      em.track_std = std::sqrt(wvar / wsum);
     }
   }
   auto resid = [&](size_t i) { return val(recs[i]) - em.mean[recs[i].rb] - offset[i - begin]; };
