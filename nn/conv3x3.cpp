@@ -37,14 +37,17 @@ constexpr int kCB = 8;            // output channels per register block
 constexpr int kNV = 3;            // 16-float vectors per strip
 constexpr int kStrip = 16 * kNV;  // pixels per strip
 constexpr int kChunkStrips = 8;   // strips per forward task (its staging tile stays in L1)
-constexpr int kWgChunk = 8192;    // pixels per weight-gradient chunk (a multiple of 16)
+#ifndef LIDARSIM_WG_CHUNK
+#define LIDARSIM_WG_CHUNK 2048
+#endif
+constexpr int kWgChunk = LIDARSIM_WG_CHUNK;  // pixels per weight-gradient chunk (a multiple of 16)
 constexpr int kFront = 16;        // zero floats before each padded plane
 #ifndef LIDARSIM_PREFETCH
 #define LIDARSIM_PREFETCH 48
 #endif
 constexpr int kPrefetch = LIDARSIM_PREFETCH;  // floats ahead to prefetch in the forward kernel
 #ifndef LIDARSIM_WG_PREFETCH
-#define LIDARSIM_WG_PREFETCH 64
+#define LIDARSIM_WG_PREFETCH 0
 #endif
 constexpr int kWgPrefetch = LIDARSIM_WG_PREFETCH;  // and in the weight-gradient kernel
 
@@ -239,7 +242,10 @@ void wgrad_task(float* d_weight, const float* gimg, const float* pimg, const Geo
     }
     const __m512 x0 = _mm512_loadu_ps(pr + q), x1 = _mm512_loadu_ps(pr + q + 1), x2 = _mm512_loadu_ps(pr + q + 2);
     for (int b = 0; b < CB; ++b) {
-      const __m512 gv = _mm512_load_ps(gr + b * g.stride + q);
+      __m512 gv = _mm512_load_ps(gr + b * g.stride + q);
+      // Keep gv in a register: folded into each FMA as a memory operand it would be loaded three
+      // times, and loads, not FMAs, would bound the kernel.
+      asm("" : "+v"(gv));
       acc[b][0] = _mm512_fmadd_ps(gv, x0, acc[b][0]);
       acc[b][1] = _mm512_fmadd_ps(gv, x1, acc[b][1]);
       acc[b][2] = _mm512_fmadd_ps(gv, x2, acc[b][2]);
