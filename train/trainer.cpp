@@ -183,6 +183,13 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
       frames.push_back(std::move(f));
     }
   const int num_frames = static_cast<int>(frames.size());
+  // Rolling or mirroring the azimuth would contradict channels that encode direction.
+  bool roll = config.augment_roll, mirror = config.augment_mirror;
+  for (const auto& c : config.encoder.channels)
+    if ((c == "azimuth" || c == "x" || c == "y") && (roll || mirror)) {
+      std::fprintf(stderr, "lidar-train: channel '%s' encodes direction: azimuth roll and mirror are off\n", c.c_str());
+      roll = mirror = false;
+    }
   const int width = config.crop_columns > 0 ? std::min(config.crop_columns, cols) : cols;
 
   // --- model, optimizer, resume ----------------------------------------------------------------
@@ -253,13 +260,13 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
     for (int b = 0; b < config.batch; ++b) {
       const int f = order[static_cast<std::size_t>((in_epoch * config.batch + b) % num_frames)];
       rng = splitmix64(rng);
-      const int offset = config.augment_roll ? static_cast<int>(rng % static_cast<std::uint64_t>(cols))
+      const int offset = roll ? static_cast<int>(rng % static_cast<std::uint64_t>(cols))
                                              : (width < cols ? static_cast<int>(rng % (cols - width + 1)) : 0);
       rng = splitmix64(rng);
-      const bool mirror = config.augment_mirror && (rng & 1);
-      place(frames[f].input, x, b, offset, mirror);
-      place(frames[f].target, y, b, offset, mirror);
-      place(frames[f].train_mask, m, b, offset, mirror);
+      const bool flip = mirror && (rng & 1);
+      place(frames[f].input, x, b, offset, flip);
+      place(frames[f].target, y, b, offset, flip);
+      place(frames[f].train_mask, m, b, offset, flip);
     }
     model.params().zero_grads();
     model.forward(x, pred);

@@ -183,7 +183,7 @@ TEST(Train, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
   c.data = {dir / "scan.h5"};
   c.base = 8;
   c.depth = 3;
-  c.epochs = 6;
+  c.epochs = 12;
   c.steps_per_epoch = 25;
   c.crop_columns = 256;
   c.batch = 2;
