@@ -18,12 +18,31 @@ constexpr double kPi = std::numbers::pi;
 double wrap_pi(double a) { return std::remainder(a, 2 * kPi); }
 }  // namespace
 
+PclConfig PclConfig::from_fov(const FieldOfView& fov) {
+  PclConfig c;
+  c.min_range = fov.range_min;
+  c.max_range = fov.range_max;
+  c.azimuth_min = fov.azimuth_min;
+  c.azimuth_max = fov.azimuth_max;
+  c.elevation_min = fov.elevation_min;
+  c.elevation_max = fov.elevation_max;
+  return c;
+}
+
 PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclConfig& config)
     : layout_(std::move(layout)), mount_(mount), sensor_from_ego_(inverse(mount)), cfg_(config) {
   layout_.validate("pcl generator");
   const int H = layout_.rows(), W = layout_.columns;
   dir_sensor_.resize(static_cast<std::size_t>(H) * W);
   dir_ego_.resize(dir_sensor_.size());
+  cell_in_fov_.resize(dir_sensor_.size());
+  FieldOfView fov;  // the angular limits only: range is handled while casting
+  fov.azimuth_min = cfg_.azimuth_min;
+  fov.azimuth_max = cfg_.azimuth_max;
+  fov.elevation_min = cfg_.elevation_min;
+  fov.elevation_max = cfg_.elevation_max;
+  fov.range_min = 0;
+  fov.range_max = 2;
   for (int r = 0; r < H; ++r) {
     const double el = layout_.elevations_rad[r];
     for (int c = 0; c < W; ++c) {
@@ -31,6 +50,7 @@ PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclC
       const std::size_t i = static_cast<std::size_t>(r) * W + c;
       dir_sensor_[i] = Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
       dir_ego_[i] = mount_.rotation * dir_sensor_[i];
+      cell_in_fov_[i] = point_in_fov(dir_sensor_[i], fov);
     }
   }
   col_start_.assign(W + 1, 0);
@@ -193,16 +213,17 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
     for (int c = 0; c < W; ++c) {
       const std::size_t cell = static_cast<std::size_t>(r) * W + c;
       const Eigen::Vector3d& d = dir_ego_[cell];
+      const bool cast = cell_in_fov_[cell];
       double best = cfg_.max_range;
       int hit = -1;  // box index, -2 road, -3 lane paint
-      for (int k = col_start_[c]; k < col_start_[c + 1]; ++k) {
+      for (int k = col_start_[c]; cast && k < col_start_[c + 1]; ++k) {
         double t = 0;
         if (ray_box(boxes_[box_index_[k]].ray, origin, d, best, t) && t < best) {
           best = t;
           hit = box_index_[k];
         }
       }
-      if (cfg_.ground && d.z() < 0) {
+      if (cast && cfg_.ground && d.z() < 0) {
         const double t = (cfg_.ground_height - origin.z()) / d.z();
         if (t >= 0 && t < best) {
           best = t;

@@ -34,6 +34,11 @@ struct PclConfig {
   double dash_length = 3.0, dash_gap = 6.0;  // m
   double min_range = 0;      // returns nearer than this are dropped (the ray is still blocked)
   double max_range = 120;    // m
+  // Beams outside the field of view's angular limits return nothing (sensor frame, rad).
+  double azimuth_min = -3.14159265358979323846, azimuth_max = 3.14159265358979323846;
+  double elevation_min = -3.14159265358979323846 / 2, elevation_max = 3.14159265358979323846 / 2;
+  // Range and angular limits from a field of view; the rest at their defaults.
+  static PclConfig from_fov(const FieldOfView& fov);
 };
 
 // Channels a generated map has at least.
@@ -74,6 +79,7 @@ class PclGenerator {
   PclConfig cfg_;
   std::vector<Eigen::Vector3d> dir_sensor_;  // [rows * cols] unit ray directions, sensor frame
   std::vector<Eigen::Vector3d> dir_ego_;     // the same in the ego frame
+  std::vector<char> cell_in_fov_;            // [rows * cols]
   // Boxes bucketed by column (CSR): column c holds box_index_[col_start_[c] .. col_start_[c+1]).
   std::vector<Box> boxes_;
   std::vector<int> col_start_, col_fill_, box_index_;

@@ -141,3 +141,30 @@ TEST(PclGenerator, SelectVisibleKeepsEgoBoxesOfVisibleIds) {
   ASSERT_EQ(out.size(), 1u);
   EXPECT_EQ(out[0].id, 3);
 }
+
+TEST(PclGenerator, BeamsOutsideTheFieldOfViewAndBelowMinRangeReturnNothing) {
+  // The box of the first test, seen by a sensor whose view ends at azimuth 2 deg on the left
+  // and starts at -90: columns 0 and 1 (0.5, 1.5 deg) stay, 2..5 go; 354..359 stay.
+  FieldOfView fov;
+  fov.azimuth_min = -90 * kDeg;
+  fov.azimuth_max = 2 * kDeg;
+  fov.range_max = 100;
+  PclConfig cfg = PclConfig::from_fov(fov);
+  cfg.ground = false;
+  Object o;
+  o.position = {10.5, 0, 5};
+  o.size = {1, 2, 2};
+  PclGenerator gen(one_degree_layout(), make_pose({0, 0, 5}, 0, 0, 0), cfg);
+  auto map = gen.make_map();
+  EXPECT_EQ(gen.generate({o}, {}, map), 12 * 8);
+  EXPECT_EQ(map.at(map.channel_index("mask"), 7, 1), 1);
+  EXPECT_EQ(map.at(map.channel_index("mask"), 7, 2), 0);
+  // A minimum range beyond the box's face: the box blocks the beams but returns nothing.
+  fov.azimuth_min = -std::numbers::pi;
+  fov.azimuth_max = std::numbers::pi;
+  fov.range_min = 10.5;
+  cfg = PclConfig::from_fov(fov);
+  cfg.ground = false;
+  PclGenerator near_blind(one_degree_layout(), make_pose({0, 0, 5}, 0, 0, 0), cfg);
+  EXPECT_EQ(near_blind.generate({o}, {}, map), 0);
+}
