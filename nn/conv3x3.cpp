@@ -297,18 +297,25 @@ void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* 
     const int blocks = (co + kCB - 1) / kCB;
     const int q_stop = g.qa + (g.q_end - g.qa + 15) / 16 * 16;
     const bool wpar = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
-    // Pixel chunks in a fixed order; inside a chunk each (output block, input channel, kernel row)
-    // task owns its weights, so the sums do not depend on how tasks are spread over threads.
-    for (int img = 0; img < n; ++img) {
-      const float* gimg = gp + static_cast<std::size_t>(img) * co * g.stride;
-      const float* pimg = pin + static_cast<std::size_t>(img) * ci * g.stride;
-      for (int c0 = g.qa; c0 < q_stop; c0 += kWgChunk) {
-        const int c1 = std::min(q_stop, c0 + kWgChunk);
-#pragma omp parallel for schedule(static) if (wpar)
-        for (int task = 0; task < blocks * ci * 3; ++task) {
-          const int b = task / (ci * 3), c = (task / 3) % ci, kh = task % 3;
-          const int o0 = b * kCB, cb = std::min(kCB, co - o0);
-          kWgrad[cb](d_weight, gimg, pimg, g, ci, o0, c, kh, c0, c1);
+    // Each (output block, input channel, kernel row) task owns its weights and sums its pixel
+    // chunks in a fixed order, so the result does not depend on the thread count. Threads take
+    // fixed task ranges and walk the chunks in step without barriers: one parallel region.
+    const int tasks = blocks * ci * 3;
+#pragma omp parallel if (wpar)
+    {
+      const int nt = omp_get_num_threads(), tid = omp_get_thread_num();
+      const int t0 = static_cast<int>(static_cast<long>(tasks) * tid / nt);
+      const int t1 = static_cast<int>(static_cast<long>(tasks) * (tid + 1) / nt);
+      for (int img = 0; img < n; ++img) {
+        const float* gimg = gp + static_cast<std::size_t>(img) * co * g.stride;
+        const float* pimg = pin + static_cast<std::size_t>(img) * ci * g.stride;
+        for (int c0 = g.qa; c0 < q_stop; c0 += kWgChunk) {
+          const int c1 = std::min(q_stop, c0 + kWgChunk);
+          for (int task = t0; task < t1; ++task) {
+            const int b = task / (ci * 3), c = (task / 3) % ci, kh = task % 3;
+            const int o0 = b * kCB, cb = std::min(kCB, co - o0);
+            kWgrad[cb](d_weight, gimg, pimg, g, ci, o0, c, kh, c0, c1);
+          }
         }
       }
     }
