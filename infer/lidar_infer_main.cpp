@@ -1,7 +1,10 @@
 // lidar-infer: run the trained models.
 //   predict  intensity for recorded scans (SemanticKITTI, KITTI object, or one .bin)
+//   sim      the simulation pipeline over a scenario (object list, lanes, point cloud, images)
 #include <cstdio>
+#include <chrono>
 #include <cstring>
+#include <filesystem>
 #include <iostream>
 #include <string>
 
@@ -10,7 +13,10 @@
 #include <cxxopts.hpp>
 
 #include "common/error.h"
+#include "common/progress.h"
 #include "infer/scan_prediction.h"
+#include "infer/sim_outputs.h"
+#include "infer/sim_pipeline.h"
 
 namespace {
 
@@ -18,6 +24,8 @@ void usage() {
   std::cout << "usage: lidar-infer <command> [options]\n"
                "commands:\n"
                "  predict   predicted intensity for recorded scans: point clouds (PCD/PLY), PNG figures, summary\n"
+               "  sim       simulate a scenario: object lists, lanes, point clouds with intensity, images, timings\n"
+               "            (no options: the bundled demo scenario and models into out/sim)\n"
                "run 'lidar-infer <command> --help' for the options of a command\n";
 }
 
@@ -64,6 +72,98 @@ int run_predict(int argc, char** argv) {
   return 0;
 }
 
+
+// A bundled default (relative path): the current directory first, then the source tree.
+std::filesystem::path resolve_default(const std::string& relative) {
+  if (std::filesystem::exists(relative)) return relative;
+  const std::filesystem::path in_source = std::filesystem::path(LIDARSIM_SOURCE_DIR) / relative;
+  return std::filesystem::exists(in_source) ? in_source : std::filesystem::path(relative);
+}
+
+int run_sim(int argc, char** argv) {
+  using namespace lidarsim;
+  cxxopts::Options options("lidar-infer sim",
+                           "Run a scenario through the sensor model (frames, FoV, occlusion, tracking, KPI errors),\n"
+                           "the PCL generator and the intensity UNet. Per frame under --out: objects_NNNN.csv|json,\n"
+                           "lanes_NNNN.json, cloud_NNNN.pcd|ply, pgm_NNNN.png, bev_NNNN.png; at the end summary.json\n"
+                           "and summary.md (time per stage, real-time factor). Defaults: the bundled scenario and models.");
+  // clang-format off
+  options.add_options()
+    ("scenario", "scenario JSON", cxxopts::value<std::string>()->default_value("data/scenarios/demo_urban.json"))
+    ("model", "intensity checkpoint from lidar-train", cxxopts::value<std::string>()->default_value("data/models/intensity_unet.h5"))
+    ("kpi", "KPI error model (lidar-calibrate)", cxxopts::value<std::string>()->default_value("data/models/kpi_pointrcnn.json"))
+    ("out", "output folder", cxxopts::value<std::string>()->default_value("out/sim"))
+    ("frames", "at most this many frames (0 = the whole scenario)", cxxopts::value<int>()->default_value("0"))
+    ("format", "point cloud format: pcd or ply", cxxopts::value<std::string>()->default_value("pcd"))
+    ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("no-outputs", "only time the pipeline: write nothing but the summary")
+    ("no-images", "skip the PNG images")
+    ("quiet", "no progress bar")
+    ("h,help", "show this help");
+  // clang-format on
+  const auto args = options.parse(argc, argv);
+  if (args.count("help")) {
+    std::cout << options.help() << "\n";
+    return 0;
+  }
+  if (!args.unmatched().empty()) throw Error("lidar-infer sim: unexpected argument '" + args.unmatched()[0] + "'");
+  auto path_of = [&](const char* name) {
+    const std::string value = args[name].as<std::string>();
+    return args.count(name) ? std::filesystem::path(value) : resolve_default(value);
+  };
+  const std::filesystem::path scenario = path_of("scenario"), kpi = path_of("kpi"), model = path_of("model");
+  infer::SimOutputOptions out;
+  out.out = args["out"].as<std::string>();
+  out.format = args["format"].as<std::string>();
+  out.images = !args.count("no-images");
+  if (out.format != "pcd" && out.format != "ply") throw Error("lidar-infer sim: --format must be pcd or ply, got '" + out.format + "'");
+  const bool write = !args.count("no-outputs");
+  const int threads = std::max(1, args["threads"].as<int>());
+  omp_set_num_threads(threads);
+  infer::SimOptions sim_options;
+  sim_options.seed = args["seed"].as<std::uint64_t>();
+  if (!args.count("model") && !std::filesystem::exists(model))
+    throw input_error(model.string(), "file",
+                      "the bundled intensity model does not exist (train one with lidar-train, or pass --model)");
+
+  const auto wall0 = std::chrono::steady_clock::now();
+  infer::SimPipeline pipeline = infer::SimPipeline::from_files(scenario, kpi, model, sim_options);
+  int frames = pipeline.frame_count();
+  if (args["frames"].as<int>() > 0) frames = std::min(frames, args["frames"].as<int>());
+  std::filesystem::create_directories(out.out);
+
+  infer::SimStats stats;
+  infer::SimFrame frame;
+  ProgressBar bar("sim", frames, !args.count("quiet"));
+  for (int k = 0; k < frames; ++k) {
+    pipeline.run_frame(k, frame);
+    const double output_ms = write ? infer::write_frame_outputs(out, frame) : 0.0;
+    stats.add(frame, output_ms);
+    char status[96];
+    std::snprintf(status, sizeof status, "%.1f ms/frame, %zu objects, %zu points", frame.total_ms,
+                  frame.reported.size(), frame.cloud.size());
+    bar.update(k + 1, status);
+  }
+  bar.finish();
+  infer::SimStats::Info info;
+  info.scenario = scenario.string();
+  info.kpi_model = kpi.string();
+  info.intensity_model = model.string();
+  info.format = out.format;
+  info.rate_hz = pipeline.scenario().rate_hz;
+  info.threads = threads;
+  info.seed = sim_options.seed;
+  info.outputs = write;
+  info.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  stats.write_summary(out.out, info);
+  std::printf("%d frames: %.1f ms per frame (p95 %.1f), real-time factor %.2f on %d thread(s); outputs in %s "
+              "(summary.md)\n",
+              stats.frames(), stats.mean_total_ms(), stats.p95_total_ms(), stats.real_time_factor(info.rate_hz),
+              threads, out.out.string().c_str());
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -74,6 +174,7 @@ int main(int argc, char** argv) {
   const std::string command = argv[1];
   try {
     if (command == "predict") return run_predict(argc - 1, argv + 1);
+    if (command == "sim") return run_sim(argc - 1, argv + 1);
     std::fprintf(stderr, "error: unknown command '%s'\n", command.c_str());
     usage();
     return 2;

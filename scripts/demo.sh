@@ -1,9 +1,20 @@
 #!/usr/bin/env bash
-# Set up and run the main job on the bundled data.
+# The main job: set up (install what is missing, configure, build), then simulate the bundled
+# urban scenario with the bundled models through the whole pipeline and show where the outputs are.
+#   scripts/demo.sh [OUT_DIR]        (default out/demo; LIDARSIM_BUILD_DIR picks the build folder)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh
 build_dir=${LIDARSIM_BUILD_DIR:-build}
 out=${1:-out/demo}
 mkdir -p "$out"
-echo "demo: main job not wired yet" >&2
+# No options: data/scenarios/demo_urban.json, data/models/intensity_unet.h5 and
+# data/models/kpi_pointrcnn.json, 2 threads.
+"$build_dir/infer/lidar-infer" sim --out "$out"
+echo
+echo "demo: outputs in $out/"
+echo "  $out/summary.md      time per stage, real-time factor, objects and points per frame (read this first)"
+echo "  $out/bev_NNNN.png    bird's-eye view per frame: ground truth, reported objects, lanes"
+echo "  $out/pgm_NNNN.png    PGM channels per frame: range, class, material, predicted intensity"
+echo "  $out/cloud_NNNN.pcd  point clouds with intensity (open in CloudCompare or Open3D)"
+echo "  $out/objects_NNNN.csv|json, lanes_NNNN.json   object lists and lane polynomials"

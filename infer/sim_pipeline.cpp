@@ -1,0 +1,214 @@
+#include "infer/sim_pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "common/error.h"
+#include "nn/checkpoint.h"
+#include "nn/unet.h"
+#include "pgm/encoder.h"
+#include "sensor/fov.h"
+#include "sensor/frames.h"
+#include "sensor/lanes.h"
+
+namespace lidarsim::infer {
+
+const char* to_string(SimStage s) {
+  switch (s) {
+    case SimStage::Sample: return "sample";
+    case SimStage::Frames: return "frames";
+    case SimStage::FieldOfView: return "fov";
+    case SimStage::Occlusion: return "occlusion";
+    case SimStage::Tracking: return "tracking";
+    case SimStage::Kpi: return "kpi";
+    case SimStage::Lanes: return "lanes";
+    case SimStage::PclGenerator: return "pcl_generator";
+    case SimStage::Unet: return "unet";
+    case SimStage::PointCloud: return "point_cloud";
+  }
+  return "?";
+}
+
+void SimCloud::clear() {
+  for (auto* v : {&x, &y, &z, &intensity, &cls, &material, &object_id, &range}) v->clear();
+  cell.clear();
+}
+
+namespace {
+
+sensor::PclConfig pcl_config(const sensor::Scenario& s) {
+  sensor::PclConfig c;
+  c.min_range = s.sensor.fov.range_min;
+  c.max_range = s.sensor.fov.range_max;
+  return c;
+}
+
+}  // namespace
+
+SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
+                         std::unique_ptr<IntensityModel> intensity, SimOptions options)
+    : scenario_(std::move(scenario)),
+      intensity_(std::move(intensity)),
+      options_(options),
+      tracker_(options.tracker),
+      kpi_(std::move(kpi_model), options.seed, options.kpi),
+      occlusion_(sensor::OcclusionConfig::for_fov(scenario_.sensor.fov)),
+      pcl_(scenario_.sensor.beams.layout(), scenario_.sensor.mount, pcl_config(scenario_)) {
+  if (!options_.point_cloud) options_.intensity = false;
+  if (options_.intensity && !intensity_) throw Error("sim pipeline: an intensity model is required");
+  if (intensity_) extra_channels_ = intensity_->extra_channels();
+  // Generous first reservations, so the first frames do not grow buffers piecemeal.
+  detections_.reserve(64);
+  tracked_.reserve(64);
+  kpi_out_.reserve(64);
+  pcl_objects_.reserve(64);
+}
+
+SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
+                                    const std::filesystem::path& intensity_checkpoint, SimOptions options) {
+  sensor::Scenario s = sensor::read_scenario(scenario);
+  sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
+  std::unique_ptr<IntensityModel> m;
+  if (options.intensity && options.point_cloud) m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
+  return SimPipeline(std::move(s), std::move(k), std::move(m), options);
+}
+
+void SimPipeline::run_frame(int k, SimFrame& out) {
+  using clock = std::chrono::steady_clock;
+  auto mark = clock::now();
+  auto lap = [&](SimStage s) {
+    const auto now = clock::now();
+    out.stage_ms[static_cast<int>(s)] = std::chrono::duration<double, std::milli>(now - mark).count();
+    mark = now;
+  };
+  out.stage_ms.fill(0);
+  out.index = k;
+  out.time = scenario_.frame_time(k);
+
+  sensor::sample_frame(scenario_, out.time, map_frame_);
+  out.objects_existing = static_cast<int>(map_frame_.objects.size());
+  lap(SimStage::Sample);
+
+  sensor::map_to_ego(map_frame_, out.ego);
+  sensor::ego_to_sensor(out.ego, scenario_.sensor.mount, out.sensor);
+  lap(SimStage::Frames);
+
+  sensor::apply_fov(out.sensor.objects, scenario_.sensor.fov);
+  sensor::apply_fov_to_lanes(out.sensor.lanes, scenario_.sensor.fov);
+  out.objects_in_view = static_cast<int>(out.sensor.objects.size());
+  lap(SimStage::FieldOfView);
+
+  occlusion_.apply(out.sensor.objects, out.sensor.lanes);
+  out.objects_occluded = out.objects_partly_occluded = 0;
+  for (const auto& o : out.sensor.objects) {
+    if (o.visible_fraction <= 0) ++out.objects_occluded;
+    else if (o.visible_fraction < 1) ++out.objects_partly_occluded;
+  }
+  lap(SimStage::Occlusion);
+
+  // A fully hidden object yields no measurement: its track coasts.
+  detections_.clear();
+  for (const auto& o : out.sensor.objects)
+    if (o.visible_fraction > 0) detections_.push_back(o);
+  tracker_.update(detections_, out.time);
+  tracker_.reported(tracked_);
+  lap(SimStage::Tracking);
+
+  kpi_.apply(tracked_, kpi_out_);
+  out.reported.resize(kpi_out_.size());
+  const auto& tracks = tracker_.tracks();
+  for (std::size_t i = 0; i < kpi_out_.size(); ++i) {
+    ReportedObject& r = out.reported[i];
+    r.object = kpi_out_[i];
+    r.truth_id = -1;
+    r.coasting = false;
+    for (const auto& t : tracks)
+      if (t.id == r.object.id) {
+        r.truth_id = t.source_id;
+        r.coasting = t.state == sensor::TrackState::Coasting;
+        break;
+      }
+  }
+  lap(SimStage::Kpi);
+
+  sensor::fit_lanes(out.sensor.lanes, out.lanes);
+  lap(SimStage::Lanes);
+
+  if (!options_.point_cloud) {
+    out.returns = 0;
+    out.cloud.clear();
+    out.total_ms = 0;
+    for (double ms : out.stage_ms) out.total_ms += ms;
+    return;
+  }
+
+  if (out.pgm.rows() != pcl_.layout().rows() || out.pgm.cols() != pcl_.layout().columns)
+    out.pgm = pcl_.make_map(extra_channels_);
+  sensor::select_visible(out.ego.objects, out.sensor.objects, pcl_objects_);
+  // Paint exists whether or not the lane model reports it: the rays decide what is seen.
+  out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm);
+  lap(SimStage::PclGenerator);
+
+  float* intensity = out.pgm.channel("intensity");
+  if (options_.intensity) {
+    intensity_->predict(out.pgm, predicted_);
+    const float* mask = out.pgm.channel("mask");
+    // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.
+    for (std::size_t i = 0; i < out.pgm.cells(); ++i)
+      intensity[i] = mask[i] > 0 ? std::clamp(predicted_[i], 0.f, 1.f) : 0.f;
+  }
+  lap(SimStage::Unet);
+
+  SimCloud& c = out.cloud;
+  c.clear();
+  const auto& layout = pcl_.layout();
+  const int H = layout.rows(), W = layout.columns;
+  const float* range = out.pgm.channel("range");
+  const float* mask = out.pgm.channel("mask");
+  const float* cls = out.pgm.channel("class");
+  const float* material = out.pgm.channel("material");
+  const float* object_id = out.pgm.channel("object_id");
+  for (int r = 0; r < H; ++r) {
+    const double el = layout.elevations_rad[r];
+    const double ce = std::cos(el), se = std::sin(el);
+    for (int col = 0; col < W; ++col) {
+      const int i = r * W + col;
+      if (mask[i] <= 0) continue;
+      const double az = layout.azimuth_of_column(col);
+      const double rg = range[i];
+      c.x.push_back(static_cast<float>(rg * ce * std::cos(az)));
+      c.y.push_back(static_cast<float>(rg * ce * std::sin(az)));
+      c.z.push_back(static_cast<float>(rg * se));
+      c.intensity.push_back(intensity[i]);
+      c.cls.push_back(cls[i]);
+      c.material.push_back(material[i]);
+      c.object_id.push_back(object_id[i]);
+      c.range.push_back(range[i]);
+      c.cell.push_back(i);
+    }
+  }
+  lap(SimStage::PointCloud);
+
+  out.total_ms = 0;
+  for (double ms : out.stage_ms) out.total_ms += ms;
+}
+
+void write_untrained_checkpoint(const std::filesystem::path& path, int base, int depth, std::uint64_t seed,
+                                const pgm::BeamLayout& layout) {
+  const pgm::EncoderConfig encoder;
+  nn::UNetConfig config;
+  config.in_channels = encoder.input_channels();
+  config.base = base;
+  config.depth = depth;
+  nn::UNet model(config);
+  model.init(seed);
+  nn::Checkpoint meta;
+  meta.unet = config;
+  meta.attributes["encoder"] = encoder.to_json();
+  meta.attributes["beam_layout"] = layout.to_json();
+  meta.attributes["note"] = "untrained (He-initialised) weights for tests and benchmarks; not a model";
+  nn::save_checkpoint(path, model, nullptr, meta);
+}
+
+}  // namespace lidarsim::infer

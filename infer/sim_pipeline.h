@@ -1,0 +1,114 @@
+#pragma once
+// The simulation pipeline behind `lidar-infer sim`: a scenario run frame by frame through the
+// phenomenological sensor model and the point-cloud bridge.
+//
+//   sample scenario at t -> map -> ego -> sensor -> field of view -> occlusion (visible fraction,
+//   lanes behind boxes dropped) -> tracking (stable ids, coasting) -> KPI manager (errors,
+//   misses, false positives) = the reported object list;  visible lanes -> cubic polynomials;
+//   PCL generator over the visible boxes, the road and lane paint -> PGM -> UNet intensity per
+//   cell -> point cloud (sensor frame) with intensity, class, material and object id.
+//
+// Constructed once; run_frame() reuses every buffer, so after the first frames a run allocates
+// (almost) nothing. Each stage is timed with steady_clock; nothing here writes files
+// (infer/sim_outputs.h does).
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "infer/intensity_model.h"
+#include "pgm/polar_grid_map.h"
+#include "sensor/kpi_manager.h"
+#include "sensor/kpi_model.h"
+#include "sensor/occlusion.h"
+#include "sensor/pcl_generator.h"
+#include "sensor/scenario.h"
+#include "sensor/scene.h"
+#include "sensor/tracking.h"
+
+namespace lidarsim::infer {
+
+// Stages in the order they run; the timing arrays are indexed by these.
+enum class SimStage { Sample, Frames, FieldOfView, Occlusion, Tracking, Kpi, Lanes, PclGenerator, Unet, PointCloud };
+inline constexpr int kNumSimStages = 10;
+const char* to_string(SimStage s);
+
+struct SimOptions {
+  std::uint64_t seed = 1;         // KPI manager noise
+  sensor::TrackerConfig tracker;  // coasting frames etc.
+  sensor::KpiOptions kpi;
+  bool intensity = true;          // false: skip the UNet (intensity stays 0)
+  bool point_cloud = true;        // false: the object-level model only (no PCL generator, UNet, cloud)
+};
+
+// One reported object with where it came from.
+struct ReportedObject {
+  sensor::Object object;  // sensor frame; id = track id (false positives: <= -1000)
+  int truth_id = -1;      // ground-truth id of the track's last associated object, -1 for a false positive
+  bool coasting = false;  // track not measured this frame (a prediction)
+};
+
+// The point cloud of one frame (sensor frame), one entry per PGM cell with a return.
+struct SimCloud {
+  std::vector<float> x, y, z, intensity, cls, material, object_id, range;
+  std::vector<int> cell;  // row * cols + col
+  std::size_t size() const { return x.size(); }
+  void clear();
+};
+
+struct SimFrame {
+  int index = 0;
+  double time = 0;
+  sensor::Frame ego;                      // ground truth in the ego frame (all existing objects)
+  sensor::Frame sensor;                   // ground truth in the sensor frame after FoV + occlusion
+  std::vector<ReportedObject> reported;   // what the simulated detector reports
+  std::vector<sensor::LanePolynomial> lanes;
+  pgm::PolarGridMap pgm;                  // range, class, material, intensity (predicted), mask, object_id, ...
+  SimCloud cloud;
+  int objects_existing = 0, objects_in_view = 0, objects_occluded = 0, objects_partly_occluded = 0;
+  int returns = 0;
+  std::array<double, kNumSimStages> stage_ms{};
+  double total_ms = 0;  // all stages (outputs excluded)
+};
+
+class SimPipeline {
+ public:
+  // intensity may be null when options.intensity is false.
+  SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model, std::unique_ptr<IntensityModel> intensity,
+              SimOptions options = {});
+  // Loads the three files; errors name the file (lidarsim::Error).
+  static SimPipeline from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
+                                const std::filesystem::path& intensity_checkpoint, SimOptions options = {});
+
+  const sensor::Scenario& scenario() const { return scenario_; }
+  int frame_count() const { return scenario_.frame_count(); }
+  const IntensityModel* intensity_model() const { return intensity_.get(); }
+
+  // Runs frame k (time k / rate) into `out`, whose buffers are reused between calls. Frames must
+  // be run in increasing order (tracking and the KPI noise carry state from frame to frame).
+  void run_frame(int k, SimFrame& out);
+
+ private:
+  sensor::Scenario scenario_;
+  std::unique_ptr<IntensityModel> intensity_;
+  SimOptions options_;
+  sensor::Tracker tracker_;
+  sensor::KpiManager kpi_;
+  sensor::Occlusion occlusion_;
+  sensor::PclGenerator pcl_;
+  std::vector<std::string> extra_channels_;
+  // scratch
+  sensor::Frame map_frame_;
+  std::vector<sensor::Object> detections_, tracked_, kpi_out_, pcl_objects_;
+  std::vector<float> predicted_;
+};
+
+// A checkpoint with untrained (He-initialised) UNet weights and the default encoder and the given
+// beam layout in /config, as lidar-train writes them: for tests and benchmarks when no trained
+// model is at hand. Never ship such a file as a model.
+void write_untrained_checkpoint(const std::filesystem::path& path, int base, int depth, std::uint64_t seed,
+                                const pgm::BeamLayout& layout);
+
+}  // namespace lidarsim::infer

@@ -1,0 +1,301 @@
+// The simulation pipeline (`lidar-infer sim`) end to end on the bundled demo scenario, with a
+// tiny untrained intensity UNet (base 4, depth 2) written by the test: outputs exist and parse,
+// the object list obeys the field of view and keeps track ids, the PGM has returns, stages are
+// timed; the CLI names the bad file and exits non-zero.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "infer/sim_outputs.h"
+#include "infer/sim_pipeline.h"
+#include "pgm/materials.h"
+#include "sensor/fov.h"
+#include "sensor/frames.h"
+#include "tests/support/shared_data.h"
+
+namespace lidarsim {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class SimPipelineTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / ("lidarsim_test_sim_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+    infer::write_untrained_checkpoint(checkpoint(), 4, 2, 7, pgm::BeamLayout::hdl64e());
+  }
+  static void TearDownTestSuite() { fs::remove_all(dir_); }
+  static fs::path checkpoint() { return dir_ / "tiny_unet.h5"; }
+  static fs::path scenario() { return testing::source_dir() / "data/scenarios/demo_urban.json"; }
+  static fs::path kpi() { return testing::source_dir() / "data/models/kpi_pointrcnn.json"; }
+  static infer::SimPipeline make(std::uint64_t seed = 1) {
+    infer::SimOptions o;
+    o.seed = seed;
+    return infer::SimPipeline::from_files(scenario(), kpi(), checkpoint(), o);
+  }
+  static int run_cli(const std::string& args, std::string& err) {
+    const fs::path exe = testing::binary_dir() / "infer/lidar-infer";
+    const fs::path err_file = dir_ / "stderr.txt";
+    const int rc = std::system((exe.string() + " sim " + args + " >/dev/null 2>" + err_file.string()).c_str());
+    err = read_text(err_file);
+    return rc;
+  }
+  static inline fs::path dir_;
+};
+
+TEST_F(SimPipelineTest, OutputsOfEachFrameExistAndParse) {
+  auto pipeline = make();
+  infer::SimOutputOptions out;
+  out.out = dir_ / "run";
+  fs::create_directories(out.out);
+  infer::SimFrame frame;
+  infer::SimStats stats;
+  for (int k = 0; k < 3; ++k) {
+    pipeline.run_frame(k, frame);
+    stats.add(frame, infer::write_frame_outputs(out, frame));
+  }
+  infer::SimStats::Info info;
+  info.format = "pcd";
+  stats.write_summary(out.out, info);
+
+  // PCD: the header names every field and the point count matches the frame's cloud.
+  const std::string pcd = read_text(out.out / "cloud_0002.pcd");
+  EXPECT_NE(pcd.find("FIELDS x y z intensity class material object_id range\n"), std::string::npos);
+  EXPECT_NE(pcd.find("POINTS " + std::to_string(frame.cloud.size()) + "\n"), std::string::npos);
+  EXPECT_NE(pcd.find("DATA binary\n"), std::string::npos);
+
+  // CSV: header, then one row per reported object and per ground-truth object in view.
+  std::ifstream csv(out.out / "objects_0002.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_EQ(header, "source,id,truth_id,class,x,y,z,l,w,h,heading_deg,vx,vy,visible_fraction,score,coasting");
+  int reported = 0, truth = 0;
+  for (std::string line; std::getline(csv, line);) {
+    reported += line.rfind("reported,", 0) == 0;
+    truth += line.rfind("truth,", 0) == 0;
+  }
+  EXPECT_EQ(reported, static_cast<int>(frame.reported.size()));
+  EXPECT_EQ(truth, static_cast<int>(frame.sensor.objects.size()));
+  EXPECT_GT(truth, 3);
+
+  // JSON object list: both lists, every key on every entry.
+  const auto oj = nlohmann::json::parse(read_text(out.out / "objects_0002.json"));
+  ASSERT_TRUE(oj.contains("reported") && oj.contains("ground_truth"));
+  EXPECT_EQ(oj["ground_truth"].size(), frame.sensor.objects.size());
+  for (const auto& list : {oj["reported"], oj["ground_truth"]})
+    for (const auto& o : list)
+      for (const char* key : {"id", "truth_id", "class", "x", "y", "z", "l", "w", "h", "heading_deg", "vx", "vy",
+                              "visible_fraction", "score"})
+        EXPECT_TRUE(o.contains(key)) << key;
+
+  // Lanes: cubic polynomials with a valid range.
+  const auto lj = nlohmann::json::parse(read_text(out.out / "lanes_0002.json"));
+  ASSERT_GT(lj["lanes"].size(), 0u);
+  for (const auto& l : lj["lanes"]) {
+    for (const char* key : {"id", "type", "c0", "c1", "c2", "c3", "x_min", "x_max"}) EXPECT_TRUE(l.contains(key)) << key;
+    EXPECT_LT(l["x_min"].get<double>(), l["x_max"].get<double>());
+  }
+
+  for (const char* f : {"pgm_0000.png", "bev_0000.png", "pgm_0002.png", "bev_0002.png"})
+    EXPECT_GT(fs::file_size(out.out / f), 1000u) << f;
+  const auto sj = nlohmann::json::parse(read_text(out.out / "summary.json"));
+  EXPECT_EQ(sj["frames"], 3);
+  for (const char* key : {"real_time_factor", "ms_per_frame", "stages_ms", "per_frame_mean"})
+    EXPECT_TRUE(sj.contains(key)) << key;
+  EXPECT_NE(read_text(out.out / "summary.md").find("real-time factor"), std::string::npos);
+}
+
+TEST_F(SimPipelineTest, ObjectsOutsideTheFieldOfViewAreNeverReported) {
+  auto pipeline = make();
+  const auto& fov = pipeline.scenario().sensor.fov;
+  infer::SimFrame frame;
+  std::set<int> ever_in_view, never_in_view;
+  std::set<int> reported_truth;
+  for (int k = 0; k < 10; ++k) {
+    pipeline.run_frame(k, frame);
+    // Ground truth out of view, judged independently of the pipeline's FoV stage.
+    sensor::Frame sensor_frame;
+    sensor::ego_to_sensor(frame.ego, pipeline.scenario().sensor.mount, sensor_frame);
+    std::set<int> in_view_now;
+    for (const auto& o : sensor_frame.objects) {
+      if (sensor::object_in_fov(o, fov)) {
+        ever_in_view.insert(o.id);
+        in_view_now.insert(o.id);
+      }
+    }
+    for (const auto& o : frame.sensor.objects) EXPECT_TRUE(in_view_now.count(o.id)) << "frame " << k << " id " << o.id;
+    for (const auto& r : frame.reported) {
+      if (r.truth_id >= 0) reported_truth.insert(r.truth_id);
+      // A measured (non-coasting) track is an object in view this frame.
+      if (r.truth_id >= 0 && !r.coasting) {
+        EXPECT_TRUE(in_view_now.count(r.truth_id)) << "frame " << k;
+      }
+    }
+  }
+  for (const auto& o : pipeline.scenario().objects)
+    if (!ever_in_view.count(o.id)) never_in_view.insert(o.id);
+  ASSERT_FALSE(never_in_view.empty()) << "the demo should have objects beyond the 70 m range in its first second";
+  for (int id : never_in_view) EXPECT_FALSE(reported_truth.count(id)) << "object " << id << " is out of view";
+  EXPECT_GE(reported_truth.size(), 4u);
+}
+
+TEST_F(SimPipelineTest, TrackIdsStayTheSameOverConsecutiveFrames) {
+  auto pipeline = make(3);
+  infer::SimFrame frame;
+  std::map<int, std::set<int>> track_ids_of_truth;
+  std::map<int, int> frames_reported;
+  for (int k = 0; k < 15; ++k) {
+    pipeline.run_frame(k, frame);
+    for (const auto& r : frame.reported)
+      if (r.truth_id >= 0) {
+        track_ids_of_truth[r.truth_id].insert(r.object.id);
+        ++frames_reported[r.truth_id];
+      }
+  }
+  // The lead car (id 1) is in view all along: it must be reported (misses aside) under one id.
+  ASSERT_GT(frames_reported[1], 8);
+  EXPECT_EQ(track_ids_of_truth[1].size(), 1u);
+  int stable = 0;
+  for (const auto& [truth, ids] : track_ids_of_truth) {
+    EXPECT_EQ(ids.size(), 1u) << "object " << truth << " changed track id";
+    stable += ids.size() == 1;
+  }
+  EXPECT_GE(stable, 4);
+}
+
+TEST_F(SimPipelineTest, PgmHasReturnsOfRoadCarsAndLanePaintAndTheCloudMatchesIt) {
+  auto pipeline = make();
+  infer::SimFrame frame;
+  pipeline.run_frame(0, frame);
+  EXPECT_EQ(frame.pgm.rows(), 64);
+  EXPECT_EQ(frame.pgm.cols(), 1024);
+  EXPECT_GT(frame.returns, 20000);  // the road alone fills most lower beams
+  EXPECT_EQ(frame.cloud.size(), static_cast<std::size_t>(frame.returns));
+  std::set<int> classes;
+  for (float c : frame.cloud.cls) classes.insert(static_cast<int>(c));
+  EXPECT_TRUE(classes.count(pgm::cls::road));
+  EXPECT_TRUE(classes.count(pgm::cls::car));
+  EXPECT_TRUE(classes.count(pgm::cls::lane_marking));
+  bool varied = false;
+  for (std::size_t i = 0; i < frame.cloud.size(); ++i) {
+    const double r = std::sqrt(double(frame.cloud.x[i]) * frame.cloud.x[i] + double(frame.cloud.y[i]) * frame.cloud.y[i] +
+                               double(frame.cloud.z[i]) * frame.cloud.z[i]);
+    ASSERT_NEAR(r, frame.cloud.range[i], 1e-3 * frame.cloud.range[i]);
+    ASSERT_GE(frame.cloud.intensity[i], 0.f);
+    ASSERT_LE(frame.cloud.intensity[i], 1.f);
+    varied |= frame.cloud.intensity[i] != frame.cloud.intensity[0];
+  }
+  EXPECT_TRUE(varied) << "the UNet gave every point the same intensity";
+  // Object ids in the cloud are ground-truth ids of boxes the sensor sees.
+  std::set<int> visible;
+  for (const auto& o : frame.sensor.objects)
+    if (o.visible_fraction > 0) visible.insert(o.id);
+  for (float id : frame.cloud.object_id)
+    if (id >= 0) {
+      ASSERT_TRUE(visible.count(static_cast<int>(id))) << id;
+    }
+}
+
+TEST_F(SimPipelineTest, EveryStageIsTimedAndTheTotalIsTheirSum) {
+  auto pipeline = make();
+  infer::SimFrame frame;
+  infer::SimStats stats;
+  for (int k = 0; k < 3; ++k) {
+    pipeline.run_frame(k, frame);
+    double sum = 0;
+    for (double ms : frame.stage_ms) {
+      EXPECT_GE(ms, 0);
+      sum += ms;
+    }
+    EXPECT_NEAR(frame.total_ms, sum, 1e-9);
+    EXPECT_GT(frame.stage_ms[static_cast<int>(infer::SimStage::PclGenerator)], 0);
+    EXPECT_GT(frame.stage_ms[static_cast<int>(infer::SimStage::Unet)], 0);
+    stats.add(frame);
+  }
+  EXPECT_EQ(stats.frames(), 3);
+  EXPECT_GT(stats.real_time_factor(10), 0);
+  EXPECT_GE(stats.p95_total_ms(), stats.mean_total_ms() * 0.5);
+  const auto j = nlohmann::json::parse(stats.to_json({}));
+  for (int s = 0; s < infer::kNumSimStages; ++s) {
+    const char* name = infer::to_string(static_cast<infer::SimStage>(s));
+    ASSERT_TRUE(j["stages_ms"].contains(name)) << name;
+    EXPECT_TRUE(j["stages_ms"][name].contains("p95"));
+  }
+}
+
+TEST_F(SimPipelineTest, SameSeedGivesTheSameReportedObjects) {
+  auto a = make(5), b = make(5);
+  infer::SimFrame fa, fb;
+  for (int k = 0; k < 4; ++k) {
+    a.run_frame(k, fa);
+    b.run_frame(k, fb);
+  }
+  ASSERT_EQ(fa.reported.size(), fb.reported.size());
+  for (std::size_t i = 0; i < fa.reported.size(); ++i) {
+    EXPECT_EQ(fa.reported[i].object.id, fb.reported[i].object.id);
+    EXPECT_EQ(fa.reported[i].object.position, fb.reported[i].object.position);
+  }
+}
+
+TEST_F(SimPipelineTest, CliRunsAFewFramesAndWritesTheSummary) {
+  std::string err;
+  const fs::path out = dir_ / "cli";
+  const int rc = run_cli("--model " + checkpoint().string() + " --frames 2 --format ply --quiet --out " + out.string(), err);
+  ASSERT_EQ(rc, 0) << err;
+  EXPECT_TRUE(fs::exists(out / "cloud_0001.ply"));
+  EXPECT_TRUE(fs::exists(out / "summary.md"));
+  EXPECT_EQ(nlohmann::json::parse(read_text(out / "summary.json"))["frames"], 2);
+}
+
+// One line on stderr, naming the file, and a non-zero exit.
+void expect_one_error_line(int rc, const std::string& err, const std::string& file) {
+  EXPECT_NE(rc, 0);
+  EXPECT_EQ(err.rfind("error: ", 0), 0u) << err;
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_NE(err.find(file), std::string::npos) << err;
+}
+
+TEST_F(SimPipelineTest, CliMissingScenarioNamesTheFile) {
+  std::string err;
+  const std::string missing = (dir_ / "no_such_scenario.json").string();
+  const int rc = run_cli("--scenario " + missing + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
+  expect_one_error_line(rc, err, missing);
+}
+
+TEST_F(SimPipelineTest, CliUnreadableModelNamesTheFile) {
+  std::string err;
+  const fs::path bad = dir_ / "not_a_checkpoint.h5";
+  std::ofstream(bad) << "this is not HDF5\n";
+  const int rc = run_cli("--model " + bad.string() + " --out " + (dir_ / "x").string(), err);
+  expect_one_error_line(rc, err, bad.string());
+}
+
+TEST_F(SimPipelineTest, CliBadKpiModelNamesTheFile) {
+  std::string err;
+  const fs::path bad = dir_ / "bad_kpi.json";
+  std::ofstream(bad) << "{\"range_bin_edges\": [0, 20], \"classes\": 3}\n";
+  const int rc = run_cli("--kpi " + bad.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
+  expect_one_error_line(rc, err, bad.string());
+}
+
+}  // namespace
+}  // namespace lidarsim
