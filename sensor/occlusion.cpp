@@ -143,6 +143,7 @@ void Occlusion::rasterise(const Object& o, int index) {
       if (!ray_box(box, origin, d, std::numeric_limits<double>::infinity(), t)) continue;
       ++footprint;
       const std::size_t cell = static_cast<std::size_t>(r) * cols_ + c;
+      if (owner_[cell] < 0) touched_.push_back(static_cast<int>(cell));
       if (t < depth_[cell]) {
         depth_[cell] = static_cast<float>(t);
         owner_[cell] = index;
@@ -153,14 +154,17 @@ void Occlusion::rasterise(const Object& o, int index) {
 }
 
 void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes) {
-  std::fill(depth_.begin(), depth_.end(), std::numeric_limits<float>::infinity());
-  std::fill(owner_.begin(), owner_.end(), -1);
+  // Reset only the cells the previous frame wrote (a full clear costs more than a frame of boxes).
+  for (int cell : touched_) {
+    depth_[cell] = std::numeric_limits<float>::infinity();
+    owner_[cell] = -1;
+  }
+  touched_.clear();
   const int n = static_cast<int>(objects.size());
   footprint_.assign(n, 0);
   visible_.assign(n, 0);
   for (int i = 0; i < n; ++i) rasterise(objects[i], i);
-  for (int o : owner_)
-    if (o >= 0) ++visible_[o];
+  for (int cell : touched_) ++visible_[owner_[cell]];
   for (int i = 0; i < n; ++i) {
     Object& obj = objects[i];
     if (footprint_[i] > 0) {

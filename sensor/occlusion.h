@@ -64,6 +64,7 @@ class Occlusion {
   std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_;
   std::vector<float> depth_;
   std::vector<int> owner_;
+  std::vector<int> touched_;  // cells written this frame
   std::vector<int> footprint_, visible_;
 };
 
