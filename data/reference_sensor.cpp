@@ -1,0 +1,266 @@
+#include "data/reference_sensor.h"
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <numbers>
+#include <random>
+#include <vector>
+
+#include "common/atomic_file.h"
+#include "common/error.h"
+#include "pgm/beam_layout.h"
+
+namespace fs = std::filesystem;
+
+namespace lidarsim::data {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+double wrap(double a) {
+  a = std::fmod(a + kPi, 2 * kPi);
+  if (a < 0) a += 2 * kPi;
+  return a - kPi;
+}
+
+std::string seq_name(int s, int width) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "%0*d", width, s);
+  return buf;
+}
+
+struct Track {
+  int id = 0, start = 0, end = 0;
+  std::string type;
+  Eigen::Vector3d p0, v, size;
+  double heading = 0, truncated = 0;
+  int occluded = 0;
+};
+
+}  // namespace
+
+std::string to_string(ObjectEffect e) {
+  switch (e) {
+    case ObjectEffect::VelocityLag: return "velocity_lag";
+    case ObjectEffect::TruncationSize: return "truncation_size";
+    case ObjectEffect::AspectAcross: return "aspect_across";
+    default: return "none";
+  }
+}
+std::string to_string(IntensityEffect e) {
+  switch (e) {
+    case IntensityEffect::Incidence: return "incidence";
+    case IntensityEffect::Height: return "height";
+    case IntensityEffect::Azimuth: return "azimuth";
+    default: return "none";
+  }
+}
+std::string effect_feature(ObjectEffect e) {
+  switch (e) {
+    case ObjectEffect::VelocityLag: return "radial_velocity";
+    case ObjectEffect::TruncationSize: return "truncation";
+    case ObjectEffect::AspectAcross: return "heading_to_line_of_sight";
+    default: return "";
+  }
+}
+std::string effect_feature(IntensityEffect e) {
+  switch (e) {
+    case IntensityEffect::Incidence: return "incidence_angle";
+    case IntensityEffect::Height: return "height";
+    case IntensityEffect::Azimuth: return "azimuth";
+    default: return "";
+  }
+}
+
+void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOptions& o) {
+  if (o.sequences < 1 || o.frames < 2 || o.tracks < 1) throw Error("reference sensor: sequences, frames, tracks >= 1");
+  for (const char* sub : {"label_02", "calib", "detection/pointrcnn_Car_val", "detection/pointrcnn_Pedestrian_val",
+                          "detection/pointrcnn_Cyclist_val"})
+    fs::create_directories(dir / sub);
+  std::mt19937_64 rng(o.seed);
+  std::normal_distribution<double> N01(0, 1);
+  std::uniform_real_distribution<double> U(0, 1);
+  auto uni = [&](double a, double b) { return a + (b - a) * U(rng); };
+  std::string seqmap;
+  for (int s = 0; s < o.sequences; ++s) {
+    const std::string name = seq_name(s, 4);
+    seqmap += name + " empty 000000 " + seq_name(o.frames, 6) + "\n";
+    // Calibration: R0_rect = I, Tr_velo_to_cam = the axis permutation (cam x = -y, y = -z, z = x).
+    write_file_atomically(dir / "calib" / (name + ".txt"),
+                          "P0: 700 0 600 0 0 700 170 0 0 0 1 0\nP1: 700 0 600 0 0 700 170 0 0 0 1 0\n"
+                          "P2: 700 0 600 0 0 700 170 0 0 0 1 0\nP3: 700 0 600 0 0 700 170 0 0 0 1 0\n"
+                          "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
+                          "Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0\n");
+    std::vector<Track> tracks(o.tracks);
+    for (int k = 0; k < o.tracks; ++k) {
+      Track& t = tracks[k];
+      t.id = k;
+      const double u = U(rng);
+      t.type = u < 0.7 ? "Car" : u < 0.85 ? "Pedestrian" : "Cyclist";
+      const double vmax = t.type == "Car" ? 12 : t.type == "Cyclist" ? 5 : 1.5;
+      t.size = t.type == "Car" ? Eigen::Vector3d(uni(3.6, 4.8), uni(1.6, 1.9), uni(1.4, 1.7))
+               : t.type == "Cyclist" ? Eigen::Vector3d(uni(1.6, 1.9), uni(0.5, 0.7), uni(1.6, 1.8))
+                                     : Eigen::Vector3d(uni(0.5, 0.9), uni(0.5, 0.7), uni(1.6, 1.9));
+      t.start = static_cast<int>(uni(0, o.frames * 0.5));
+      t.end = std::min(o.frames, t.start + static_cast<int>(uni(o.frames * 0.3, o.frames * 0.8)));
+      const double dur = (t.end - t.start) * 0.1;
+      t.v = Eigen::Vector3d(uni(-vmax, vmax), uni(-0.3, 0.3) * vmax, 0);
+      // Start so the whole track stays between 5 and 60 m ahead.
+      const double x_end_lo = 5 - t.v.x() * dur, x_end_hi = 60 - t.v.x() * dur;
+      const double x0 = uni(std::max(5.0, x_end_lo), std::max(std::max(5.0, x_end_lo) + 1, std::min(60.0, x_end_hi)));
+      t.p0 = Eigen::Vector3d(x0, uni(-15, 15), -1.73 + t.size.z() / 2);
+      t.heading = t.v.head<2>().norm() > 0.5 ? std::atan2(t.v.y(), t.v.x()) : uni(-kPi, kPi);
+      t.truncated = uni(0, 0.8);
+      t.occluded = static_cast<int>(uni(0, 2.999));
+    }
+    std::string labels;
+    std::string dets[3];  // Car, Pedestrian, Cyclist
+    char line[512];
+    for (int f = 0; f < o.frames; ++f) {
+      for (const Track& t : tracks) {
+        if (f < t.start || f >= t.end) continue;
+        const Eigen::Vector3d c = t.p0 + t.v * ((f - t.start) * 0.1);
+        const double ry = std::atan2(-std::cos(t.heading), -std::sin(t.heading));
+        // Rectified camera: (-y, -z + h/2, x) is the bottom centre.
+        std::snprintf(line, sizeof line, "%d %d %s %.4f %d -10 0 0 100 100 %.4f %.4f %.4f %.4f %.4f %.4f %.5f\n", f,
+                      t.id, t.type.c_str(), t.truncated, t.occluded, t.size.z(), t.size.y(), t.size.x(), -c.y(),
+                      -c.z() + t.size.z() / 2, c.x(), ry);
+        labels += line;
+        if (U(rng) > o.detection_probability) continue;
+        const Eigen::Vector2d bev = c.head<2>();
+        const Eigen::Vector2d u = bev / bev.norm(), left(-u.y(), u.x());
+        double along = o.noise * N01(rng), across = o.noise * N01(rng);
+        Eigen::Vector3d sz = t.size + Eigen::Vector3d(N01(rng), N01(rng), N01(rng)) * (o.noise / 2);
+        double heading = t.heading + o.noise / 5 * N01(rng);
+        switch (o.effect) {
+          case ObjectEffect::VelocityLag: {
+            const Eigen::Vector2d lag = -0.08 * t.v.head<2>();
+            along += lag.dot(u);
+            across += lag.dot(left);
+            break;
+          }
+          case ObjectEffect::TruncationSize: sz.x() -= 2.0 * t.truncated; break;
+          case ObjectEffect::AspectAcross: {
+            double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+            if (rel > kPi / 2) rel = kPi - rel;
+            across += 0.8 * (rel / (kPi / 2)) - 0.4;
+            break;
+          }
+          case ObjectEffect::None: break;
+        }
+        const Eigen::Vector2d pos = bev + along * u + across * left;
+        const double dry = std::atan2(-std::cos(heading), -std::sin(heading));
+        const int cls = t.type == "Car" ? 0 : t.type == "Pedestrian" ? 1 : 2;
+        const int type_id = cls == 0 ? 2 : cls == 1 ? 1 : 3;
+        std::snprintf(line, sizeof line, "%d,%d,0,0,100,100,%.3f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,-10\n", f, type_id,
+                      uni(3, 12), sz.z(), sz.y(), sz.x(), -pos.y(), -c.z() + sz.z() / 2, pos.x(), dry);
+        dets[cls] += line;
+      }
+      // False positives: Poisson-ish (Bernoulli per slot) clutter, cars, far from nothing in particular.
+      for (int k = 0; k < 3; ++k)
+        if (U(rng) < o.false_positives / 3) {
+          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
+                        uni(-20, 20), 1.73 - 0.75, uni(5, 60));
+          dets[0] += line;
+        }
+    }
+    write_file_atomically(dir / "label_02" / (name + ".txt"), labels);
+    const char* cls_names[3] = {"Car", "Pedestrian", "Cyclist"};
+    for (int k = 0; k < 3; ++k)
+      write_file_atomically(dir / "detection" / (std::string("pointrcnn_") + cls_names[k] + "_val") / (name + ".txt"),
+                            dets[k]);
+  }
+  write_file_atomically(dir / "evaluate_tracking.seqmap.val", seqmap);
+}
+
+void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptions& o) {
+  if (o.scans < 1 || o.columns < 16) throw Error("reference sensor: scans >= 1, columns >= 16");
+  const fs::path seq = dir / "sequences" / "00";
+  fs::create_directories(seq / "velodyne");
+  fs::create_directories(seq / "labels");
+  const pgm::BeamLayout layout = pgm::BeamLayout::hdl64e(o.columns);
+  const double sensor_h = 1.73, wall_top = 4.0;
+  std::mt19937_64 rng(o.seed);
+  std::normal_distribution<double> N01(0, 1);
+  std::uniform_real_distribution<double> U(0, 1);
+  // SemanticKITTI labels and albedo: road, sidewalk, building, fence, vegetation.
+  const std::uint32_t lab_road = 40, lab_sidewalk = 48;
+  const std::uint32_t wall_labels[3] = {50, 51, 70};
+  const double wall_albedo[3] = {0.35, 0.45, 0.55};
+  for (int s = 0; s < o.scans; ++s) {
+    // A ring of K wall facets at random distances (vertices), so facet normals vary irregularly.
+    const int K = 40;
+    std::vector<Eigen::Vector2d> vtx(K);
+    std::vector<int> kind(K);
+    for (int k = 0; k < K; ++k) {
+      const double a = 2 * kPi * (k + 0.3 * (U(rng) - 0.5)) / K - kPi, r = 10 + 20 * U(rng);
+      vtx[k] = Eigen::Vector2d(r * std::cos(a), r * std::sin(a));
+      kind[k] = static_cast<int>(U(rng) * 2.999);
+    }
+    std::vector<float> pts;
+    std::vector<std::uint32_t> labels;
+    for (int row = 0; row < layout.rows(); ++row) {
+      const double el = layout.elevations_rad[row];
+      for (int col = 0; col < o.columns; ++col) {
+        const double az = -kPi + (col + 0.5) * 2 * kPi / o.columns;
+        const Eigen::Vector2d d(std::cos(az), std::sin(az));
+        // Wall facet hit (horizontal distance th) by the ray in the plane.
+        double th = 1e9;
+        Eigen::Vector2d normal(1, 0);
+        int facet = 0;
+        for (int k = 0; k < K; ++k) {
+          const Eigen::Vector2d a = vtx[k], b = vtx[(k + 1) % K], e = b - a;
+          const double den = d.x() * e.y() - d.y() * e.x();
+          if (std::abs(den) < 1e-12) continue;
+          const double t = (a.x() * e.y() - a.y() * e.x()) / den;         // along the ray
+          const double u = (a.x() * d.y() - a.y() * d.x()) / den;         // along the facet
+          if (t > 0 && u >= 0 && u <= 1 && t < th) th = t, facet = k, normal = Eigen::Vector2d(e.y(), -e.x()).normalized();
+        }
+        const double tg = el < 0 ? sensor_h / std::tan(-el) : 1e9;
+        double range = 0, albedo = 0, incidence = 0, z = 0;
+        std::uint32_t label = 0;
+        if (tg < th) {
+          const double dist = tg;
+          range = dist / std::cos(el);
+          z = -sensor_h;
+          const bool sidewalk = dist > th - 2.5;
+          label = sidewalk ? lab_sidewalk : lab_road;
+          albedo = sidewalk ? 0.30 : 0.20;
+          incidence = kPi / 2 - std::abs(el);
+        } else {
+          z = th * std::tan(el);
+          if (th >= 1e8 || z > wall_top - sensor_h) continue;  // sky: no return
+          range = th / std::cos(el);
+          label = wall_labels[kind[facet]];
+          albedo = wall_albedo[kind[facet]];
+          const Eigen::Vector3d ray(std::cos(el) * d.x(), std::cos(el) * d.y(), std::sin(el));
+          incidence = std::acos(std::min(1.0, std::abs(ray.dot(Eigen::Vector3d(normal.x(), normal.y(), 0)))));
+        }
+        double gain = 1;
+        switch (o.effect) {
+          case IntensityEffect::Incidence: gain = std::cos(incidence); break;
+          case IntensityEffect::Height: gain = 0.6 + 0.3 * (z + sensor_h); break;
+          case IntensityEffect::Azimuth: gain = 1 + 0.5 * std::sin(az); break;
+          case IntensityEffect::None: break;
+        }
+        const double intensity = std::clamp(albedo * gain + o.noise * N01(rng), 0.0, 1.0);
+        pts.insert(pts.end(), {float(range * std::cos(el) * d.x()), float(range * std::cos(el) * d.y()),
+                               float(range * std::sin(el)), float(intensity)});
+        labels.push_back(label);
+      }
+    }
+    const std::string id = seq_name(s, 6);
+    write_file_atomically(seq / "velodyne" / (id + ".bin"),
+                          std::string(reinterpret_cast<const char*>(pts.data()), pts.size() * sizeof(float)));
+    write_file_atomically(seq / "labels" / (id + ".label"),
+                          std::string(reinterpret_cast<const char*>(labels.data()), labels.size() * sizeof(std::uint32_t)));
+  }
+}
+
+}  // namespace lidarsim::data

@@ -1,0 +1,59 @@
+#pragma once
+// A synthetic "reference sensor": writes recorded-format data (exactly the layouts the readers
+// take from real sensors) with switchable effects that the simulation models do not declare, so
+// the closed loop (qualify/) can be tested on data whose hidden effect is known.
+//
+// Objects (KITTI tracking layout): DIR/label_02/NNNN.txt, DIR/calib/NNNN.txt,
+// DIR/detection/pointrcnn_{Car,Pedestrian,Cyclist}_val/NNNN.txt (AB3DMOT layout) and
+// DIR/evaluate_tracking.seqmap.val. Tracks move at constant velocity relative to the sensor;
+// detections = truth + small Gaussian errors (along/across the line of sight, size, heading),
+// a constant detection probability, a few false positives per frame, plus the effect:
+//   velocity_lag      position error = -lag * velocity (a latency): along the line of sight
+//                     -lag * radial velocity
+//   truncation_size   length error = -gain * truncation (a truncated box is measured short)
+//   aspect_across     across error grows with the heading relative to the line of sight
+// Intensity (SemanticKITTI layout): DIR/sequences/00/velodyne/NNNNNN.bin + labels/NNNNNN.label.
+// A 64-beam HDL-64E-like scan in firing order (ring by ring, azimuth rising from -pi to pi) of a
+// flat ground (road, sidewalk) inside a ring of random wall facets (building, fence,
+// vegetation); intensity = class albedo x effect + Gaussian noise, with the effect:
+//   incidence   x cos(incidence angle) (true facet normal)
+//   height      x (0.6 + 0.3 (z + sensor height))
+//   azimuth     x (1 + 0.5 sin(azimuth))
+// "none" is the control: no hidden effect in either domain.
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+namespace lidarsim::data {
+
+enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross };
+enum class IntensityEffect { None, Incidence, Height, Azimuth };
+
+std::string to_string(ObjectEffect e);     // "none", "velocity_lag", ...
+std::string to_string(IntensityEffect e);  // "none", "incidence", ...
+// The loop's feature name the effect depends on ("" for none).
+std::string effect_feature(ObjectEffect e);
+std::string effect_feature(IntensityEffect e);
+
+struct ReferenceTrackingOptions {
+  ObjectEffect effect = ObjectEffect::None;
+  int sequences = 2;
+  int frames = 200;
+  int tracks = 14;          // per sequence
+  double noise = 0.1;       // m (positions), size noise = noise / 2, heading noise = noise / 5 rad
+  double detection_probability = 0.95;
+  double false_positives = 0.2;  // per frame
+  std::uint64_t seed = 1;
+};
+void write_reference_tracking(const std::filesystem::path& dir, const ReferenceTrackingOptions& options);
+
+struct ReferenceScanOptions {
+  IntensityEffect effect = IntensityEffect::None;
+  int scans = 3;
+  int columns = 1024;  // azimuth steps per ring
+  double noise = 0.02;
+  std::uint64_t seed = 1;
+};
+void write_reference_semantickitti(const std::filesystem::path& dir, const ReferenceScanOptions& options);
+
+}  // namespace lidarsim::data

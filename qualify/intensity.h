@@ -1,0 +1,72 @@
+#pragma once
+// Intensity qualification (predicted vs measured on the validation sectors of recorded scans)
+// and the intensity loop.
+//
+// Scans are imported as they are (data/import.h: HDL-64E layout, 1024 columns, firing-order
+// rows) with the effect channels; the reference sector split (data/split.h) gives the held-out
+// cells (sectors 3, 7, 11, 15) and the fit cells (the rest), in every scan.
+//
+// Feature vocabulary, per cell with a return:
+//   range                 m
+//   incidence_angle       angle between beam and the surface normal estimated from the
+//                         neighbouring cells (pgm "incidence" channel), rad
+//   elevation             beam elevation of the point (pgm "elevation"), rad
+//   azimuth               atan2(y, x) (pgm "azimuth"), rad
+//   height                z in the sensor frame, m
+//   class, material       ids (pgm/materials.h)
+//   depth_discontinuity   largest relative range jump to the 4 neighbouring cells, |dr| / r
+// The base model of the loop is the class x range-bin lookup (data/baselines.h's definition:
+// 5 m bins), so range, class and material are the features it already uses.
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "data/dataset.h"
+
+namespace lidarsim::qualify {
+
+inline const std::vector<std::string> kIntensityFeatures = {"range",  "incidence_angle", "elevation",
+                                                            "azimuth", "height",          "class",
+                                                            "material", "depth_discontinuity"};
+inline const std::vector<std::string> kIntensityFeaturesUsedByModel = {"range", "class", "material"};
+
+struct IntensityCells {
+  std::vector<double> measured;
+  std::vector<int> frame, sector, cls;
+  std::vector<char> held_out;                   // validation sector
+  std::vector<std::vector<double>> feature;     // [feature][cell], kIntensityFeatures order
+  std::vector<long> cell;                       // n * H * W + row * W + col
+  std::size_t size() const { return measured.size(); }
+};
+
+// Imports DIR (needs the velodyne + labels layout; errors name the file at fault).
+data::Dataset import_for_qualify(const std::filesystem::path& dir, std::vector<std::string> extra_channels = {});
+IntensityCells intensity_cells(const data::Dataset& ds);
+
+// Class x 5 m range-bin lookup fitted on the fit cells (fallback: class mean, global mean).
+std::vector<double> lookup_prediction(const IntensityCells& c);
+
+// `lidar-qualify intensity`: the checkpoint's prediction vs measured intensity on the held-out
+// cells: MAE, RMSE, histogram intersection (+ bootstrap interval, ceiling between validation
+// sectors 3, 11 and 7, 15), KS, Wasserstein; overall and per class; the lookup baseline beside.
+nlohmann::json qualify_intensity(const std::filesystem::path& checkpoint, const std::filesystem::path& dir,
+                                 const std::filesystem::path& out_dir);
+
+struct IntensityLoopOptions {
+  double threshold = 0.02;  // held-out share of residual variance below which nothing stands out
+  int bins = 16;
+  std::filesystem::path plots_dir;
+};
+
+// `lidar-qualify loop intensity`: base = class x range lookup on the fit cells; residual =
+// measured - base on held-out cells; features ranked by held-out R^2 of a binned-mean table
+// fitted on the fit cells; the top one (if above the threshold) added in the way the held-out
+// MAE favours among: additive correction table, multiplicative gain table, or the lookup refitted
+// with the feature as an extra key; held-out MAE before and after with a block-bootstrap 95%
+// interval of the change (blocks = scan x validation sector).
+nlohmann::json loop_intensity(const std::filesystem::path& dir, const IntensityLoopOptions& options = {});
+nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options = {});
+
+}  // namespace lidarsim::qualify

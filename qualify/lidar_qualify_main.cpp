@@ -1,0 +1,135 @@
+// lidar-qualify: qualify the simulation against measured data, and close the loop.
+//   lidar-qualify objects   --kitti-tracking DIR --model M.json --out R
+//   lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R
+//   lidar-qualify loop objects   --kitti-tracking DIR --report R.json
+//   lidar-qualify loop intensity --semantickitti DIR --report R.json
+#include <cxxopts.hpp>
+
+#include <filesystem>
+#include <iostream>
+#include <string>
+
+#include "common/atomic_file.h"
+#include "common/error.h"
+#include "qualify/intensity.h"
+#include "qualify/objects.h"
+#include "sensor/kpi_model.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+
+namespace {
+
+const char* kUsage =
+    "usage:\n"
+    "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R      KPI model vs measured detections\n"
+    "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
+    "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
+    "  lidar-qualify loop intensity --semantickitti DIR --report R.json\n"
+    "add --help after a command for its options\n";
+
+std::string need(const cxxopts::ParseResult& a, const std::string& key, const std::string& what) {
+  if (!a.count(key)) throw Error("--" + key + ": required (" + what + ")");
+  return a[key].as<std::string>();
+}
+
+void print_loop(const nlohmann::json& j) {
+  std::cout << "domain " << j["domain"].get<std::string>() << "; metric: " << j["metric"].get<std::string>() << "\n";
+  std::cout << "ranking (held-out share of residual variance explained):\n";
+  for (const auto& r : j["ranking"])
+    std::cout << "  " << r["feature"].get<std::string>() << "  " << r["score"].get<double>()
+              << (r.contains("target") ? "  (" + r["target"].get<std::string>() + ")" : std::string()) << "\n";
+  std::cout << "added effect: " << (j["added_effect"].is_null() ? "none (no feature stands out)" : j["added_effect"].get<std::string>())
+            << "\nbefore " << j["before"].get<double>() << "  after " << j["after"].get<double>() << "\n";
+}
+
+int run(int argc, char** argv) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << kUsage;
+    return argc < 2 ? 1 : 0;
+  }
+  const std::string cmd = argv[1];
+  std::string sub;
+  int shift = 1;
+  if (cmd == "loop") {
+    if (argc < 3) throw Error("loop: expected `objects` or `intensity` after `loop`");
+    sub = argv[2];
+    shift = 2;
+  }
+  const std::string name = cmd == "loop" ? "lidar-qualify loop " + sub : "lidar-qualify " + cmd;
+  cxxopts::Options opts(name, "qualification against measured data");
+  opts.add_options()
+    ("kitti-tracking", "KITTI tracking folder (label_02/, calib/, detection/<det>_<Class>_val/)", cxxopts::value<std::string>())
+    ("seqmap", "sequence list (default DIR/evaluate_tracking.seqmap.val if present, else every label_02 file)", cxxopts::value<std::string>()->default_value(""))
+    ("detector", "detection folder prefix", cxxopts::value<std::string>()->default_value("pointrcnn"))
+    ("semantickitti", "SemanticKITTI folder (sequences/NN/velodyne, labels)", cxxopts::value<std::string>())
+    ("model", "KPI model JSON (objects) or checkpoint (intensity)", cxxopts::value<std::string>())
+    ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
+    ("report", "loop report JSON", cxxopts::value<std::string>())
+    ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
+    ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("h,help", "this help");
+  const auto a = opts.parse(argc - shift, argv + shift);
+  if (a.count("help")) {
+    std::cout << opts.help() << "\n";
+    return 0;
+  }
+  if (!a.unmatched().empty()) throw Error("unexpected argument \"" + a.unmatched().front() + "\"");
+  const std::uint64_t seed = a["seed"].as<std::uint64_t>();
+  if (cmd == "objects") {
+    const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
+                                             a["seqmap"].as<std::string>(), a["detector"].as<std::string>());
+    const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
+    const fs::path out = need(a, "out", "the report folder");
+    const auto j = qualify::qualify_objects(data, model, out, seed);
+    std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
+              << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
+              << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";
+    return 0;
+  }
+  if (cmd == "intensity") {
+    const fs::path out = need(a, "out", "the report folder");
+    const auto j = qualify::qualify_intensity(need(a, "model", "the intensity checkpoint"),
+                                              need(a, "semantickitti", "the SemanticKITTI folder"), out);
+    std::cout << "validation MAE " << j["overall"]["mae"].get<double>() << ", RMSE " << j["overall"]["rmse"].get<double>()
+              << ", histogram intersection " << j["overall"]["similarity"]["intersection"].get<double>()
+              << " (ceiling " << j["overall"]["similarity"]["ceiling"].get<double>() << ")\nwrote " << (out / "report.md")
+              << "\n";
+    return 0;
+  }
+  if (cmd == "loop") {
+    const fs::path report = need(a, "report", "the JSON report to write");
+    qualify::LoopOptions lo;
+    lo.plots_dir = report.parent_path().empty() ? fs::path(".") : report.parent_path();
+    nlohmann::json j;
+    if (sub == "objects") {
+      if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
+      const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
+                                               a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
+      j = qualify::loop_objects(data, lo);
+    } else if (sub == "intensity") {
+      qualify::IntensityLoopOptions io;
+      if (a.count("threshold")) io.threshold = a["threshold"].as<double>();
+      io.plots_dir = lo.plots_dir;
+      j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
+    } else {
+      throw Error("loop: unknown domain \"" + sub + "\" (expected objects or intensity)");
+    }
+    write_file_atomically(report, j.dump(2) + "\n");
+    print_loop(j);
+    std::cout << "wrote " << report << "\n";
+    return 0;
+  }
+  throw Error("unknown command \"" + cmd + "\" (expected objects, intensity or loop)");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,520 @@
+#include "qualify/objects.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <numbers>
+#include <set>
+#include <sstream>
+
+#include "common/atomic_file.h"
+#include "common/error.h"
+#include "qualify/report.h"
+#include "qualify/similarity.h"
+
+namespace fs = std::filesystem;
+
+namespace lidarsim::qualify {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr sensor::KpiParam kTargetParam[6] = {sensor::KpiParam::PositionAlong, sensor::KpiParam::PositionAcross,
+                                              sensor::KpiParam::Length,        sensor::KpiParam::Width,
+                                              sensor::KpiParam::Height,        sensor::KpiParam::Heading};
+
+double wrap(double a) {
+  a = std::fmod(a + kPi, 2 * kPi);
+  if (a < 0) a += 2 * kPi;
+  return a - kPi;
+}
+
+int class_index(sensor::ObjectClass c) {
+  switch (c) {
+    case sensor::ObjectClass::Car: return 0;
+    case sensor::ObjectClass::Pedestrian: return 1;
+    case sensor::ObjectClass::Cyclist: return 2;
+    default: return -1;
+  }
+}
+
+int feature_index(const std::string& name) {
+  for (size_t i = 0; i < kObjectFeatures.size(); ++i)
+    if (kObjectFeatures[i] == name) return static_cast<int>(i);
+  throw Error("object feature \"" + name + "\" is not in the vocabulary");
+}
+
+bool used_by_model(const std::string& f) {
+  return std::find(kObjectFeaturesUsedByModel.begin(), kObjectFeaturesUsedByModel.end(), f) !=
+         kObjectFeaturesUsedByModel.end();
+}
+
+double rms(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x * x;
+  return v.empty() ? 0 : std::sqrt(s / v.size());
+}
+
+}  // namespace
+
+TrackingData load_tracking(const fs::path& dir, const std::string& seqmap, const std::string& detector,
+                           int min_sequences) {
+  if (!fs::is_directory(dir)) throw input_error(dir.string(), "--kitti-tracking", "not a directory");
+  for (const char* sub : {"label_02", "calib"})
+    if (!fs::is_directory(dir / sub))
+      throw input_error((dir / sub).string(), "layout", "missing folder (expected label_02/, calib/, detection/)");
+  bool any_detection_folder = false;
+  for (const std::string& c : kObjectClasses)
+    any_detection_folder |= fs::is_directory(dir / "detection" / (detector + "_" + c + "_val"));
+  if (!any_detection_folder)
+    throw input_error((dir / "detection").string(), "layout",
+                      "no " + detector + "_{Car,Pedestrian,Cyclist}_val/ folder (AB3DMOT layout)");
+
+  std::vector<std::string> names;
+  const fs::path map_path = seqmap.empty() ? dir / "evaluate_tracking.seqmap.val" : fs::path(seqmap);
+  if (!seqmap.empty() || fs::exists(map_path)) {
+    if (!fs::exists(map_path)) throw input_error(map_path.string(), "--seqmap", "file not found");
+    for (const std::string& n : data::read_kitti_seqmap(map_path))
+      if (fs::exists(dir / "label_02" / (n + ".txt"))) names.push_back(n);
+  } else {
+    for (const auto& e : fs::directory_iterator(dir / "label_02"))
+      if (e.path().extension() == ".txt") names.push_back(e.path().stem().string());
+    std::sort(names.begin(), names.end());
+  }
+  if (static_cast<int>(names.size()) < min_sequences)
+    throw input_error((dir / "label_02").string(), "sequences",
+                      "found " + std::to_string(names.size()) + " sequence(s) with labels, need at least " +
+                          std::to_string(min_sequences));
+  TrackingData d;
+  for (const std::string& n : names) {
+    const fs::path calib = dir / "calib" / (n + ".txt");
+    if (!fs::exists(calib)) throw input_error(calib.string(), "file", "missing (calib of sequence " + n + ")");
+    bool has_detections = false;
+    for (const std::string& c : kObjectClasses)
+      has_detections |= fs::exists(dir / "detection" / (detector + "_" + c + "_val") / (n + ".txt"));
+    if (!has_detections)
+      throw input_error((dir / "detection").string(), "file",
+                        "no " + detector + "_*_val/" + n + ".txt for sequence " + n + " (labels without detections)");
+    d.names.push_back(n);
+    d.kitti.push_back(data::read_kitti_tracking_sequence(dir, n, detector));
+    d.calib.push_back(data::to_calibration_sequence(d.kitti.back()));
+  }
+  return d;
+}
+
+ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequences,
+                          const std::vector<sensor::CalibrationSequence>* detections, const sensor::FitOptions& opt) {
+  ObjectSet out;
+  for (int s : sequences) {
+    const data::KittiTrackingSequence& ks = data.kitti.at(s);
+    const sensor::CalibrationSequence& cs = detections ? detections->at(s) : data.calib.at(s);
+    const double dt = cs.frame_dt;
+    // Truth of the three classes per frame, in the order to_calibration_sequence keeps them.
+    std::vector<std::vector<const data::KittiTrackingObject*>> truth(ks.frames.size());
+    std::map<int, std::map<int, Eigen::Vector3d>> track_pos;
+    for (size_t f = 0; f < ks.frames.size(); ++f)
+      for (const auto& o : ks.frames[f].truth)
+        if (o.type == "Car" || o.type == "Pedestrian" || o.type == "Cyclist") {
+          truth[f].push_back(&o);
+          track_pos[o.object.id][static_cast<int>(f)] = o.object.position;
+        }
+    for (size_t f = 0; f < cs.frames.size() && f < truth.size(); ++f) {
+      const sensor::CalibrationFrame& fr = cs.frames[f];
+      const std::vector<int> match =
+          sensor::match_truth_to_detections(fr.truth, fr.detections, opt.gate, opt.min_score);
+      std::vector<char> used(fr.detections.size(), 0);
+      for (size_t i = 0; i < fr.truth.size() && i < truth[f].size(); ++i) {
+        const sensor::Object& g = fr.truth[i];
+        const data::KittiTrackingObject& k = *truth[f][i];
+        ObjectRecord r;
+        r.seq = s;
+        r.frame = static_cast<int>(f);
+        r.track = g.id;
+        r.cls = class_index(g.cls);
+        const Eigen::Vector2d bev = g.position.head<2>();
+        const double range = bev.norm();
+        const Eigen::Vector2d u = range > 1e-6 ? Eigen::Vector2d(bev / range) : Eigen::Vector2d(1, 0);
+        const Eigen::Vector2d left(-u.y(), u.x());
+        r.range_bin = static_cast<int>(std::upper_bound(opt.range_bin_edges.begin(), opt.range_bin_edges.end(), range) -
+                                       opt.range_bin_edges.begin()) - 1;
+        r.visibility_bin =
+            static_cast<int>(std::upper_bound(opt.visibility_bin_edges.begin(), opt.visibility_bin_edges.end(),
+                                              g.visible_fraction) - opt.visibility_bin_edges.begin()) - 1;
+        r.range_bin = std::max(0, r.range_bin);
+        r.visibility_bin = std::max(0, r.visibility_bin);
+        r.value.fill(kNaN);
+        if (match[i] >= 0) {
+          used[match[i]] = 1;
+          const sensor::Object& d = fr.detections[match[i]];
+          r.detected = true;
+          const Eigen::Vector2d e = (d.position - g.position).head<2>();
+          r.value[0] = e.dot(u);
+          r.value[1] = e.dot(left);
+          r.value[2] = d.size.x() - g.size.x();
+          r.value[3] = d.size.y() - g.size.y();
+          r.value[4] = d.size.z() - g.size.z();
+          double h = wrap(d.heading - g.heading);
+          if (std::abs(h) > kPi / 2) h = wrap(h - kPi);  // 180-degree flips are modelled apart
+          r.value[5] = h;
+        }
+        r.value[kDetectionTarget] = r.detected ? 1.0 : 0.0;
+        // Features from the ground-truth track.
+        const auto& tp = track_pos[g.id];
+        const int fi = static_cast<int>(f);
+        const auto prev = tp.find(fi - 1), next = tp.find(fi + 1);
+        Eigen::Vector3d v = Eigen::Vector3d::Zero(), a = Eigen::Vector3d::Zero();
+        if (prev != tp.end() && next != tp.end()) {
+          v = (next->second - prev->second) / (2 * dt);
+          a = (next->second - 2 * g.position + prev->second) / (dt * dt);
+        } else if (next != tp.end()) {
+          v = (next->second - g.position) / dt;
+        } else if (prev != tp.end()) {
+          v = (g.position - prev->second) / dt;
+        }
+        const Eigen::Vector2d fwd(std::cos(g.heading), std::sin(g.heading));
+        const Eigen::Vector2d side(-fwd.y(), fwd.x());
+        const double az = std::atan2(bev.y(), bev.x());
+        double rel = std::abs(wrap(g.heading - az));
+        if (rel > kPi / 2) rel = kPi - rel;
+        r.feature = {range,
+                     az,
+                     v.head<2>().dot(u),
+                     v.head<2>().norm(),
+                     v.head<2>().dot(fwd),
+                     v.head<2>().dot(side),
+                     a.head<2>().norm(),
+                     rel,
+                     double(std::clamp(k.occluded, 0, 3)),
+                     k.truncated,
+                     double(r.cls),
+                     g.size.x(),
+                     double(fi - tp.begin()->first)};
+        out.records.push_back(std::move(r));
+      }
+      std::array<int, 3> fp{0, 0, 0};
+      for (size_t j = 0; j < fr.detections.size(); ++j) {
+        const sensor::Object& d = fr.detections[j];
+        if (used[j] || d.score <= opt.min_score) continue;
+        const int ci = class_index(d.cls);
+        if (ci < 0) continue;
+        bool near_other = false;
+        for (const sensor::Object& o : fr.others)
+          if ((o.position - d.position).head<2>().norm() <= opt.gate) near_other = true;
+        if (!near_other) ++fp[ci];
+      }
+      out.false_positives.push_back(fp);
+      out.frame_seq.push_back(s);
+    }
+  }
+  return out;
+}
+
+namespace {
+
+// Detection rate per bin of `key`; similarity = 1 - sum_b w_b |rate_a - rate_b|, w = share of
+// ground truth of a in bin b (0 when a has no ground truth there).
+struct RateTable {
+  std::vector<long> n, k;
+  double rate(size_t b) const { return n[b] ? double(k[b]) / n[b] : 0; }
+};
+template <class Key>
+RateTable rates(const ObjectSet& s, int cls, int bins, Key key, const std::vector<char>* seq_in = nullptr) {
+  RateTable t{std::vector<long>(bins, 0), std::vector<long>(bins, 0)};
+  for (const ObjectRecord& r : s.records) {
+    if (r.cls != cls || (seq_in && !(*seq_in)[r.seq])) continue;
+    const int b = std::clamp(key(r), 0, bins - 1);
+    ++t.n[b];
+    t.k[b] += r.detected;
+  }
+  return t;
+}
+double rate_similarity(const RateTable& a, const RateTable& b) {
+  long total = 0;
+  for (long x : a.n) total += x;
+  if (!total) return -1;
+  double d = 0;
+  for (size_t i = 0; i < a.n.size(); ++i)
+    if (a.n[i]) d += double(a.n[i]) / total * std::abs(a.rate(i) - b.rate(i));
+  return 1 - d;
+}
+
+}  // namespace
+
+nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model, const fs::path& out_dir,
+                               std::uint64_t seed) {
+  fs::create_directories(out_dir);
+  std::vector<int> all(data.calib.size());
+  for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
+  sensor::FitOptions opt;
+  opt.range_bin_edges = model.range_bin_edges;
+  opt.visibility_bin_edges = model.visibility_bin_edges;
+  const auto simulated = sensor::resimulate(data.calib, model, seed);
+  const ObjectSet real = collect_objects(data, all, nullptr, opt);
+  const ObjectSet sim = collect_objects(data, all, &simulated, opt);
+  const int nseq = static_cast<int>(all.size());
+  std::vector<char> half[2] = {std::vector<char>(nseq, 0), std::vector<char>(nseq, 0)};
+  for (int s = 0; s < nseq; ++s) half[s % 2][s] = 1;
+
+  nlohmann::json j;
+  j["sequences"] = data.names;
+  j["frames"] = real.frame_seq.size();
+  j["model_source"] = model.source;
+  j["seed"] = seed;
+  std::ostringstream md;
+  md << "# Object model qualification: KPI model vs measured detections\n\n"
+     << "Sequences: ";
+  for (const auto& n : data.names) md << n << " ";
+  md << "(" << real.frame_seq.size() << " frames). The KPI manager (seed " << seed
+     << ") runs on the ground truth of the same frames; both detection lists go through the same matching "
+        "(same class, score > 0, 2 m BEV gate, Hungarian).\n\n"
+     << "**Similarity** of one KPI = histogram intersection (1 - total variation) of the simulated and the measured "
+        "distribution on shared bins (40 equal bins over the pooled 1st-99th percentile, plus two overflow bins), "
+        "with a bootstrap 95% interval (200 resamples, seed 1). **Ceiling** = the same intersection between the "
+        "measured data of the even-indexed and the odd-indexed sequences (real vs real, disjoint halves). "
+        "**Overall similarity** = mean of the per-KPI intersections over every KPI with at least 30 measured "
+        "samples; it is judged against the mean ceiling of the same KPIs (ratio).\n\n";
+
+  double sum_sim = 0, sum_ceil = 0;
+  int n_kpi = 0;
+  nlohmann::json kpis = nlohmann::json::array();
+  md << "## Error distributions\n\n| class | KPI | n measured | n simulated | similarity [95%] | ceiling | KS | "
+        "Wasserstein |\n|---|---|---|---|---|---|---|---|\n";
+  std::ostringstream plots;
+  for (int c = 0; c < 3; ++c) {
+    for (int t = 0; t < 6; ++t) {
+      std::vector<double> s_all, r_all;
+      std::vector<std::vector<double>> groups(nseq);
+      for (const auto& r : real.records)
+        if (r.cls == c && r.detected) r_all.push_back(r.value[t]), groups[r.seq].push_back(r.value[t]);
+      for (const auto& r : sim.records)
+        if (r.cls == c && r.detected) s_all.push_back(r.value[t]);
+      if (r_all.empty() || s_all.empty()) continue;
+      Similarity sm = compare(s_all, r_all);
+      sm.ceiling = real_vs_real_ceiling(groups);
+      const std::string name = kObjectClasses[c] + " " + kObjectTargets[t];
+      nlohmann::json k = to_json(sm);
+      k["class"] = kObjectClasses[c];
+      k["kpi"] = kObjectTargets[t];
+      const bool counted = r_all.size() >= 30 && sm.ceiling >= 0;
+      k["in_overall"] = counted;
+      if (counted) sum_sim += sm.intersection, sum_ceil += sm.ceiling, ++n_kpi;
+      const std::string png = "hist_" + file_stem(name) + ".png";
+      const std::string caption = write_histogram_png(out_dir / png, s_all, r_all);
+      k["plot"] = png;
+      kpis.push_back(k);
+      md << "| " << kObjectClasses[c] << " | " << kObjectTargets[t] << " | " << r_all.size() << " | " << s_all.size()
+         << " | " << similarity_cell(sm) << " | " << fmt(sm.ceiling) << " | " << fmt(sm.ks) << " | "
+         << fmt(sm.wasserstein, 4) << " |\n";
+      plots << "### " << name << "\n\n![" << name << "](" << png << ")\n\n" << caption << "\n\n";
+    }
+  }
+  // Detection rate by range bin and by occlusion level; false positives per frame.
+  md << "\n## Detection rate\n\nSimilarity of a rate curve = 1 - sum over bins of (share of measured ground truth in "
+        "the bin) x |simulated rate - measured rate|; ceiling = the same between the two halves of the measured "
+        "sequences.\n\n";
+  nlohmann::json det = nlohmann::json::array();
+  for (int c = 0; c < 3; ++c) {
+    const int nr = static_cast<int>(model.range_bin_edges.size());
+    auto by_range = [](const ObjectRecord& r) { return r.range_bin; };
+    auto by_occ = [](const ObjectRecord& r) { return int(r.feature[8]); };
+    const RateTable rr = rates(real, c, nr, by_range), sr = rates(sim, c, nr, by_range);
+    const RateTable ro = rates(real, c, 4, by_occ), so = rates(sim, c, 4, by_occ);
+    long total = 0;
+    for (long x : rr.n) total += x;
+    if (!total) continue;
+    const double sim_r = rate_similarity(rr, sr), sim_o = rate_similarity(ro, so);
+    const double ceil_r = rate_similarity(rates(real, c, nr, by_range, &half[0]), rates(real, c, nr, by_range, &half[1]));
+    const double ceil_o = rate_similarity(rates(real, c, 4, by_occ, &half[0]), rates(real, c, 4, by_occ, &half[1]));
+    nlohmann::json d = {{"class", kObjectClasses[c]}, {"by_range", nlohmann::json::array()},
+                        {"by_occlusion", nlohmann::json::array()}, {"similarity_range", sim_r},
+                        {"ceiling_range", ceil_r}, {"similarity_occlusion", sim_o}, {"ceiling_occlusion", ceil_o}};
+    md << "### " << kObjectClasses[c] << "\n\n| bin | GT boxes | measured rate | simulated rate |\n|---|---|---|---|\n";
+    for (int b = 0; b < nr; ++b) {
+      if (!rr.n[b]) continue;
+      const std::string label = fmt(model.range_bin_edges[b], 0) + "-" +
+                                (b + 1 < nr ? fmt(model.range_bin_edges[b + 1], 0) : std::string("")) + " m";
+      d["by_range"].push_back({{"bin", label}, {"n", rr.n[b]}, {"measured", rr.rate(b)}, {"simulated", sr.rate(b)}});
+      md << "| " << label << " | " << rr.n[b] << " | " << fmt(rr.rate(b)) << " | " << fmt(sr.rate(b)) << " |\n";
+    }
+    for (int b = 0; b < 4; ++b) {
+      if (!ro.n[b]) continue;
+      d["by_occlusion"].push_back({{"level", b}, {"n", ro.n[b]}, {"measured", ro.rate(b)}, {"simulated", so.rate(b)}});
+      md << "| occlusion " << b << " | " << ro.n[b] << " | " << fmt(ro.rate(b)) << " | " << fmt(so.rate(b)) << " |\n";
+    }
+    md << "\nsimilarity by range " << fmt(sim_r) << " (ceiling " << fmt(ceil_r) << "), by occlusion " << fmt(sim_o)
+       << " (ceiling " << fmt(ceil_o) << ")\n\n";
+    if (total >= 30 && ceil_r >= 0) sum_sim += sim_r, sum_ceil += ceil_r, ++n_kpi;
+    det.push_back(d);
+  }
+  md << "## False positives per frame\n\n| class | measured mean | simulated mean | similarity [95%] | ceiling | KS "
+        "|\n|---|---|---|---|---|---|\n";
+  nlohmann::json fps = nlohmann::json::array();
+  for (int c = 0; c < 3; ++c) {
+    std::vector<double> a, b;
+    std::vector<std::vector<double>> groups(nseq);
+    for (size_t f = 0; f < real.false_positives.size(); ++f) {
+      b.push_back(real.false_positives[f][c]);
+      groups[real.frame_seq[f]].push_back(real.false_positives[f][c]);
+    }
+    for (const auto& f : sim.false_positives) a.push_back(f[c]);
+    Similarity sm = compare(a, b);
+    sm.ceiling = real_vs_real_ceiling(groups);
+    nlohmann::json k = to_json(sm);
+    k["class"] = kObjectClasses[c];
+    k["measured_mean"] = mean_of(b);
+    k["simulated_mean"] = mean_of(a);
+    fps.push_back(k);
+    if (sm.ceiling >= 0) sum_sim += sm.intersection, sum_ceil += sm.ceiling, ++n_kpi;
+    md << "| " << kObjectClasses[c] << " | " << fmt(mean_of(b)) << " | " << fmt(mean_of(a)) << " | "
+       << similarity_cell(sm) << " | " << fmt(sm.ceiling) << " | " << fmt(sm.ks) << " |\n";
+  }
+  const double overall = n_kpi ? sum_sim / n_kpi : 0, ceiling = n_kpi ? sum_ceil / n_kpi : 0;
+  j["error_kpis"] = kpis;
+  j["detection_rate"] = det;
+  j["false_positives_per_frame"] = fps;
+  j["overall"] = {{"similarity", overall},
+                  {"ceiling", ceiling},
+                  {"ratio_to_ceiling", ceiling > 0 ? overall / ceiling : 0},
+                  {"kpis", n_kpi},
+                  {"definition",
+                   "mean over KPIs (error distributions with >= 30 measured samples, detection rate by range, false "
+                   "positives per frame; per class) of the histogram intersection (rate similarity for detection "
+                   "rates); ceiling = mean of the same KPIs between the two halves of the measured sequences"}};
+  std::ostringstream head;
+  head << "## Overall\n\nsimilarity **" << fmt(overall) << "** over " << n_kpi << " KPIs; real-vs-real ceiling "
+       << fmt(ceiling) << "; ratio " << fmt(ceiling > 0 ? overall / ceiling : 0) << " (the paper reports 95% / 96% "
+       << "without a ceiling).\n\n";
+  const std::string text = md.str();
+  const size_t cut = text.find("## Error distributions");
+  write_file_atomically(out_dir / "report.md",
+                        text.substr(0, cut) + head.str() + text.substr(cut) + "\n## Histograms\n\n" + plots.str());
+  write_file_atomically(out_dir / "report.json", j.dump(2) + "\n");
+  return j;
+}
+
+nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options) {
+  const int nseq = static_cast<int>(data.calib.size());
+  if (nseq < 2) throw Error("loop objects: need at least two sequences (one to fit, one held out), got " +
+                            std::to_string(nseq));
+  std::vector<int> fit_idx, held_idx;
+  std::vector<sensor::CalibrationSequence> fit_seqs;
+  for (int s = 0; s < nseq; ++s) {
+    if (s % 2 == 0) fit_idx.push_back(s), fit_seqs.push_back(data.calib[s]);
+    else held_idx.push_back(s);
+  }
+  const sensor::FitOptions opt;
+  const sensor::KpiModel base = sensor::fit_kpi_model(fit_seqs, opt);
+  const ObjectSet fit = collect_objects(data, fit_idx, nullptr, opt);
+  const ObjectSet held = collect_objects(data, held_idx, nullptr, opt);
+
+  // Residual of one record for one target under the base model; NaN when not defined.
+  auto residual = [&](const ObjectRecord& r, int t) {
+    const auto it = base.classes.find(kObjectClasses[r.cls]);
+    if (it == base.classes.end()) return kNaN;
+    const sensor::ClassModel& cm = it->second;
+    if (t == kDetectionTarget) return r.value[t] - cm.detection_probability[r.range_bin][r.visibility_bin];
+    if (!r.detected) return kNaN;
+    return r.value[t] - cm.errors[int(kTargetParam[t])].mean[r.range_bin];
+  };
+  struct Split {
+    std::vector<double> r;
+    std::vector<const ObjectRecord*> rec;
+  };
+  auto gather = [&](const ObjectSet& s, int t) {
+    Split out;
+    for (const auto& r : s.records) {
+      const double v = residual(r, t);
+      if (std::isnan(v)) continue;
+      out.r.push_back(v);
+      out.rec.push_back(&r);
+    }
+    return out;
+  };
+  std::vector<Split> fit_r(kObjectTargetCount), held_r(kObjectTargetCount);
+  std::vector<Winsor> win(kObjectTargetCount);
+  for (int t = 0; t < kObjectTargetCount; ++t) {
+    fit_r[t] = gather(fit, t);
+    held_r[t] = gather(held, t);
+    win[t] = winsor_limits(fit_r[t].r);
+  }
+  auto column = [](const Split& s, int f) {
+    std::vector<double> x(s.rec.size());
+    for (size_t i = 0; i < x.size(); ++i) x[i] = s.rec[i]->feature[f];
+    return x;
+  };
+  auto clipped = [](const Split& s, const Winsor& w) {
+    std::vector<double> r(s.r.size());
+    for (size_t i = 0; i < r.size(); ++i) r[i] = w(s.r[i]);
+    return r;
+  };
+  // Score every feature against every target; a feature's score is its best target's.
+  std::vector<FeatureScore> ranking, used;
+  nlohmann::json matrix = nlohmann::json::object();
+  for (size_t f = 0; f < kObjectFeatures.size(); ++f) {
+    FeatureScore best{kObjectFeatures[f], -1e300, ""};
+    for (int t = 0; t < kObjectTargetCount; ++t) {
+      if (fit_r[t].r.size() < 20 || held_r[t].r.size() < 20) continue;
+      const auto rf = clipped(fit_r[t], win[t]), rh = clipped(held_r[t], win[t]);
+      const BinnedTable tab = fit_binned_mean(column(fit_r[t], f), rf, options.bins);
+      const double score = held_out_r2(tab, column(held_r[t], f), rh, mean_of(rf));
+      matrix[kObjectFeatures[f]][kObjectTargets[t]] = score;
+      if (score > best.score) best = {kObjectFeatures[f], score, kObjectTargets[t]};
+    }
+    (used_by_model(kObjectFeatures[f]) ? used : ranking).push_back(best);
+  }
+  auto by_score = [](const FeatureScore& a, const FeatureScore& b) { return a.score > b.score; };
+  std::sort(ranking.begin(), ranking.end(), by_score);
+  std::sort(used.begin(), used.end(), by_score);
+  if (ranking.empty()) throw Error("loop objects: too few matched objects to score any feature");
+
+  const FeatureScore& top = ranking.front();
+  const int t = static_cast<int>(std::find(kObjectTargets.begin(), kObjectTargets.end(), top.target) -
+                                 kObjectTargets.begin());
+  const int f = feature_index(top.feature);
+  const BinnedTable tab = fit_binned_mean(column(fit_r[t], f), clipped(fit_r[t], win[t]), options.bins);
+  const bool add = top.score >= options.threshold;
+  std::vector<double> after_r = held_r[t].r;
+  const auto xh = column(held_r[t], f);
+  if (add)
+    for (size_t i = 0; i < after_r.size(); ++i) after_r[i] -= tab(xh[i]);
+  if (!options.plots_dir.empty()) {
+    fs::create_directories(options.plots_dir);
+    write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab, xh,
+                       held_r[t].r);
+  }
+
+  nlohmann::json j;
+  j["domain"] = "objects";
+  j["metric"] = "held-out RMS residual of " + top.target +
+                (t == kDetectionTarget ? " (detected 0/1 minus the model's detection probability)"
+                                       : " (measured error minus the model's conditional mean error)");
+  j["before"] = rms(held_r[t].r);
+  j["after"] = rms(after_r);
+  nlohmann::json rk = nlohmann::json::array();
+  for (const auto& s : ranking) rk.push_back({{"feature", s.feature}, {"score", s.score}, {"target", s.target}});
+  j["ranking"] = rk;
+  nlohmann::json uk = nlohmann::json::array();
+  for (const auto& s : used) uk.push_back({{"feature", s.feature}, {"score", s.score}, {"target", s.target}});
+  j["used_by_model"] = uk;
+  j["added_effect"] = add ? nlohmann::json(top.feature) : nlohmann::json(nullptr);
+  j["threshold"] = options.threshold;
+  j["score_definition"] =
+      "held-out R^2 of a binned-mean table (10 quantile bins of the feature on the fit split, shrunk by n/(n+5)) "
+      "of the residual, residuals winsorised at the fit split's 1st/99th percentile; best of the targets";
+  j["scores"] = matrix;
+  if (add)
+    j["effect"] = {{"feature", top.feature}, {"target", top.target}, {"kind", "per-bin bias table"},
+                   {"edges", tab.edges}, {"bias", tab.value}};
+  std::vector<std::string> fn, hn;
+  for (int s : fit_idx) fn.push_back(data.names[s]);
+  for (int s : held_idx) hn.push_back(data.names[s]);
+  j["fit_sequences"] = fn;
+  j["held_out_sequences"] = hn;
+  j["held_out_samples"] = held_r[t].r.size();
+  return j;
+}
+
+}  // namespace lidarsim::qualify

@@ -1,0 +1,103 @@
+#pragma once
+// Object-level qualification (KPI model vs measured detections) and the object loop.
+//
+// Input: a KITTI tracking folder as it comes (label_02/, calib/, detection/<det>_<Class>_val/,
+// optionally evaluate_tracking.seqmap.val). Per ground-truth object and frame an ObjectRecord:
+// the matched detection's errors (sensor/kpi_fit.h matching: same class, score > 0, 2 m BEV
+// gate, Hungarian) and the candidate features of the loop's vocabulary.
+//
+// Feature vocabulary (all from ground truth, sensor frame; velocities by central differences
+// of the track's box centre, i.e. relative to the moving sensor):
+//   range                    BEV distance of the box centre, m
+//   azimuth                  atan2(y, x), rad
+//   radial_velocity          velocity along the line of sight, m/s (> 0 receding)
+//   speed                    |velocity|, m/s
+//   longitudinal_velocity    velocity along the box heading, m/s
+//   lateral_velocity         velocity across the box heading, m/s
+//   acceleration             |change of velocity| / dt, m/s^2
+//   heading_to_line_of_sight |heading - azimuth| folded to [0, pi/2] (0: seen end-on), rad
+//   occlusion                KITTI occlusion level 0..3
+//   truncation               KITTI truncation 0..1
+//   class                    0 Car, 1 Pedestrian, 2 Cyclist
+//   size                     box length, m
+//   track_age                frames since the track's first appearance
+// The KPI model (sensor/kpi_model.h) already conditions on class, range bin and visibility
+// (occlusion level); the loop ranks the others.
+#include <array>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "data/kitti_tracking.h"
+#include "qualify/residual.h"
+#include "sensor/kpi_fit.h"
+#include "sensor/kpi_model.h"
+
+namespace lidarsim::qualify {
+
+inline const std::vector<std::string> kObjectFeatures = {
+    "range",      "azimuth",    "radial_velocity", "speed", "longitudinal_velocity", "lateral_velocity",
+    "acceleration", "heading_to_line_of_sight", "occlusion", "truncation", "class", "size", "track_age"};
+inline const std::vector<std::string> kObjectFeaturesUsedByModel = {"range", "occlusion", "class"};
+// Residual targets: errors of the matched detection, and detection itself (1 detected, 0 missed).
+inline const std::vector<std::string> kObjectTargets = {"position_along", "position_across", "length",
+                                                        "width",          "height",          "heading",
+                                                        "detection"};
+inline const std::vector<std::string> kObjectClasses = {"Car", "Pedestrian", "Cyclist"};
+inline constexpr int kObjectTargetCount = 7;
+inline constexpr int kDetectionTarget = 6;
+
+struct ObjectRecord {
+  int seq = 0, frame = 0, track = 0, cls = 0;
+  int range_bin = 0, visibility_bin = 0;
+  bool detected = false;
+  std::array<double, kObjectTargetCount> value{};  // errors (NaN when missed), then detected 0/1
+  std::vector<double> feature;                     // kObjectFeatures order
+};
+
+struct ObjectSet {
+  std::vector<ObjectRecord> records;
+  std::vector<std::array<int, 3>> false_positives;  // per frame, per class
+  std::vector<int> frame_seq;                       // sequence index of each frame
+};
+
+struct TrackingData {
+  std::vector<std::string> names;
+  std::vector<data::KittiTrackingSequence> kitti;
+  std::vector<sensor::CalibrationSequence> calib;
+};
+
+// Reads the sequences of `seqmap` (default DIR/evaluate_tracking.seqmap.val; without one, every
+// label_02/*.txt) that DIR holds. Errors (lidarsim::Error naming the file): DIR or label_02/ or
+// calib/ missing, a listed sequence's calib file missing, no detection folder for `detector`,
+// fewer than `min_sequences` sequences present.
+TrackingData load_tracking(const std::filesystem::path& dir, const std::string& seqmap, const std::string& detector,
+                           int min_sequences = 1);
+
+// Records of the given sequences; `detections` overrides the measured detections (one
+// CalibrationSequence per sequence, e.g. sensor::resimulate), else calib's own are used.
+ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequences,
+                          const std::vector<sensor::CalibrationSequence>* detections = nullptr,
+                          const sensor::FitOptions& opt = {});
+
+// `lidar-qualify objects`: the model re-simulated on the ground truth vs the measured
+// detections; writes report.json, report.md and PNGs into out_dir. Returns the JSON.
+nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
+                               const std::filesystem::path& out_dir, std::uint64_t seed = 1);
+
+struct LoopOptions {
+  double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
+  int bins = 10;
+  std::filesystem::path plots_dir;  // where to write residual-vs-feature PNGs (empty: none)
+};
+
+// `lidar-qualify loop objects`: base model fitted on the fit split (even-indexed sequences),
+// residuals (measured error - model's conditional mean; detected - detection probability) on
+// the held-out split (odd-indexed), features ranked by held-out R^2 of a binned-mean table
+// fitted on the fit split (best target per feature), the top one added as a per-bin bias table
+// on that target, and the held-out RMS residual of that target before and after.
+nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
+
+}  // namespace lidarsim::qualify

@@ -1,0 +1,92 @@
+#include "qualify/residual.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lidarsim::qualify {
+
+namespace {
+
+std::vector<double> quantile_edges(std::vector<double> x, int bins) {
+  std::vector<double> edges;
+  if (x.empty() || bins < 2) return edges;
+  std::sort(x.begin(), x.end());
+  for (int k = 1; k < bins; ++k) {
+    const double e = x[static_cast<size_t>(double(k) / bins * (x.size() - 1))];
+    // A cut at the minimum would leave an empty first bin; equal cuts collapse.
+    if (e > x.front() && (edges.empty() || e > edges.back())) edges.push_back(e);
+  }
+  return edges;
+}
+
+}  // namespace
+
+int BinnedTable::bin(double x) const {
+  return static_cast<int>(std::upper_bound(edges.begin(), edges.end(), x) - edges.begin());
+}
+
+BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins, double shrink) {
+  BinnedTable t;
+  t.edges = quantile_edges(x, bins);
+  std::vector<double> sum(t.edges.size() + 1, 0.0);
+  t.count.assign(sum.size(), 0);
+  for (size_t i = 0; i < x.size(); ++i) {
+    const int b = t.bin(x[i]);
+    sum[b] += r[i];
+    ++t.count[b];
+  }
+  t.value.assign(sum.size(), 0.0);
+  for (size_t b = 0; b < sum.size(); ++b)
+    if (t.count[b] > 0) t.value[b] = sum[b] / (t.count[b] + shrink);
+  return t;
+}
+
+BinnedTable fit_binned_gain(const std::vector<double>& x, const std::vector<double>& measured,
+                            const std::vector<double>& base, int bins, double shrink) {
+  BinnedTable t;
+  t.edges = quantile_edges(x, bins);
+  std::vector<double> xy(t.edges.size() + 1, 0.0), xx = xy;
+  t.count.assign(xy.size(), 0);
+  for (size_t i = 0; i < x.size(); ++i) {
+    const int b = t.bin(x[i]);
+    xy[b] += measured[i] * base[i];
+    xx[b] += base[i] * base[i];
+    ++t.count[b];
+  }
+  t.value.assign(xy.size(), 1.0);
+  for (size_t b = 0; b < xy.size(); ++b) {
+    if (t.count[b] == 0 || xx[b] <= 0) continue;
+    // Shrink towards a gain of 1 in thin bins (shrink pseudo-cells of mean base^2 at gain 1).
+    const double prior = shrink * xx[b] / t.count[b];
+    t.value[b] = (xy[b] + prior) / (xx[b] + prior);
+  }
+  return t;
+}
+
+Winsor winsor_limits(const std::vector<double>& r, double q) {
+  Winsor w;
+  if (r.size() < 10) return w;
+  std::vector<double> s = r;
+  std::sort(s.begin(), s.end());
+  w.lo = s[static_cast<size_t>(q * (s.size() - 1))];
+  w.hi = s[static_cast<size_t>((1 - q) * (s.size() - 1))];
+  return w;
+}
+
+double mean_of(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? 0 : s / v.size();
+}
+
+double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std::vector<double>& r, double fit_mean) {
+  double sse = 0, sst = 0;
+  for (size_t i = 0; i < x.size(); ++i) {
+    const double d = r[i] - t(x[i]);
+    sse += d * d;
+    sst += (r[i] - fit_mean) * (r[i] - fit_mean);
+  }
+  return sst > 0 ? 1 - sse / sst : 0;
+}
+
+}  // namespace lidarsim::qualify

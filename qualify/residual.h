@@ -1,0 +1,47 @@
+#pragma once
+// Residual analysis shared by both domains: how much of a residual one candidate feature
+// explains, measured honestly on data the fit never saw.
+//   - BinnedTable: the residual's mean per bin of the feature (bins at quantiles of the fit
+//     split, so discrete features get one bin per value), shrunk towards 0 in thin bins;
+//   - held_out_r2: 1 - SSE(residual - table) / SSE(residual - fit mean) on the held-out split,
+//     i.e. the share of the held-out residual variance (beyond a constant) the table explains.
+//     Negative when the table only fits noise of the fit split.
+// Residuals are winsorised at the fit split's 1st/99th percentile for fitting and scoring, so a
+// handful of gross errors (heavy tails) cannot decide the ranking alone.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace lidarsim::qualify {
+
+struct BinnedTable {
+  std::vector<double> edges;  // ascending cut points; bin k = values in [edges[k-1], edges[k])
+  std::vector<double> value;  // edges.size() + 1 bins
+  std::vector<long> count;
+  int bin(double x) const;
+  double operator()(double x) const { return value[bin(x)]; }
+};
+
+// Bins at `bins` quantiles of x (unique cut points), mean of r per bin shrunk by n / (n + shrink).
+BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins = 10,
+                            double shrink = 5);
+// Multiplicative variant for intensity: per bin the least-squares gain g with measured ~ g * base.
+BinnedTable fit_binned_gain(const std::vector<double>& x, const std::vector<double>& measured,
+                            const std::vector<double>& base, int bins = 10, double shrink = 5);
+
+struct Winsor {
+  double lo = -1e300, hi = 1e300;
+  double operator()(double v) const { return v < lo ? lo : v > hi ? hi : v; }
+};
+Winsor winsor_limits(const std::vector<double>& r, double q = 0.01);
+
+double mean_of(const std::vector<double>& v);
+double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std::vector<double>& r, double fit_mean);
+
+struct FeatureScore {
+  std::string feature;
+  double score = 0;     // held-out share of residual variance explained
+  std::string target;   // which residual it explains best (objects: the parameter)
+};
+
+}  // namespace lidarsim::qualify
