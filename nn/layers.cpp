@@ -269,7 +269,8 @@ void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weigh
                 " is smaller than twice the input " + s.str());
   ensure(out, Shape{s.n, co, out_h, out_w});
   const int ci = s.c, h = s.h, w = s.w, hw = h * w, co4 = 4 * co;
-  const int rows = std::max(1, std::min(h, 2048 / w));  // input rows per task
+  // Input rows per task: ~2048 pixels, but at least 4 tasks so deep (short) maps still split.
+  const int rows = std::max(1, std::min((h + 3) / 4, 2048 / w));
   const int tiles = (h + rows - 1) / rows;
   const std::size_t oplane = static_cast<std::size_t>(out_h) * out_w;
   Eigen::Map<const RowMat> wm(weight, ci, co4);  // [Ci, Co 2 2]
@@ -312,7 +313,7 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
   ensure(d_in, s);
   const int out_w = so.w;
   const std::size_t oplane = so.plane();
-  const int rows = std::max(1, std::min(h, 2048 / w));
+  const int rows = std::max(1, std::min((h + 3) / 4, 2048 / w));
   const int tiles = (h + rows - 1) / rows;
   const int threads = omp_get_max_threads();
   const std::size_t wsize = static_cast<std::size_t>(ci) * co4;
@@ -461,9 +462,13 @@ void concat_forward(Tensor& out, const Tensor& a, const Tensor& b) {
   if (sa.n != sb.n || sa.h != sb.h || sa.w != sb.w)
     throw Error("concat_forward: b: shape " + sb.str() + " does not match a " + sa.str());
   ensure(out, Shape{sa.n, sa.c + sb.c, sa.h, sa.w});
-  for (int i = 0; i < sa.n; ++i) {
-    std::copy(a.image(i), a.image(i) + sa.image(), out.image(i));
-    std::copy(b.image(i), b.image(i) + sb.image(), out.image(i) + sa.image());
+  const int ct = sa.c + sb.c;
+  const std::size_t plane = sa.plane();
+#pragma omp parallel for schedule(static) if (out.numel() > kParallelElems)
+  for (int p = 0; p < sa.n * ct; ++p) {
+    const int i = p / ct, c = p % ct;
+    const float* src = c < sa.c ? a.channel(i, c) : b.channel(i, c - sa.c);
+    std::copy(src, src + plane, out.channel(i, c));
   }
 }
 
@@ -478,14 +483,19 @@ void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool
     ensure(d_a, sa);
   }
   ensure(d_b, sb);
-  for (int i = 0; i < s.n; ++i) {
-    const float* src = d_out.image(i);
-    if (accumulate_a)
-      d_a.vec().segment(static_cast<Eigen::Index>(i * sa.image()), static_cast<Eigen::Index>(sa.image())) +=
-          Eigen::Map<const Eigen::VectorXf>(src, static_cast<Eigen::Index>(sa.image()));
-    else
-      std::copy(src, src + sa.image(), d_a.image(i));
-    std::copy(src + sa.image(), src + s.image(), d_b.image(i));
+  const std::size_t plane = s.plane();
+#pragma omp parallel for schedule(static) if (d_out.numel() > kParallelElems)
+  for (int p = 0; p < s.n * s.c; ++p) {
+    const int i = p / s.c, c = p % s.c;
+    const float* src = d_out.channel(i, c);
+    if (c >= ca) {
+      std::copy(src, src + plane, d_b.channel(i, c - ca));
+    } else if (accumulate_a) {
+      float* dst = d_a.channel(i, c);
+      for (std::size_t j = 0; j < plane; ++j) dst[j] += src[j];
+    } else {
+      std::copy(src, src + plane, d_a.channel(i, c));
+    }
   }
   if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
 }

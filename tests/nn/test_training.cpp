@@ -92,3 +92,31 @@ TEST(Training, SameSeedGivesByteIdenticalParametersAndAnotherSeedDoesNot) {
 
 }  // namespace
 }  // namespace lidarsim::nn
+
+namespace lidarsim::nn {
+namespace {
+
+// Large enough that every layer takes its parallel path: two backward passes with the same
+// thread count give the same gradient bytes (no float atomics, fixed reduction order).
+TEST(Determinism, ParallelForwardBackwardIsBitIdenticalAcrossRuns) {
+  UNet model(UNetConfig{3, 1, 8, 2});
+  model.init(11);
+  const Tensor x = reference::random_tensor(Shape{2, 3, 64, 96}, 12);
+  const Tensor dy = reference::random_tensor(Shape{2, 1, 64, 96}, 13);
+  std::vector<float> first;
+  for (int run = 0; run < 2; ++run) {
+    Tensor y;
+    model.params().zero_grads();
+    model.forward(x, y);
+    model.backward(dy);
+    const float* g = model.params().grads();
+    if (run == 0) {
+      first.assign(g, g + model.params().size());
+    } else {
+      EXPECT_EQ(std::memcmp(first.data(), g, first.size() * sizeof(float)), 0);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace lidarsim::nn
