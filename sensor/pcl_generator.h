@@ -86,7 +86,7 @@ class PclGenerator {
   std::vector<std::pair<int, int>> box_cols_;  // per box: first column, column count
   // Lane segments bucketed on a square grid over the ego's surroundings (CSR, like the boxes).
   std::vector<Segment> segments_;
-  double grid_cell_ = 2.0, grid_origin_ = 0;
+  double grid_cell_ = 1.0, grid_origin_ = 0;
   int grid_n_ = 0;
   std::vector<int> cell_start_, cell_fill_, seg_index_;
   std::vector<std::pair<int, int>> seg_cells_lo_, seg_cells_hi_;

@@ -222,6 +222,7 @@ void extrapolate(const KinematicState& s, double t, KinematicState& out) {
 
 pgm::BeamLayout BeamSpec::layout() const {
   if (kind == "hdl64e") return pgm::BeamLayout::hdl64e(columns);
+  if (kind == "list") return pgm::BeamLayout::from_elevations_deg("list", elevations_deg, columns);
   return pgm::BeamLayout::uniform(rows, top_deg, bottom_deg, columns);
 }
 
@@ -262,6 +263,18 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
     if (bj.get<std::string>() != "hdl64e")
       r.fail("sensor.beams", "must be \"hdl64e\" or {rows, top_deg, bottom_deg}, got " + Reader::describe(bj));
     sc.sensor.beams.kind = "hdl64e";
+  } else if (bj.is_object() && bj.contains("elevations_deg")) {
+    sc.sensor.beams.kind = "list";
+    const json& ej = r.array(bj, "sensor.beams", "elevations_deg", 1);
+    std::set<double> seen;
+    for (std::size_t i = 0; i < ej.size(); ++i) {
+      const std::string p = Reader::index("sensor.beams.elevations_deg", i);
+      const double e = r.number(ej[i], p);
+      if (std::abs(e) > 90) r.fail(p, "must lie within [-90, 90] degrees, got " + Reader::fmt(e));
+      if (!seen.insert(e).second) r.fail(p, "repeats the elevation " + Reader::fmt(e));
+      sc.sensor.beams.elevations_deg.push_back(e);
+    }
+    sc.sensor.beams.rows = static_cast<int>(ej.size());
   } else {
     sc.sensor.beams.kind = "uniform";
     sc.sensor.beams.rows = r.integer(bj, "sensor.beams", "rows", 1);

@@ -8,7 +8,8 @@
 //     "duration": 10.0, "rate_hz": 10.0,             seconds, frames per second
 //     "sensor": {
 //       "mount": {"x":1.0, "y":0, "z":1.73, "roll_deg":0, "pitch_deg":0, "yaw_deg":0},
-//       "beams": "hdl64e"  or  {"rows":32, "top_deg":15, "bottom_deg":-25},
+//       "beams": "hdl64e"  or  {"rows":32, "top_deg":15, "bottom_deg":-25}
+//                or {"elevations_deg": [15.0, 13.0, ...]}  (any sensor, one entry per beam),
 //       "columns": 1024,                             azimuth bins over 360 deg
 //       "fov": {"horizontal_deg":[-180,180], "vertical_deg":[-25,3]},
 //       "max_range": 120,  "min_range": 0.5          (min_range optional, default 0)
@@ -43,9 +44,10 @@
 namespace lidarsim::sensor {
 
 struct BeamSpec {
-  std::string kind = "hdl64e";  // "hdl64e" or "uniform"
+  std::string kind = "hdl64e";  // "hdl64e", "uniform" or "list"
   int rows = 64;                // uniform only
   double top_deg = 2.0, bottom_deg = -24.9;  // uniform only
+  std::vector<double> elevations_deg;        // list only
   int columns = 1024;
   pgm::BeamLayout layout() const;
 };

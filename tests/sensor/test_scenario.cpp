@@ -75,6 +75,25 @@ TEST(Scenario, ValidFileReadsEveryField) {
   EXPECT_EQ(sc.lanes[0].points.size(), 201u);  // resampled to 0.5 m
 }
 
+TEST(Scenario, BeamLayoutsFromNameUniformSpecOrElevationList) {
+  const Scenario hdl = parse_scenario(replaced(kValid, R"({"rows": 32, "top_deg": 10, "bottom_deg": -20})", R"("hdl64e")"), "demo.json");
+  EXPECT_EQ(hdl.sensor.beams.layout().rows(), 64);
+  const Scenario uni = parse_scenario(kValid, "demo.json");
+  const auto ul = uni.sensor.beams.layout();
+  EXPECT_EQ(ul.rows(), 32);
+  EXPECT_EQ(ul.columns, 512);
+  EXPECT_NEAR(ul.elevations_rad.front(), 10 * std::numbers::pi / 180, 1e-12);
+  const Scenario list = parse_scenario(
+      replaced(kValid, R"({"rows": 32, "top_deg": 10, "bottom_deg": -20})", R"({"elevations_deg": [-1, 3, 1]})"), "demo.json");
+  const auto ll = list.sensor.beams.layout();
+  ASSERT_EQ(ll.rows(), 3);
+  EXPECT_NEAR(ll.elevations_rad[0], 3 * std::numbers::pi / 180, 1e-12);  // sorted, top first
+  EXPECT_EQ(error_of(replaced(kValid, R"({"rows": 32, "top_deg": 10, "bottom_deg": -20})", R"({"elevations_deg": [1, 1]})")),
+            "demo.json: sensor.beams.elevations_deg[1]: repeats the elevation 1");
+  EXPECT_EQ(error_of(replaced(kValid, R"("top_deg": 10)", R"("top_deg": -30)")),
+            "demo.json: sensor.beams.top_deg: must be above bottom_deg (-20), got -30");
+}
+
 TEST(Scenario, MissingFieldNamesItsPath) {
   const auto msg = error_of(replaced(kValid, R"("velocity": [0, -1, 0], "heading_deg": -90},
                 {"t": 1.5)", R"("heading_deg": -90},
