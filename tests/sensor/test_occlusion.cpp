@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <iostream>
 
 #include "sensor/occlusion.h"
 
@@ -47,6 +48,8 @@ TEST(Occlusion, CarFullyBehindTruckIsOccluded) {
   occ.apply(objs, lanes);
   EXPECT_NEAR(objs[0].visible_fraction, 1.0, 1e-12);
   EXPECT_GT(occ.footprint_cells()[1], 50);  // the car does cover cells...
+  std::cout << "car fully behind the truck: visible fraction " << objs[1].visible_fraction << " of "
+            << occ.footprint_cells()[1] << " cells\n";
   EXPECT_LT(objs[1].visible_fraction, 0.02);  // ...but none are its own (tolerance 0.02)
 }
 
@@ -61,6 +64,8 @@ TEST(Occlusion, CarHalfBehindTruckIsAboutHalfVisible) {
   std::vector<LanePolyline> lanes;
   Occlusion occ;
   occ.apply(objs, lanes);
+  std::cout << "car half behind the truck: visible fraction " << objs[1].visible_fraction << " ("
+            << occ.visible_cells()[1] << " of " << occ.footprint_cells()[1] << " cells)\n";
   EXPECT_NEAR(objs[1].visible_fraction, 0.5, 0.1);
   EXPECT_NEAR(objs[0].visible_fraction, 1.0, 1e-12);
 }
