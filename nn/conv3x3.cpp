@@ -27,6 +27,10 @@ bool conv3x3_available() { return false; }
 void conv3x3_forward(float*, const float*, int, int, int, int, const float*, const float*, int, bool) {}
 void conv3x3_backward(float*, float*, float*, const float*, const float*, const float*, const float*, int, int, int,
                       int, int, bool) {}
+void conv3x3_forward_cat(float*, const float*, int, const float*, int, int, int, int, const float*, const float*, int,
+                         bool) {}
+void conv3x3_backward_cat(float*, float*, float*, float*, const float*, const float*, const float*, int, const float*,
+                          int, const float*, int, int, int, int, bool) {}
 #else
 
 bool conv3x3_available() { return true; }
@@ -67,6 +71,20 @@ struct Geom {
   }
 };
 
+// Channels [a (ca of them), b (cb)] of NCHW buffers seen as one: the UNet's concat without a copy.
+template <typename T>
+struct Cat {
+  T* a;
+  int ca;
+  T* b = nullptr;
+  int cb = 0;
+  int channels() const { return ca + cb; }
+  T* plane(int img, int ch, std::size_t plane_size) const {
+    return ch < ca ? a + (static_cast<std::size_t>(img) * ca + ch) * plane_size
+                   : b + (static_cast<std::size_t>(img) * cb + (ch - ca)) * plane_size;
+  }
+};
+
 // Grow-only, 64-byte aligned scratch.
 struct Buf {
   float* p = nullptr;
@@ -85,16 +103,17 @@ struct Buf {
 
 Buf g_pad_in, g_pad_g, g_wpack, g_sums;
 
-// Copies c planes [h, w] into the padded layout, zero borders and slack included. With mask,
+// Copies the n images' planes [h, w] into the padded layout, zero borders and slack included. With mask,
 // copies src only where mask > 0 (the ReLU backward).
 // With sums, sums[ch] gets the plane's sum (of the masked values), for the bias gradient.
-void pad_planes(float* dst, const float* src, const float* mask, int c, const Geom& g, bool parallel,
+void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int n, const Geom& g, bool parallel,
                 float* sums = nullptr) {
+  const int per_image = src.channels();
 #pragma omp parallel for schedule(static) if (parallel)
-  for (int ch = 0; ch < c; ++ch) {
+  for (int ch = 0; ch < n * per_image; ++ch) {
     float total = 0.f;
     float* d = dst + ch * g.stride;
-    const float* s = src + static_cast<std::size_t>(ch) * g.h * g.w;
+    const float* s = src.plane(ch / per_image, ch % per_image, static_cast<std::size_t>(g.h) * g.w);
     const float* m = mask ? mask + static_cast<std::size_t>(ch) * g.h * g.w : nullptr;
     std::fill(d, d + kFront + g.ws + 1, 0.f);
     d += kFront;
@@ -170,8 +189,9 @@ inline void strip_kernel(float* stage, std::size_t stage_stride, const float* pi
 
 // out [n, out_c, h, w] = conv of padded planes pin [n][in_c] with packed weights. Each task
 // (pixel chunk x output block) stages its tile in L1 and writes it out with bias/ReLU fused.
-void conv_padded(float* out, const float* pin, int n, int in_c, const Geom& g, const float* wpack, const float* bias,
-                 int out_c, bool relu) {
+void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const Geom& g, const float* wpack,
+                 const float* bias, bool relu) {
+  const int out_c = out.channels();
   const int blocks = (out_c + kCB - 1) / kCB;
   const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
   const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;
@@ -197,7 +217,7 @@ void conv_padded(float* out, const float* pin, int n, int in_c, const Geom& g, c
         const int o = b * kCB + j;
         if (o >= out_c) break;
         const float bo = bias ? bias[o] : 0.f;
-        float* op = out + (static_cast<std::size_t>(img) * out_c + o) * oplane;
+        float* op = out.plane(img, o, oplane);
         const float* st = stage + j * kTile;
         for (int r = r_first; r <= r_last; ++r) {
           const int row_q = (r + 1) * g.ws + 1;
@@ -265,23 +285,36 @@ constexpr WgradFn kWgrad[kCB + 1] = {nullptr,        wgrad_task<1>, wgrad_task<2
 
 void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
                      const float* bias, int co, bool relu) {
+  conv3x3_forward_cat(out, in, ci, nullptr, 0, n, h, w, weight, bias, co, relu);
+}
+
+void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
+                         const float* weight, const float* bias, int co, bool relu) {
   const Geom g(h, w);
+  const int ci = ca + cb;
   float* pin = g_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
-  pad_planes(pin, in, nullptr, n * ci, g, par);
+  pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
   float* wp = g_wpack.get(static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9);
   pack_weights(wp, weight, co, ci, false);
-  conv_padded(out, pin, n, ci, g, wp, bias, co, relu);
+  conv_padded(Cat<float>{out, co}, pin, n, ci, g, wp, bias, relu);
 }
 
 void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* d_out, const float* out,
                       const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu) {
+  conv3x3_backward_cat(d_in, nullptr, d_weight, d_bias, d_out, out, in, ci, nullptr, 0, weight, n, h, w, co, relu);
+}
+
+void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias, const float* d_out, const float* out,
+                          const float* a, int ca, const float* b, int cb, const float* weight, int n, int h, int w,
+                          int co, bool relu) {
   const Geom g(h, w);
+  const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
   // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing).
   float* gp = g_pad_g.get(g.stride * co * n);
   float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
-  pad_planes(gp, d_out, relu ? out : nullptr, n * co, g, par, sums);
+  pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
 
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
@@ -293,7 +326,7 @@ void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* 
 
   if (d_weight) {
     float* pin = g_pad_in.get(g.stride * ci * n);
-    pad_planes(pin, in, nullptr, n * ci, g, par);
+    pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
     const int blocks = (co + kCB - 1) / kCB;
     const int q_stop = g.qa + (g.q_end - g.qa + 15) / 16 * 16;
     const bool wpar = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
@@ -321,10 +354,10 @@ void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* 
     }
   }
 
-  if (d_in) {
+  if (d_a) {
     float* wp = g_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
     pack_weights(wp, weight, co, ci, true);
-    conv_padded(d_in, gp, n, co, g, wp, nullptr, ci, false);
+    conv_padded(Cat<float>{d_a, ca, d_b, cb}, gp, n, co, g, wp, nullptr, false);
   }
 }
 

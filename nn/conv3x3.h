@@ -18,4 +18,12 @@ void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, c
 void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* d_out, const float* out,
                       const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu);
 
+// The same over the channel concatenation [a (ca channels), b (cb)] without copying it; the
+// input gradient is split the same way into d_a, d_b (d_b is needed when d_a is given).
+void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
+                         const float* weight, const float* bias, int co, bool relu);
+void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias, const float* d_out, const float* out,
+                          const float* a, int ca, const float* b, int cb, const float* weight, int n, int h, int w,
+                          int co, bool relu);
+
 }  // namespace lidarsim::nn::detail

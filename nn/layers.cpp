@@ -260,6 +260,48 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
   }
 }
 
+namespace {
+void check_cat(const Tensor& a, const Tensor& b, const char* op) {
+  const Shape sa = a.shape(), sb = b.shape();
+  if (sa.n != sb.n || sa.h != sb.h || sa.w != sb.w || a.numel() == 0)
+    throw Error(std::string(op) + ": b: shape " + sb.str() + " does not match a " + sa.str());
+}
+Tensor g_cat, g_dcat;  // the copy-based fallback's buffers
+}  // namespace
+
+void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const float* weight, const float* bias, int co,
+                        bool relu) {
+  check_cat(a, b, "conv2d_cat_forward");
+  const Shape sa = a.shape();
+  if (!detail::conv3x3_available()) {
+    concat_forward(g_cat, a, b);
+    conv2d_forward(out, g_cat, weight, bias, co, 3, 1, relu);
+    return;
+  }
+  ensure(out, Shape{sa.n, co, sa.h, sa.w});
+  detail::conv3x3_forward_cat(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias, co,
+                              relu);
+}
+
+void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bias, const Tensor& d_out,
+                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu) {
+  check_cat(a, b, "conv2d_cat_backward");
+  const Shape sa = a.shape(), sb = b.shape(), so = d_out.shape();
+  if (so.n != sa.n || so.h != sa.h || so.w != sa.w || (relu && !(out.shape() == so)))
+    throw Error("conv2d_cat_backward: d_out: shape " + so.str() + " does not match input " + sa.str());
+  if (!detail::conv3x3_available()) {
+    concat_forward(g_cat, a, b);
+    conv2d_backward(&g_dcat, d_weight, d_bias, d_out, out, g_cat, weight, 3, 1, relu);
+    concat_backward(d_a, d_b, g_dcat, sa.c, false);
+    return;
+  }
+  ensure(d_a, sa);
+  ensure(d_b, sb);
+  detail::conv3x3_backward_cat(d_a.data(), d_b.data(), d_weight, d_bias, d_out.data(), relu ? out.data() : nullptr,
+                               a.data(), sa.c, b.data(), sb.c, weight, sa.n, sa.h, sa.w, so.c, relu);
+  if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
+}
+
 void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co,
                                int out_h, int out_w) {
   check_finite_shape(in, "conv_transpose2x2_forward", "in");

@@ -22,6 +22,14 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
 void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
                      const Tensor& in, const float* weight, int k, int pad, bool relu);
 
+// conv2d (3x3, padding 1) over the channel concat [a, b] without materialising it (the UNet's
+// decoder input). a [N, Ca, H, W], b [N, Cb, H, W], weight [Co, Ca + Cb, 3, 3].
+void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const float* weight, const float* bias, int co,
+                        bool relu);
+// Writes the input gradient split as d_a, d_b.
+void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bias, const Tensor& d_out,
+                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu);
+
 // Transposed conv 2x2, stride 2 (no overlap): in [N, Ci, H, W], weight [Ci, Co, 2, 2], bias [Co]
 //   -> out [N, Co, out_h, out_w] with out_h >= 2H, out_w >= 2W (extra rows/cols are zero: the
 //   UNet's pad-to-skip; they carry no bias and pass no gradient).

@@ -32,10 +32,10 @@ struct UNet::Workspace {
     Tensor a1, a2, pool;
     std::vector<std::int32_t> argmax;
     // Decoder (levels < depth): up [N, c, h, w] (padded transposed conv of the level below),
-    // cat [N, 2c, h, w] = [skip, up], d1, d2 [N, c, h, w].
-    Tensor up, cat, d1, d2;
+    // d1 = relu(conv1([skip, up])) (the concat is never materialised), d2 [N, c, h, w].
+    Tensor up, d1, d2;
     // Gradients of the tensors above, same shapes.
-    Tensor g_a1, g_a2, g_pool, g_up, g_cat, g_d1, g_d2;
+    Tensor g_a1, g_a2, g_pool, g_up, g_d1, g_d2;
   };
   std::vector<Level> levels;
   Tensor x;  // [N, in, H, W] copy of the last forward's input (enc0.conv1's weight gradient)
@@ -178,10 +178,7 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     conv_transpose2x2_forward(L.up, *below, W(ws.up[l].w), W(ws.up[l].b), c, L.h, L.w);
     ws.toc("fwd " + d + ".up");
     ws.tic();
-    concat_forward(L.cat, L.a2, L.up);
-    ws.toc("fwd concat");
-    ws.tic();
-    conv2d_forward(L.d1, L.cat, W(ws.dec1[l].w), W(ws.dec1[l].b), c, 3, 1, true);
+    conv2d_cat_forward(L.d1, L.a2, L.up, W(ws.dec1[l].w), W(ws.dec1[l].b), c, true);  // on [skip, up]
     ws.toc("fwd " + d + ".conv1");
     ws.tic();
     conv2d_forward(L.d2, L.d1, W(ws.dec2[l].w), W(ws.dec2[l].b), c, 3, 1, true);
@@ -222,17 +219,14 @@ void UNet::backward(const Tensor& dy) {
   for (int l = 0; l < depth; ++l) {
     auto& L = ws.levels[l];
     auto& B = ws.levels[l + 1];
-    const int c = channels(config_, l);
     const std::string d = "dec" + std::to_string(l);
     ws.tic();
     conv2d_backward(&L.g_d1, G(ws.dec2[l].w), G(ws.dec2[l].b), L.g_d2, L.d2, L.d1, W(ws.dec2[l].w), 3, 1, true);
     ws.toc("bwd " + d + ".conv2");
     ws.tic();
-    conv2d_backward(&L.g_cat, G(ws.dec1[l].w), G(ws.dec1[l].b), L.g_d1, L.d1, L.cat, W(ws.dec1[l].w), 3, 1, true);
+    conv2d_cat_backward(L.g_a2, L.g_up, G(ws.dec1[l].w), G(ws.dec1[l].b), L.g_d1, L.d1, L.a2, L.up, W(ws.dec1[l].w),
+                        true);
     ws.toc("bwd " + d + ".conv1");
-    ws.tic();
-    concat_backward(L.g_a2, L.g_up, L.g_cat, c, false);
-    ws.toc("bwd concat");
     const bool bottom = l + 1 == depth;
     ws.tic();
     conv_transpose2x2_backward(bottom ? B.g_a2 : B.g_d2, G(ws.up[l].w), G(ws.up[l].b), L.g_up,

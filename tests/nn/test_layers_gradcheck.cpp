@@ -224,3 +224,32 @@ TEST(GradCheckCatchesFaults, WrongIndexInConcatGradient) {
 
 }  // namespace
 }  // namespace lidarsim::nn
+
+namespace lidarsim::nn {
+namespace {
+
+// The decoder's conv over [skip, up] without a concat copy equals concat + conv2d, both ways.
+TEST(Conv2dCat, MatchesConcatThenConvForwardAndBackward) {
+  const Tensor a = reference::random_tensor(Shape{2, 3, 7, 9}, 51), b = reference::random_tensor(Shape{2, 2, 7, 9}, 52);
+  const std::vector<float> w = reference::random_vector(4 * 5 * 9, 53, 0.5f), bias = reference::random_vector(4, 54);
+  Tensor cat, y_ref, y;
+  concat_forward(cat, a, b);
+  conv2d_forward(y_ref, cat, w.data(), bias.data(), 4, 3, 1, true);
+  conv2d_cat_forward(y, a, b, w.data(), bias.data(), 4, true);
+  ASSERT_EQ(y.shape(), y_ref.shape());
+  for (std::size_t i = 0; i < y.numel(); ++i) ASSERT_NEAR(y.data()[i], y_ref.data()[i], 1e-6f);
+
+  const Tensor dy = reference::random_tensor(y.shape(), 55);
+  Tensor d_cat, d_a_ref, d_b_ref, d_a, d_b;
+  std::vector<float> dw_ref(w.size()), db_ref(4), dw(w.size()), db(4);
+  conv2d_backward(&d_cat, dw_ref.data(), db_ref.data(), dy, y_ref, cat, w.data(), 3, 1, true);
+  concat_backward(d_a_ref, d_b_ref, d_cat, 3, false);
+  conv2d_cat_backward(d_a, d_b, dw.data(), db.data(), dy, y, a, b, w.data(), true);
+  for (std::size_t i = 0; i < d_a.numel(); ++i) ASSERT_NEAR(d_a.data()[i], d_a_ref.data()[i], 1e-5f);
+  for (std::size_t i = 0; i < d_b.numel(); ++i) ASSERT_NEAR(d_b.data()[i], d_b_ref.data()[i], 1e-5f);
+  for (std::size_t i = 0; i < dw.size(); ++i) ASSERT_NEAR(dw[i], dw_ref[i], 1e-5f);
+  for (std::size_t i = 0; i < db.size(); ++i) ASSERT_NEAR(db[i], db_ref[i], 1e-5f);
+}
+
+}  // namespace
+}  // namespace lidarsim::nn
