@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <map>
 #include <random>
 #include <vector>
@@ -44,15 +45,26 @@ struct UNet::Workspace {
   std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
   ConvIds head;
 
-  // LIDARSIM_PROFILE=1: wall time per layer and pass, printed to stderr when the model goes.
-  bool profile = std::getenv("LIDARSIM_PROFILE") != nullptr;
+  // LIDARSIM_PROFILE=1: wall time per layer and pass, printed to stderr when the model goes;
+  // LIDARSIM_PROFILE=cpu: process CPU time instead (steadier on a loaded machine, one thread).
+  const char* profile_env = std::getenv("LIDARSIM_PROFILE");
+  bool profile = profile_env != nullptr;
+  bool profile_cpu = profile && std::string(profile_env) == "cpu";
   std::map<std::string, double> seconds;
-  std::chrono::steady_clock::time_point t0;
+  double t0 = 0;
+  double now() const {
+    if (profile_cpu) {
+      timespec t;
+      clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+      return t.tv_sec + 1e-9 * t.tv_nsec;
+    }
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  }
   void tic() {
-    if (profile) t0 = std::chrono::steady_clock::now();
+    if (profile) t0 = now();
   }
   void toc(const std::string& what) {
-    if (profile) seconds[what] += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (profile) seconds[what] += now() - t0;
   }
   ~Workspace() {
     if (!profile || seconds.empty()) return;
