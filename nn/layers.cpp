@@ -9,6 +9,10 @@
 
 #include <omp.h>
 
+#ifdef __AVX512F__
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -429,7 +433,34 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
     for (int y = 0; y < ho; ++y) {
       const float* r0 = src + static_cast<std::size_t>(2 * y) * s.w;
       const float* r1 = r0 + s.w;
-      for (int x = 0; x < wo; ++x) {
+      int x = 0;
+#ifdef __AVX512F__
+      // 16 windows at a time: split even/odd columns, then the same ordered comparisons.
+      const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+      const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+      for (; x + 16 <= wo; x += 16) {
+        const __m512 a0 = _mm512_loadu_ps(r0 + 2 * x), a1 = _mm512_loadu_ps(r0 + 2 * x + 16);
+        const __m512 b0 = _mm512_loadu_ps(r1 + 2 * x), b1 = _mm512_loadu_ps(r1 + 2 * x + 16);
+        __m512 v = _mm512_permutex2var_ps(a0, even, a1);
+        __m512i idx = _mm512_add_epi32(_mm512_set1_epi32(2 * y * s.w + 2 * x), even);
+        const __m512 c1 = _mm512_permutex2var_ps(a0, odd, a1);
+        const __m512 c2 = _mm512_permutex2var_ps(b0, even, b1);
+        const __m512 c3 = _mm512_permutex2var_ps(b0, odd, b1);
+        __mmask16 m = _mm512_cmp_ps_mask(c1, v, _CMP_GT_OQ);
+        v = _mm512_mask_blend_ps(m, v, c1);
+        idx = _mm512_mask_add_epi32(idx, m, idx, _mm512_set1_epi32(1));
+        m = _mm512_cmp_ps_mask(c2, v, _CMP_GT_OQ);
+        v = _mm512_mask_blend_ps(m, v, c2);
+        const __m512i i2 = _mm512_add_epi32(_mm512_set1_epi32((2 * y + 1) * s.w + 2 * x), even);
+        idx = _mm512_mask_blend_epi32(m, idx, i2);
+        m = _mm512_cmp_ps_mask(c3, v, _CMP_GT_OQ);
+        v = _mm512_mask_blend_ps(m, v, c3);
+        idx = _mm512_mask_blend_epi32(m, idx, _mm512_add_epi32(i2, _mm512_set1_epi32(1)));
+        _mm512_storeu_ps(dst + y * wo + x, v);
+        _mm512_storeu_si512(am + y * wo + x, idx);
+      }
+#endif
+      for (; x < wo; ++x) {
         // Row order, first wins on ties (NaN never wins: comparisons with NaN are false).
         int best = 2 * y * s.w + 2 * x;
         float v = r0[2 * x];

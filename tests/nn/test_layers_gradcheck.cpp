@@ -253,3 +253,28 @@ TEST(Conv2dCat, MatchesConcatThenConvForwardAndBackward) {
 
 }  // namespace
 }  // namespace lidarsim::nn
+
+namespace lidarsim::nn {
+namespace {
+
+// Wide rows take the vectorised path (16 windows at a time) and the scalar tail; both must pick
+// the first maximum in row order, also on ties.
+TEST(MaxPool, VectorisedRowsAgreeWithTheReferenceIncludingTies) {
+  Tensor x = reference::random_tensor(Shape{1, 2, 4, 70}, 61);
+  for (int i = 0; i < 70; i += 3) x.at(0, 1, 0, i) = x.at(0, 1, 1, i) = 2.f;  // ties across rows
+  Tensor y;
+  std::vector<std::int32_t> am;
+  max_pool2x2_forward(y, am, x);
+  for (int c = 0; c < 2; ++c)
+    for (int yy = 0; yy < 2; ++yy)
+      for (int xx = 0; xx < 35; ++xx) {
+        int best = 2 * yy * 70 + 2 * xx;
+        for (int k : {2 * yy * 70 + 2 * xx + 1, (2 * yy + 1) * 70 + 2 * xx, (2 * yy + 1) * 70 + 2 * xx + 1})
+          if (x.channel(0, c)[k] > x.channel(0, c)[best]) best = k;
+        ASSERT_EQ(am[(c * 2 + yy) * 35 + xx], best) << c << " " << yy << " " << xx;
+        ASSERT_EQ(y.at(0, c, yy, xx), x.channel(0, c)[best]);
+      }
+}
+
+}  // namespace
+}  // namespace lidarsim::nn
