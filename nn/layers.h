@@ -4,7 +4,11 @@
 // parameter gradients. Shapes in comments: N batch, C/Ci/Co channels, H/W height/width.
 // Output tensors are reshaped when their shape differs (that allocates only when they grow).
 // Parallel with OpenMP; reductions over pixels go through per-thread partials summed in thread
-// order, so a fixed thread count gives bit-identical results.
+// order, so a fixed thread count gives bit-identical results. The ops share grow-only scratch
+// buffers (no allocation in steady state), so one process runs one op at a time: do not call
+// them from several threads at once (parallelism lives inside each op).
+// 3x3/padding-1 convolutions take a direct AVX-512 kernel (nn/conv3x3.h) when compiled for it;
+// everything else goes through im2col + Eigen GEMM.
 #include <cstdint>
 #include <vector>
 
