@@ -145,11 +145,11 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
             across += lag.dot(left);
             break;
           }
-          case ObjectEffect::TruncationSize: sz.x() -= 2.0 * t.truncated; break;
+          case ObjectEffect::TruncationSize: sz.x() -= 0.45 * t.truncated * t.size.x(); break;
           case ObjectEffect::AspectAcross: {
             double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
             if (rel > kPi / 2) rel = kPi - rel;
-            across += 0.8 * (rel / (kPi / 2)) - 0.4;
+            across += 1.2 * (rel / (kPi / 2)) - 0.6;
             break;
           }
           case ObjectEffect::None: break;

@@ -10,7 +10,7 @@
 // a constant detection probability, a few false positives per frame, plus the effect:
 //   velocity_lag      position error = -lag * velocity (a latency): along the line of sight
 //                     -lag * radial velocity
-//   truncation_size   length error = -gain * truncation (a truncated box is measured short)
+//   truncation_size   length error = -0.45 * truncation * length (a truncated box is measured short)
 //   aspect_across     across error grows with the heading relative to the line of sight
 // Intensity (SemanticKITTI layout): DIR/sequences/00/velodyne/NNNNNN.bin + labels/NNNNNN.label.
 // A 64-beam HDL-64E-like scan in firing order (ring by ring, azimuth rising from -pi to pi) of a
@@ -39,7 +39,7 @@ struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;
   int sequences = 2;
   int frames = 200;
-  int tracks = 14;          // per sequence
+  int tracks = 24;          // per sequence
   double noise = 0.1;       // m (positions), size noise = noise / 2, heading noise = noise / 5 rad
   double detection_probability = 0.95;
   double false_positives = 0.2;  // per frame

@@ -94,11 +94,12 @@ IntensityCells intensity_cells(const data::Dataset& ds) {
       for (int col = 0; col < W; ++col) {
         if (!has(r, col)) continue;
         const double range = ch(ir, r, col);
+        // An occlusion edge: the left or right neighbour in the same row lies > 10 % nearer or
+        // farther. Rows are not compared: on the ground adjacent beams are metres apart at range,
+        // which would make this a second incidence estimate rather than an edge flag.
         double jump = 0;
-        const int nb[4][2] = {{r - 1, col}, {r + 1, col}, {r, (col + W - 1) % W}, {r, (col + 1) % W}};
-        for (const auto& q : nb)
-          if (q[0] >= 0 && q[0] < H && has(q[0], q[1]))
-            jump = std::max(jump, std::abs(ch(ir, q[0], q[1]) - range) / std::max(range, 1e-3));
+        for (int q : {(col + W - 1) % W, (col + 1) % W})
+          if (has(r, q) && std::abs(ch(ir, r, q) - range) > 0.1 * std::max(range, 1e-3)) jump = 1;
         c.measured.push_back(T[(static_cast<size_t>(n) * H + r) * W + col]);
         c.frame.push_back(n);
         c.sector.push_back(split.sector_of(col, W));

@@ -14,7 +14,8 @@
 //   azimuth               atan2(y, x) (pgm "azimuth"), rad
 //   height                z in the sensor frame, m
 //   class, material       ids (pgm/materials.h)
-//   depth_discontinuity   largest relative range jump to the 4 neighbouring cells, |dr| / r
+//   depth_discontinuity   1 next to an occlusion edge (left or right neighbour in the row more
+//                         than 10 % nearer or farther), else 0
 // The base model of the loop is the class x range-bin lookup (data/baselines.h's definition:
 // 5 m bins), so range, class and material are the features it already uses.
 #include <filesystem>

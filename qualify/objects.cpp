@@ -58,6 +58,64 @@ double rms(const std::vector<double>& v) {
   return v.empty() ? 0 : std::sqrt(s / v.size());
 }
 
+// The conditional term: a bias table on the feature per class (the KPI model is per class),
+// the pooled table for classes with fewer than 200 fit samples.
+struct ClassTables {
+  BinnedTable pooled;
+  std::array<BinnedTable, 3> per_class;
+  std::array<bool, 3> own{false, false, false};
+  double operator()(int cls, double x) const { return cls >= 0 && cls < 3 && own[cls] ? per_class[cls](x) : pooled(x); }
+};
+
+ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                             int bins) {
+  ClassTables t;
+  t.pooled = fit_binned_mean(x, r, bins);
+  for (int c = 0; c < 3; ++c) {
+    std::vector<double> xc, rc;
+    for (size_t i = 0; i < x.size(); ++i)
+      if (cls[i] == c) xc.push_back(x[i]), rc.push_back(r[i]);
+    if (xc.size() >= 200) t.per_class[c] = fit_binned_mean(xc, rc, bins), t.own[c] = true;
+  }
+  return t;
+}
+
+// The added conditional term refitted together with the model's own range-bin means
+// (backfitting): on the fit split the range-bin means have absorbed whatever part of the hidden
+// effect correlates with range, so the table alone would be fitted against a distorted
+// residual. r ~ d[class][range bin] + table(class, feature), alternating 4 passes.
+struct Refit {
+  ClassTables table;
+  std::map<std::pair<int, int>, double> d;
+  double operator()(int cls, int rb, double x) const {
+    const auto it = d.find({cls, rb});
+    return (it == d.end() ? 0.0 : it->second) + table(cls, x);
+  }
+};
+
+Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+              const std::vector<int>& rb, int bins) {
+  Refit f;
+  std::vector<double> y(r.size());
+  for (int pass = 0; pass < 4; ++pass) {
+    for (size_t i = 0; i < r.size(); ++i) {
+      const auto it = f.d.find({cls[i], rb[i]});
+      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
+    }
+    f.table = fit_class_tables(x, y, cls, bins);
+    std::map<std::pair<int, int>, std::pair<double, long>> acc;
+    for (size_t i = 0; i < r.size(); ++i) {
+      auto& a = acc[{cls[i], rb[i]}];
+      a.first += r[i] - f.table(cls[i], x[i]);
+      ++a.second;
+    }
+    f.d.clear();
+    for (const auto& [k, a] : acc)
+      if (a.second >= 20) f.d[k] = a.first / a.second;
+  }
+  return f;
+}
+
 }  // namespace
 
 TrackingData load_tracking(const fs::path& dir, const std::string& seqmap, const std::string& detector,
@@ -445,6 +503,16 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (size_t i = 0; i < x.size(); ++i) x[i] = s.rec[i]->feature[f];
     return x;
   };
+  auto classes = [](const Split& s) {
+    std::vector<int> c(s.rec.size());
+    for (size_t i = 0; i < c.size(); ++i) c[i] = s.rec[i]->cls;
+    return c;
+  };
+  auto range_bins = [](const Split& s) {
+    std::vector<int> c(s.rec.size());
+    for (size_t i = 0; i < c.size(); ++i) c[i] = s.rec[i]->range_bin;
+    return c;
+  };
   auto clipped = [](const Split& s, const Winsor& w) {
     std::vector<double> r(s.r.size());
     for (size_t i = 0; i < r.size(); ++i) r[i] = w(s.r[i]);
@@ -458,8 +526,16 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (int t = 0; t < kObjectTargetCount; ++t) {
       if (fit_r[t].r.size() < 20 || held_r[t].r.size() < 20) continue;
       const auto rf = clipped(fit_r[t], win[t]), rh = clipped(held_r[t], win[t]);
-      const BinnedTable tab = fit_binned_mean(column(fit_r[t], f), rf, options.bins);
-      const double score = held_out_r2(tab, column(held_r[t], f), rh, mean_of(rf));
+      const Refit ref = backfit(column(fit_r[t], f), rf, classes(fit_r[t]), range_bins(fit_r[t]), options.bins);
+      const auto xh = column(held_r[t], f);
+      const auto ch = classes(held_r[t]), bh = range_bins(held_r[t]);
+      const double m = mean_of(rf);
+      double sse = 0, sst = 0;
+      for (size_t i = 0; i < rh.size(); ++i) {
+        sse += std::pow(rh[i] - ref(ch[i], bh[i], xh[i]), 2);
+        sst += std::pow(rh[i] - m, 2);
+      }
+      const double score = sst > 0 ? 1 - sse / sst : 0;
       matrix[kObjectFeatures[f]][kObjectTargets[t]] = score;
       if (score > best.score) best = {kObjectFeatures[f], score, kObjectTargets[t]};
     }
@@ -474,15 +550,18 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   const int t = static_cast<int>(std::find(kObjectTargets.begin(), kObjectTargets.end(), top.target) -
                                  kObjectTargets.begin());
   const int f = feature_index(top.feature);
-  const BinnedTable tab = fit_binned_mean(column(fit_r[t], f), clipped(fit_r[t], win[t]), options.bins);
+  const Refit ref =
+      backfit(column(fit_r[t], f), clipped(fit_r[t], win[t]), classes(fit_r[t]), range_bins(fit_r[t]), options.bins);
+  const ClassTables& tab = ref.table;
   const bool add = top.score >= options.threshold;
   std::vector<double> after_r = held_r[t].r;
   const auto xh = column(held_r[t], f);
+  const auto ch = classes(held_r[t]), bh = range_bins(held_r[t]);
   if (add)
-    for (size_t i = 0; i < after_r.size(); ++i) after_r[i] -= tab(xh[i]);
+    for (size_t i = 0; i < after_r.size(); ++i) after_r[i] -= ref(ch[i], bh[i], xh[i]);
   if (!options.plots_dir.empty()) {
     fs::create_directories(options.plots_dir);
-    write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab, xh,
+    write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab.pooled, xh,
                        held_r[t].r);
   }
 
@@ -502,12 +581,20 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   j["added_effect"] = add ? nlohmann::json(top.feature) : nlohmann::json(nullptr);
   j["threshold"] = options.threshold;
   j["score_definition"] =
-      "held-out R^2 of a binned-mean table (10 quantile bins of the feature on the fit split, shrunk by n/(n+5)) "
-      "of the residual, residuals winsorised at the fit split's 1st/99th percentile; best of the targets";
+      "held-out R^2 of the residual (measured - base model) explained by adding a per-class binned-mean table on "
+      "the feature (10 equal-count bins on the fit split, shrunk by n/(n+5); pooled for classes with < 200 "
+      "samples) refitted together with per-class range-bin offsets (4 backfitting passes) on the fit split; "
+      "residuals winsorised at the fit split's 1st/99th percentile; best of the targets";
   j["scores"] = matrix;
-  if (add)
-    j["effect"] = {{"feature", top.feature}, {"target", top.target}, {"kind", "per-bin bias table"},
-                   {"edges", tab.edges}, {"bias", tab.value}};
+  if (add) {
+    nlohmann::json e = {{"feature", top.feature}, {"target", top.target},
+                        {"kind", "per-class per-bin bias table (pooled for classes with < 200 fit samples), refitted jointly "
+                         "with per-class range-bin offsets"},
+                        {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
+    for (int c = 0; c < 3; ++c)
+      if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+    j["effect"] = e;
+  }
   std::vector<std::string> fn, hn;
   for (int s : fit_idx) fn.push_back(data.names[s]);
   for (int s : held_idx) hn.push_back(data.names[s]);

@@ -95,9 +95,9 @@ struct LoopOptions {
 
 // `lidar-qualify loop objects`: base model fitted on the fit split (even-indexed sequences),
 // residuals (measured error - model's conditional mean; detected - detection probability) on
-// the held-out split (odd-indexed), features ranked by held-out R^2 of a binned-mean table
-// fitted on the fit split (best target per feature), the top one added as a per-bin bias table
-// on that target, and the held-out RMS residual of that target before and after.
+// the held-out split (odd-indexed), features ranked by held-out R^2 of a per-class binned-mean
+// table fitted on the fit split (best target per feature), the top one added as a per-class
+// per-bin bias table on that target (the conditional term), and the held-out RMS residual of that target before and after.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify

@@ -8,13 +8,20 @@ namespace lidarsim::qualify {
 namespace {
 
 std::vector<double> quantile_edges(std::vector<double> x, int bins) {
+  // Equal-count bins that respect ties: a value holding a large share (the ground's height, a
+  // discrete feature) gets one bin and the remaining bins are spread over the rest of the data.
   std::vector<double> edges;
   if (x.empty() || bins < 2) return edges;
   std::sort(x.begin(), x.end());
-  for (int k = 1; k < bins; ++k) {
-    const double e = x[static_cast<size_t>(double(k) / bins * (x.size() - 1))];
-    // A cut at the minimum would leave an empty first bin; equal cuts collapse.
-    if (e > x.front() && (edges.empty() || e > edges.back())) edges.push_back(e);
+  const size_t n = x.size();
+  size_t i = 0;
+  for (int left = bins; left > 1 && i < n; --left) {
+    size_t j = i + std::max<size_t>(1, (n - i) / left);
+    if (j >= n) break;
+    if (x[j] <= x[i]) j = std::upper_bound(x.begin() + i, x.end(), x[i]) - x.begin();
+    if (j >= n) break;
+    edges.push_back(x[j]);
+    i = std::lower_bound(x.begin() + i, x.end(), x[j]) - x.begin();
   }
   return edges;
 }

@@ -1,8 +1,8 @@
 #pragma once
 // Residual analysis shared by both domains: how much of a residual one candidate feature
 // explains, measured honestly on data the fit never saw.
-//   - BinnedTable: the residual's mean per bin of the feature (bins at quantiles of the fit
-//     split, so discrete features get one bin per value), shrunk towards 0 in thin bins;
+//   - BinnedTable: the residual's mean per bin of the feature (equal-count bins on the fit split
+//     that respect ties, so a heavily repeated value gets its own bin), shrunk towards 0 in thin bins;
 //   - held_out_r2: 1 - SSE(residual - table) / SSE(residual - fit mean) on the held-out split,
 //     i.e. the share of the held-out residual variance (beyond a constant) the table explains.
 //     Negative when the table only fits noise of the fit split.
@@ -22,7 +22,7 @@ struct BinnedTable {
   double operator()(double x) const { return value[bin(x)]; }
 };
 
-// Bins at `bins` quantiles of x (unique cut points), mean of r per bin shrunk by n / (n + shrink).
+// Up to `bins` equal-count bins of x (ties kept together), mean of r per bin shrunk by n / (n + shrink).
 BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins = 10,
                             double shrink = 5);
 // Multiplicative variant for intensity: per bin the least-squares gain g with measured ~ g * base.

@@ -1,0 +1,97 @@
+// Similarity measures on cases worked out by hand, and the residual table/R^2 they rank with.
+#include <gtest/gtest.h>
+
+#include <vector>
+
+#include "qualify/residual.h"
+#include "qualify/similarity.h"
+
+using namespace lidarsim::qualify;
+
+TEST(Similarity, IdenticalSamplesIntersectFully) {
+  const std::vector<double> a = {0.1, 0.5, 0.7, 2.0, 3.5};
+  EXPECT_NEAR(histogram_intersection(a, a), 1.0, 1e-12);
+}
+
+TEST(Similarity, DisjointSamplesDoNotIntersect) {
+  EXPECT_NEAR(histogram_intersection({0, 0.1, 0.2}, {100, 101, 102}), 0.0, 1e-12);
+}
+
+TEST(Similarity, HalfTheMassSharedGivesOneHalf) {
+  // a: half at 0, half at 1; b: all at 0 -> min(0.5, 1) + min(0.5, 0) = 0.5.
+  EXPECT_NEAR(histogram_intersection({0, 0, 1, 1}, {0, 0, 0, 0}), 0.5, 1e-12);
+}
+
+TEST(Similarity, IntersectionIsSymmetricOnSharedBins) {
+  const std::vector<double> a = {0, 1, 2, 3, 4, 5}, b = {2, 2.5, 3, 9};
+  EXPECT_NEAR(histogram_intersection(a, b), histogram_intersection(b, a), 1e-12);
+}
+
+TEST(Similarity, KsIsTheLargestCdfGap) {
+  // F_a - F_b at x = 1: 1/3 - 0; at 2: 2/3 - 1/3; at 3: 1 - 2/3.
+  EXPECT_NEAR(ks_statistic({1, 2, 3}, {2, 3, 4}), 1.0 / 3, 1e-12);
+  EXPECT_NEAR(ks_statistic({0, 0}, {5, 6}), 1.0, 1e-12);
+  EXPECT_NEAR(ks_statistic({1, 2}, {2, 1}), 0.0, 1e-12);
+}
+
+TEST(Similarity, WassersteinIsTheShiftForShiftedSamples) {
+  EXPECT_NEAR(wasserstein1({0, 1}, {1, 2}), 1.0, 1e-12);
+  EXPECT_NEAR(wasserstein1({0}, {3}), 3.0, 1e-12);
+  // {0, 2} vs {1}: |F_a - F_b| = 1/2 on [0, 1) and 1/2 on [1, 2) -> 1.
+  EXPECT_NEAR(wasserstein1({0, 2}, {1}), 1.0, 1e-12);
+}
+
+TEST(Similarity, CeilingOfOneDistributionSplitByGroupIsNearOneAndOfTwoIsLow) {
+  SplitMix rng(3);
+  std::vector<std::vector<double>> same(4), diff(4);
+  for (int g = 0; g < 4; ++g)
+    for (int i = 0; i < 5000; ++i) {
+      same[g].push_back(rng.normal());
+      diff[g].push_back(rng.normal() + (g % 2 ? 10 : 0));
+    }
+  EXPECT_GT(real_vs_real_ceiling(same), 0.9);  // 20000 samples, 42 bins: sampling noise ~0.03
+  EXPECT_LT(real_vs_real_ceiling(diff), 0.05);
+  EXPECT_EQ(real_vs_real_ceiling({{1, 2, 3}}), -1);  // one group: no second half
+}
+
+TEST(Similarity, BootstrapIntervalIsReproducibleAndBracketsTheEstimate) {
+  SplitMix rng(5);
+  std::vector<double> a, b;
+  for (int i = 0; i < 2000; ++i) a.push_back(rng.normal()), b.push_back(rng.normal() * 1.3);
+  const Interval i1 = bootstrap_intersection(a, b, 40, 200, 11), i2 = bootstrap_intersection(a, b, 40, 200, 11);
+  EXPECT_EQ(i1.lo, i2.lo);
+  EXPECT_EQ(i1.hi, i2.hi);
+  const double est = histogram_intersection(a, b);
+  EXPECT_LE(i1.lo, est);
+  EXPECT_GE(i1.hi, est);
+  EXPECT_LT(i1.hi - i1.lo, 0.1);
+}
+
+TEST(Residual, BinnedTableRecoversAStepAndScoresItOnHeldOutData) {
+  std::vector<double> x, r;
+  for (int i = 0; i < 100; ++i) x.push_back(i), r.push_back(i < 50 ? -1 : 1);  // cut lands at 50
+  const BinnedTable t = fit_binned_mean(x, r, 2, 0);
+  ASSERT_EQ(t.value.size(), 2u);
+  EXPECT_NEAR(t(10), -1, 1e-12);
+  EXPECT_NEAR(t(90), 1, 1e-12);
+  EXPECT_NEAR(held_out_r2(t, {5, 95}, {-1, 1}, 0.0), 1.0, 1e-12);
+  // A feature unrelated to the residual explains nothing (R^2 <= 0 on the held-out points).
+  EXPECT_LE(held_out_r2(t, {5, 95}, {1, -1}, 0.0), 0.0);
+}
+
+TEST(Residual, GainTableRecoversAMultiplicativeFactorPerBin) {
+  std::vector<double> x, m, b;
+  for (int i = 0; i < 100; ++i) x.push_back(i), b.push_back(0.5), m.push_back(i < 50 ? 0.25 : 1.0);  // cut at 50
+  const BinnedTable g = fit_binned_gain(x, m, b, 2, 0);
+  EXPECT_NEAR(g(0), 0.5, 1e-12);
+  EXPECT_NEAR(g(99), 2.0, 1e-12);
+}
+
+TEST(Residual, TiedValuesKeepOneBinAndTheRestSpreadOverTheOthers) {
+  // 80 values tied at -1.73 (the ground), 20 distinct above: the tie gets one bin, not 8 of 10.
+  std::vector<double> x(80, -1.73), r(100, 0.0);
+  for (int i = 0; i < 20; ++i) x.push_back(i * 0.1);
+  const BinnedTable t = fit_binned_mean(x, r, 10, 0);
+  EXPECT_EQ(t.bin(-1.73), 0);
+  EXPECT_GE(t.value.size(), 8u);
+}
