@@ -40,7 +40,10 @@ namespace {
 constexpr int kCB = 8;            // output channels per register block
 constexpr int kNV = 3;            // 16-float vectors per strip
 constexpr int kStrip = 16 * kNV;  // pixels per strip
-constexpr int kChunkStrips = 8;   // strips per forward task (its staging tile stays in L1)
+#ifndef LIDARSIM_CHUNK_STRIPS
+#define LIDARSIM_CHUNK_STRIPS 8
+#endif
+constexpr int kChunkStrips = LIDARSIM_CHUNK_STRIPS;  // strips per forward task (its staging tile stays in L1)
 #ifndef LIDARSIM_WG_CHUNK
 #define LIDARSIM_WG_CHUNK 2048
 #endif
