@@ -14,11 +14,13 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cxxopts.hpp>
 #include <filesystem>
 #include <numbers>
 #include <random>
 #include <string>
+#include <time.h>
 #include <unistd.h>
 #include <vector>
 
@@ -42,7 +44,7 @@ double median(std::vector<double> v) {
 }
 
 // --objects (100) around an ego driving at 10 m/s: each object circles the ego at its own radius
-// (6 to 60 m) and angular speed while travelling with it, so all stay in view for any duration,
+// (6 to 60 m, uniform density over that ring) and angular speed while travelling with it, so all stay in view for any duration,
 // overtake each other and hide each other. Keyframes every second carry the exact position,
 // velocity and acceleration of that motion (the reader's quintic Hermite follows it closely).
 sensor::Scenario synthetic_scenario(int n, double duration, const sensor::Scenario& base) {
@@ -81,7 +83,8 @@ sensor::Scenario synthetic_scenario(int n, double duration, const sensor::Scenar
              : o.cls == sensor::ObjectClass::Pedestrian ? Eigen::Vector3d(0.6, 0.6, 1.8)
                                                          : Eigen::Vector3d(1.8, 0.6, 1.7);
     o.material = sensor::default_material(o.cls);
-    const double r = 6 + 54 * u(rng), phase = 2 * std::numbers::pi * u(rng);
+    // Uniform density over the ring 6..60 m (a crowd, not a cluster at the sensor).
+    const double r = std::sqrt(36 + (3600 - 36) * u(rng)), phase = 2 * std::numbers::pi * u(rng);
     const double w = (u(rng) < 0.5 ? -1 : 1) * (0.02 + 0.1 * u(rng));  // rad/s
     const double z = o.size.z() / 2;
     for (int k = 0; k < keyframes; ++k) {
@@ -102,16 +105,25 @@ struct RunResult {
   std::array<double, infer::kNumSimStages> stage_ms{};
   double ms_per_frame = 0;
   double objects_in_view = 0, reported = 0, points = 0;
+  double cpu_ms_per_frame = 0;  // process CPU time (all threads): what the run cost without waiting for a core
 };
+
+double process_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
 
 RunResult run_once(infer::SimPipeline& pipeline, int frames) {
   infer::SimFrame frame;
   infer::SimStats stats;
+  const double cpu0 = process_cpu_seconds();
   for (int k = 0; k < frames; ++k) {
     pipeline.run_frame(k, frame);
     stats.add(frame);
   }
   RunResult r;
+  r.cpu_ms_per_frame = 1000 * (process_cpu_seconds() - cpu0) / frames;
   r.ms_per_frame = stats.mean_total_ms();
   r.fps = 1000.0 / r.ms_per_frame;
   for (int s = 0; s < infer::kNumSimStages; ++s) r.stage_ms[s] = stats.mean_ms(s);
@@ -207,6 +219,11 @@ int main(int argc, char** argv) {
                 whole_median, whole_best, 1000 / whole_median, whole.front().objects_in_view, whole.front().reported,
                 whole.front().points);
     print_stages(whole, true);
+    std::vector<double> cpu_whole;
+    for (const auto& r : whole) cpu_whole.push_back(r.cpu_ms_per_frame);
+    const double whole_cpu = median(cpu_whole);
+    std::printf("  process CPU time %.1f ms/frame over all threads (>= %.1f ms/frame of wall time on %d free cores)\n",
+                whole_cpu, whole_cpu / threads, threads);
 
     // 2. Object-level model alone.
     const int n = args["objects"].as<int>(), object_frames = args["object-frames"].as<int>();
@@ -228,12 +245,23 @@ int main(int argc, char** argv) {
     std::printf("  %.0f frames/s median (best %.0f), %.3f ms/frame; %.1f objects in view, %.1f reported per frame\n",
                 obj_median, obj_best, 1000 / obj_median, objects.front().objects_in_view, objects.front().reported);
     print_stages(objects, false);
+    std::vector<double> cpu_objects;
+    for (const auto& r : objects) cpu_objects.push_back(r.cpu_ms_per_frame);
+    const double obj_cpu = median(cpu_objects);
+    std::printf("  process CPU time %.3f ms/frame (the object-level model is serial: %.0f frames/s on a free core)\n", obj_cpu,
+                1000 / obj_cpu);
+    double load[3] = {0, 0, 0};
+    if (getloadavg(load, 3) < 0) load[0] = -1;
 
-    std::printf("\n| measurement | frames/s (median of %d) | target | met |\n|---|---:|---:|---|\n", runs);
-    std::printf("| whole pipeline, %d threads, unet-ref, 64 x 1024 | %.1f | >= 10 | %s |\n", threads, whole_median,
-                whole_median >= 10 ? "yes" : "NO");
-    std::printf("| object-level model, %d objects | %.0f | >= 1000 | %s |\n", n, obj_median,
+    // Wall-clock rates are what a rig sees; on a shared machine they include waiting for a core,
+    // so the CPU-time bound is printed next to them (load average at the end of the run).
+    std::printf("\n| measurement | frames/s (wall, median of %d) | frames/s bound from CPU time | target | met (wall) |\n"
+                "|---|---:|---:|---:|---|\n", runs);
+    std::printf("| whole pipeline, %d threads, unet-ref, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |\n", threads,
+                whole_median, 1000 * threads / whole_cpu, whole_median >= 10 ? "yes" : "NO");
+    std::printf("| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |\n", n, obj_median, 1000 / obj_cpu,
                 obj_median >= 1000 ? "yes" : "NO");
+    std::printf("load average %.2f (1 min) on %ld online CPUs\n", load[0], sysconf(_SC_NPROCESSORS_ONLN));
     if (!temp.empty()) fs::remove(temp);
     return 0;
   } catch (const std::exception& e) {
