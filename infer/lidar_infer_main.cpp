@@ -129,6 +129,10 @@ int run_sim(int argc, char** argv) {
 
   const auto wall0 = std::chrono::steady_clock::now();
   infer::SimPipeline pipeline = infer::SimPipeline::from_files(scenario, kpi, model, sim_options);
+  if (const auto* m = pipeline.intensity_model(); m && !(m->layout() == pipeline.scenario().sensor.beams.layout()))
+    std::fprintf(stderr, "warning: %s was trained for the beam layout '%s', the scenario's sensor is '%s' (%d rows)\n",
+                 model.string().c_str(), m->layout().name.c_str(), pipeline.scenario().sensor.beams.layout().name.c_str(),
+                 pipeline.scenario().sensor.beams.layout().rows());
   int frames = pipeline.frame_count();
   if (args["frames"].as<int>() > 0) frames = std::min(frames, args["frames"].as<int>());
   std::filesystem::create_directories(out.out);

@@ -297,5 +297,42 @@ TEST_F(SimPipelineTest, CliBadKpiModelNamesTheFile) {
   expect_one_error_line(rc, err, bad.string());
 }
 
+// The bundled scenario with one field broken, through the CLI: the error names file and field.
+TEST_F(SimPipelineTest, CliBadScenarioFieldsNameTheFileAndTheField) {
+  const auto base = nlohmann::json::parse(read_text(scenario()));
+  struct Case {
+    const char* name;
+    const char* field;
+    void (*edit)(nlohmann::json&);
+  };
+  const Case cases[] = {
+      {"negative_size", "objects[0].size[0]", [](nlohmann::json& j) { j["objects"][0]["size"][0] = -4.5; }},
+      {"unknown_class", "objects[2].class", [](nlohmann::json& j) { j["objects"][2]["class"] = "Spaceship"; }},
+      {"missing_field", "sensor", [](nlohmann::json& j) { j.erase("sensor"); }},
+  };
+  for (const auto& c : cases) {
+    nlohmann::json j = base;
+    c.edit(j);
+    const fs::path file = dir_ / (std::string(c.name) + ".json");
+    std::ofstream(file) << j.dump();
+    std::string err;
+    const int rc = run_cli("--scenario " + file.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
+    expect_one_error_line(rc, err, file.string());
+    EXPECT_NE(err.find(c.field), std::string::npos) << c.name << ": " << err;
+  }
+  // Python's json writes NaN as a bare token: the reader must refuse it, naming the path.
+  std::string text = base.dump();
+  const std::string key = "\"duration\":";
+  const auto at = text.find(key);
+  ASSERT_NE(at, std::string::npos);
+  const auto end = text.find(',', at);
+  text.replace(at + key.size(), end - at - key.size(), "NaN");
+  const fs::path nan_file = dir_ / "nan.json";
+  std::ofstream(nan_file) << text;
+  std::string err;
+  const int rc = run_cli("--scenario " + nan_file.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
+  expect_one_error_line(rc, err, nan_file.string());
+}
+
 }  // namespace
 }  // namespace lidarsim
