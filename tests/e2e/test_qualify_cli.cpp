@@ -1,0 +1,193 @@
+// lidar-qualify end to end: the loop on reference-sensor data writes the documented keys; bad
+// input (missing or mismatched files in DIR) gives one clear "error: ..." line and a non-zero
+// exit; and, when the measured data are present, both loops run on them.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "data/reference_sensor.h"
+#include "tests/support/shared_data.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+
+namespace {
+
+struct CliRun {
+  int code = -1;
+  std::string out;  // stdout + stderr
+};
+
+CliRun run(const std::string& args) {
+  const std::string cmd = (lidarsim::testing::binary_dir() / "qualify" / "lidar-qualify").string() + " " + args + " 2>&1";
+  CliRun r;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return r;
+  std::array<char, 4096> buf{};
+  while (fgets(buf.data(), buf.size(), p)) r.out += buf.data();
+  const int status = pclose(p);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+class QualifyCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("lidarsim_qcli_" + std::string(info->name()) + "_" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path tracking() {
+    data::ReferenceTrackingOptions o;
+    o.frames = 60;
+    data::write_reference_tracking(dir_ / "kt", o);
+    return dir_ / "kt";
+  }
+  fs::path scans() {
+    data::ReferenceScanOptions o;
+    o.scans = 2;
+    o.columns = 512;
+    data::write_reference_semantickitti(dir_ / "sk", o);
+    return dir_ / "sk";
+  }
+  fs::path dir_;
+};
+
+// One line starting with "error: " that mentions `what`, and a non-zero exit.
+void expect_one_error(const CliRun& r, const std::string& what) {
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_EQ(r.out.rfind("error: ", 0), 0u) << r.out;
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+  EXPECT_NE(r.out.find(what), std::string::npos) << "expected \"" << what << "\" in: " << r.out;
+}
+
+void expect_loop_keys(const fs::path& report, const std::string& domain) {
+  std::ifstream in(report);
+  ASSERT_TRUE(in) << report;
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["domain"], domain);
+  EXPECT_TRUE(j["metric"].is_string());
+  EXPECT_TRUE(j["before"].is_number());
+  EXPECT_TRUE(j["after"].is_number());
+  ASSERT_TRUE(j["ranking"].is_array());
+  ASSERT_FALSE(j["ranking"].empty());
+  for (size_t i = 1; i < j["ranking"].size(); ++i)
+    EXPECT_GE(j["ranking"][i - 1]["score"].get<double>(), j["ranking"][i]["score"].get<double>()) << "best first";
+  EXPECT_TRUE(j.contains("added_effect"));
+  EXPECT_LE(j["after"].get<double>(), j["before"].get<double>() + 1e-12);
+}
+
+}  // namespace
+
+TEST_F(QualifyCli, HelpExitsZeroAndUnknownCommandFails) {
+  EXPECT_EQ(run("--help").code, 0);
+  expect_one_error(run("frobnicate"), "unknown command");
+  expect_one_error(run("loop sideways --report x.json"), "unknown domain");
+}
+
+TEST_F(QualifyCli, LoopObjectsOnReferenceDataWritesTheDocumentedKeys) {
+  const fs::path kt = tracking();
+  const CliRun r = run("loop objects --kitti-tracking " + kt.string() + " --report " + (dir_ / "r.json").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  expect_loop_keys(dir_ / "r.json", "objects");
+}
+
+TEST_F(QualifyCli, LoopIntensityOnReferenceDataWritesTheDocumentedKeys) {
+  const fs::path sk = scans();
+  const CliRun r = run("loop intensity --semantickitti " + sk.string() + " --report " + (dir_ / "r.json").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  expect_loop_keys(dir_ / "r.json", "intensity");
+}
+
+TEST_F(QualifyCli, MissingTrackingFolderIsOneClearError) {
+  expect_one_error(run("loop objects --kitti-tracking " + (dir_ / "nope").string() + " --report r.json"), "nope");
+}
+
+TEST_F(QualifyCli, MissingCalibFolderIsNamed) {
+  const fs::path kt = tracking();
+  fs::remove_all(kt / "calib");
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json"), "calib");
+}
+
+TEST_F(QualifyCli, LabelsWithoutTheirCalibFileNameTheFile) {
+  const fs::path kt = tracking();
+  fs::remove(kt / "calib" / "0001.txt");
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json"), "0001.txt");
+}
+
+TEST_F(QualifyCli, LabelsWithoutDetectionsNameTheSequence) {
+  const fs::path kt = tracking();
+  for (const char* c : {"Car", "Pedestrian", "Cyclist"})
+    fs::remove(kt / "detection" / (std::string("pointrcnn_") + c + "_val") / "0001.txt");
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json"), "0001");
+}
+
+TEST_F(QualifyCli, OneSequenceIsTooFewForTheLoop) {
+  const fs::path kt = tracking();
+  fs::remove(kt / "label_02" / "0001.txt");
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json"), "at least 2");
+}
+
+TEST_F(QualifyCli, MalformedLabelLineIsNamed) {
+  const fs::path kt = tracking();
+  std::ofstream(kt / "label_02" / "0000.txt", std::ios::app) << "3 7 Car not-a-number\n";
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json"), "0000.txt");
+}
+
+TEST_F(QualifyCli, LabelCountNotMatchingThePointsIsNamed) {
+  const fs::path sk = scans();
+  fs::resize_file(sk / "sequences" / "00" / "labels" / "000001.label", 400);
+  expect_one_error(run("loop intensity --semantickitti " + sk.string() + " --report r.json"), "000001.label");
+}
+
+TEST_F(QualifyCli, SemanticKittiFolderWithoutScansIsOneClearError) {
+  fs::create_directories(dir_ / "empty");
+  expect_one_error(run("loop intensity --semantickitti " + (dir_ / "empty").string() + " --report r.json"), "empty");
+}
+
+TEST_F(QualifyCli, ObjectsNeedsItsModelFile) {
+  const fs::path kt = tracking();
+  expect_one_error(run("objects --kitti-tracking " + kt.string() + " --model " + (dir_ / "m.json").string() +
+                       " --out " + (dir_ / "out").string()),
+                   "m.json");
+}
+
+TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
+  const fs::path kt = tracking();
+  const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
+  const CliRun r = run("objects --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
+                    (dir_ / "out").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream in(dir_ / "out" / "report.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_GT(j["overall"]["kpis"].get<int>(), 0);
+  EXPECT_GE(j["overall"]["similarity"].get<double>(), 0.0);
+  EXPECT_LE(j["overall"]["similarity"].get<double>(), 1.0);
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "report.md"));
+}
+
+TEST(QualifyRealData, BothLoopsRunOnTheMeasuredData) {
+  LIDARSIM_REQUIRE_SHARED_DATA(kt, "kitti-tracking-gt-pointrcnn");
+  LIDARSIM_REQUIRE_SHARED_DATA(sk, "semantickitti-seq00-sample");
+  const fs::path out = fs::temp_directory_path() / ("lidarsim_qcli_real_" + std::to_string(::getpid()));
+  fs::create_directories(out);
+  const CliRun a = run("loop objects --kitti-tracking " + kt.string() + " --report " + (out / "o.json").string());
+  ASSERT_EQ(a.code, 0) << a.out;
+  expect_loop_keys(out / "o.json", "objects");
+  const CliRun b = run("loop intensity --semantickitti " + sk.string() + " --report " + (out / "i.json").string());
+  ASSERT_EQ(b.code, 0) << b.out;
+  expect_loop_keys(out / "i.json", "intensity");
+  // The base model of the intensity loop is the class x range lookup: DESIGN.md's reference 0.082.
+  std::ifstream in(out / "i.json");
+  EXPECT_NEAR(nlohmann::json::parse(in)["before"].get<double>(), 0.082, 0.003);
+  fs::remove_all(out);
+}
