@@ -52,6 +52,7 @@ int main(int argc, char** argv) {
     ("no-augment", "no azimuth roll or mirror")
     ("out", "checkpoint (HDF5), written every epoch", cxxopts::value<std::string>()->default_value("checkpoint.h5"))
     ("resume", "continue from --out if it exists")
+    ("export-weights", "at the end, also write the weights alone (for inference) here", cxxopts::value<std::string>())
     ("log", "write per-epoch metrics as CSV here", cxxopts::value<std::string>())
     ("quiet", "no progress bar")
     ("h,help", "show this help");
@@ -79,6 +80,7 @@ int main(int argc, char** argv) {
     config.augment_roll = config.augment_mirror = !args.count("no-augment");
     config.out = args["out"].as<std::string>();
     config.resume = args.count("resume") > 0;
+    if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
     config.progress = !args.count("quiet");
 
     std::string csv = "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";

@@ -301,7 +301,14 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
       break;
     }
   }
-  if (!result.interrupted) bar.finish();
+  if (!result.interrupted) {
+    bar.finish();
+    if (config.export_weights) {
+      meta.state.step = step;
+      meta.state.epoch = step / steps_per_epoch;
+      nn::save_checkpoint(*config.export_weights, model, nullptr, meta);
+    }
+  }
   result.steps = step;
   return result;
 }

@@ -40,6 +40,9 @@ struct TrainConfig {
   bool augment_mirror = true;  // left-right mirror
   std::filesystem::path out = "checkpoint.h5";
   bool resume = false;         // continue from `out` if it exists
+  // At the end, also write the weights alone (no optimizer state): a third of the size, for
+  // shipping a model for inference.
+  std::optional<std::filesystem::path> export_weights;
   bool progress = true;
 };
 
