@@ -159,6 +159,7 @@ int run_sim(int argc, char** argv) {
   info.threads = threads;
   info.seed = sim_options.seed;
   info.outputs = write;
+  info.images = out.images;
   info.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   stats.write_summary(out.out, info);
   std::printf("%d frames: %.1f ms per frame (p95 %.1f), real-time factor %.2f on %d thread(s); outputs in %s "

@@ -329,7 +329,7 @@ std::string SimStats::to_markdown(const Info& info) const {
           "` (x y z intensity class material object_id range), `pgm_NNNN.png` (rows: range, class, material, "
           "intensity), `bev_NNNN.png` (bird's-eye view: ground truth green, reported red, coasting orange, false "
           "positives magenta, lanes white).\n\n";
-    if (frames() > 0) {
+    if (frames() > 0 && info.images) {
       const int last = frames() - 1, mid = last / 2;
       md += "![bird's-eye view, frame " + std::to_string(mid) + "](" + frame_name("bev", mid, "png") + ")\n\n";
       md += "![PGM channels, frame " + std::to_string(mid) + "](" + frame_name("pgm", mid, "png") + ")\n";

@@ -52,6 +52,7 @@ class SimStats {
     int threads = 1;
     std::uint64_t seed = 1;
     bool outputs = true;
+    bool images = true;
     double wall_seconds = 0;
   };
   // summary.json + summary.md into `out`.

@@ -107,12 +107,22 @@ void SimPipeline::run_frame(int k, SimFrame& out) {
   }
   lap(SimStage::Occlusion);
 
+  // Tracking runs in the map frame, so the filter's velocity is over ground like the ground
+  // truth's (in the moving sensor frame it would estimate velocity relative to the ego); the
+  // tracks go back into the sensor frame for the KPI manager (range, line of sight) and output.
   // A fully hidden object yields no measurement: its track coasts.
+  const sensor::Pose map_from_sensor = sensor::compose(out.ego.ego_in_map, scenario_.sensor.mount);
+  const sensor::Pose sensor_from_map = sensor::inverse(map_from_sensor);
   detections_.clear();
   for (const auto& o : out.sensor.objects)
-    if (o.visible_fraction > 0) detections_.push_back(o);
+    if (o.visible_fraction > 0) {
+      detections_.emplace_back();
+      sensor::transform_object(map_from_sensor, o, detections_.back());
+    }
   tracker_.update(detections_, out.time);
-  tracker_.reported(tracked_);
+  tracker_.reported(tracked_map_);
+  tracked_.resize(tracked_map_.size());
+  for (std::size_t i = 0; i < tracked_map_.size(); ++i) sensor::transform_object(sensor_from_map, tracked_map_[i], tracked_[i]);
   lap(SimStage::Tracking);
 
   kpi_.apply(tracked_, kpi_out_);

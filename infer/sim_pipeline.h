@@ -3,8 +3,8 @@
 // phenomenological sensor model and the point-cloud bridge.
 //
 //   sample scenario at t -> map -> ego -> sensor -> field of view -> occlusion (visible fraction,
-//   lanes behind boxes dropped) -> tracking (stable ids, coasting) -> KPI manager (errors,
-//   misses, false positives) = the reported object list;  visible lanes -> cubic polynomials;
+//   lanes behind boxes dropped) -> tracking (in the map frame: stable ids, coasting, over-ground
+//   velocity) -> KPI manager (errors, misses, false positives) = the reported object list;  visible lanes -> cubic polynomials;
 //   PCL generator over the visible boxes, the road and lane paint -> PGM -> UNet intensity per
 //   cell -> point cloud (sensor frame) with intensity, class, material and object id.
 //
@@ -101,7 +101,7 @@ class SimPipeline {
   std::vector<std::string> extra_channels_;
   // scratch
   sensor::Frame map_frame_;
-  std::vector<sensor::Object> detections_, tracked_, kpi_out_, pcl_objects_;
+  std::vector<sensor::Object> detections_, tracked_map_, tracked_, kpi_out_, pcl_objects_;
   std::vector<float> predicted_;
 };
 

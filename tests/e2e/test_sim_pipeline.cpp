@@ -47,9 +47,11 @@ class SimPipelineTest : public ::testing::Test {
   static fs::path checkpoint() { return dir_ / "tiny_unet.h5"; }
   static fs::path scenario() { return testing::source_dir() / "data/scenarios/demo_urban.json"; }
   static fs::path kpi() { return testing::source_dir() / "data/models/kpi_pointrcnn.json"; }
-  static infer::SimPipeline make(std::uint64_t seed = 1) {
+  // objects_only: the object-level model without PCL generator and UNet (fast, same object list).
+  static infer::SimPipeline make(std::uint64_t seed = 1, bool objects_only = false) {
     infer::SimOptions o;
     o.seed = seed;
+    o.point_cloud = !objects_only;
     return infer::SimPipeline::from_files(scenario(), kpi(), checkpoint(), o);
   }
   static int run_cli(const std::string& args, std::string& err) {
@@ -125,7 +127,7 @@ TEST_F(SimPipelineTest, OutputsOfEachFrameExistAndParse) {
 }
 
 TEST_F(SimPipelineTest, ObjectsOutsideTheFieldOfViewAreNeverReported) {
-  auto pipeline = make();
+  auto pipeline = make(1, true);
   const auto& fov = pipeline.scenario().sensor.fov;
   infer::SimFrame frame;
   std::set<int> ever_in_view, never_in_view;
@@ -159,7 +161,7 @@ TEST_F(SimPipelineTest, ObjectsOutsideTheFieldOfViewAreNeverReported) {
 }
 
 TEST_F(SimPipelineTest, TrackIdsStayTheSameOverConsecutiveFrames) {
-  auto pipeline = make(3);
+  auto pipeline = make(3, true);
   infer::SimFrame frame;
   std::map<int, std::set<int>> track_ids_of_truth;
   std::map<int, int> frames_reported;
@@ -180,6 +182,30 @@ TEST_F(SimPipelineTest, TrackIdsStayTheSameOverConsecutiveFrames) {
     stable += ids.size() == 1;
   }
   EXPECT_GE(stable, 4);
+}
+
+// The ego drives at 8 m/s behind the lead car (id 1, about 7.7 m/s): a tracker fed moving-sensor
+// positions would report ~0 m/s; the reported velocity must be over ground like the ground truth's.
+TEST_F(SimPipelineTest, ReportedVelocityIsOverGroundLikeTheGroundTruth) {
+  auto pipeline = make(2, true);
+  infer::SimFrame frame;
+  double reported_vx = 0, truth_vx = 0;
+  int n = 0;
+  for (int k = 0; k < 20; ++k) {
+    pipeline.run_frame(k, frame);
+    if (k < 8) continue;  // let the filter's velocity converge
+    for (const auto& r : frame.reported)
+      if (r.truth_id == 1 && !r.coasting)
+        for (const auto& g : frame.sensor.objects)
+          if (g.id == 1) {
+            reported_vx += r.object.velocity.x();
+            truth_vx += g.velocity.x();
+            ++n;
+          }
+  }
+  ASSERT_GE(n, 6);
+  EXPECT_GT(truth_vx / n, 7.0);
+  EXPECT_NEAR(reported_vx / n, truth_vx / n, 1.5);  // KPI velocity errors are well below this
 }
 
 TEST_F(SimPipelineTest, PgmHasReturnsOfRoadCarsAndLanePaintAndTheCloudMatchesIt) {
