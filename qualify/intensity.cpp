@@ -317,9 +317,10 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   j["candidates_held_out_mae"] = candidates;
   j["threshold"] = options.threshold;
   j["score_definition"] =
-      "held-out R^2 of a binned-mean table (16 quantile bins of the feature on the fit cells, shrunk by n/(n+5)) of "
+      "held-out R^2 of a binned-mean table (16 equal-count, tie-aware bins of the feature on the fit cells, shrunk by n/(n+5)) of "
       "the residual measured - lookup, winsorised at the fit cells' 1st/99th percentile";
   if (add) j["effect"] = {{"feature", top.feature}, {"edges", shown.edges}, {"additive", shown.value}};
+  if (add && !options.plots_dir.empty()) j["plot"] = "residual_intensity_vs_" + top.feature + ".png";
   return j;
 }
 

@@ -116,6 +116,30 @@ int run(int argc, char** argv) {
       throw Error("loop: unknown domain \"" + sub + "\" (expected objects or intensity)");
     }
     write_file_atomically(report, j.dump(2) + "\n");
+    // The same for people, beside the JSON: R.json -> R.md.
+    std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
+                     "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
+                     std::to_string(j["threshold"].get<double>()) + "\n\n| feature | score | explains |\n|---|---|---|\n";
+    for (const auto& r : j["ranking"])
+      md += "| " + r["feature"].get<std::string>() + " | " + std::to_string(r["score"].get<double>()) + " | " +
+            (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
+    md += "\nAlready used by the base model:";
+    for (const auto& r : j["used_by_model"])
+      md += " " + r["feature"].get<std::string>() + " (" + std::to_string(r["score"].get<double>()) + ")";
+    md += "\n\nAdded effect: **" + (j["added_effect"].is_null() ? std::string("none (no feature stands out)")
+                                                                 : j["added_effect"].get<std::string>()) +
+          "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +
+          "\n\nHeld-out " + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
+          ", after " + std::to_string(j["after"].get<double>()) + "\n";
+    if (j.contains("change_interval95"))
+      md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
+            ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";
+    if (j.contains("plot"))
+      md += "\n![residual vs " + j["added_effect"].get<std::string>() + "](" + j["plot"].get<std::string>() +
+            ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";
+    fs::path md_path = report;
+    md_path.replace_extension(".md");
+    write_file_atomically(md_path, md);
     print_loop(j);
     std::cout << "wrote " << report << "\n";
     return 0;

@@ -625,6 +625,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab.pooled, xh,
                        held_r[t].r);
   }
+  const std::string plot = options.plots_dir.empty() ? "" : "residual_" + top.target + "_vs_" + top.feature + ".png";
 
   nlohmann::json j;
   j["domain"] = "objects";
@@ -662,6 +663,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   j["fit_sequences"] = fn;
   j["held_out_sequences"] = hn;
   j["held_out_samples"] = held_r[t].r.size();
+  if (!plot.empty()) j["plot"] = plot;
   return j;
 }
 
