@@ -129,7 +129,7 @@ int run(int argc, char** argv) {
     md += "\n\nAdded effect: **" + (j["added_effect"].is_null() ? std::string("none (no feature stands out)")
                                                                  : j["added_effect"].get<std::string>()) +
           "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +
-          "\n\nHeld-out " + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
+          "\n\n" + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
           ", after " + std::to_string(j["after"].get<double>()) + "\n";
     if (j.contains("change_interval95"))
       md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
