@@ -135,7 +135,7 @@ int run(int argc, char** argv) {
       md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
             ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";
     if (j.contains("plot"))
-      md += "\n![residual vs " + j["added_effect"].get<std::string>() + "](" + j["plot"].get<std::string>() +
+      md += "\n![residual vs " + j["ranking"][0]["feature"].get<std::string>() + "](" + j["plot"].get<std::string>() +
             ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";
     fs::path md_path = report;
     md_path.replace_extension(".md");
