@@ -9,7 +9,7 @@ build_dir=${LIDARSIM_BUILD_DIR:-build}
 out=${1:-out/demo}
 mkdir -p "$out"
 # OpenMP threads that spin at barriers lose their core to other processes on a busy machine and
-# slow the UNet several-fold (measured 77 vs 400-800 ms/frame at load ~6 on 2 cores); sleeping costs
+# slow the UNet (at load ~6 on 2 cores, 20 frames: 239 ms/frame sleeping, 375 default, 427 spinning); sleeping costs
 # little at 10 Hz. A value set by the caller wins.
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-passive}
 # No options: data/scenarios/demo_urban.json, data/models/intensity_unet.h5 and
