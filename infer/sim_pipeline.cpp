@@ -1,5 +1,7 @@
 #include "infer/sim_pipeline.h"
 
+#include <numbers>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -53,7 +55,10 @@ SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
       options_(options),
       tracker_(options.tracker),
       kpi_(std::move(kpi_model), options.seed, options.kpi),
-      occlusion_(sensor::OcclusionConfig::for_fov(scenario_.sensor.fov)),
+      // Occlusion on the sensor's own angular grid (one cell per azimuth bin): finer cells
+      // cost time without changing what the beams can see.
+      occlusion_(sensor::OcclusionConfig::for_fov(scenario_.sensor.fov,
+                                                  2 * std::numbers::pi / scenario_.sensor.beams.columns)),
       pcl_(scenario_.sensor.beams.layout(), scenario_.sensor.mount, pcl_config(scenario_)) {
   if (!options_.point_cloud) options_.intensity = false;
   if (options_.intensity && !intensity_) throw Error("sim pipeline: an intensity model is required");
