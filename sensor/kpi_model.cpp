@@ -21,19 +21,7 @@ const char* to_string(KpiParam p) {
   return names[static_cast<int>(p)];
 }
 
-const char* kpi_class_name(ObjectClass cls) {
-  switch (cls) {
-    case ObjectClass::Car: return "Car";
-    case ObjectClass::Truck: return "Truck";
-    case ObjectClass::Van: return "Van";
-    case ObjectClass::Bus: return "Bus";
-    case ObjectClass::Pedestrian: return "Pedestrian";
-    case ObjectClass::Cyclist: return "Cyclist";
-    case ObjectClass::Motorcycle: return "Motorcycle";
-    case ObjectClass::Misc: return "Misc";
-  }
-  return "Misc";
-}
+std::string kpi_class_name(ObjectClass cls) { return to_string(cls); }
 
 double Innovation::excess_kurtosis() const {
   switch (type) {
@@ -60,7 +48,7 @@ int KpiModel::visibility_bin(double v) const {
 }
 
 const ClassModel* KpiModel::find(ObjectClass cls) const {
-  auto get = [&](const char* name) -> const ClassModel* {
+  auto get = [&](const std::string& name) -> const ClassModel* {
     const auto it = classes.find(name);
     return it == classes.end() ? nullptr : &it->second;
   };

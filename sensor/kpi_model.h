@@ -94,8 +94,8 @@ struct KpiModel {
   void validate(const std::string& file = "kpi model") const;
 };
 
-// Model class name used in files (ObjectClass names, independent of scene.cpp).
-const char* kpi_class_name(ObjectClass cls);
+// Model class name used in files: the ObjectClass names of scene.h.
+std::string kpi_class_name(ObjectClass cls);
 
 KpiModel load_kpi_model(const std::filesystem::path& path);  // validates; throws lidarsim::Error
 KpiModel parse_kpi_model(const std::string& json_text, const std::string& file_name);
