@@ -1,4 +1,5 @@
 #include "sensor/fov.h"
+#include "sensor/frames.h"
 
 #include <algorithm>
 
@@ -8,11 +9,6 @@ namespace {
 
 constexpr double kPi = std::numbers::pi;
 
-double wrap_pi(double a) {
-  while (a > kPi) a -= 2 * kPi;
-  while (a < -kPi) a += 2 * kPi;
-  return a;
-}
 
 bool full_circle(const FieldOfView& fov) { return fov.azimuth_max - fov.azimuth_min >= 2 * kPi - 1e-12; }
 

@@ -5,6 +5,9 @@
 // vectors (rotation only), so they stay over-ground quantities expressed in the new axes, which
 // is what an object list reports. Heading becomes the yaw of the box's forward axis seen in the
 // new frame (exact when the mount has no roll/pitch; with a tilted mount the box keeps z up).
+#include <cmath>
+#include <numbers>
+
 #include "sensor/scene.h"
 
 namespace lidarsim::sensor {
@@ -14,6 +17,9 @@ Eigen::Matrix3d rotation_from_rpy(double roll, double pitch, double yaw);
 Pose make_pose(const Eigen::Vector3d& translation, double roll, double pitch, double yaw);
 Pose compose(const Pose& parent_from_mid, const Pose& mid_from_child);  // parent_from_child
 Pose inverse(const Pose& pose);
+// An angle wrapped into [-pi, pi] (remainder by 2 pi; +-pi stay where they are).
+inline double wrap_pi(double a) { return std::remainder(a, 2 * std::numbers::pi); }
+
 inline Eigen::Vector3d apply(const Pose& pose, const Eigen::Vector3d& p) {
   return pose.rotation * p + pose.translation;
 }

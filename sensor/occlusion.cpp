@@ -1,4 +1,5 @@
 #include "sensor/occlusion.h"
+#include "sensor/frames.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +10,6 @@ namespace lidarsim::sensor {
 
 namespace {
 constexpr double kPi = std::numbers::pi;
-double wrap_pi(double a) { return std::remainder(a, 2 * kPi); }
 }  // namespace
 
 RayBox RayBox::of(const Object& o) {

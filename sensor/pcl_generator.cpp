@@ -15,7 +15,6 @@ namespace lidarsim::sensor {
 
 namespace {
 constexpr double kPi = std::numbers::pi;
-double wrap_pi(double a) { return std::remainder(a, 2 * kPi); }
 }  // namespace
 
 PclConfig PclConfig::from_fov(const FieldOfView& fov) {

@@ -208,7 +208,6 @@ std::vector<Eigen::Vector3d> resample(const std::vector<Eigen::Vector3d>& pts, d
   return out;
 }
 
-double wrap_pi(double a) { return std::remainder(a, 2 * std::numbers::pi); }
 
 void extrapolate(const KinematicState& s, double t, KinematicState& out) {
   const double dt = t - s.t;
