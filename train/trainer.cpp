@@ -102,7 +102,7 @@ std::string describe_config(const TrainConfig& c) {
   std::vector<std::string> data;
   for (const auto& p : c.data) data.push_back(p.string());
   j["data"] = data;
-  j["validation"] = c.validation ? c.validation->string() : "sector split " + std::string("3,7,11,15 of 16");
+  j["validation"] = c.validation ? c.validation->string() : std::string("sectors 3, 7, 11, 15 of 16 of --data");
   j["epochs"] = c.epochs;
   j["batch"] = c.batch;
   j["crop_columns"] = c.crop_columns;
