@@ -41,6 +41,9 @@ void print_loop(const nlohmann::json& j) {
               << (r.contains("target") ? "  (" + r["target"].get<std::string>() + ")" : std::string()) << "\n";
   std::cout << "added effect: " << (j["added_effect"].is_null() ? "none (no feature stands out)" : j["added_effect"].get<std::string>())
             << "\nbefore " << j["before"].get<double>() << "  after " << j["after"].get<double>() << "\n";
+  if (j.contains("after_simulated") && !j["after_simulated"].is_null())
+    std::cout << "re-simulated through the KPI manager: before " << j["before_simulated"].get<double>() << "  after "
+              << j["after_simulated"].get<double>() << "\n";
 }
 
 int run(int argc, char** argv) {
@@ -66,6 +69,7 @@ int run(int argc, char** argv) {
     ("model", "KPI model JSON (objects) or checkpoint (intensity)", cxxopts::value<std::string>())
     ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
     ("report", "loop report JSON", cxxopts::value<std::string>())
+    ("out-model", "loop objects: write the refitted KPI model (with the added conditional term) here", cxxopts::value<std::string>())
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("h,help", "this help");
@@ -104,6 +108,8 @@ int run(int argc, char** argv) {
     nlohmann::json j;
     if (sub == "objects") {
       if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
+      if (a.count("out-model")) lo.out_model = a["out-model"].as<std::string>();
+      lo.seed = seed;
       const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                                a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
       j = qualify::loop_objects(data, lo);
@@ -131,6 +137,10 @@ int run(int argc, char** argv) {
           "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +
           "\n\n" + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
           ", after " + std::to_string(j["after"].get<double>()) + "\n";
+    if (j.contains("after_simulated") && !j["after_simulated"].is_null())
+      md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
+            std::to_string(j["before_simulated"].get<double>()) + ", after " +
+            std::to_string(j["after_simulated"].get<double>()) + "\n";
     if (j.contains("change_interval95"))
       md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
             ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";

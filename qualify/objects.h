@@ -91,6 +91,8 @@ struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
   int bins = 10;
   std::filesystem::path plots_dir;  // where to write residual-vs-feature PNGs (empty: none)
+  std::filesystem::path out_model;  // where to write the refitted KPI model (empty: not written)
+  std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
 };
 
 // `lidar-qualify loop objects`: base model fitted on the fit split (even-indexed sequences),

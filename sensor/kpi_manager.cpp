@@ -71,6 +71,30 @@ double wrap_angle(double a) {
   if (a < 0) a += 2 * pi;
   return a - pi;
 }
+// A conditional term's feature, from the truth object in the sensor frame; names and
+// definitions as in the object loop's vocabulary (qualify/objects.h).
+double object_feature(const std::string& name, const Object& o, double range, long track_age) {
+  const double azimuth = std::atan2(o.position.y(), o.position.x());
+  const Eigen::Vector2d v = o.velocity.head<2>();
+  const Eigen::Vector2d h(std::cos(o.heading), std::sin(o.heading));
+  if (name == "range") return range;
+  if (name == "azimuth") return azimuth;
+  if (name == "speed") return v.norm();  // BEV, as the loop computes it
+  if (name == "radial_velocity")
+    return range > 1e-6 ? v.dot(o.position.head<2>() / range) : 0.0;
+  if (name == "longitudinal_velocity") return v.dot(h);
+  if (name == "lateral_velocity") return -h.y() * v.x() + h.x() * v.y();
+  if (name == "size") return o.size.x();
+  if (name == "heading_to_line_of_sight") {
+    const double a = std::abs(wrap_angle(o.heading - azimuth));  // [0, pi]
+    return a > std::numbers::pi / 2 ? std::numbers::pi - a : a;
+  }
+  if (name == "visibility") return o.visible_fraction;
+  if (name == "track_age") return static_cast<double>(track_age);
+  // The model was validated against kConditionalFeatures, so this is a programming error.
+  throw Error("kpi manager: conditional feature \"" + name + "\" cannot be computed");
+}
+
 }  // namespace
 
 void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& reported) {
@@ -105,6 +129,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     const bool fresh = st.last_frame < 0;
     const int gap = fresh ? 1 : static_cast<int>(std::min<long>(frame_ - st.last_frame, 1000));
     st.last_frame = frame_;
+    if (fresh) st.first_frame = frame_;
     if (gap == 0) throw Error("kpi manager: object id " + std::to_string(o.id) + " appears twice in one frame");
 
     // Errors: advance every parameter's AR(1) state, even when the object will be missed.
@@ -118,9 +143,15 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
         st.z[p] = ar1_step(st.z[p], em.ar1, gap, eps);
       }
       const double z = controllers_[slot * kNumKpiParams + p].apply(st.z[p]);
-      inj.error[p] = options_.noise
-                         ? em.mean[rb] + em.sigma[rb] * em.visibility_std_scale[vb] * z + em.track_std * st.c[p]
-                         : 0.0;
+      double bias = 0, scale = 1;
+      if (em.conditional.present()) {
+        const int b = em.conditional.bin(object_feature(em.conditional.feature, o, range, frame_ - st.first_frame));
+        bias = em.conditional.bias[b];
+        if (!em.conditional.scale.empty()) scale = em.conditional.scale[b];
+      }
+      inj.error[p] = options_.noise ? em.mean[rb] + bias + em.sigma[rb] * scale * em.visibility_std_scale[vb] * z +
+                                          em.track_std * st.c[p]
+                                    : 0.0;
     }
     const double pd = cm.detection_probability[rb][vb];
     const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, rng_);

@@ -8,6 +8,8 @@
 //     (range, visibility) and whose miss runs last miss_burst_mean frames on average;
 //   - 180-degree heading flips from a second chain (heading_flip_probability, flip_burst_mean);
 //   - a score drawn from the class's score quantiles;
+//   - optional conditional terms (kpi_model.h ConditionalTerm): a bias and sigma scale per bin
+//     of a feature computed from the truth object (and, for track_age, the id's state);
 // and per frame a Poisson number of false positives per class. A feedback controller per
 // class and parameter keeps the running mean and spread of the injected standardized noise on
 // target (0, 1), so the injected errors keep the model's mean and std per bin.
@@ -61,6 +63,7 @@ class KpiManager {
     std::array<double, kNumKpiParams> c{};      // per-track constants
     BurstChain miss, flip;
     long last_frame = -1;
+    long first_frame = -1;  // for the track_age feature of conditional terms
   };
   TrackState& state_for(int id);
   void forget_stale();

@@ -47,6 +47,11 @@ int KpiModel::visibility_bin(double v) const {
   return std::max(0, static_cast<int>(it - visibility_bin_edges.begin()) - 1);
 }
 
+int ConditionalTerm::bin(double value) const {
+  const auto it = std::upper_bound(edges.begin(), edges.end(), value);
+  return std::max(0, static_cast<int>(it - edges.begin()) - 1);
+}
+
 const ClassModel* KpiModel::find(ObjectClass cls) const {
   auto get = [&](const std::string& name) -> const ClassModel* {
     const auto it = classes.find(name);
@@ -200,6 +205,24 @@ void KpiModel::validate(const std::string& file) const {
               "must be in (0, 1)", in.outlier_probability);
         check(in.outlier_scale >= 1, file, f + ".innovation.outlier_scale", "must be >= 1", in.outlier_scale);
       }
+      if (e.conditional.present()) {
+        const ConditionalTerm& ct = e.conditional;
+        const std::string cf = f + ".conditional";
+        if (std::find(kConditionalFeatures.begin(), kConditionalFeatures.end(), ct.feature) == kConditionalFeatures.end()) {
+          std::string names;
+          for (const auto& n : kConditionalFeatures) names += (names.empty() ? "" : ", ") + n;
+          throw input_error(file, cf + ".feature", "must be one of the features the KPI manager computes (" + names +
+                                                       "), got \"" + ct.feature + "\"");
+        }
+        if (ct.edges.empty()) throw input_error(file, cf + ".edges", "must list at least one lower bin edge");
+        for (size_t i = 0; i < ct.edges.size(); ++i) {
+          const std::string fi = cf + ".edges[" + std::to_string(i) + "]";
+          check_finite(ct.edges[i], file, fi);
+          if (i > 0) check(ct.edges[i] > ct.edges[i - 1], file, fi, "must increase", ct.edges[i]);
+        }
+        check_vector(ct.bias, ct.edges.size(), file, cf + ".bias", -inf, inf);
+        if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", 1e-6, inf);
+      }
     }
     if (c.detection_probability.size() != nr)
       throw input_error(file, base + ".detection_probability",
@@ -270,6 +293,17 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
       e.ar1 = number_at(ej, "ar1", file, f, 0, false);
       e.track_std = number_at(ej, "track_std", file, f, 0, true);
       e.innovation = ej.contains("innovation") ? read_innovation(ej["innovation"], file, f + ".innovation") : Innovation{};
+      if (ej.contains("conditional")) {
+        const std::string cf = f + ".conditional";
+        const json& cj2 = ej["conditional"];
+        const json& fj = member(cj2, "feature", file, cf);
+        if (!fj.is_string() || fj.get<std::string>().empty())
+          throw input_error(file, cf + ".feature", "must be a feature name, got " + fj.dump());
+        e.conditional.feature = fj.get<std::string>();
+        e.conditional.edges = numbers_at(cj2, "edges", file, cf, false);
+        e.conditional.bias = numbers_at(cj2, "bias", file, cf, false);
+        e.conditional.scale = numbers_at(cj2, "scale", file, cf, true);
+      }
     }
     const json& dp = member(cj, "detection_probability", file, base);
     if (!dp.is_array()) throw input_error(file, base + ".detection_probability", "must be an array of arrays");
@@ -328,6 +362,11 @@ std::string kpi_model_to_json(const KpiModel& m) {
       cj["errors"][to_string(static_cast<KpiParam>(p))] = {
           {"mean", e.mean}, {"std", e.sigma}, {"visibility_std_scale", e.visibility_std_scale},
           {"ar1", e.ar1}, {"track_std", e.track_std}, {"innovation", write_innovation(e.innovation)}};
+      if (e.conditional.present()) {  // absent: the file is as before the term existed
+        json ct = {{"feature", e.conditional.feature}, {"edges", e.conditional.edges}, {"bias", e.conditional.bias}};
+        if (!e.conditional.scale.empty()) ct["scale"] = e.conditional.scale;
+        cj["errors"][to_string(static_cast<KpiParam>(p))]["conditional"] = ct;
+      }
     }
     cj["detection_probability"] = c.detection_probability;
     cj["miss_burst_mean"] = c.miss_burst_mean;

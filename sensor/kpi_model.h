@@ -44,6 +44,22 @@ struct Innovation {
   double excess_kurtosis() const;  // of the unit-variance innovation (inf for t with dof <= 4)
 };
 
+// Optional conditional term (issue 5: the object loop's added effect): in the bin of a
+// per-object feature, `bias` is added to the error's mean and `scale` multiplies its sigma.
+// Feature names are the object loop's vocabulary (qualify/objects.h) that the KPI manager can
+// compute from a truth object: kConditionalFeatures.
+struct ConditionalTerm {
+  std::string feature;        // empty: no term (the file has no "conditional")
+  std::vector<double> edges;  // lower bin edges, increasing; values below edges[0] use bin 0
+  std::vector<double> bias;   // per bin
+  std::vector<double> scale;  // per bin, > 0; empty: 1 everywhere
+  bool present() const { return !feature.empty(); }
+  int bin(double value) const;
+};
+inline const std::vector<std::string> kConditionalFeatures = {
+    "range", "azimuth", "speed", "radial_velocity", "lateral_velocity", "longitudinal_velocity",
+    "size", "heading_to_line_of_sight", "visibility", "track_age"};
+
 struct ErrorModel {
   std::vector<double> mean;                  // per range bin
   std::vector<double> sigma;                 // per range bin, >= 0 ("std" in the file)
@@ -51,6 +67,7 @@ struct ErrorModel {
   double ar1 = 0;                            // lag-1 autocorrelation of z, in (-1, 1)
   double track_std = 0;                      // per-track constant component, >= 0
   Innovation innovation;
+  ConditionalTerm conditional;               // optional
 };
 
 struct ClassModel {

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/reference_sensor.h"
+#include "sensor/kpi_model.h"
 #include "tests/support/shared_data.h"
 
 namespace fs = std::filesystem;
@@ -96,9 +97,15 @@ TEST_F(QualifyCli, HelpExitsZeroAndUnknownCommandFails) {
 
 TEST_F(QualifyCli, LoopObjectsOnReferenceDataWritesTheDocumentedKeys) {
   const fs::path kt = tracking();
-  const CliRun r = run("loop objects --kitti-tracking " + kt.string() + " --report " + (dir_ / "r.json").string());
+  const CliRun r = run("loop objects --kitti-tracking " + kt.string() + " --report " + (dir_ / "r.json").string() +
+                       " --out-model " + (dir_ / "m.json").string());
   ASSERT_EQ(r.code, 0) << r.out;
   expect_loop_keys(dir_ / "r.json", "objects");
+  // --out-model: the refitted KPI model is written and loads (validated) as a KPI model file.
+  EXPECT_NO_THROW(lidarsim::sensor::load_kpi_model(dir_ / "m.json"));
+  std::ifstream in(dir_ / "r.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_TRUE(j.contains("after_simulated")) << j.dump().substr(0, 300);
 }
 
 TEST_F(QualifyCli, LoopIntensityOnReferenceDataWritesTheDocumentedKeys) {

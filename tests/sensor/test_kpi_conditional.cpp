@@ -1,0 +1,172 @@
+// The KPI model's optional conditional term (issue 5 follow-up): a bias (and sigma scale) per bin
+// of a per-object feature, applied by the KPI manager; the file's parse errors; absent = as before.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "common/error.h"
+#include "sensor/kpi_manager.h"
+#include "sensor/kpi_model.h"
+
+namespace lidarsim::sensor {
+namespace {
+
+// Car only, one range and visibility bin, every parameter N(0, sigma) AR(1) 0.5, no misses/FPs.
+KpiModel one_bin_car(double sigma) {
+  KpiModel m = default_kpi_model();
+  m.range_bin_edges = {0};
+  m.visibility_bin_edges = {0};
+  ClassModel c = m.classes["Car"];
+  for (auto& e : c.errors) {
+    e.mean = {0};
+    e.sigma = {sigma};
+    e.visibility_std_scale = {1};
+    e.ar1 = 0.5;
+    e.track_std = 0;
+    e.innovation = {};
+  }
+  c.detection_probability = {{1.0}};
+  c.false_positive_rate = 0;
+  c.heading_flip_probability = 0;
+  m.classes.clear();
+  m.classes["Car"] = c;
+  return m;
+}
+
+Object car(int id, Eigen::Vector3d position, Eigen::Vector3d velocity) {
+  Object o;
+  o.id = id;
+  o.position = position;
+  o.velocity = velocity;
+  o.size = {4, 1.8, 1.5};
+  return o;
+}
+
+TEST(KpiConditional, SpeedBiasShiftsTheMeanAndScaleTheSpreadOnlyInItsBinOver4000Frames) {
+  KpiModel m = one_bin_car(0.1);
+  const int along = int(KpiParam::PositionAlong);
+  m.classes["Car"].errors[along].conditional = {"speed", {0, 5}, {0, 0.5}, {1, 2}};
+  KpiManager kpi(m, 7);
+  std::vector<Object> truth, out;
+  for (int i = 0; i < 5; ++i) truth.push_back(car(i, {20, -4.0 + 2 * i, -0.9}, {0, 0, 0}));      // speed 0: bin 0
+  for (int i = 5; i < 10; ++i) truth.push_back(car(i, {30, -4.0 + 2 * (i - 5), -0.9}, {8, 6, 0}));  // speed 10: bin 1
+  double s[2] = {0, 0}, ss[2] = {0, 0}, n[2] = {0, 0};
+  for (int f = 0; f < 4000; ++f) {
+    kpi.apply(truth, out);
+    for (const auto& inj : kpi.injections()) {
+      const int b = inj.id >= 5;
+      s[b] += inj.error[along], ss[b] += inj.error[along] * inj.error[along], ++n[b];
+    }
+  }
+  const double m0 = s[0] / n[0], m1 = s[1] / n[1];
+  const double sd0 = std::sqrt(ss[0] / n[0] - m0 * m0), sd1 = std::sqrt(ss[1] / n[1] - m1 * m1);
+  // 20000 samples per bin, AR(1) 0.5 -> ~6700 effective: standard error of the mean <= 0.0025.
+  EXPECT_NEAR(m0, 0.0, 0.02) << "slow objects: no bias";
+  EXPECT_NEAR(m1, 0.5, 0.02) << "fast objects: the bin's bias 0.5";
+  EXPECT_NEAR(sd0, 0.1, 0.01) << "slow objects: sigma as the model (10 %)";
+  EXPECT_NEAR(sd1, 0.2, 0.02) << "fast objects: sigma x scale 2 (10 %)";
+}
+
+TEST(KpiConditional, FeaturesComeFromTheTruthObjectAndTheTrackAge) {
+  KpiModel m = one_bin_car(0.0);  // no noise: error = mean + bias exactly
+  auto& e = m.classes["Car"].errors;
+  e[int(KpiParam::PositionAlong)].conditional = {"radial_velocity", {-100, 1}, {0, 1}, {}};
+  e[int(KpiParam::PositionAcross)].conditional = {"lateral_velocity", {-100, 1}, {0, 2}, {}};
+  e[int(KpiParam::Length)].conditional = {"track_age", {0, 3}, {0, 3}, {}};
+  e[int(KpiParam::Width)].conditional = {"size", {0, 3}, {0, 4}, {}};
+  e[int(KpiParam::Heading)].conditional = {"heading_to_line_of_sight", {0, 1}, {0, 5}, {}};
+  KpiManager kpi(m, 1);
+  // All heading +x. id 1 at (20, 0) moving +x: receding (radial 3), lateral 0, seen end-on.
+  // id 2 at (0, 20) moving +x, length 2: radial 0, seen side-on. id 3 at (20, 0) moving +y:
+  // radial 0, lateral +3 (to the left of its heading).
+  const Object a = car(1, {20, 0, -0.9}, {3, 0, 0});
+  Object b = car(2, {0, 20, -0.9}, {3, 0, 0});
+  const Object c = car(3, {20, 0, -0.9}, {0, 3, 0});
+  b.size.x() = 2;
+  std::vector<Object> out;
+  for (int f = 0; f < 5; ++f) {
+    kpi.apply({a, b, c}, out);
+    const auto& inj = kpi.injections();
+    EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::PositionAlong)], 1) << "receding: radial velocity 3";
+    EXPECT_DOUBLE_EQ(inj[1].error[int(KpiParam::PositionAlong)], 0) << "crossing: radial velocity 0";
+    EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::PositionAcross)], 0) << "moving along its heading";
+    EXPECT_DOUBLE_EQ(inj[2].error[int(KpiParam::PositionAcross)], 2) << "moving to the left of its heading";
+    EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::Width)], 4) << "length 4 >= 3";
+    EXPECT_DOUBLE_EQ(inj[1].error[int(KpiParam::Width)], 0) << "length 2 < 3";
+    EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::Heading)], 0) << "seen end-on";
+    EXPECT_DOUBLE_EQ(inj[1].error[int(KpiParam::Heading)], 5) << "seen side-on (pi/2)";
+    EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::Length)], f >= 3 ? 3 : 0) << "track age " << f;
+  }
+}
+
+TEST(KpiConditional, ZeroTermChangesNothingAndAbsentTermIsNotWritten) {
+  KpiModel plain = default_kpi_model();
+  KpiModel zero = plain;
+  for (auto& [name, c] : zero.classes)
+    for (auto& e : c.errors) e.conditional = {"speed", {0, 5}, {0, 0}, {1, 1}};
+  KpiManager a(plain, 3), b(zero, 3);
+  std::vector<Object> truth, oa, ob;
+  for (int i = 0; i < 6; ++i) truth.push_back(car(i, {10.0 + 9 * i, 3.0 - i, -0.9}, {double(i), 0, 0}));
+  for (int f = 0; f < 200; ++f) {
+    a.apply(truth, oa);
+    b.apply(truth, ob);
+    ASSERT_EQ(oa.size(), ob.size());
+    for (size_t i = 0; i < truth.size(); ++i)
+      for (int p = 0; p < kNumKpiParams; ++p)
+        ASSERT_EQ(a.injections()[i].error[p], b.injections()[i].error[p]) << "frame " << f;
+  }
+  EXPECT_EQ(kpi_model_to_json(plain).find("conditional"), std::string::npos);
+  const std::string written = kpi_model_to_json(zero);
+  EXPECT_NE(written.find("\"conditional\""), std::string::npos);
+  EXPECT_EQ(kpi_model_to_json(parse_kpi_model(written, "zero.json")), written) << "round trip";
+}
+
+std::string parse_error(const nlohmann::json& j) {
+  try {
+    parse_kpi_model(j.dump(), "m.json");
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(KpiConditional, BadTermsAreRefusedNamingFileAndField) {
+  const auto good = nlohmann::json::parse(kpi_model_to_json(default_kpi_model()));
+  const std::string f = "m.json: classes.Car.errors.position_along.conditional";
+  auto with = [&](nlohmann::json term) {
+    auto j = good;
+    j["classes"]["Car"]["errors"]["position_along"]["conditional"] = term;
+    return parse_error(j);
+  };
+  const nlohmann::json ok = {{"feature", "speed"}, {"edges", {0, 5}}, {"bias", {0, 0.5}}};
+  EXPECT_EQ(with(ok), "(no error)");
+  auto t = ok;
+  t["feature"] = "truncation";  // in the loop's vocabulary, but not on a sensor::Object
+  EXPECT_NE(with(t).find(f + ".feature: must be one of the features"), std::string::npos) << with(t);
+  t = ok;
+  t.erase("feature");
+  EXPECT_NE(with(t).find(f + ".feature: missing"), std::string::npos) << with(t);
+  t = ok;
+  t["bias"] = {0.5};
+  EXPECT_NE(with(t).find(f + ".bias: must have 2 entries, got 1"), std::string::npos) << with(t);
+  t = ok;
+  t["edges"] = {5, 5};
+  EXPECT_NE(with(t).find(f + ".edges[1]: must increase"), std::string::npos) << with(t);
+  t = ok;
+  t["edges"] = nlohmann::json::array();
+  t["bias"] = nlohmann::json::array();
+  EXPECT_NE(with(t).find(f + ".edges: must list at least one"), std::string::npos) << with(t);
+  t = ok;
+  t["scale"] = {1, 0};
+  EXPECT_NE(with(t).find(f + ".scale[1]: must be in"), std::string::npos) << with(t);
+  t = ok;
+  t["bias"] = {0, "x"};
+  EXPECT_NE(with(t).find(f + ".bias[1]: must be a number"), std::string::npos) << with(t);
+  EXPECT_NE(with(42).find(f + ": must be an object"), std::string::npos) << with(42);
+}
+
+}  // namespace
+}  // namespace lidarsim::sensor
