@@ -100,6 +100,11 @@ struct LoopOptions {
 // the held-out split (odd-indexed), features ranked by held-out R^2 of a per-class binned-mean
 // table fitted on the fit split (best target per feature), the top one added as a per-class
 // per-bin bias table on that target (the conditional term), and the held-out RMS residual of that target before and after.
+// The added term also goes into a refitted KPI model (base + the loop's range-bin offsets +
+// sensor::ConditionalTerm; written to out_model if given) when the target is an error and the
+// feature is one the KPI manager computes; "after_simulated" is the same RMS with the
+// conditional mean the KPI manager really injects with that model (noise off, ground-truth
+// velocities by differences), "before_simulated" with the base model.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify
