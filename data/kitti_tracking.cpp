@@ -77,13 +77,12 @@ void check_size(double h, double w, double l, const std::string& file, const std
                                        std::to_string(w) + ", " + std::to_string(l));
 }
 
-}  // namespace
-
-std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path, const KittiBoxConverter& conv) {
+// Calls record(fields, where) for each non-blank line of a text file ("where" = "line N"). Fields
+// are split at white space when separator is 0, else at the separator with blanks trimmed.
+template <typename Record>
+void for_each_record(const fs::path& path, const std::string& what, char separator, Record&& record) {
   std::ifstream in(path);
-  if (!in) throw input_error(path.string(), "(file)", "cannot open the KITTI tracking label file");
-  const std::string file = path.string();
-  std::vector<KittiTrackingObject> out;
+  if (!in) throw input_error(path.string(), "(file)", "cannot open the " + what);
   std::string line;
   int line_no = 0;
   std::vector<std::string> f;
@@ -91,15 +90,32 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.find_first_not_of(" \t") == std::string::npos) continue;
-    std::istringstream ss(line);
     f.clear();
-    for (std::string tok; ss >> tok;) f.push_back(tok);
-    const std::string where = "line " + std::to_string(line_no);
+    std::istringstream ss(line);
+    if (separator == 0) {
+      for (std::string tok; ss >> tok;) f.push_back(tok);
+    } else {
+      for (std::string tok; std::getline(ss, tok, separator);) {
+        tok.erase(0, tok.find_first_not_of(" \t"));
+        tok.erase(tok.find_last_not_of(" \t") + 1);
+        f.push_back(tok);
+      }
+    }
+    record(f, "line " + std::to_string(line_no));
+  }
+}
+
+}  // namespace
+
+std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path, const KittiBoxConverter& conv) {
+  const std::string file = path.string();
+  std::vector<KittiTrackingObject> out;
+  for_each_record(path, "KITTI tracking label file", 0, [&](const std::vector<std::string>& f, const std::string& where) {
     if (f.size() != 17 && f.size() != 18)  // 18: a trailing score column, as some tools write
       throw input_error(file, where, "expected 17 space-separated fields (frame track_id type truncated occluded "
                                      "alpha bbox[4] h w l x y z rotation_y), got " + std::to_string(f.size()));
     const std::string& type = f[2];
-    if (type == "DontCare") continue;
+    if (type == "DontCare") return;
     KittiTrackingObject o;
     o.frame = to_int(f[0], file, where, "frame");
     if (o.frame < 0) throw input_error(file, where, "frame: must be >= 0, got " + f[0]);
@@ -128,30 +144,14 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     const double occl = o.occluded == 0 ? 1.0 : o.occluded == 1 ? 0.6 : 0.2;
     o.object.visible_fraction = occl * std::clamp(1.0 - o.truncated, 0.0, 1.0);
     out.push_back(std::move(o));
-  }
+  });
   return out;
 }
 
 std::vector<KittiTrackingObject> read_ab3dmot_detections(const fs::path& path, const KittiBoxConverter& conv) {
-  std::ifstream in(path);
-  if (!in) throw input_error(path.string(), "(file)", "cannot open the detection file");
   const std::string file = path.string();
   std::vector<KittiTrackingObject> out;
-  std::string line;
-  int line_no = 0;
-  std::vector<std::string> f;
-  while (std::getline(in, line)) {
-    ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (line.find_first_not_of(" \t") == std::string::npos) continue;
-    f.clear();
-    std::istringstream ss(line);
-    for (std::string tok; std::getline(ss, tok, ',');) {
-      tok.erase(0, tok.find_first_not_of(" \t"));
-      tok.erase(tok.find_last_not_of(" \t") + 1);
-      f.push_back(tok);
-    }
-    const std::string where = "line " + std::to_string(line_no);
+  for_each_record(path, "detection file", ',', [&](const std::vector<std::string>& f, const std::string& where) {
     if (f.size() != 15)
       throw input_error(file, where, "expected 15 comma-separated fields (frame, type_id, x1, y1, x2, y2, score, "
                                      "h, w, l, x, y, z, rot_y, alpha), got " + std::to_string(f.size()));
@@ -177,7 +177,7 @@ std::vector<KittiTrackingObject> read_ab3dmot_detections(const fs::path& path, c
     o.object.score = score;
     o.object.material = material_for(cls);
     out.push_back(std::move(o));
-  }
+  });
   return out;
 }
 

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include "common/error.h"
+
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -33,6 +35,16 @@ inline void write_binary(const std::filesystem::path& p, const std::vector<T>& v
   std::ofstream out(p, std::ios::binary);
   out.write(reinterpret_cast<const char*>(values.data()), static_cast<std::streamsize>(values.size() * sizeof(T)));
   for (std::size_t i = 0; i < extra_bytes; ++i) out.put('\0');
+}
+
+// The message of the lidarsim::Error `f` throws, or "" when it throws none.
+inline std::string error_of(auto&& f) {
+  try {
+    f();
+  } catch (const lidarsim::Error& e) {
+    return e.what();
+  }
+  return "";
 }
 
 }  // namespace lidarsim::testing

@@ -10,6 +10,7 @@
 
 using namespace lidarsim;
 using lidarsim::testing::TempDir;
+using lidarsim::testing::error_of;
 
 namespace {
 data::Dataset two_frames() {
@@ -27,15 +28,6 @@ data::Dataset two_frames() {
   }
   d.sources = {"a.bin", "b.bin"};
   return d;
-}
-
-std::string error_of(auto&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
 }
 }  // namespace
 

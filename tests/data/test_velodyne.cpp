@@ -8,18 +8,8 @@
 
 using namespace lidarsim;
 using lidarsim::testing::TempDir;
+using lidarsim::testing::error_of;
 using lidarsim::testing::write_binary;
-
-namespace {
-std::string error_of(auto&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-}  // namespace
 
 TEST(Velodyne, ReadsFloat32RecordsAsPoints) {
   TempDir dir;
