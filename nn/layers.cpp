@@ -92,6 +92,20 @@ void im2col(float* col, const float* img, int ci, int h, int w, int k, int pad, 
   }
 }
 
+// The A operand of one pixel tile's GEMM, [kdim x len] with column stride `stride`: the input
+// itself for a 1x1 conv without padding (`direct`), else this thread's im2col of the tile.
+const float* tile_operand(const float* src, bool direct, int ci, int h, int w, int k, int pad, int wo, int p0,
+                          int len, int kdim, Eigen::Index& stride) {
+  if (direct) {
+    stride = static_cast<Eigen::Index>(h) * w;
+    return src + p0;
+  }
+  float* col = grow(tl_col, static_cast<std::size_t>(kdim) * len);
+  im2col(col, src, ci, h, w, k, pad, wo, p0, len);
+  stride = len;
+  return col;
+}
+
 // Forward convolution of n images [ci, h, w] into [co, ho, wo] with wmat the (ci k k) x co
 // column-major weight matrix (= a [co, ci, k, k] row-major weight). Tiles of output pixels are
 // the parallel tasks; each thread runs its own GEMM.
@@ -109,17 +123,8 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
   for (int task = 0; task < n * tiles; ++task) {
     const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
     const float* src = in + img * in_image;
-    const float* a_ptr;
     Eigen::Index a_stride;
-    if (direct) {
-      a_ptr = src + p0;
-      a_stride = hw;
-    } else {
-      float* col = grow(tl_col, static_cast<std::size_t>(kdim) * len);
-      im2col(col, src, ci, h, w, k, pad, wo, p0, len);
-      a_ptr = col;
-      a_stride = len;
-    }
+    const float* a_ptr = tile_operand(src, direct, ci, h, w, k, pad, wo, p0, len, kdim, a_stride);
     CMat a(a_ptr, len, kdim, Eigen::OuterStride<>(a_stride));  // [len, K]
     CMat b(wmat, kdim, co, Eigen::OuterStride<>(kdim));        // [K, Co]
     Mat c(out + img * out_image + p0, len, co, Eigen::OuterStride<>(hw));  // [len, Co]
@@ -222,17 +227,8 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
       for (int task = 0; task < n * tiles; ++task) {
         const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
         const float* src = in.data() + img * in_image;
-        const float* a_ptr;
         Eigen::Index a_stride;
-        if (direct) {
-          a_ptr = src + p0;
-          a_stride = hw;
-        } else {
-          float* col = grow(tl_col, static_cast<std::size_t>(kdim) * len);
-          im2col(col, src, ci, s.h, s.w, k, pad, wo, p0, len);
-          a_ptr = col;
-          a_stride = len;
-        }
+        const float* a_ptr = tile_operand(src, direct, ci, s.h, s.w, k, pad, wo, p0, len, kdim, a_stride);
         CMat a(a_ptr, len, kdim, Eigen::OuterStride<>(a_stride));
         CMat gm(g + img * out_image + p0, len, co, Eigen::OuterStride<>(hw));
         part.noalias() += a.transpose() * gm;
