@@ -44,7 +44,11 @@ std::vector<std::string> dataset_channels(const ImportOptions& options) {
   std::vector<std::string> c = {"range", "class", "material"};
   for (const auto& e : options.extra_channels) {
     if (std::find(pgm::kEffectChannels.begin(), pgm::kEffectChannels.end(), e) == pgm::kEffectChannels.end())
-      throw Error("import: channel '" + e + "': unknown (known: elevation, azimuth, height, incidence, x, y, z)");
+    {
+      std::string known;
+      for (const auto& k : pgm::kEffectChannels) known += (known.empty() ? "" : ", ") + k;
+      throw Error("import: channel '" + e + "': unknown (known: " + known + ")");
+    }
     if (std::find(c.begin(), c.end(), e) == c.end()) c.push_back(e);
   }
   return c;

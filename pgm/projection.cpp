@@ -140,7 +140,7 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
                      : n == "x"         ? X
                      : n == "y"         ? Y
                      : n == "z"         ? Z
-                                        : Skip;  // incidence: computed below from neighbours
+                                        : Skip;  // incidence, depth_discontinuity: from neighbours, below
     want.emplace_back(c, kind);
   }
   for (std::size_t cell = 0; cell < cells; ++cell) {
@@ -174,6 +174,7 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
     }
     incidence_from_points(pgm, xyz);
   }
+  if (pgm.has_channel("depth_discontinuity")) compute_depth_discontinuity(pgm);
   return result;
 }
 
@@ -239,6 +240,23 @@ void compute_incidence(PolarGridMap& pgm) {
       xyz[2 * plane + i] = static_cast<float>(rg * std::sin(el));
     }
   incidence_from_points(pgm, xyz);
+}
+
+void compute_depth_discontinuity(PolarGridMap& pgm) {
+  if (!pgm.has_channel("depth_discontinuity")) pgm.add_channel("depth_discontinuity");
+  const int H = pgm.rows(), W = pgm.cols();
+  const float* range = pgm.channel("range");
+  float* out = pgm.channel("depth_discontinuity");
+  for (int r = 0; r < H; ++r)
+    for (int c = 0; c < W; ++c) {
+      const float* row = range + static_cast<std::size_t>(r) * W;
+      const float here = row[c];
+      float edge = 0.f;
+      if (here > 0.f)
+        for (int q : {(c + W - 1) % W, (c + 1) % W})
+          if (row[q] > 0.f && std::abs(row[q] - here) > 0.1f * std::max(here, 1e-3f)) edge = 1.f;
+      out[static_cast<std::size_t>(r) * W + c] = edge;
+    }
 }
 
 std::vector<float> back_project(const float* plane, const std::vector<std::int64_t>& point_cell) {

@@ -42,8 +42,12 @@ inline const std::vector<std::string> kBaseChannels = {"range", "class", "materi
 // Optional geometric channels: elevation and azimuth of the point (rad), height = z (m),
 // incidence = angle between the beam and the surface normal estimated from the points of the
 // neighbouring cells (rad, 0 = head-on; cells without a neighbour in both the row and the column
-// direction get 0; columns wrap around), x, y, z (m).
-inline const std::vector<std::string> kEffectChannels = {"elevation", "azimuth", "height", "incidence", "x", "y", "z"};
+// direction get 0; columns wrap around), x, y, z (m), depth_discontinuity = 1 next to an
+// occlusion edge (the left or right neighbour in the row has a return more than 10 % nearer or
+// farther; columns wrap around), else 0. Rows are not compared: on the ground adjacent beams are
+// metres apart at range, which would make it a second incidence estimate rather than an edge flag.
+inline const std::vector<std::string> kEffectChannels = {"elevation", "azimuth", "height", "incidence",
+                                                         "x",         "y",       "z",      "depth_discontinuity"};
 
 struct ProjectOptions {
   RowMode row_mode = RowMode::Auto;
@@ -69,6 +73,9 @@ int firing_order_rows(const std::vector<Point>& points, std::vector<int>& rows);
 // Fills the "incidence" channel from the "range" channel along the layout's nominal beam
 // directions (adds it if missing); for grids without their points, e.g. simulated ones.
 void compute_incidence(PolarGridMap& pgm);
+
+// Fills the "depth_discontinuity" channel from the "range" channel (adds it if missing).
+void compute_depth_discontinuity(PolarGridMap& pgm);
 
 // Per point, the value of `plane` ([rows * cols], e.g. a predicted intensity) at the point's cell;
 // NaN for points that were not projected (ProjectionResult::dropped of them).

@@ -2,7 +2,7 @@
 //   lidar-qualify objects   --kitti-tracking DIR --model M.json --out R
 //   lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R
 //   lidar-qualify loop objects   --kitti-tracking DIR --report R.json
-//   lidar-qualify loop intensity --semantickitti DIR --report R.json
+//   lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup]
 #include <cxxopts.hpp>
 
 #include <filesystem>
@@ -25,7 +25,7 @@ const char* kUsage =
     "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R      KPI model vs measured detections\n"
     "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
-    "  lidar-qualify loop intensity --semantickitti DIR --report R.json\n"
+    "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup] [--out-model CK.h5]\n"
     "add --help after a command for its options\n";
 
 std::string need(const cxxopts::ParseResult& a, const std::string& key, const std::string& what) {
@@ -41,6 +41,8 @@ void print_loop(const nlohmann::json& j) {
               << (r.contains("target") ? "  (" + r["target"].get<std::string>() + ")" : std::string()) << "\n";
   std::cout << "added effect: " << (j["added_effect"].is_null() ? "none (no feature stands out)" : j["added_effect"].get<std::string>())
             << "\nbefore " << j["before"].get<double>() << "  after " << j["after"].get<double>() << "\n";
+  if (j.contains("seeds_before"))
+    std::cout << "per seed: before " << j["seeds_before"].dump() << "  after " << j["seeds_after"].dump() << "\n";
   if (j.contains("after_simulated") && !j["after_simulated"].is_null())
     std::cout << "re-simulated through the KPI manager: before " << j["before_simulated"].get<double>() << "  after "
               << j["after_simulated"].get<double>() << "\n";
@@ -69,7 +71,12 @@ int run(int argc, char** argv) {
     ("model", "KPI model JSON (objects) or checkpoint (intensity)", cxxopts::value<std::string>())
     ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
     ("report", "loop report JSON", cxxopts::value<std::string>())
-    ("out-model", "loop objects: write the refitted KPI model (with the added conditional term) here", cxxopts::value<std::string>())
+    ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel)", cxxopts::value<std::string>())
+    ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
+    ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
+    ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
+    ("threads", "loop intensity: OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("h,help", "this help");
@@ -117,6 +124,12 @@ int run(int argc, char** argv) {
       qualify::IntensityLoopOptions io;
       if (a.count("threshold")) io.threshold = a["threshold"].as<double>();
       io.plots_dir = lo.plots_dir;
+      io.base_model = a["base"].as<std::string>();
+      io.unet.steps = a["steps"].as<int>();
+      io.unet.seeds = a["seeds"].as<int>();
+      io.unet.threads = a["threads"].as<int>();
+      io.progress = !a.count("quiet");
+      if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
       j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
     } else {
       throw Error("loop: unknown domain \"" + sub + "\" (expected objects or intensity)");
@@ -141,6 +154,10 @@ int run(int argc, char** argv) {
       md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
             std::to_string(j["before_simulated"].get<double>()) + ", after " +
             std::to_string(j["after_simulated"].get<double>()) + "\n";
+    if (j.contains("seeds_before"))
+      md += "\nBase model: " + j["base_model"].get<std::string>() + ". Per seed, before " + j["seeds_before"].dump() +
+            ", after " + j["seeds_after"].dump() + " (class x range lookup: " +
+            std::to_string(j["lookup_before"].get<double>()) + ")\n";
     if (j.contains("change_interval95"))
       md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
             ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";

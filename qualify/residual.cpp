@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+
+#include "qualify/similarity.h"
 
 namespace lidarsim::qualify {
 
@@ -94,6 +97,36 @@ double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std
     sst += (r[i] - fit_mean) * (r[i] - fit_mean);
   }
   return sst > 0 ? 1 - sse / sst : 0;
+}
+
+std::array<double, 2> held_out_r2_interval(const BinnedTable& t, const std::vector<double>& x,
+                                           const std::vector<double>& r, double fit_mean,
+                                           const std::vector<long>& block, int replicates) {
+  std::map<long, std::array<double, 2>> sums;  // block -> (sse, sst)
+  for (size_t i = 0; i < x.size(); ++i) {
+    const double d = r[i] - t(x[i]), e = r[i] - fit_mean;
+    auto& s = sums[block[i]];
+    s[0] += d * d, s[1] += e * e;
+  }
+  std::vector<std::array<double, 2>> b;
+  for (const auto& [k, v] : sums) b.push_back(v);
+  if (b.empty()) return {0, 0};
+  double sse = 0, sst = 0;
+  for (const auto& v : b) sse += v[0], sst += v[1];
+  const double point = sst > 0 ? 1 - sse / sst : 0;
+  SplitMix rng(11);
+  std::vector<double> reps;
+  for (int k = 0; k < replicates; ++k) {
+    double a = 0, c = 0;
+    for (size_t j = 0; j < b.size(); ++j) {
+      const auto& v = b[rng.next() % b.size()];
+      a += v[0], c += v[1];
+    }
+    reps.push_back(c > 0 ? 1 - a / c : 0);
+  }
+  std::sort(reps.begin(), reps.end());
+  const auto q = [&](double p) { return reps[static_cast<size_t>(p * (reps.size() - 1))]; };
+  return {2 * point - q(0.975), 2 * point - q(0.025)};  // basic bootstrap
 }
 
 }  // namespace lidarsim::qualify

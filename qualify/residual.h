@@ -8,6 +8,7 @@
 //     Negative when the table only fits noise of the fit split.
 // Residuals are winsorised at the fit split's 1st/99th percentile for fitting and scoring, so a
 // handful of gross errors (heavy tails) cannot decide the ranking alone.
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -37,11 +38,17 @@ Winsor winsor_limits(const std::vector<double>& r, double q = 0.01);
 
 double mean_of(const std::vector<double>& v);
 double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std::vector<double>& r, double fit_mean);
+// Basic-bootstrap 95% interval of held_out_r2 over blocks of held-out cells (block[i] = the
+// block of cell i, e.g. scan x sector): neighbouring cells are not independent, blocks nearly are.
+std::array<double, 2> held_out_r2_interval(const BinnedTable& t, const std::vector<double>& x,
+                                           const std::vector<double>& r, double fit_mean,
+                                           const std::vector<long>& block, int replicates = 1000);
 
 struct FeatureScore {
   std::string feature;
   double score = 0;     // held-out share of residual variance explained
   std::string target;   // which residual it explains best (objects: the parameter)
+  std::array<double, 2> interval{0, 0};  // the score's 95% interval, where computed
 };
 
 }  // namespace lidarsim::qualify

@@ -267,6 +267,7 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
     }
   }
   if (out.has_channel("incidence")) pgm::compute_incidence(out);
+  if (out.has_channel("depth_discontinuity")) pgm::compute_depth_discontinuity(out);
   return returns;
 }
 

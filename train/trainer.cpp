@@ -143,30 +143,41 @@ pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoi
 
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
   if (config.data.empty()) throw Error("lidar-train: no training data given");
+  const auto channels = required_channels(config.encoder);
+  std::vector<data::Dataset> sets;
+  for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
+  std::optional<data::Dataset> val_set;
+  if (config.validation) val_set = data::read_dataset(*config.validation, channels);
+  std::vector<const data::Dataset*> views;
+  std::vector<std::string> names;
+  for (std::size_t i = 0; i < sets.size(); ++i) views.push_back(&sets[i]), names.push_back(config.data[i].string());
+  return train_on(config, views, names, val_set ? &*val_set : nullptr, on_epoch);
+}
+
+TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
+                     const std::vector<std::string>& names, const data::Dataset* val_set,
+                     const std::function<void(const EpochReport&)>& on_epoch) {
+  if (train_sets.empty()) throw Error("lidar-train: no training data given");
   if (config.batch < 1 || config.epochs < 1 || config.threads < 1)
     throw Error("lidar-train: batch, epochs and threads must be at least 1");
   if (!(config.lr > 0) || !(config.lambda >= 0)) throw Error("lidar-train: lr must be > 0 and lambda >= 0");
   omp_set_num_threads(config.threads);
 
   // --- data: every frame encoded once ---------------------------------------------------------
-  const auto channels = required_channels(config.encoder);
-  std::vector<data::Dataset> train_sets;
-  for (const auto& path : config.data) train_sets.push_back(data::read_dataset(path, channels));
-  std::optional<data::Dataset> val_set;
-  if (config.validation) val_set = data::read_dataset(*config.validation, channels);
-  const int rows = train_sets[0].rows(), cols = train_sets[0].cols();
+  const int rows = train_sets[0]->rows(), cols = train_sets[0]->cols();
   for (std::size_t i = 0; i < train_sets.size(); ++i)
-    if (train_sets[i].rows() != rows || train_sets[i].cols() != cols)
-      throw input_error(config.data[i].string(), "/pgm", "grid " + std::to_string(train_sets[i].rows()) + " x " +
-                                                          std::to_string(train_sets[i].cols()) + " differs from " +
-                                                          std::to_string(rows) + " x " + std::to_string(cols));
-  const bool sector_split = !val_set.has_value();
+    if (train_sets[i]->rows() != rows || train_sets[i]->cols() != cols)
+      throw input_error(names.at(i), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
+                                                  std::to_string(train_sets[i]->cols()) + " differs from " +
+                                                  std::to_string(rows) + " x " + std::to_string(cols));
+  const bool sector_split = val_set == nullptr;
   const data::SectorSplit split = data::reference_split();
   const auto val_columns = split.validation_columns(cols);  // checks cols is a multiple of 16
 
   std::vector<EncodedFrame> frames;
   const int in_channels = config.encoder.input_channels();
-  for (const auto& set : train_sets)
+  for (const data::Dataset* set_ptr : train_sets) {
+    const data::Dataset& set = *set_ptr;
     for (int n = 0; n < set.size(); ++n) {
       EncodedFrame f;
       f.input.resize({1, in_channels, rows, cols});
@@ -182,6 +193,7 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
       }
       frames.push_back(std::move(f));
     }
+  }
   const int num_frames = static_cast<int>(frames.size());
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   bool roll = config.augment_roll, mirror = config.augment_mirror;
@@ -194,7 +206,8 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
 
   // --- model, optimizer, resume ----------------------------------------------------------------
   nn::UNetConfig arch{in_channels, 1, config.base, config.depth};
-  nn::UNet model(arch);
+  auto model_ptr = std::make_shared<nn::UNet>(arch);
+  nn::UNet& model = *model_ptr;
   model.init(config.seed);
   nn::OptimizerConfig opt_config;
   opt_config.kind = "adam";
@@ -205,7 +218,8 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
       config.steps_per_epoch > 0 ? config.steps_per_epoch : (num_frames + config.batch - 1) / config.batch;
   const std::int64_t total_steps = steps_per_epoch * config.epochs;
   std::int64_t step = 0;
-  if (config.resume && std::filesystem::exists(config.out)) {
+  const bool checkpoints = !config.out.empty();
+  if (config.resume && checkpoints && std::filesystem::exists(config.out)) {
     const nn::Checkpoint meta = nn::read_checkpoint_meta(config.out);
     if (!(meta.unet == arch))
       throw input_error(config.out.string(), "/config/unet", "architecture differs from the requested one");
@@ -221,7 +235,7 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
   nn::Checkpoint meta;
   meta.unet = arch;
   meta.attributes["encoder"] = config.encoder.to_json();
-  meta.attributes["beam_layout"] = train_sets[0].layout.to_json();
+  meta.attributes["beam_layout"] = train_sets[0]->layout.to_json();
   meta.attributes["lambda"] = std::to_string(config.lambda);
   meta.attributes["seed"] = std::to_string(config.seed);
   meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
@@ -230,7 +244,7 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
     meta.state.step = at_step;
     meta.state.epoch = at_step / steps_per_epoch;
     meta.state.rng = "counter-based: seed " + std::to_string(config.seed) + ", step " + std::to_string(at_step);
-    nn::save_checkpoint(config.out, model, &optimizer, meta);
+    if (checkpoints) nn::save_checkpoint(config.out, model, &optimizer, meta);
   };
 
   auto validate = [&]() {
@@ -239,8 +253,8 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
       parts.push_back(data::evaluate_prediction(*val_set, predict_dataset(model, config.encoder, *val_set), true,
                                                 all_validation()));
     } else {
-      for (const auto& set : train_sets)
-        parts.push_back(data::evaluate_prediction(set, predict_dataset(model, config.encoder, set), true, split));
+      for (const data::Dataset* set : train_sets)
+        parts.push_back(data::evaluate_prediction(*set, predict_dataset(model, config.encoder, *set), true, split));
     }
     return merge(parts);
   };
@@ -310,6 +324,7 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
     }
   }
   result.steps = step;
+  result.model = model_ptr;
   return result;
 }
 

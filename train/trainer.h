@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -38,7 +39,7 @@ struct TrainConfig {
   int threads = 2;
   bool augment_roll = true;    // random rotation about z: a spinning sensor sees the scene at any azimuth
   bool augment_mirror = true;  // left-right mirror
-  std::filesystem::path out = "checkpoint.h5";
+  std::filesystem::path out = "checkpoint.h5";  // empty: no checkpoints (train_on only)
   bool resume = false;         // continue from `out` if it exists
   // At the end, also write the weights alone (no optimizer state): a third of the size, for
   // shipping a model for inference.
@@ -57,6 +58,7 @@ struct TrainResult {
   std::vector<EpochReport> epochs;
   bool interrupted = false;
   std::int64_t steps = 0;
+  std::shared_ptr<nn::UNet> model;  // the weights at the end
 };
 
 // Set from a SIGINT handler; the loop saves a checkpoint and returns at the next step boundary.
@@ -64,6 +66,13 @@ std::atomic<bool>& stop_requested();
 
 // Runs training as configured; `on_epoch` is called after each epoch's validation.
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch = {});
+
+// The same on datasets already in memory (config.data and config.validation are not read):
+// `names` name the sets in errors; without `validation`, the sector split of the training sets
+// validates. For callers that build datasets themselves, e.g. the intensity loop (qualify/).
+TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& sets,
+                     const std::vector<std::string>& names, const data::Dataset* validation = nullptr,
+                     const std::function<void(const EpochReport&)>& on_epoch = {});
 
 // Predicts the target channel for every frame of a dataset with a trained model: [N, 1, H, W].
 nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset);

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/reference_sensor.h"
+#include "infer/intensity_model.h"
 #include "sensor/kpi_model.h"
 #include "tests/support/shared_data.h"
 
@@ -110,9 +111,21 @@ TEST_F(QualifyCli, LoopObjectsOnReferenceDataWritesTheDocumentedKeys) {
 
 TEST_F(QualifyCli, LoopIntensityOnReferenceDataWritesTheDocumentedKeys) {
   const fs::path sk = scans();
-  const CliRun r = run("loop intensity --semantickitti " + sk.string() + " --report " + (dir_ / "r.json").string());
+  // The UNet loop, briefly trained: the keys, and the model it ends with loads for inference.
+  const CliRun r = run("loop intensity --semantickitti " + sk.string() + " --report " + (dir_ / "r.json").string() +
+                       " --steps 60 --seeds 1 --quiet --out-model " + (dir_ / "ck.h5").string());
   ASSERT_EQ(r.code, 0) << r.out;
   expect_loop_keys(dir_ / "r.json", "intensity");
+  const auto model = infer::IntensityModel::load(dir_ / "ck.h5");
+  std::ifstream in(dir_ / "r.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["seeds_before"].size(), 1u);
+  EXPECT_TRUE(fs::exists(dir_ / "r.md"));
+}
+
+TEST_F(QualifyCli, UnknownIntensityBaseModelIsOneClearError) {
+  const fs::path sk = scans();
+  expect_one_error(run("loop intensity --semantickitti " + sk.string() + " --report r.json --base forest"), "forest");
 }
 
 TEST_F(QualifyCli, MissingTrackingFolderIsOneClearError) {
@@ -190,7 +203,9 @@ TEST(QualifyRealData, BothLoopsRunOnTheMeasuredData) {
   const CliRun a = run("loop objects --kitti-tracking " + kt.string() + " --report " + (out / "o.json").string());
   ASSERT_EQ(a.code, 0) << a.out;
   expect_loop_keys(out / "o.json", "objects");
-  const CliRun b = run("loop intensity --semantickitti " + sk.string() + " --report " + (out / "i.json").string());
+  // The lookup base (seconds); the UNet loop on these scans takes ~2 min (qualify/README.md).
+  const CliRun b =
+      run("loop intensity --base lookup --semantickitti " + sk.string() + " --report " + (out / "i.json").string());
   ASSERT_EQ(b.code, 0) << b.out;
   expect_loop_keys(out / "i.json", "intensity");
   // The base model of the intensity loop is the class x range lookup: DESIGN.md's reference 0.082.

@@ -172,3 +172,29 @@ TEST(Projection, IncidenceFromProjectedGroundPointsMatchesGeometry) {
   EXPECT_NEAR(m.at(m.channel_index("incidence"), 4, 50), (90 - 8) * kPi / 180, 0.01);
   EXPECT_NEAR(m.at(m.channel_index("incidence"), 0, 200), (90 - 4) * kPi / 180, 0.01);
 }
+
+TEST(Projection, DepthDiscontinuityFlagsBothSidesOfAnOcclusionEdgeOnly) {
+  // One ring: a wall at 20 m, a pole at 5 m in columns 10..12, no return in column 30; columns wrap.
+  const auto l = BeamLayout::uniform(1, 0, 0, 64);
+  std::vector<Point> pts;
+  for (int c = 0; c < l.columns; ++c) {
+    if (c == 30) continue;
+    const double range = c >= 10 && c <= 12 ? 5.0 : 20.0 + 0.01 * c;  // a gentle slope is no edge
+    pts.push_back(at(range, 0, l.azimuth_of_column(c)));
+  }
+  ProjectOptions o;
+  o.extra_channels = {"depth_discontinuity"};
+  o.row_mode = RowMode::NearestElevation;
+  const auto res = project(pts, l, o);
+  const int ch = res.pgm.channel_index("depth_discontinuity");
+  for (int c = 0; c < l.columns; ++c) {
+    const bool edge = c == 9 || c == 10 || c == 12 || c == 13;
+    EXPECT_EQ(res.pgm.at(ch, 0, c), edge ? 1.f : 0.f) << "column " << c;  // 29, 31: next to no return, not an edge
+  }
+  // The same from the range channel alone (simulated grids).
+  PolarGridMap sim(l, {"range", "mask"});
+  for (int c = 0; c < l.columns; ++c) sim.at(0, 0, c) = res.pgm.at(res.pgm.channel_index("range"), 0, c);
+  compute_depth_discontinuity(sim);
+  for (int c = 0; c < l.columns; ++c)
+    EXPECT_EQ(sim.at(sim.channel_index("depth_discontinuity"), 0, c), res.pgm.at(ch, 0, c)) << "column " << c;
+}

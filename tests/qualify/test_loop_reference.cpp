@@ -37,15 +37,33 @@ nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model 
   return j;
 }
 
-nlohmann::json intensity_loop(data::IntensityEffect effect) {
+nlohmann::json intensity_loop(data::IntensityEffect effect, const qualify::IntensityLoopOptions& options) {
   const fs::path dir = fresh_dir("intensity_" + data::to_string(effect));
   data::ReferenceScanOptions o;
   o.effect = effect;
   o.seed = 23;
   data::write_reference_semantickitti(dir, o);
-  const auto j = qualify::loop_intensity(dir);
+  const auto j = qualify::loop_intensity(dir, options);
   fs::remove_all(dir);
   return j;
+}
+
+// The class x range lookup as base model: the ranking and the refit take a second.
+qualify::IntensityLoopOptions lookup_base() {
+  qualify::IntensityLoopOptions o;
+  o.base_model = "lookup";
+  return o;
+}
+
+// The UNet as base model, retrained with the effect as a new channel: a small, short training
+// so that a test takes seconds (the command's defaults train longer).
+qualify::IntensityLoopOptions unet_base() {
+  qualify::IntensityLoopOptions o;
+  o.base_model = "unet";
+  o.unet.steps = 300;
+  o.unet.seeds = 1;
+  o.unet.crop_columns = 128;
+  return o;
 }
 
 void expect_found(const nlohmann::json& j, const std::string& feature) {
@@ -108,20 +126,40 @@ TEST(LoopObjects, ControlWithoutHiddenEffectAddsNothing) {
 }
 
 TEST(LoopIntensity, NamesIncidenceFalloffAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Incidence), "incidence_angle");
+  expect_found(intensity_loop(data::IntensityEffect::Incidence, lookup_base()), "incidence_angle");
 }
 
 TEST(LoopIntensity, NamesHeightGainAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Height), "height");
+  expect_found(intensity_loop(data::IntensityEffect::Height, lookup_base()), "height");
 }
 
 TEST(LoopIntensity, NamesAzimuthGainAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Azimuth), "azimuth");
+  expect_found(intensity_loop(data::IntensityEffect::Azimuth, lookup_base()), "azimuth");
 }
 
 TEST(LoopIntensity, ControlWithoutHiddenEffectAddsNothing) {
-  const auto j = intensity_loop(data::IntensityEffect::None);
+  const auto j = intensity_loop(data::IntensityEffect::None, lookup_base());
   std::cout << "  control ranking " << j["ranking"].dump().substr(0, 160) << "\n";
+  EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump();
+  EXPECT_EQ(j["before"], j["after"]);
+}
+
+// The UNet loop: the hidden effect becomes a new PGM channel and the UNet is retrained with it.
+TEST(LoopIntensityUnet, NamesAzimuthGainAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
+  const auto j = intensity_loop(data::IntensityEffect::Azimuth, unet_base());
+  expect_found(j, "azimuth");
+  EXPECT_NE(j["method"].get<std::string>().find("\"azimuth\""), std::string::npos) << j["method"];
+  EXPECT_LE(j["seeds_after"][0].get<double>(), 0.7 * j["seeds_before"][0].get<double>());
+}
+
+TEST(LoopIntensityUnet, NamesIncidenceFalloffAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
+  expect_found(intensity_loop(data::IntensityEffect::Incidence, unet_base()), "incidence_angle");
+}
+
+TEST(LoopIntensityUnet, ControlWithoutHiddenEffectAddsNothing) {
+  const auto j = intensity_loop(data::IntensityEffect::None, unet_base());
+  std::cout << "  control ranking " << j["ranking"].dump().substr(0, 200) << "\n";
+  if (j.contains("rejected_effect")) std::cout << "  tried and rejected " << j["rejected_effect"].dump() << "\n";
   EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump();
   EXPECT_EQ(j["before"], j["after"]);
 }
