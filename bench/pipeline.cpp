@@ -1,6 +1,6 @@
 // Simulation pipeline frame rate (issue 4, "what it must show" 3):
 //   1. the whole pipeline (scenario sampling, frames, FoV, occlusion, tracking, KPI manager, lanes,
-//      PCL generator into a 64 x 1024 PGM, unet-ref intensity inference, point cloud), writing
+//      PCL generator into a 64 x 1024 PGM, UNet intensity inference, point cloud), writing
 //      outputs excluded, on --threads (2) over the bundled demo scenario: frames/s, target >= 10;
 //   2. the object-level model alone (frames, FoV, occlusion, tracking, KPI manager) on a synthetic
 //      in-memory scenario with 100 objects: frames/s, target >= 1000.
@@ -257,8 +257,8 @@ int main(int argc, char** argv) {
     // so the CPU-time bound is printed next to them (load average at the end of the run).
     std::printf("\n| measurement | frames/s (wall, median of %d) | frames/s bound from CPU time | target | met (wall) |\n"
                 "|---|---:|---:|---:|---|\n", runs);
-    std::printf("| whole pipeline, %d threads, unet-ref, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |\n", threads,
-                whole_median, 1000 * threads / whole_cpu, whole_median >= 10 ? "yes" : "NO");
+    std::printf("| whole pipeline, %d threads, UNet base %d depth %d, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |\n",
+                threads, meta.unet.base, meta.unet.depth, whole_median, 1000 * threads / whole_cpu, whole_median >= 10 ? "yes" : "NO");
     std::printf("| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |\n", n, obj_median, 1000 / obj_cpu,
                 obj_median >= 1000 ? "yes" : "NO");
     std::printf("load average %.2f (1 min) on %ld online CPUs\n", load[0], sysconf(_SC_NPROCESSORS_ONLN));

@@ -192,6 +192,8 @@ void incidence_from_points(PolarGridMap& pgm, const std::vector<float>& xyz) {
     const std::size_t i = static_cast<std::size_t>(r) * W + c;
     for (int k = 0; k < 3; ++k) p[k] = xyz[k * plane + i];
   };
+  // Rows are independent: split them over the threads (a simulated frame pays this every time).
+#pragma omp parallel for schedule(static)
   for (int r = 0; r < H; ++r) {
     for (int c = 0; c < W; ++c) {
       const std::size_t cell = static_cast<std::size_t>(r) * W + c;
@@ -229,16 +231,21 @@ void compute_incidence(PolarGridMap& pgm) {
   const int H = pgm.rows(), W = pgm.cols();
   const std::size_t plane = pgm.cells();
   const float* range = pgm.channel("range");
-  // Points from the cell's range along the row's elevation and the column's centre azimuth.
+  // Points from the cell's range along the row's elevation and the column's centre azimuth; the
+  // sines and cosines once per row and column (this runs on every simulated frame).
+  std::vector<double> cos_az(W), sin_az(W);
+  for (int c = 0; c < W; ++c) cos_az[c] = std::cos(layout.azimuth_of_column(c)), sin_az[c] = std::sin(layout.azimuth_of_column(c));
   std::vector<float> xyz(3 * plane, 0.f);
-  for (int r = 0; r < H; ++r)
+  for (int r = 0; r < H; ++r) {
+    const double cos_el = std::cos(layout.elevations_rad[r]), sin_el = std::sin(layout.elevations_rad[r]);
     for (int c = 0; c < W; ++c) {
       const std::size_t i = static_cast<std::size_t>(r) * W + c;
-      const double rg = range[i], el = layout.elevations_rad[r], az = layout.azimuth_of_column(c);
-      xyz[i] = static_cast<float>(rg * std::cos(el) * std::cos(az));
-      xyz[plane + i] = static_cast<float>(rg * std::cos(el) * std::sin(az));
-      xyz[2 * plane + i] = static_cast<float>(rg * std::sin(el));
+      const double rg = range[i];
+      xyz[i] = static_cast<float>(rg * cos_el * cos_az[c]);
+      xyz[plane + i] = static_cast<float>(rg * cos_el * sin_az[c]);
+      xyz[2 * plane + i] = static_cast<float>(rg * sin_el);
     }
+  }
   incidence_from_points(pgm, xyz);
 }
 

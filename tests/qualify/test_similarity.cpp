@@ -79,6 +79,33 @@ TEST(Residual, BinnedTableRecoversAStepAndScoresItOnHeldOutData) {
   EXPECT_LE(held_out_r2(t, {5, 95}, {1, -1}, 0.0), 0.0);
 }
 
+TEST(Residual, BlockBootstrapIntervalOfTheScoreExcludesZeroForARealStepAndNotForNoise) {
+  // 40 blocks of 50 cells: a step of +-0.5 under unit noise (R^2 ~ 0.2), and noise alone.
+  SplitMix rng(5);
+  std::vector<double> x, step, noise;
+  std::vector<long> block;
+  for (int b = 0; b < 40; ++b)
+    for (int i = 0; i < 50; ++i) {
+      const double xi = rng.uniform(), e = rng.normal();
+      x.push_back(xi), block.push_back(b);
+      step.push_back((xi < 0.5 ? -0.5 : 0.5) + e), noise.push_back(e);
+    }
+  BinnedTable t;
+  t.edges = {0.5};
+  t.value = {-0.5, 0.5};
+  t.count = {1, 1};
+  const double s = held_out_r2(t, x, step, 0.0);
+  const auto ci = held_out_r2_interval(t, x, step, 0.0, block);
+  EXPECT_GT(ci[0], 0.1);
+  EXPECT_LE(ci[0], s);
+  EXPECT_GE(ci[1], s);
+  BinnedTable zero = t;
+  zero.value = {0.01, -0.01};  // a table fitted to noise elsewhere: no signal here
+  const auto cn = held_out_r2_interval(zero, x, noise, 0.0, block);
+  EXPECT_LT(cn[0], 0.0);
+  EXPECT_LT(cn[1], 0.01);
+}
+
 TEST(Residual, GainTableRecoversAMultiplicativeFactorPerBin) {
   std::vector<double> x, m, b;
   for (int i = 0; i < 100; ++i) x.push_back(i), b.push_back(0.5), m.push_back(i < 50 ? 0.25 : 1.0);  // cut at 50
