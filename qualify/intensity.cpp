@@ -236,23 +236,22 @@ std::string channel_of(const std::string& feature) {
 // UNets trained on the fit sectors with `channels` as input, one per seed: per-cell predictions
 // of each seed and their mean (the ensemble), held-out MAE per seed.
 struct UnetFits {
-  std::vector<std::vector<double>> per_seed;
   std::vector<double> ensemble;
   std::vector<double> seed_mae;
-  std::shared_ptr<nn::UNet> first;  // the first seed's model
-  pgm::EncoderConfig encoder;
+  train::TrainResult first;  // the first seed's model and its checkpoint metadata
 };
 
 UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::vector<std::string>& channels,
                    const IntensityLoopOptions& o, const std::string& label, int& done, int total) {
   UnetFits fits;
-  fits.encoder.channels = channels;
+  pgm::EncoderConfig encoder;
+  encoder.channels = channels;
   fits.ensemble.assign(c.size(), 0.0);
   const int cells = ds.rows() * ds.cols();
   const std::vector<size_t> held = held_indices(c);
   for (int k = 0; k < o.unet.seeds; ++k) {
     train::TrainConfig t;
-    t.encoder = fits.encoder;
+    t.encoder = encoder;
     t.base = o.unet.base, t.depth = o.unet.depth;
     t.epochs = 1, t.steps_per_epoch = o.unet.steps;
     t.batch = o.unet.batch, t.crop_columns = o.unet.crop_columns;
@@ -264,32 +263,15 @@ UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::
     if (o.progress)
       std::fprintf(stderr, "loop intensity: UNet %d/%d (%s, seed %d, %d steps)\n", ++done, total, label.c_str(), k + 1,
                    o.unet.steps);
-    const train::TrainResult r = train::train_on(t, {&ds}, {"scans"});
-    const nn::Tensor pred = train::predict_dataset(*r.model, fits.encoder, ds);
+    train::TrainResult r = train::train_on(t, {&ds}, {"scans"});
+    const nn::Tensor pred = train::predict_dataset(*r.model, encoder, ds);
     std::vector<double> p(c.size());
     for (size_t i = 0; i < c.size(); ++i) p[i] = pred.image(c.frame[i])[c.cell[i] % cells];
     for (size_t i = 0; i < c.size(); ++i) fits.ensemble[i] += p[i] / o.unet.seeds;
     fits.seed_mae.push_back(errors(p, c.measured, held).mae);
-    fits.per_seed.push_back(std::move(p));
-    if (k == 0) fits.first = r.model;
+    if (k == 0) fits.first = std::move(r);
   }
   return fits;
-}
-
-// Writes `model` (weights only) as a lidar-train checkpoint that lidar-infer loads.
-void save_loop_model(const fs::path& path, nn::UNet& model, const pgm::EncoderConfig& encoder,
-                     const data::Dataset& ds, const IntensityLoopOptions& o) {
-  nn::Checkpoint meta;
-  meta.unet = model.config();
-  meta.attributes["encoder"] = encoder.to_json();
-  meta.attributes["beam_layout"] = ds.layout.to_json();
-  meta.attributes["lambda"] = std::to_string(o.unet.lambda);
-  meta.attributes["seed"] = "1";
-  meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
-  meta.attributes["train_config"] = "lidar-qualify loop intensity: fit sectors of the loop's scans, " +
-                                     std::to_string(o.unet.steps) + " steps";
-  meta.state.step = o.unet.steps;
-  nn::save_checkpoint(path, model, nullptr, meta);
 }
 
 // Block bootstrap of the held-out MAE change over (scan, validation sector) blocks.
@@ -417,8 +399,9 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
                        pick(c.feature[tf], held_i), pick(resid, held_i));
   }
   if (unet && !options.out_model.empty()) {
-    const UnetFits& final_fits = add ? after_fits : base_fits;
-    save_loop_model(options.out_model, *final_fits.first, final_fits.encoder, ds, options);
+    // Weights only, as lidar-train --export-weights writes them: lidar-infer loads it as is.
+    const train::TrainResult& final_model = (add ? after_fits : base_fits).first;
+    nn::save_checkpoint(options.out_model, *final_model.model, nullptr, final_model.meta);
   }
   const Errors aft = errors(after, c.measured, held_i);
 

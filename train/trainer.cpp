@@ -325,6 +325,9 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   }
   result.steps = step;
   result.model = model_ptr;
+  meta.state.step = step;
+  meta.state.epoch = step / steps_per_epoch;
+  result.meta = meta;
   return result;
 }
 

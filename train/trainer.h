@@ -18,6 +18,7 @@
 #include "data/baselines.h"
 #include "data/dataset.h"
 #include "data/split.h"
+#include "nn/checkpoint.h"
 #include "nn/unet.h"
 #include "pgm/encoder.h"
 
@@ -59,6 +60,7 @@ struct TrainResult {
   bool interrupted = false;
   std::int64_t steps = 0;
   std::shared_ptr<nn::UNet> model;  // the weights at the end
+  nn::Checkpoint meta;              // what a checkpoint of them records (/config, /state)
 };
 
 // Set from a SIGINT handler; the loop saves a checkpoint and returns at the next step boundary.
