@@ -50,6 +50,7 @@ std::string to_string(ObjectEffect e) {
     case ObjectEffect::VelocityLag: return "velocity_lag";
     case ObjectEffect::TruncationSize: return "truncation_size";
     case ObjectEffect::AspectAcross: return "aspect_across";
+    case ObjectEffect::AzimuthDropout: return "azimuth_dropout";
     default: return "none";
   }
 }
@@ -66,6 +67,7 @@ std::string effect_feature(ObjectEffect e) {
     case ObjectEffect::VelocityLag: return "radial_velocity";
     case ObjectEffect::TruncationSize: return "truncation";
     case ObjectEffect::AspectAcross: return "heading_to_line_of_sight";
+    case ObjectEffect::AzimuthDropout: return "azimuth";
     default: return "";
   }
 }
@@ -132,7 +134,13 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
                       t.id, t.type.c_str(), t.truncated, t.occluded, t.size.z(), t.size.y(), t.size.x(), -c.y(),
                       -c.z() + t.size.z() / 2, c.x(), ry);
         labels += line;
-        if (U(rng) > o.detection_probability) continue;
+        // The same draw for every effect, so the other effects' outputs stay as they were.
+        double pd = o.detection_probability;
+        if (o.effect == ObjectEffect::AzimuthDropout) {
+          const double az = std::atan2(c.y(), c.x());
+          if (az >= kDropoutAzimuthLo && az <= kDropoutAzimuthHi) pd *= kDropoutFactor;
+        }
+        if (U(rng) > pd) continue;
         const Eigen::Vector2d bev = c.head<2>();
         const Eigen::Vector2d u = bev / bev.norm(), left(-u.y(), u.x());
         double along = o.noise * N01(rng), across = o.noise * N01(rng);
@@ -152,6 +160,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
             across += 1.2 * (rel / (kPi / 2)) - 0.6;
             break;
           }
+          case ObjectEffect::AzimuthDropout:
           case ObjectEffect::None: break;
         }
         const Eigen::Vector2d pos = bev + along * u + across * left;

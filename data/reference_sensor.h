@@ -12,6 +12,10 @@
 //                     -lag * radial velocity
 //   truncation_size   length error = -0.45 * truncation * length (a truncated box is measured short)
 //   aspect_across     across error grows with the heading relative to the line of sight
+//   azimuth_dropout   a dirty patch on the sensor window: detection probability x 0.2 for objects
+//                     whose box centre lies at azimuth atan2(y, x) in [20 deg, 70 deg] of the
+//                     sensor frame (front left); elsewhere and all errors as without effect.
+//                     A condition on detection, not on an error (feature: azimuth).
 // Intensity (SemanticKITTI layout): DIR/sequences/00/velodyne/NNNNNN.bin + labels/NNNNNN.label.
 // A 64-beam HDL-64E-like scan in firing order (ring by ring, azimuth rising from -pi to pi) of a
 // flat ground (road, sidewalk) inside a ring of random wall facets (building, fence,
@@ -26,7 +30,7 @@
 
 namespace lidarsim::data {
 
-enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross };
+enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout };
 enum class IntensityEffect { None, Incidence, Height, Azimuth };
 
 std::string to_string(ObjectEffect e);     // "none", "velocity_lag", ...
@@ -34,6 +38,11 @@ std::string to_string(IntensityEffect e);  // "none", "incidence", ...
 // The loop's feature name the effect depends on ("" for none).
 std::string effect_feature(ObjectEffect e);
 std::string effect_feature(IntensityEffect e);
+
+// azimuth_dropout's sector (rad, sensor frame) and the factor on the detection probability in it.
+inline constexpr double kDropoutAzimuthLo = 20 * 3.14159265358979323846 / 180;
+inline constexpr double kDropoutAzimuthHi = 70 * 3.14159265358979323846 / 180;
+inline constexpr double kDropoutFactor = 0.2;
 
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;

@@ -146,8 +146,29 @@ std::vector<sensor::CalibrationSequence> with_truth_motion(std::vector<sensor::C
   return seqs;
 }
 
+// One number per truth object the KPI manager produces with `model` (read from its injection),
+// keyed by (sequence, frame, id). A fresh manager per sequence: track ages restart, ids stay unique.
+template <class Read>
+std::map<std::array<int, 3>, double> simulated_per_object(const std::vector<sensor::CalibrationSequence>& seqs,
+                                                          const std::vector<int>& which, const sensor::KpiModel& model,
+                                                          std::uint64_t seed, Read read) {
+  std::map<std::array<int, 3>, double> out;
+  std::vector<sensor::Object> truth, reported;
+  for (int s : which) {
+    sensor::KpiManager kpi(model, seed);
+    const auto& cs = seqs.at(s);
+    for (size_t f = 0; f < cs.frames.size(); ++f) {
+      truth = cs.frames[f].truth;
+      kpi.apply(truth, reported);
+      for (const auto& inj : kpi.injections())
+        if (inj.modelled) out[{s, static_cast<int>(f), inj.id}] = read(inj);
+    }
+  }
+  return out;
+}
+
 // The conditional mean error of parameter p the KPI manager injects per truth object (model
-// with its noise switched off), keyed by (sequence, frame, id).
+// with its noise switched off).
 std::map<std::array<int, 3>, double> simulated_mean_error(const std::vector<sensor::CalibrationSequence>& seqs,
                                                           const std::vector<int>& which, sensor::KpiModel model,
                                                           sensor::KpiParam p, std::uint64_t seed) {
@@ -156,19 +177,16 @@ std::map<std::array<int, 3>, double> simulated_mean_error(const std::vector<sens
       std::fill(e.sigma.begin(), e.sigma.end(), 0.0);
       e.track_std = 0;
     }
-  std::map<std::array<int, 3>, double> out;
-  std::vector<sensor::Object> truth, reported;
-  for (int s : which) {
-    sensor::KpiManager kpi(model, seed);  // fresh per sequence: track ages restart, ids stay unique
-    const auto& cs = seqs.at(s);
-    for (size_t f = 0; f < cs.frames.size(); ++f) {
-      truth = cs.frames[f].truth;
-      kpi.apply(truth, reported);
-      for (const auto& inj : kpi.injections())
-        if (inj.modelled) out[{s, static_cast<int>(f), inj.id}] = inj.error[static_cast<int>(p)];
-    }
-  }
-  return out;
+  return simulated_per_object(seqs, which, model, seed,
+                              [p](const sensor::KpiInjection& inj) { return inj.error[static_cast<int>(p)]; });
+}
+
+// The detection probability the KPI manager uses per truth object (its misses are draws from it).
+std::map<std::array<int, 3>, double> simulated_detection_probability(
+    const std::vector<sensor::CalibrationSequence>& seqs, const std::vector<int>& which, const sensor::KpiModel& model,
+    std::uint64_t seed) {
+  return simulated_per_object(seqs, which, model, seed,
+                              [](const sensor::KpiInjection& inj) { return inj.detection_probability; });
 }
 
 }  // namespace
@@ -683,25 +701,20 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   const std::string plot = options.plots_dir.empty() ? "" : "residual_" + top.target + "_vs_" + top.feature + ".png";
 
   // The refitted KPI model: the base with the loop's range-bin offsets added to the target's
-  // means and the feature table as its conditional term. Only error targets on features the KPI
-  // manager can compute become a term; otherwise the model stays the base.
+  // means (detection: to the detection probabilities of the range bin, clamped to [0, 1]) and
+  // the feature table as its conditional term (on that error, or on detection probability).
+  // Only features the KPI manager can compute become a term; otherwise the model stays the base.
   sensor::KpiModel refitted = base;
   std::string not_in_model;
   if (!add) not_in_model = "no effect added";
-  else if (t == kDetectionTarget) not_in_model = "the KPI model has no conditional term on detection";
   else if (std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), top.feature) ==
            sensor::kConditionalFeatures.end())
     not_in_model = "the KPI manager cannot compute \"" + top.feature + "\" from a truth object";
   if (not_in_model.empty()) {
-    const int p = int(kTargetParam[t]);
     for (int c = 0; c < 3; ++c) {
       const auto it = refitted.classes.find(kObjectClasses[c]);
       if (it == refitted.classes.end()) continue;
-      sensor::ErrorModel& em = it->second.errors[p];
-      for (int rb = 0; rb < static_cast<int>(em.mean.size()); ++rb) {
-        const auto d = ref.d.find({c, rb});
-        if (d != ref.d.end()) em.mean[rb] += d->second;
-      }
+      sensor::ClassModel& cm = it->second;
       const BinnedTable& bt = tab.own[c] ? tab.per_class[c] : tab.pooled;
       // BinnedTable cut points -> the term's lower edges (bin 0 takes everything below edges[1]).
       sensor::ConditionalTerm ct;
@@ -709,17 +722,40 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       ct.edges.push_back(bt.edges.empty() ? 0.0 : bt.edges.front() - 1);
       ct.edges.insert(ct.edges.end(), bt.edges.begin(), bt.edges.end());
       ct.bias = bt.value;
-      em.conditional = ct;
+      if (t == kDetectionTarget) {
+        for (int rb = 0; rb < static_cast<int>(cm.detection_probability.size()); ++rb) {
+          const auto d = ref.d.find({c, rb});
+          if (d != ref.d.end())
+            for (double& p : cm.detection_probability[rb]) p = std::clamp(p + d->second, 0.0, 1.0);
+        }
+        for (double& b : ct.bias) b = std::clamp(b, -1.0, 1.0);  // a probability shift
+        cm.detection_conditional = ct;
+      } else {
+        sensor::ErrorModel& em = cm.errors[int(kTargetParam[t])];
+        for (int rb = 0; rb < static_cast<int>(em.mean.size()); ++rb) {
+          const auto d = ref.d.find({c, rb});
+          if (d != ref.d.end()) em.mean[rb] += d->second;
+        }
+        em.conditional = ct;
+      }
     }
-    refitted.source = base.source + "; plus the object loop's conditional term on " + top.feature + " (" + top.target + ")";
+    refitted.source = base.source + "; plus the object loop's conditional term on " + top.feature + " (" +
+                      (t == kDetectionTarget ? std::string("detection probability") : top.target) + ")";
   }
   if (!options.out_model.empty()) sensor::save_kpi_model(refitted, options.out_model);
+  // The same RMS with what the KPI manager really uses per held-out truth object: the conditional
+  // mean error (noise off) or the detection probability, with the base and the refitted model.
   double before_sim = kNaN, after_sim = kNaN;
-  if (t != kDetectionTarget) {
+  {
     const auto motion = with_truth_motion(data.calib);
-    const auto p = kTargetParam[t];
-    const auto mb = simulated_mean_error(motion, held_idx, base, p, options.seed);
-    const auto ma = simulated_mean_error(motion, held_idx, refitted, p, options.seed);
+    std::map<std::array<int, 3>, double> mb, ma;
+    if (t == kDetectionTarget) {
+      mb = simulated_detection_probability(motion, held_idx, base, options.seed);
+      ma = simulated_detection_probability(motion, held_idx, refitted, options.seed);
+    } else {
+      mb = simulated_mean_error(motion, held_idx, base, kTargetParam[t], options.seed);
+      ma = simulated_mean_error(motion, held_idx, refitted, kTargetParam[t], options.seed);
+    }
     std::vector<double> rb, ra;
     for (const ObjectRecord* r : held_r[t].rec) {
       const auto ib = mb.find({r->seq, r->frame, r->track}), ia = ma.find({r->seq, r->frame, r->track});
@@ -737,10 +773,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                                        : " (measured error minus the model's conditional mean error)");
   j["before"] = rms(held_r[t].r);
   j["after"] = rms(after_r);
-  // The same RMS with the conditional mean the KPI manager injects (base model / refitted model).
+  // The same RMS with what the KPI manager uses (base model / refitted model).
   j["before_simulated"] = std::isnan(before_sim) ? nlohmann::json(nullptr) : nlohmann::json(before_sim);
   j["after_simulated"] = std::isnan(after_sim) ? nlohmann::json(nullptr) : nlohmann::json(after_sim);
   j["model_term"] = not_in_model.empty() ? nlohmann::json(top.feature) : nlohmann::json(nullptr);
+  if (not_in_model.empty())
+    j["model_term_on"] = t == kDetectionTarget ? "detection_probability" : "errors." + top.target;
   if (!not_in_model.empty()) j["model_term_absent_because"] = not_in_model;
   if (!options.out_model.empty()) j["out_model"] = options.out_model.string();
   nlohmann::json rk = nlohmann::json::array();

@@ -101,10 +101,12 @@ struct LoopOptions {
 // table fitted on the fit split (best target per feature), the top one added as a per-class
 // per-bin bias table on that target (the conditional term), and the held-out RMS residual of that target before and after.
 // The added term also goes into a refitted KPI model (base + the loop's range-bin offsets +
-// sensor::ConditionalTerm; written to out_model if given) when the target is an error and the
-// feature is one the KPI manager computes; "after_simulated" is the same RMS with the
-// conditional mean the KPI manager really injects with that model (noise off, ground-truth
-// velocities by differences), "before_simulated" with the base model.
+// sensor::ConditionalTerm; written to out_model if given) when the feature is one the KPI
+// manager computes: on an error target as ErrorModel::conditional (offsets into the means), on
+// detection as ClassModel::detection_conditional (offsets into detection_probability of the range
+// bin, clamped to [0, 1]). "after_simulated" is the same RMS with what the KPI manager really uses
+// with that model per held-out truth object — the conditional mean error (noise off, ground-truth
+// velocities by differences) or the detection probability — and "before_simulated" with the base.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify

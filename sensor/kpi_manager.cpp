@@ -95,7 +95,28 @@ double object_feature(const std::string& name, const Object& o, double range, lo
   throw Error("kpi manager: conditional feature \"" + name + "\" cannot be computed");
 }
 
+// The bin of a (present) conditional term for this object.
+int term_bin(const ConditionalTerm& ct, const Object& o, double range, long track_age) {
+  return ct.bin(object_feature(ct.feature, o, range, track_age));
+}
+
 }  // namespace
+
+double KpiManager::detection_probability(const ClassModel& cm, int rb, int vb, const Object& o, double range,
+                                         long track_age) const {
+  double p = cm.detection_probability[rb][vb];
+  if (cm.detection_conditional.present())
+    p += cm.detection_conditional.bias[term_bin(cm.detection_conditional, o, range, track_age)];
+  return std::clamp(p, 0.0, 1.0);
+}
+
+double KpiManager::detection_probability(const Object& o, long track_age) const {
+  const int slot = class_slot_[static_cast<int>(o.cls)];
+  if (slot < 0) return 1;
+  const double range = o.position.head<2>().norm();
+  return detection_probability(*class_models_[slot], model_.range_bin(range), model_.visibility_bin(o.visible_fraction),
+                               o, range, track_age);
+}
 
 void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& reported) {
   ++frame_;
@@ -145,7 +166,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       const double z = controllers_[slot * kNumKpiParams + p].apply(st.z[p]);
       double bias = 0, scale = 1;
       if (em.conditional.present()) {
-        const int b = em.conditional.bin(object_feature(em.conditional.feature, o, range, frame_ - st.first_frame));
+        const int b = term_bin(em.conditional, o, range, frame_ - st.first_frame);
         bias = em.conditional.bias[b];
         if (!em.conditional.scale.empty()) scale = em.conditional.scale[b];
       }
@@ -153,7 +174,8 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
                                           em.track_std * st.c[p]
                                     : 0.0;
     }
-    const double pd = cm.detection_probability[rb][vb];
+    const double pd = detection_probability(cm, rb, vb, o, range, frame_ - st.first_frame);
+    inj.detection_probability = pd;
     const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, rng_);
     const bool flipped = st.flip.step(cm.heading_flip_probability, cm.flip_burst_mean, rng_);
     inj.detected = !(options_.misses && missed);

@@ -5,7 +5,8 @@
 //     bin), AR(1) in time with heavy-tailed innovations, size errors mostly a per-track
 //     constant; position errors along/across the line of sight;
 //   - misses from a two-state Markov chain whose stationary rate is 1 - detection probability
-//     (range, visibility) and whose miss runs last miss_burst_mean frames on average;
+//     (range, visibility, plus the class's optional detection conditional term, clamped to
+//     [0, 1]) and whose miss runs last miss_burst_mean frames on average;
 //   - 180-degree heading flips from a second chain (heading_flip_probability, flip_burst_mean);
 //   - a score drawn from the class's score quantiles;
 //   - optional conditional terms (kpi_model.h ConditionalTerm): a bias and sigma scale per bin
@@ -32,6 +33,7 @@ struct KpiInjection {
   bool detected = true;
   bool flipped = false;
   int range_bin = 0, visibility_bin = 0;
+  double detection_probability = 1;  // the stationary detection probability used (1 if not modelled)
   std::array<double, kNumKpiParams> error{};  // injected error per parameter (reported - truth)
 };
 
@@ -53,6 +55,11 @@ class KpiManager {
   void apply(const std::vector<Object>& truth, std::vector<Object>& reported);
 
   const std::vector<KpiInjection>& injections() const { return injections_; }
+  // The stationary detection probability apply() uses for this truth object (sensor frame,
+  // visible_fraction set) at `track_age` frames after its first frame: the model's
+  // [range bin][visibility bin] entry plus the class's detection conditional term, clamped to
+  // [0, 1]; 1 for a class without a model. No state is read or changed.
+  double detection_probability(const Object& o, long track_age = 0) const;
   const KpiModel& model() const { return model_; }
   const RunningTargetController& controller(ObjectClass cls, KpiParam p) const;
   long frame() const { return frame_; }
@@ -68,6 +75,8 @@ class KpiManager {
   TrackState& state_for(int id);
   void forget_stale();
   double sample_quantiles(const std::vector<double>& q, double fallback);
+  double detection_probability(const ClassModel& cm, int rb, int vb, const Object& o, double range,
+                               long track_age) const;
 
   KpiModel model_;
   KpiOptions options_;

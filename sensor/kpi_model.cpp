@@ -177,6 +177,47 @@ json write_innovation(const Innovation& in) {
   return {};
 }
 
+// A conditional term (absent: nothing to check). On detection the bias is added to a probability
+// (so within [-1, 1]) and there is no sigma to scale.
+void check_conditional(const ConditionalTerm& ct, const std::string& file, const std::string& cf, bool detection) {
+  if (!ct.present()) return;
+  if (std::find(kConditionalFeatures.begin(), kConditionalFeatures.end(), ct.feature) == kConditionalFeatures.end()) {
+    std::string names;
+    for (const auto& n : kConditionalFeatures) names += (names.empty() ? "" : ", ") + n;
+    throw input_error(file, cf + ".feature", "must be one of the features the KPI manager computes (" + names +
+                                                 "), got \"" + ct.feature + "\"");
+  }
+  if (ct.edges.empty()) throw input_error(file, cf + ".edges", "must list at least one lower bin edge");
+  for (size_t i = 0; i < ct.edges.size(); ++i) {
+    const std::string fi = cf + ".edges[" + std::to_string(i) + "]";
+    check_finite(ct.edges[i], file, fi);
+    if (i > 0) check(ct.edges[i] > ct.edges[i - 1], file, fi, "must increase", ct.edges[i]);
+  }
+  const double inf = std::numeric_limits<double>::infinity();
+  check_vector(ct.bias, ct.edges.size(), file, cf + ".bias", detection ? -1 : -inf, detection ? 1 : inf);
+  if (detection && !ct.scale.empty())
+    throw input_error(file, cf + ".scale", "must be absent: a detection term has only a bias on the probability");
+  if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", 1e-6, inf);
+}
+
+ConditionalTerm read_conditional(const json& j, const std::string& file, const std::string& cf) {
+  ConditionalTerm ct;
+  const json& fj = member(j, "feature", file, cf);
+  if (!fj.is_string() || fj.get<std::string>().empty())
+    throw input_error(file, cf + ".feature", "must be a feature name, got " + fj.dump());
+  ct.feature = fj.get<std::string>();
+  ct.edges = numbers_at(j, "edges", file, cf, false);
+  ct.bias = numbers_at(j, "bias", file, cf, false);
+  ct.scale = numbers_at(j, "scale", file, cf, true);
+  return ct;
+}
+
+json write_conditional(const ConditionalTerm& ct) {
+  json j = {{"feature", ct.feature}, {"edges", ct.edges}, {"bias", ct.bias}};
+  if (!ct.scale.empty()) j["scale"] = ct.scale;
+  return j;
+}
+
 }  // namespace
 
 void KpiModel::validate(const std::string& file) const {
@@ -205,24 +246,7 @@ void KpiModel::validate(const std::string& file) const {
               "must be in (0, 1)", in.outlier_probability);
         check(in.outlier_scale >= 1, file, f + ".innovation.outlier_scale", "must be >= 1", in.outlier_scale);
       }
-      if (e.conditional.present()) {
-        const ConditionalTerm& ct = e.conditional;
-        const std::string cf = f + ".conditional";
-        if (std::find(kConditionalFeatures.begin(), kConditionalFeatures.end(), ct.feature) == kConditionalFeatures.end()) {
-          std::string names;
-          for (const auto& n : kConditionalFeatures) names += (names.empty() ? "" : ", ") + n;
-          throw input_error(file, cf + ".feature", "must be one of the features the KPI manager computes (" + names +
-                                                       "), got \"" + ct.feature + "\"");
-        }
-        if (ct.edges.empty()) throw input_error(file, cf + ".edges", "must list at least one lower bin edge");
-        for (size_t i = 0; i < ct.edges.size(); ++i) {
-          const std::string fi = cf + ".edges[" + std::to_string(i) + "]";
-          check_finite(ct.edges[i], file, fi);
-          if (i > 0) check(ct.edges[i] > ct.edges[i - 1], file, fi, "must increase", ct.edges[i]);
-        }
-        check_vector(ct.bias, ct.edges.size(), file, cf + ".bias", -inf, inf);
-        if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", 1e-6, inf);
-      }
+      check_conditional(e.conditional, file, f + ".conditional", false);
     }
     if (c.detection_probability.size() != nr)
       throw input_error(file, base + ".detection_probability",
@@ -230,6 +254,7 @@ void KpiModel::validate(const std::string& file) const {
                             std::to_string(c.detection_probability.size()));
     for (size_t r = 0; r < nr; ++r)
       check_vector(c.detection_probability[r], nv, file, base + ".detection_probability[" + std::to_string(r) + "]", 0, 1);
+    check_conditional(c.detection_conditional, file, base + ".detection_conditional", true);
     check_finite(c.miss_burst_mean, file, base + ".miss_burst_mean");
     check(c.miss_burst_mean >= 1, file, base + ".miss_burst_mean", "must be >= 1 frame", c.miss_burst_mean);
     check_finite(c.heading_flip_probability, file, base + ".heading_flip_probability");
@@ -293,22 +318,14 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
       e.ar1 = number_at(ej, "ar1", file, f, 0, false);
       e.track_std = number_at(ej, "track_std", file, f, 0, true);
       e.innovation = ej.contains("innovation") ? read_innovation(ej["innovation"], file, f + ".innovation") : Innovation{};
-      if (ej.contains("conditional")) {
-        const std::string cf = f + ".conditional";
-        const json& cj2 = ej["conditional"];
-        const json& fj = member(cj2, "feature", file, cf);
-        if (!fj.is_string() || fj.get<std::string>().empty())
-          throw input_error(file, cf + ".feature", "must be a feature name, got " + fj.dump());
-        e.conditional.feature = fj.get<std::string>();
-        e.conditional.edges = numbers_at(cj2, "edges", file, cf, false);
-        e.conditional.bias = numbers_at(cj2, "bias", file, cf, false);
-        e.conditional.scale = numbers_at(cj2, "scale", file, cf, true);
-      }
+      if (ej.contains("conditional")) e.conditional = read_conditional(ej["conditional"], file, f + ".conditional");
     }
     const json& dp = member(cj, "detection_probability", file, base);
     if (!dp.is_array()) throw input_error(file, base + ".detection_probability", "must be an array of arrays");
     for (size_t r = 0; r < dp.size(); ++r)
       c.detection_probability.push_back(numbers(dp[r], file, base + ".detection_probability[" + std::to_string(r) + "]"));
+    if (cj.contains("detection_conditional"))
+      c.detection_conditional = read_conditional(cj["detection_conditional"], file, base + ".detection_conditional");
     c.miss_burst_mean = number_at(cj, "miss_burst_mean", file, base, 1, true);
     c.heading_flip_probability = number_at(cj, "heading_flip_probability", file, base, 0, true);
     c.flip_burst_mean = number_at(cj, "flip_burst_mean", file, base, 1, true);
@@ -362,13 +379,11 @@ std::string kpi_model_to_json(const KpiModel& m) {
       cj["errors"][to_string(static_cast<KpiParam>(p))] = {
           {"mean", e.mean}, {"std", e.sigma}, {"visibility_std_scale", e.visibility_std_scale},
           {"ar1", e.ar1}, {"track_std", e.track_std}, {"innovation", write_innovation(e.innovation)}};
-      if (e.conditional.present()) {  // absent: the file is as before the term existed
-        json ct = {{"feature", e.conditional.feature}, {"edges", e.conditional.edges}, {"bias", e.conditional.bias}};
-        if (!e.conditional.scale.empty()) ct["scale"] = e.conditional.scale;
-        cj["errors"][to_string(static_cast<KpiParam>(p))]["conditional"] = ct;
-      }
+      if (e.conditional.present())  // absent: the file is as before the term existed
+        cj["errors"][to_string(static_cast<KpiParam>(p))]["conditional"] = write_conditional(e.conditional);
     }
     cj["detection_probability"] = c.detection_probability;
+    if (c.detection_conditional.present()) cj["detection_conditional"] = write_conditional(c.detection_conditional);
     cj["miss_burst_mean"] = c.miss_burst_mean;
     cj["heading_flip_probability"] = c.heading_flip_probability;
     cj["flip_burst_mean"] = c.flip_burst_mean;

@@ -47,7 +47,9 @@ struct Innovation {
 // Optional conditional term (issue 5: the object loop's added effect): in the bin of a
 // per-object feature, `bias` is added to the error's mean and `scale` multiplies its sigma.
 // Feature names are the object loop's vocabulary (qualify/objects.h) that the KPI manager can
-// compute from a truth object: kConditionalFeatures.
+// compute from a truth object: kConditionalFeatures. The same shape serves as the class's
+// conditional term on detection probability (ClassModel::detection_conditional): there `bias`
+// is added to the probability (then clamped to [0, 1]) and `scale` must stay empty.
 struct ConditionalTerm {
   std::string feature;        // empty: no term (the file has no "conditional")
   std::vector<double> edges;  // lower bin edges, increasing; values below edges[0] use bin 0
@@ -73,6 +75,9 @@ struct ErrorModel {
 struct ClassModel {
   std::array<ErrorModel, kNumKpiParams> errors;
   std::vector<std::vector<double>> detection_probability;  // [range bin][visibility bin]
+  // Optional ("detection_conditional" in the file): p = clamp(detection_probability[r][v] +
+  // bias[bin of feature], 0, 1); bias per bin in [-1, 1], no scale.
+  ConditionalTerm detection_conditional;
   double miss_burst_mean = 1;       // mean length of a run of misses, frames (>= 1)
   double heading_flip_probability = 0;
   double flip_burst_mean = 1;       // mean length of a run of flipped frames (>= 1)

@@ -1,15 +1,18 @@
 // The KPI model's optional conditional term (issue 5 follow-up): a bias (and sigma scale) per bin
 // of a per-object feature, applied by the KPI manager; the file's parse errors; absent = as before.
+// Also its twin on detection probability (ClassModel::detection_conditional).
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 
 #include "common/error.h"
 #include "sensor/kpi_manager.h"
 #include "sensor/kpi_model.h"
+#include "tests/support/shared_data.h"
 
 namespace lidarsim::sensor {
 namespace {
@@ -166,6 +169,117 @@ TEST(KpiConditional, BadTermsAreRefusedNamingFileAndField) {
   t["bias"] = {0, "x"};
   EXPECT_NE(with(t).find(f + ".bias[1]: must be a number"), std::string::npos) << with(t);
   EXPECT_NE(with(42).find(f + ": must be an object"), std::string::npos) << with(42);
+}
+
+// --- The conditional term on detection probability (ClassModel::detection_conditional) ---
+
+TEST(KpiDetectionConditional, AzimuthBiasSetsTheMissRateInItsBinAndTheProbabilityIsClampedOver4000Frames) {
+  KpiModel m = one_bin_car(0.0);
+  m.classes["Car"].detection_probability = {{0.9}};
+  m.classes["Car"].miss_burst_mean = 1;
+  // Azimuth bins: below 0 (right of the sensor) +0, [0, 0.5) -0.5, from 0.5 +0.5 (clamped to 1).
+  m.classes["Car"].detection_conditional = {"azimuth", {-4, 0, 0.5}, {0, -0.5, 0.5}, {}};
+  KpiManager kpi(m, 11);
+  std::vector<Object> truth, out;
+  for (int i = 0; i < 4; ++i) truth.push_back(car(i, {20, -2.0 - 3 * i, -0.9}, {0, 0, 0}));      // az < 0
+  for (int i = 4; i < 8; ++i) truth.push_back(car(i, {30, 1.0 + 2 * (i - 4), -0.9}, {0, 0, 0}));  // az in (0, 0.5)
+  truth.push_back(car(8, {5, 10, -0.9}, {0, 0, 0}));                                               // az 1.1
+  const double expected[3] = {0.9, 0.4, 1.0};
+  double k[3] = {0, 0, 0}, n[3] = {0, 0, 0};
+  for (int f = 0; f < 4000; ++f) {
+    kpi.apply(truth, out);
+    for (const auto& inj : kpi.injections()) {
+      const int b = inj.id < 4 ? 0 : inj.id < 8 ? 1 : 2;
+      ASSERT_DOUBLE_EQ(inj.detection_probability, expected[b]) << "object " << inj.id;
+      k[b] += inj.detected, ++n[b];
+    }
+  }
+  for (int b = 0; b < 3; ++b)
+    EXPECT_DOUBLE_EQ(kpi.detection_probability(truth[b == 0 ? 0 : b == 1 ? 4 : 8]), expected[b]) << "bin " << b;
+  // 16000 Bernoulli draws per bin (miss runs of mean 1): standard error <= 0.004; tolerance 0.015.
+  EXPECT_NEAR(k[0] / n[0], 0.9, 0.015) << "right of the sensor: the model's 0.9";
+  EXPECT_NEAR(k[1] / n[1], 0.4, 0.015) << "the dropout bin: 0.9 - 0.5";
+  EXPECT_EQ(k[2], n[2]) << "0.9 + 0.5 clamped to 1: never missed";
+}
+
+TEST(KpiDetectionConditional, AbsentTermIsNotWrittenAndZeroTermChangesNoDrawAndRoundTrips) {
+  const KpiModel plain = default_kpi_model();
+  KpiModel zero = plain;
+  for (auto& [name, c] : zero.classes) c.detection_conditional = {"range", {0, 30}, {0, 0}, {}};
+  KpiManager a(plain, 5), b(zero, 5);
+  std::vector<Object> truth, oa, ob;
+  for (int i = 0; i < 6; ++i) truth.push_back(car(i, {10.0 + 9 * i, 3.0 - i, -0.9}, {double(i), 0, 0}));
+  for (int f = 0; f < 300; ++f) {
+    a.apply(truth, oa);
+    b.apply(truth, ob);
+    ASSERT_EQ(oa.size(), ob.size()) << "frame " << f;
+    for (size_t i = 0; i < truth.size(); ++i)
+      ASSERT_EQ(a.injections()[i].detected, b.injections()[i].detected) << "frame " << f;
+  }
+  EXPECT_EQ(kpi_model_to_json(plain).find("detection_conditional"), std::string::npos);
+  KpiModel with = plain;
+  with.classes["Car"].detection_conditional = {"azimuth", {-4, 0.35, 1.2}, {0, -0.7, 0.05}, {}};
+  const std::string written = kpi_model_to_json(with);
+  EXPECT_NE(written.find("\"detection_conditional\""), std::string::npos);
+  const KpiModel back = parse_kpi_model(written, "with.json");
+  const ConditionalTerm& ct = back.classes.at("Car").detection_conditional;
+  EXPECT_EQ(ct.feature, "azimuth");
+  EXPECT_EQ(ct.edges, (std::vector<double>{-4, 0.35, 1.2}));
+  EXPECT_EQ(ct.bias, (std::vector<double>{0, -0.7, 0.05}));
+  EXPECT_TRUE(ct.scale.empty());
+  EXPECT_FALSE(back.classes.at("Pedestrian").detection_conditional.present());
+  EXPECT_EQ(kpi_model_to_json(back), written) << "round trip";
+}
+
+TEST(KpiDetectionConditional, ShippedModelLoadsWithoutTheTermAndIsRewrittenByteIdentical) {
+  const std::filesystem::path shipped = lidarsim::testing::source_dir() / "data/models/kpi_pointrcnn.json";
+  std::ifstream in(shipped);
+  ASSERT_TRUE(in) << shipped;
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const KpiModel m = parse_kpi_model(text, shipped.string());
+  for (const auto& [name, c] : m.classes) EXPECT_FALSE(c.detection_conditional.present()) << name;
+  EXPECT_EQ(kpi_model_to_json(m), text);
+}
+
+TEST(KpiDetectionConditional, BadTermsAreOneErrorNamingFileAndPath) {
+  const auto good = nlohmann::json::parse(kpi_model_to_json(default_kpi_model()));
+  const std::string f = "m.json: classes.Car.detection_conditional";
+  auto with = [&](nlohmann::json term) {
+    auto j = good;
+    j["classes"]["Car"]["detection_conditional"] = term;
+    return parse_error(j);
+  };
+  const nlohmann::json ok = {{"feature", "azimuth"}, {"edges", {-4, 0.35}}, {"bias", {0, -0.7}}};
+  EXPECT_EQ(with(ok), "(no error)");
+  auto t = ok;
+  t["feature"] = "occlusion";  // in the loop's vocabulary, but the KPI manager cannot compute it
+  EXPECT_NE(with(t).find(f + ".feature: must be one of the features"), std::string::npos) << with(t);
+  t = ok;
+  t["edges"] = {0.35, -4};
+  EXPECT_NE(with(t).find(f + ".edges[1]: must increase"), std::string::npos) << with(t);
+  t = ok;
+  t["bias"] = {0, nullptr};  // how a NaN bias comes out of a JSON writer
+  EXPECT_NE(with(t).find(f + ".bias[1]: must be a number"), std::string::npos) << with(t);
+  t = ok;
+  t["bias"] = {0, -1.5};
+  EXPECT_NE(with(t).find(f + ".bias[1]: must be in [-1, 1]"), std::string::npos) << with(t);
+  t = ok;
+  t["scale"] = {1, 1};
+  EXPECT_NE(with(t).find(f + ".scale: must be absent"), std::string::npos) << with(t);
+  t = ok;
+  t["bias"] = {0};
+  EXPECT_NE(with(t).find(f + ".bias: must have 2 entries, got 1"), std::string::npos) << with(t);
+  // A model built in code (not parsed) with a NaN bias is refused by validate() alike.
+  KpiModel m = default_kpi_model();
+  m.classes["Car"].detection_conditional = {"azimuth", {-4, 0.35}, {0, std::nan("")}, {}};
+  try {
+    m.validate("code.json");
+    ADD_FAILURE() << "NaN bias accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("code.json: classes.Car.detection_conditional.bias[1]: must be a finite number"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace
