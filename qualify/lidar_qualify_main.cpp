@@ -41,6 +41,9 @@ void print_loop(const nlohmann::json& j) {
               << (r.contains("target") ? "  (" + r["target"].get<std::string>() + ")" : std::string()) << "\n";
   std::cout << "added effect: " << (j["added_effect"].is_null() ? "none (no feature stands out)" : j["added_effect"].get<std::string>())
             << "\nbefore " << j["before"].get<double>() << "  after " << j["after"].get<double>() << "\n";
+  if (j.contains("rejected_effect"))
+    std::cout << "tried and rejected " << j["rejected_effect"]["feature"].get<std::string>() << ": "
+              << j["rejected_effect"]["why"].get<std::string>() << "\n";
   if (j.contains("seeds_before"))
     std::cout << "per seed: before " << j["seeds_before"].dump() << "  after " << j["seeds_after"].dump() << "\n";
   if (j.contains("after_simulated") && !j["after_simulated"].is_null())
@@ -138,10 +141,14 @@ int run(int argc, char** argv) {
     // The same for people, beside the JSON: R.json -> R.md.
     std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
                      "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
-                     std::to_string(j["threshold"].get<double>()) + "\n\n| feature | score | explains |\n|---|---|---|\n";
+                     std::to_string(j["threshold"].get<double>()) +
+                     "\n\n| feature | score | 95 % interval | explains |\n|---|---|---|---|\n";
     for (const auto& r : j["ranking"])
       md += "| " + r["feature"].get<std::string>() + " | " + std::to_string(r["score"].get<double>()) + " | " +
-            (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
+            (r.contains("interval95") ? "[" + std::to_string(r["interval95"][0].get<double>()) + ", " +
+                                            std::to_string(r["interval95"][1].get<double>()) + "]"
+                                      : std::string("-")) +
+            " | " + (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
     md += "\nAlready used by the base model:";
     for (const auto& r : j["used_by_model"])
       md += " " + r["feature"].get<std::string>() + " (" + std::to_string(r["score"].get<double>()) + ")";
@@ -154,6 +161,10 @@ int run(int argc, char** argv) {
       md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
             std::to_string(j["before_simulated"].get<double>()) + ", after " +
             std::to_string(j["after_simulated"].get<double>()) + "\n";
+    if (j.contains("rejected_effect"))
+      md += "\nTried and rejected: " + j["rejected_effect"]["feature"].get<std::string>() + " (" +
+            j["rejected_effect"]["why"].get<std::string>() + "; held-out MAE with it " +
+            std::to_string(j["rejected_effect"]["held_out_mae"].get<double>()) + ")\n";
     if (j.contains("seeds_before"))
       md += "\nBase model: " + j["base_model"].get<std::string>() + ". Per seed, before " + j["seeds_before"].dump() +
             ", after " + j["seeds_after"].dump() + " (class x range lookup: " +
