@@ -12,10 +12,12 @@
 //                     -lag * radial velocity
 //   truncation_size   length error = -0.45 * truncation * length (a truncated box is measured short)
 //   aspect_across     across error grows with the heading relative to the line of sight
-//   azimuth_dropout   a dirty patch on the sensor window: detection probability x 0.2 for objects
-//                     whose box centre lies at azimuth atan2(y, x) in [20 deg, 70 deg] of the
-//                     sensor frame (front left); elsewhere and all errors as without effect.
-//                     A condition on detection, not on an error (feature: azimuth).
+//   azimuth_dropout   a soiled left part of the sensor window (road spray the wiper does not
+//                     reach): detection probability x 0.2 for objects whose box centre lies at
+//                     azimuth atan2(y, x) >= 20 deg in the sensor frame (front left and beyond);
+//                     elsewhere, and all errors, as without effect. A condition on detection,
+//                     not on an error (feature: azimuth). One edge only: the loop's equal-count
+//                     bins blur a sharp edge, and the tracks thin out at large azimuth.
 // Intensity (SemanticKITTI layout): DIR/sequences/00/velodyne/NNNNNN.bin + labels/NNNNNN.label.
 // A 64-beam HDL-64E-like scan in firing order (ring by ring, azimuth rising from -pi to pi) of a
 // flat ground (road, sidewalk) inside a ring of random wall facets (building, fence,
@@ -39,9 +41,9 @@ std::string to_string(IntensityEffect e);  // "none", "incidence", ...
 std::string effect_feature(ObjectEffect e);
 std::string effect_feature(IntensityEffect e);
 
-// azimuth_dropout's sector (rad, sensor frame) and the factor on the detection probability in it.
+// azimuth_dropout's sector [lo, hi] (rad, sensor frame) and the factor on the detection probability in it.
 inline constexpr double kDropoutAzimuthLo = 20 * 3.14159265358979323846 / 180;
-inline constexpr double kDropoutAzimuthHi = 70 * 3.14159265358979323846 / 180;
+inline constexpr double kDropoutAzimuthHi = 3.14159265358979323846;  // to the back: no upper edge
 inline constexpr double kDropoutFactor = 0.2;
 
 struct ReferenceTrackingOptions {

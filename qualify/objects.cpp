@@ -81,10 +81,11 @@ ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<dou
   return t;
 }
 
-// The added conditional term refitted together with the model's own range-bin means
-// (backfitting): on the fit split the range-bin means have absorbed whatever part of the hidden
-// effect correlates with range, so the table alone would be fitted against a distorted
-// residual. r ~ d[class][range bin] + table(class, feature), alternating 4 passes.
+// The added conditional term refitted together with the model's own cells (backfitting): the
+// range-bin means of an error, or the [range bin][visibility bin] detection probabilities. On the
+// fit split those cells have absorbed whatever part of the hidden effect correlates with them, so
+// the table alone would be fitted against a distorted residual (and, for detection, come out
+// attenuated). r ~ d[class][cell] + table(class, feature), alternating 4 passes.
 struct Refit {
   ClassTables table;
   std::map<std::pair<int, int>, double> d;
@@ -642,9 +643,13 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (size_t i = 0; i < c.size(); ++i) c[i] = s.rec[i]->cls;
     return c;
   };
-  auto range_bins = [](const Split& s) {
+  // The model's own cell of each record for target t: range bin (error means), or range bin x
+  // visibility bin (detection probability).
+  const int nvis = base.visibility_bins();
+  auto cells = [nvis](const Split& s, int t) {
     std::vector<int> c(s.rec.size());
-    for (size_t i = 0; i < c.size(); ++i) c[i] = s.rec[i]->range_bin;
+    for (size_t i = 0; i < c.size(); ++i)
+      c[i] = t == kDetectionTarget ? s.rec[i]->range_bin * nvis + s.rec[i]->visibility_bin : s.rec[i]->range_bin;
     return c;
   };
   auto clipped = [](const Split& s, const Winsor& w) {
@@ -660,9 +665,9 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (int t = 0; t < kObjectTargetCount; ++t) {
       if (fit_r[t].r.size() < 20 || held_r[t].r.size() < 20) continue;
       const auto rf = clipped(fit_r[t], win[t]), rh = clipped(held_r[t], win[t]);
-      const Refit ref = backfit(column(fit_r[t], f), rf, classes(fit_r[t]), range_bins(fit_r[t]), options.bins);
+      const Refit ref = backfit(column(fit_r[t], f), rf, classes(fit_r[t]), cells(fit_r[t], t), options.bins);
       const auto xh = column(held_r[t], f);
-      const auto ch = classes(held_r[t]), bh = range_bins(held_r[t]);
+      const auto ch = classes(held_r[t]), bh = cells(held_r[t], t);
       const double m = mean_of(rf);
       double sse = 0, sst = 0;
       for (size_t i = 0; i < rh.size(); ++i) {
@@ -685,12 +690,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                                  kObjectTargets.begin());
   const int f = feature_index(top.feature);
   const Refit ref =
-      backfit(column(fit_r[t], f), clipped(fit_r[t], win[t]), classes(fit_r[t]), range_bins(fit_r[t]), options.bins);
+      backfit(column(fit_r[t], f), clipped(fit_r[t], win[t]), classes(fit_r[t]), cells(fit_r[t], t), options.bins);
   const ClassTables& tab = ref.table;
   const bool add = top.score >= options.threshold;
   std::vector<double> after_r = held_r[t].r;
   const auto xh = column(held_r[t], f);
-  const auto ch = classes(held_r[t]), bh = range_bins(held_r[t]);
+  const auto ch = classes(held_r[t]), bh = cells(held_r[t], t);
   if (add)
     for (size_t i = 0; i < after_r.size(); ++i) after_r[i] -= ref(ch[i], bh[i], xh[i]);
   if (!options.plots_dir.empty()) {
@@ -723,11 +728,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       ct.edges.insert(ct.edges.end(), bt.edges.begin(), bt.edges.end());
       ct.bias = bt.value;
       if (t == kDetectionTarget) {
-        for (int rb = 0; rb < static_cast<int>(cm.detection_probability.size()); ++rb) {
-          const auto d = ref.d.find({c, rb});
-          if (d != ref.d.end())
-            for (double& p : cm.detection_probability[rb]) p = std::clamp(p + d->second, 0.0, 1.0);
-        }
+        for (int rb = 0; rb < static_cast<int>(cm.detection_probability.size()); ++rb)
+          for (int vb = 0; vb < static_cast<int>(cm.detection_probability[rb].size()); ++vb) {
+            const auto d = ref.d.find({c, rb * nvis + vb});
+            double& p = cm.detection_probability[rb][vb];
+            if (d != ref.d.end()) p = std::clamp(p + d->second, 0.0, 1.0);
+          }
         for (double& b : ct.bias) b = std::clamp(b, -1.0, 1.0);  // a probability shift
         cm.detection_conditional = ct;
       } else {
