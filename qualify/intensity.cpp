@@ -213,7 +213,10 @@ nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir
     row(pgm::class_name(cls), s);
   }
   j["per_class"] = per;
-  const std::string caption = write_histogram_png(out_dir / "hist_intensity.png", p_all, m_all);
+  const std::string caption = write_histogram_png(
+      out_dir / "hist_intensity.png", p_all, m_all,
+      {"Intensity of held-out cells: predicted vs measured", "intensity (0..1)", "share of samples", "predicted"},
+      overall["similarity"]["intersection"].get<double>());
   md << "\n![predicted vs measured intensity](hist_intensity.png)\n\n" << caption << "\n";
   write_file_atomically(out_dir / "report.md", md.str());
   write_file_atomically(out_dir / "report.json", j.dump(2) + "\n");
@@ -396,7 +399,9 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   if (add && !options.plots_dir.empty()) {
     fs::create_directories(options.plots_dir);
     write_residual_png(options.plots_dir / ("residual_intensity_vs_" + top.feature + ".png"), shown,
-                       pick(c.feature[tf], held_i), pick(resid, held_i));
+                       pick(c.feature[tf], held_i), pick(resid, held_i),
+                       {"Held-out intensity residual vs " + top.feature, top.feature,
+                        "intensity residual, measured - " + options.base_model + " (0..1 scale)"});
   }
   if (unet && !options.out_model.empty()) {
     // Weights only, as lidar-train --export-weights writes them: lidar-infer loads it as is.

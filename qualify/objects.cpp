@@ -434,7 +434,11 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
       k["in_overall"] = counted;
       if (counted) sum_sim += sm.intersection, sum_ceil += sm.ceiling, ++n_kpi;
       const std::string png = "hist_" + file_stem(name) + ".png";
-      const std::string caption = write_histogram_png(out_dir / png, s_all, r_all);
+      const std::string caption = write_histogram_png(
+          out_dir / png, s_all, r_all,
+          {name + " error: simulated vs measured",
+           kObjectTargets[t] + (kObjectTargets[t] == "heading" ? " error (rad)" : " error (m)"), "share of samples"},
+          sm.intersection);
       k["plot"] = png;
       kpis.push_back(k);
       md << "| " << kObjectClasses[c] << " | " << kObjectTargets[t] << " | " << r_all.size() << " | " << s_all.size()
@@ -701,7 +705,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   if (!options.plots_dir.empty()) {
     fs::create_directories(options.plots_dir);
     write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab.pooled, xh,
-                       held_r[t].r);
+                       held_r[t].r,
+                       {"Held-out " + top.target + " residual vs " + top.feature, top.feature,
+                        top.target + " residual, measured - model " +
+                            (top.target == "heading"     ? "(rad)"
+                             : top.target == "detection" ? "(detected 0/1)"
+                                                         : "(m)")});
   }
   const std::string plot = options.plots_dir.empty() ? "" : "residual_" + top.target + "_vs_" + top.feature + ".png";
 

@@ -4,8 +4,10 @@
 #include <cctype>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 
 #include "common/image.h"
+#include "common/plot.h"
 
 namespace lidarsim::qualify {
 
@@ -39,67 +41,105 @@ std::string file_stem(std::string s) {
 
 namespace {
 
-void fill_rect(Image& im, int x0, int y0, int x1, int y1, Rgb c) {
-  for (int y = std::max(0, y0); y < std::min(im.height, y1); ++y)
-    for (int x = std::max(0, x0); x < std::min(im.width, x1); ++x) im.at(x, y) = c;
-}
+constexpr Rgb kMeasured{110, 160, 220}, kSimulated{225, 110, 0}, kOverflow{238, 238, 238}, kResidual{150, 150, 150};
 
 }  // namespace
 
 std::string write_histogram_png(const std::filesystem::path& path, const std::vector<double>& sim,
-                                const std::vector<double>& real, int bins) {
+                                const std::vector<double>& real, const PlotLabels& labels, double intersection,
+                                int bins) {
   const SharedBins sb = shared_bins(sim, real, bins);
   const auto p = histogram(sim, sb), q = histogram(real, sb);
-  const int bw = 10, h = 160, pad = 4, n = static_cast<int>(p.size());
-  Image im(n * bw + 2 * pad, h + 2 * pad, {255, 255, 255});
-  double top = 1e-12;
-  for (int k = 0; k < n; ++k) top = std::max({top, p[k], q[k]});
-  const Rgb blue{70, 110, 200}, orange{240, 150, 40}, both{90, 60, 60};
-  for (int k = 0; k < n; ++k) {
-    const int hs = static_cast<int>(std::round(p[k] / top * h)), hr = static_cast<int>(std::round(q[k] / top * h));
-    const int x0 = pad + k * bw, x1 = x0 + bw - 1, base = pad + h;
-    fill_rect(im, x0, base - std::max(hs, hr), x1, base, hs > hr ? orange : blue);
-    fill_rect(im, x0, base - std::min(hs, hr), x1, base, both);
-  }
-  fill_rect(im, pad, pad + h, im.width - pad, pad + h + 1, {0, 0, 0});
-  write_png(path, im);
-  return "bins of width " + fmt((sb.hi - sb.lo) / sb.bins, 4) + " from " + fmt(sb.lo) + " to " + fmt(sb.hi) +
-         " plus an overflow bin at each end; blue measured, orange simulated, dark both";
+  const int n = sb.bins;
+  const double w = (sb.hi - sb.lo) / n;
+  double top = 0;
+  for (size_t k = 0; k < p.size(); ++k) top = std::max({top, p[k], q[k]});
+
+  // Overflow bins sit in grey bands outside [lo, hi], one bin width away from it.
+  const double under = sb.lo - 2 * w, over = sb.hi + 2 * w;
+  ChartSpec spec;
+  spec.title = labels.title.empty() ? labels.simulated + " vs measured" : labels.title;
+  spec.x_label = labels.x_label;
+  spec.y_label = labels.y_label.empty() ? "share of samples" : labels.y_label;
+  spec.x_lo = sb.lo - 3 * w, spec.x_hi = sb.hi + 3 * w;
+  spec.y_lo = 0, spec.y_hi = std::max(top, 1e-9) * 1.3;  // headroom for the legend
+  // The overflow labels come first: they win over a range tick whose label would touch them.
+  spec.x_ticks = {{under, "<"}, {over, ">"}};
+  const auto values = nice_ticks(sb.lo, sb.hi, 8);
+  const auto text = tick_labels(values);
+  for (size_t i = 0; i < values.size(); ++i) spec.x_ticks.push_back({values[i], text[i]});
+  Chart chart(spec);
+
+  chart.band(spec.x_lo, sb.lo - w, kOverflow);
+  chart.band(sb.hi + w, spec.x_hi, kOverflow);
+  std::vector<double> edges(n + 1);
+  for (int k = 0; k <= n; ++k) edges[k] = sb.lo + k * w;
+  for (int k = 0; k < n; ++k) chart.bar(edges[k], edges[k + 1], 0, q[k + 1], kMeasured);
+  chart.bar(under - w / 2, under + w / 2, 0, q[0], kMeasured);
+  chart.bar(over - w / 2, over + w / 2, 0, q[n + 1], kMeasured);
+  const int thick = 3;
+  chart.step(edges, std::vector<double>(p.begin() + 1, p.end() - 1), kSimulated, thick);
+  chart.step({under - w / 2, under + w / 2}, {p[0]}, kSimulated, thick);
+  chart.step({over - w / 2, over + w / 2}, {p[n + 1]}, kSimulated, thick);
+
+  std::vector<LegendEntry> legend = {{"measured (n = " + std::to_string(real.size()) + ")", kMeasured, Mark::box},
+                                     {labels.simulated + " (n = " + std::to_string(sim.size()) + ")", kSimulated,
+                                      Mark::line}};
+  if (intersection >= 0) legend.push_back({"intersection " + fmt(intersection), {}, Mark::none});
+  chart.legend(legend);
+  write_png(path, chart.image());
+  return "Blue bars: measured share of samples per bin; orange outline: " + labels.simulated + ". " +
+         std::to_string(n) + " bins of width " + fmt(w, 4) + " from " + fmt(sb.lo) + " to " + fmt(sb.hi) +
+         ", plus an overflow bin at each end (grey bands, \"<\" and \">\").";
 }
 
 std::string write_residual_png(const std::filesystem::path& path, const BinnedTable& t, const std::vector<double>& x,
-                               const std::vector<double>& r) {
+                               const std::vector<double>& r, const PlotLabels& labels) {
   const int n = static_cast<int>(t.value.size());
   std::vector<double> sum(n, 0.0);
   std::vector<long> cnt(n, 0);
-  for (size_t i = 0; i < x.size(); ++i) {
+  double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min;
+  for (size_t i = 0; i < x.size() && i < r.size(); ++i) {
     const int b = t.bin(x[i]);
     sum[b] += r[i];
     ++cnt[b];
+    x_min = std::min(x_min, x[i]), x_max = std::max(x_max, x[i]);
   }
-  double top = 1e-12;
+  double lo = 0, hi = 0;
   for (int b = 0; b < n; ++b) {
-    if (cnt[b]) top = std::max(top, std::abs(sum[b] / cnt[b]));
-    top = std::max(top, std::abs(t.value[b]));
+    if (cnt[b]) lo = std::min(lo, sum[b] / cnt[b]), hi = std::max(hi, sum[b] / cnt[b]);
+    lo = std::min(lo, t.value[b]), hi = std::max(hi, t.value[b]);
   }
-  const int bw = 24, half = 80, pad = 4;
-  Image im(n * bw + 2 * pad, 2 * half + 2 * pad, {255, 255, 255});
-  const int zero = pad + half;
+  if (!(hi > lo)) hi = lo + 1;  // all zero: any scale shows that
+
+  // Bin k takes the slot [k, k + 1): the bins hold equal counts, not equal widths, so a true x
+  // scale would squeeze the dense bins. Ticks: the edges, and the data's ends outside them.
+  ChartSpec spec;
+  spec.title = labels.title;
+  spec.x_label = labels.x_label + (labels.x_label.empty() ? "" : " ") + "(bins of equal count; ticks at bin edges)";
+  spec.y_label = labels.y_label.empty() ? "mean residual" : labels.y_label;
+  spec.x_lo = 0, spec.x_hi = n;
+  spec.y_lo = lo, spec.y_hi = hi + 0.4 * (hi - lo);  // headroom for the legend
+  std::vector<double> at, values;
+  if (x_min < (t.edges.empty() ? x_max : t.edges.front())) at.push_back(0), values.push_back(x_min);
+  for (size_t k = 0; k < t.edges.size(); ++k) at.push_back(k + 1.0), values.push_back(t.edges[k]);
+  if (x_max >= (t.edges.empty() ? x_min : t.edges.back()) && x_max > x_min) at.push_back(n), values.push_back(x_max);
+  const auto text = tick_labels(values, 0.25);  // bin edges are uneven: round them
+  for (size_t i = 0; i < at.size(); ++i) spec.x_ticks.push_back({at[i], text[i]});
+  Chart chart(spec);
+
   for (int b = 0; b < n; ++b) {
-    const int x0 = pad + b * bw + 2, x1 = x0 + bw - 4;
-    if (cnt[b]) {
-      const int v = static_cast<int>(std::round(sum[b] / cnt[b] / top * half));
-      fill_rect(im, x0, std::min(zero, zero - v), x1, std::max(zero, zero - v) + 1, {150, 150, 150});
-    }
-    const int tv = zero - static_cast<int>(std::round(t.value[b] / top * half));
-    fill_rect(im, x0, tv - 1, x1, tv + 2, {240, 150, 40});
+    if (cnt[b]) chart.bar(b + 0.2, b + 0.8, 0, sum[b] / cnt[b], kResidual);
+    chart.line(b + 0.08, t.value[b], b + 0.92, t.value[b], kSimulated, 4);
   }
-  fill_rect(im, pad, zero, im.width - pad, zero + 1, {0, 0, 0});
-  write_png(path, im);
+  chart.hline(0, {0, 0, 0});
+  chart.legend({{"mean held-out residual", kResidual, Mark::box},
+                {"table fitted on the fit split", kSimulated, Mark::line}});
+  write_png(path, chart.image());
   std::string edges;
   for (double e : t.edges) edges += (edges.empty() ? "" : ", ") + fmt(e, 3);
-  return "one bar per feature bin (cuts at " + edges + "); grey: mean held-out residual, orange: table from the fit " +
-         "split; full height = " + fmt(top, 4);
+  return "One slot per equal-count bin of the feature (cuts at " + edges +
+         "); grey bars: mean held-out residual, orange marks: the table fitted on the fit split, black: zero.";
 }
 
 }  // namespace lidarsim::qualify

@@ -1,6 +1,6 @@
 #pragma once
-// Report helpers: number formatting, JSON of a Similarity, and two simple PNG plots drawn
-// pixel by pixel (common/image.h has no text: the Markdown caption names axes and ranges).
+// Report helpers: number formatting, JSON of a Similarity, and two PNG plots (common/plot.h) that
+// read on their own: title, labelled axes, legend. Each also returns a caption for the Markdown.
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -17,14 +17,23 @@ nlohmann::json to_json(const Similarity& s);
 // "0.912 [0.90, 0.93] (ceiling 0.95)"
 std::string similarity_cell(const Similarity& s);
 
-// Overlaid histograms on shared bins: measured in blue, simulated in orange, overlap dark.
-// Returns the caption text (bin range) for the Markdown.
+// What a plot is about; the axes' units belong in the labels ("position_along error (m)").
+struct PlotLabels {
+  std::string title, x_label, y_label;
+  std::string simulated = "simulated";  // legend name of the first sample (e.g. "predicted")
+};
+
+// Histograms on shared bins: measured as filled blue bars, simulated as an orange outline on top,
+// x over [lo, hi] with the two overflow bins in grey bands at the ends ("<", ">"), y = share of
+// samples (the default y label). intersection >= 0 is shown in the legend. Returns the caption.
 std::string write_histogram_png(const std::filesystem::path& path, const std::vector<double>& simulated,
-                                const std::vector<double>& measured, int bins = kDefaultBins);
-// Residual vs feature: mean held-out residual per bin of the feature table (grey bars) and the
-// table fitted on the fit split (orange ticks); zero line in black.
+                                const std::vector<double>& measured, const PlotLabels& labels,
+                                double intersection = -1, int bins = kDefaultBins);
+// Residual vs feature, one slot per (equal-count) bin of the table with the bin edges as x ticks:
+// mean held-out residual (grey bars), the table fitted on the fit split (orange marks), zero line.
+// Returns the caption.
 std::string write_residual_png(const std::filesystem::path& path, const BinnedTable& table,
-                               const std::vector<double>& x, const std::vector<double>& r);
+                               const std::vector<double>& x, const std::vector<double>& r, const PlotLabels& labels);
 
 // Markdown/JSON file names: safe stems ("Car position_along" -> "car_position_along").
 std::string file_stem(std::string s);
