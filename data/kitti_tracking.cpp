@@ -141,8 +141,11 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     o.object.material = material_for(cls);
     // KITTI occlusion level and truncation (the part outside the camera image, which the
     // camera-bounded labels and detector do not see) as a visible fraction for the KPI model.
+    // Tracking labels give truncation as a level 0, 1, 2 (the object benchmark as a share):
+    // clamped, levels 1 and 2 both read as "truncated", 1, as the visible fraction always has.
+    o.object.truncation = std::clamp(o.truncated, 0.0, 1.0);
     const double occl = o.occluded == 0 ? 1.0 : o.occluded == 1 ? 0.6 : 0.2;
-    o.object.visible_fraction = occl * std::clamp(1.0 - o.truncated, 0.0, 1.0);
+    o.object.visible_fraction = occl * (1.0 - o.object.truncation);
     out.push_back(std::move(o));
   });
   return out;

@@ -25,7 +25,8 @@ struct KittiTrackingObject {
   sensor::Object object;  // Velodyne frame; id = track id (truth) or line index (detection)
   std::string type;       // KITTI type: Car, Van, Truck, Pedestrian, Person_sitting, Cyclist, Tram, Misc
   int occluded = 0;       // KITTI occlusion level 0 visible, 1 partly, 2 largely, 3 unknown (truth)
-  double truncated = 0;   // 0..1 (truth)
+  double truncated = 0;   // as in the label (truth): a level 0, 1, 2 in KITTI tracking, a share 0..1 in the
+                          // object benchmark; object.truncation holds it clamped to [0, 1]
 };
 
 struct KittiTrackingFrame {
@@ -65,9 +66,10 @@ KittiTrackingSequence read_kitti_tracking_sequence(const std::filesystem::path& 
                                                    const std::string& detector = "pointrcnn");
 
 // For the KPI calibration: truth = Car, Pedestrian, Cyclist (exact KITTI types, visible
-// fraction = (1.0, 0.6, 0.2 for occlusion level 0, 1, 2-3) x (1 - truncated)); every other type (Van, Truck,
-// Person_sitting, Tram, Misc) goes to `others`, so a Car detection on a Van is not counted as a
-// false positive; all detections are kept (the fit applies its score threshold).
+// fraction = (1.0, 0.6, 0.2 for occlusion level 0, 1, 2-3) x (1 - truncation), truncation = the
+// label's truncated clamped to [0, 1]); every other type (Van, Truck, Person_sitting, Tram, Misc)
+// goes to `others`, so a Car detection on a Van is not counted as a false positive; all
+// detections are kept (the fit applies its score threshold).
 sensor::CalibrationSequence to_calibration_sequence(const KittiTrackingSequence& seq);
 
 }  // namespace lidarsim::data

@@ -110,6 +110,8 @@ void SimPipeline::run_frame(int k, SimFrame& out) {
     if (o.visible_fraction <= 0) ++out.objects_occluded;
     else if (o.visible_fraction < 1) ++out.objects_partly_occluded;
   }
+  // Folded as KITTI's labels are (data/kitti_tracking.cpp): the KPI model's visibility bins were fitted on that.
+  for (auto& o : out.sensor.objects) o.visible_fraction *= 1 - o.truncation;
   lap(SimStage::Occlusion);
 
   // Tracking runs in the map frame, so the filter's velocity is over ground like the ground

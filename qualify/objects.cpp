@@ -118,35 +118,6 @@ Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const 
   return f;
 }
 
-// Truth velocity and acceleration by differences of each track's box centre (as the loop's
-// features): KITTI calibration sequences carry none, and the KPI manager's conditional terms
-// on speed or radial/lateral velocity read them from the truth object.
-std::vector<sensor::CalibrationSequence> with_truth_motion(std::vector<sensor::CalibrationSequence> seqs) {
-  for (auto& cs : seqs) {
-    const double dt = cs.frame_dt;
-    std::map<int, std::map<int, Eigen::Vector3d>> pos;
-    for (size_t f = 0; f < cs.frames.size(); ++f)
-      for (const auto& o : cs.frames[f].truth) pos[o.id][static_cast<int>(f)] = o.position;
-    for (size_t f = 0; f < cs.frames.size(); ++f)
-      for (auto& o : cs.frames[f].truth) {
-        const auto& tp = pos[o.id];
-        const int fi = static_cast<int>(f);
-        const auto prev = tp.find(fi - 1), next = tp.find(fi + 1);
-        o.velocity.setZero();
-        o.acceleration.setZero();
-        if (prev != tp.end() && next != tp.end()) {
-          o.velocity = (next->second - prev->second) / (2 * dt);
-          o.acceleration = (next->second - 2 * o.position + prev->second) / (dt * dt);
-        } else if (next != tp.end()) {
-          o.velocity = (next->second - o.position) / dt;
-        } else if (prev != tp.end()) {
-          o.velocity = (o.position - prev->second) / dt;
-        }
-      }
-  }
-  return seqs;
-}
-
 // One number per truth object the KPI manager produces with `model` (read from its injection),
 // keyed by (sequence, frame, id). A fresh manager per sequence: track ages restart, ids stay unique.
 template <class Read>
@@ -320,7 +291,7 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                      a.head<2>().norm(),
                      rel,
                      double(std::clamp(k.occluded, 0, 3)),
-                     k.truncated,
+                     g.truncation,  // the label's truncated clamped to [0, 1], what the KPI manager reads
                      double(r.cls),
                      g.size.x(),
                      double(fi - tp.begin()->first)};
@@ -762,7 +733,8 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   // mean error (noise off) or the detection probability, with the base and the refitted model.
   double before_sim = kNaN, after_sim = kNaN;
   {
-    const auto motion = with_truth_motion(data.calib);
+    // Truth motion by differences, as the features the term was fitted on.
+    const auto motion = sensor::with_truth_motion(data.calib);
     std::map<std::array<int, 3>, double> mb, ma;
     if (t == kDetectionTarget) {
       mb = simulated_detection_probability(motion, held_idx, base, options.seed);

@@ -14,15 +14,18 @@
 //   speed                    |velocity|, m/s
 //   longitudinal_velocity    velocity along the box heading, m/s
 //   lateral_velocity         velocity across the box heading, m/s
-//   acceleration             |change of velocity| / dt, m/s^2
+//   acceleration             |change of velocity| / dt, m/s^2: BEV norm of the central second difference
+//                            (p[f+1] - 2 p[f] + p[f-1]) / dt^2; 0 at a track's ends
 //   heading_to_line_of_sight |heading - azimuth| folded to [0, pi/2] (0: seen end-on), rad
 //   occlusion                KITTI occlusion level 0..3
-//   truncation               KITTI truncation 0..1
+//   truncation               the label's truncated clamped to [0, 1] (sensor::Object::truncation; KITTI
+//                            tracking labels give a level 0, 1, 2, so 0 or 1 there)
 //   class                    0 Car, 1 Pedestrian, 2 Cyclist
 //   size                     box length, m
 //   track_age                frames since the track's first appearance
 // The KPI model (sensor/kpi_model.h) already conditions on class, range bin and visibility
-// (occlusion level); the loop ranks the others.
+// (occlusion level); the loop ranks the others, every one of which the KPI manager computes
+// (sensor::conditional_feature), so the top one can enter the model as a conditional term.
 #include <array>
 #include <filesystem>
 #include <string>

@@ -89,9 +89,64 @@ bool object_in_fov(const Object& o, const FieldOfView& fov) {
   return false;
 }
 
+double fov_truncation(const Object& o, const FieldOfView& fov) {
+  Eigen::Vector3d corners[8];
+  box_corners(o, corners);
+  double el_lo = kPi, el_hi = -kPi;
+  for (const auto& p : corners) {
+    const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
+    el_lo = std::min(el_lo, el);
+    el_hi = std::max(el_hi, el);
+  }
+  const double width = std::min(fov.azimuth_max - fov.azimuth_min, 2 * kPi);
+  double az_span = 0, az_in = 0;
+  const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
+  if (std::hypot(below.x(), below.y()) == 0) {
+    // The sensor's vertical axis passes through the box: every azimuth, and straight down / up.
+    az_span = 2 * kPi;
+    az_in = width;
+    if (o.position.z() - 0.5 * o.size.z() < 0) el_lo = -kPi / 2;
+    if (o.position.z() + 0.5 * o.size.z() > 0) el_hi = kPi / 2;
+  } else {
+    // Azimuths relative to the centre direction, so that a box across the +-pi seam stays one
+    // interval (as object_in_fov); the FoV interval tested on the circle (three windings).
+    const double az_ref = std::atan2(o.position.y(), o.position.x());
+    double lo = 1e9, hi = -1e9;
+    for (const auto& p : corners) {
+      const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
+      lo = std::min(lo, rel);
+      hi = std::max(hi, rel);
+    }
+    az_span = hi - lo;
+    if (full_circle(fov)) {
+      az_in = az_span;
+    } else {
+      const double f_lo = wrap_pi(fov.azimuth_min - az_ref);
+      for (int k = -1; k <= 1; ++k) {
+        const double a = f_lo + 2 * kPi * k, b = a + width;
+        az_in += std::max(0.0, std::min(hi, b) - std::max(lo, a));
+      }
+    }
+  }
+  const double el_in = std::max(0.0, std::min(el_hi, fov.elevation_max) - std::max(el_lo, fov.elevation_min));
+  const double el_span = el_hi - el_lo;
+  // A degenerate extent (a box of zero size along that angle) is in or out as a whole.
+  auto azimuth_inside = [&](double az) {
+    if (width >= 2 * kPi - 1e-12) return true;
+    const double rel = wrap_pi(az - fov.azimuth_min);
+    return (rel >= 0 ? rel : rel + 2 * kPi) <= width;
+  };
+  const double az_share =
+      az_span > 0 ? az_in / az_span : azimuth_inside(std::atan2(o.position.y(), o.position.x())) ? 1.0 : 0.0;
+  const double el_share =
+      el_span > 0 ? el_in / el_span : el_lo >= fov.elevation_min && el_hi <= fov.elevation_max ? 1.0 : 0.0;
+  return std::clamp(1 - std::min(1.0, az_share) * std::min(1.0, el_share), 0.0, 1.0);
+}
+
 int apply_fov(std::vector<Object>& objects, const FieldOfView& fov) {
   const auto before = objects.size();
   std::erase_if(objects, [&](const Object& o) { return !object_in_fov(o, fov); });
+  for (auto& o : objects) o.truncation = fov_truncation(o, fov);
   return static_cast<int>(before - objects.size());
 }
 

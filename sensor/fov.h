@@ -29,7 +29,16 @@ Eigen::Vector3d closest_point_on_box(const Object& o, const Eigen::Vector3d& p);
 bool point_in_fov(const Eigen::Vector3d& p, const FieldOfView& fov);
 bool object_in_fov(const Object& o, const FieldOfView& fov);  // o in the sensor frame
 
-// Keeps (in order) the objects that are in view; returns how many were removed.
+// Share of the object outside the field of view, 0..1: KITTI's "truncated" (the part of the
+// box's projection outside the image) in angle space. The box's angular extent is the
+// (azimuth, elevation) rectangle spanned by its 8 corners (as KITTI's image box spans its
+// projected corners); truncation = 1 - (area of that rectangle inside the FoV's angular
+// rectangle) / (its area). Range limits do not truncate. A box around the sensor's vertical
+// axis spans every azimuth and reaches straight down (up) when it extends below (above) it.
+double fov_truncation(const Object& o, const FieldOfView& fov);  // o in the sensor frame
+
+// Keeps (in order) the objects that are in view and sets their truncation; returns how many
+// were removed.
 int apply_fov(std::vector<Object>& objects, const FieldOfView& fov);
 // Drops lane points outside the view; lanes left with fewer than 2 points are removed.
 void apply_fov_to_lanes(std::vector<LanePolyline>& lanes, const FieldOfView& fov);

@@ -525,10 +525,36 @@ double histogram_intersection(const std::vector<double>& ref, const std::vector<
   return s;
 }
 
+std::vector<CalibrationSequence> with_truth_motion(std::vector<CalibrationSequence> seqs) {
+  for (auto& cs : seqs) {
+    const double dt = cs.frame_dt;
+    std::map<int, std::map<int, Eigen::Vector3d>> pos;
+    for (size_t f = 0; f < cs.frames.size(); ++f)
+      for (const auto& o : cs.frames[f].truth) pos[o.id][static_cast<int>(f)] = o.position;
+    for (size_t f = 0; f < cs.frames.size(); ++f)
+      for (auto& o : cs.frames[f].truth) {
+        const auto& tp = pos[o.id];
+        const int fi = static_cast<int>(f);
+        const auto prev = tp.find(fi - 1), next = tp.find(fi + 1);
+        o.velocity.setZero();
+        o.acceleration.setZero();
+        if (prev != tp.end() && next != tp.end()) {
+          o.velocity = (next->second - prev->second) / (2 * dt);
+          o.acceleration = (next->second - 2 * o.position + prev->second) / (dt * dt);
+        } else if (next != tp.end()) {
+          o.velocity = (next->second - o.position) / dt;
+        } else if (prev != tp.end()) {
+          o.velocity = (o.position - prev->second) / dt;
+        }
+      }
+  }
+  return seqs;
+}
+
 std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,
                                             std::uint64_t seed) {
   KpiManager kpi(model, seed);
-  std::vector<CalibrationSequence> out = seqs;
+  std::vector<CalibrationSequence> out = with_truth_motion(seqs);
   std::vector<Object> truth, reported;
   for (size_t s = 0; s < out.size(); ++s) {
     for (CalibrationFrame& fr : out[s].frames) {

@@ -81,7 +81,16 @@ KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const 
 // percentile of `reference`, plus one overflow bin at each end.
 double histogram_intersection(const std::vector<double>& reference, const std::vector<double>& other, int bins = 40);
 
-// The same ground truth with detections replaced by the KPI manager's output (fixed seed).
+// The truth's velocity and acceleration by differences of each track's box centre over consecutive
+// frames, as the object loop's features (qualify/objects.h): central where the track has both
+// neighbours (acceleration (p[f+1] - 2 p[f] + p[f-1]) / dt^2, 3-D), one-sided velocity and zero
+// acceleration at a track's ends, zero for a single frame. Relative to the moving sensor. Any
+// motion the truth carried is replaced.
+std::vector<CalibrationSequence> with_truth_motion(std::vector<CalibrationSequence> seqs);
+
+// The same ground truth with detections replaced by the KPI manager's output (fixed seed). The
+// manager sees the truth with_truth_motion (the calibration truth of KITTI carries none), so that
+// conditional terms on speed, velocity or acceleration see what the loop that fitted them saw.
 std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,
                                             std::uint64_t seed);
 

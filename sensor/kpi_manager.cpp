@@ -71,9 +71,9 @@ double wrap_angle(double a) {
   if (a < 0) a += 2 * pi;
   return a - pi;
 }
-// A conditional term's feature, from the truth object in the sensor frame; names and
-// definitions as in the object loop's vocabulary (qualify/objects.h).
-double object_feature(const std::string& name, const Object& o, double range, long track_age) {
+}  // namespace
+
+double conditional_feature(const std::string& name, const Object& o, double range, long track_age) {
   const double azimuth = std::atan2(o.position.y(), o.position.x());
   const Eigen::Vector2d v = o.velocity.head<2>();
   const Eigen::Vector2d h(std::cos(o.heading), std::sin(o.heading));
@@ -84,20 +84,24 @@ double object_feature(const std::string& name, const Object& o, double range, lo
     return range > 1e-6 ? v.dot(o.position.head<2>() / range) : 0.0;
   if (name == "longitudinal_velocity") return v.dot(h);
   if (name == "lateral_velocity") return -h.y() * v.x() + h.x() * v.y();
+  if (name == "acceleration") return o.acceleration.head<2>().norm();  // BEV, as the loop computes it
   if (name == "size") return o.size.x();
   if (name == "heading_to_line_of_sight") {
     const double a = std::abs(wrap_angle(o.heading - azimuth));  // [0, pi]
     return a > std::numbers::pi / 2 ? std::numbers::pi - a : a;
   }
+  if (name == "truncation") return o.truncation;
   if (name == "visibility") return o.visible_fraction;
   if (name == "track_age") return static_cast<double>(track_age);
-  // The model was validated against kConditionalFeatures, so this is a programming error.
+  // Not in kConditionalFeatures (a validated model names none such): a programming error.
   throw Error("kpi manager: conditional feature \"" + name + "\" cannot be computed");
 }
 
+namespace {
+
 // The bin of a (present) conditional term for this object.
 int term_bin(const ConditionalTerm& ct, const Object& o, double range, long track_age) {
-  return ct.bin(object_feature(ct.feature, o, range, track_age));
+  return ct.bin(conditional_feature(ct.feature, o, range, track_age));
 }
 
 }  // namespace
@@ -138,6 +142,8 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       throw Error("kpi manager: object " + std::to_string(o.id) + ": position/velocity/size/heading: must be finite");
     if (!std::isfinite(o.visible_fraction))
       throw Error("kpi manager: object " + std::to_string(o.id) + ": visible_fraction: must be finite");
+    if (!o.acceleration.allFinite() || !std::isfinite(o.truncation))
+      throw Error("kpi manager: object " + std::to_string(o.id) + ": acceleration/truncation: must be finite");
     const ClassModel& cm = *class_models_[slot];
     inj.modelled = true;
     const Eigen::Vector2d bev = o.position.head<2>();

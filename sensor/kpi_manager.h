@@ -17,6 +17,7 @@
 // Per-frame work allocates nothing once the per-object tables have grown.
 #include <array>
 #include <cstdint>
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -44,6 +45,11 @@ struct KpiOptions {
   bool flips = true;
   int forget_after_frames = 100;  // drop the noise state of ids absent this long
 };
+
+// A conditional term's feature (kConditionalFeatures) for a truth object in the sensor frame with
+// BEV range `range`, `track_age` frames after its first; names and definitions as in the object
+// loop's vocabulary (qualify/objects.h). Throws lidarsim::Error for any other name.
+double conditional_feature(const std::string& name, const Object& o, double range, long track_age);
 
 class KpiManager {
  public:

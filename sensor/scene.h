@@ -28,7 +28,9 @@ struct Object {
   Eigen::Vector3d acceleration = Eigen::Vector3d::Zero();
   Eigen::Vector3d size = Eigen::Vector3d::Ones();          // length (x), width (y), height (z)
   double heading = 0;          // yaw about z, radians
-  double visible_fraction = 1; // set by occlusion
+  double visible_fraction = 1; // share of the box the sensor sees: set by occlusion, times (1 - truncation)
+  double truncation = 0;       // share of the box outside the field of view, 0..1 (KITTI "truncated"); set by
+                               // the FoV stage (sensor/fov.h) or read from labels
   double score = 1;            // detection confidence, for reported objects
 };
 

@@ -70,14 +70,22 @@ TEST(KittiTracking, ReadsLabelsSkippingDontCareAndDetectionsWithScores) {
   const auto labels = write("labels.txt",
                             "0 -1 DontCare -1 -1 -10 1 2 3 4 -1 -1 -1 -1000 -1000 -1000 -10\n"
                             "0 3 Car 0.25 1 -1.5 100 150 200 250 1.5 1.6 4.0 2 1.5 10 -1.5707963267948966\n"
-                            "1 4 Pedestrian 0 2 0.2 10 20 30 40 1.8 0.6 0.8 -1 1.7 6 0\n");
+                            "1 4 Pedestrian 0 2 0.2 10 20 30 40 1.8 0.6 0.8 -1 1.7 6 0\n"
+                            "2 5 Cyclist 2 0 0.2 10 20 30 40 1.8 0.6 0.8 -1 1.7 6 0\n");
   const auto t = read_kitti_tracking_labels(labels, conv);
-  ASSERT_EQ(t.size(), 2u);
+  ASSERT_EQ(t.size(), 3u);
   EXPECT_EQ(t[0].frame, 0);
   EXPECT_EQ(t[0].object.id, 3);
   EXPECT_EQ(t[0].object.cls, sensor::ObjectClass::Car);
   EXPECT_EQ(t[0].occluded, 1);
   EXPECT_NEAR(t[0].object.visible_fraction, 0.6 * 0.75, 1e-12) << "occlusion 1 and 25 % truncated";
+  EXPECT_DOUBLE_EQ(t[0].object.truncation, 0.25) << "the label's share, on the object";
+  EXPECT_DOUBLE_EQ(t[1].object.truncation, 0);
+  // KITTI tracking's truncation level 2 (a level, not a share): clamped to 1, as the visible
+  // fraction has always read it.
+  EXPECT_DOUBLE_EQ(t[2].truncated, 2);
+  EXPECT_DOUBLE_EQ(t[2].object.truncation, 1);
+  EXPECT_DOUBLE_EQ(t[2].object.visible_fraction, 0);
   EXPECT_NEAR(t[0].object.position.x(), 10, 1e-12);
   EXPECT_EQ(t[1].object.cls, sensor::ObjectClass::Pedestrian);
   EXPECT_NEAR(t[1].object.position.y(), 1, 1e-12);

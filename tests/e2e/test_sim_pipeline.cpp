@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <numbers>
 #include <set>
 #include <sstream>
 #include <string>
@@ -22,6 +23,8 @@
 #include "pgm/materials.h"
 #include "sensor/fov.h"
 #include "sensor/frames.h"
+#include "sensor/occlusion.h"
+#include "sensor/scenario.h"
 #include "tests/support/shared_data.h"
 
 namespace lidarsim {
@@ -266,6 +269,54 @@ TEST_F(SimPipelineTest, EveryStageIsTimedAndTheTotalIsTheirSum) {
     ASSERT_TRUE(j["stages_ms"].contains(name)) << name;
     EXPECT_TRUE(j["stages_ms"][name].contains("p95"));
   }
+}
+
+// With the demo's view narrowed to +-20 deg, objects at its edges carry their share outside it
+// (sensor::fov_truncation), and their visible fraction is the occlusion stage's times
+// (1 - truncation), as KITTI's labels fold it: the KPI model's visibility bins were fitted on that.
+TEST_F(SimPipelineTest, TruncatedObjectsCarryTheirShareFoldedIntoTheVisibleFraction) {
+  sensor::Scenario sc = sensor::read_scenario(scenario());
+  sc.sensor.fov.azimuth_min = -20 * std::numbers::pi / 180;
+  sc.sensor.fov.azimuth_max = 20 * std::numbers::pi / 180;
+  const sensor::FieldOfView fov = sc.sensor.fov;
+  infer::SimOptions o;
+  o.point_cloud = false;
+  infer::SimPipeline pipeline(sc, sensor::load_kpi_model(kpi()), nullptr, o);
+  // The FoV and occlusion stages by hand, on the same ground truth.
+  sensor::Occlusion occlusion(sensor::OcclusionConfig::for_fov(fov, 2 * std::numbers::pi / sc.sensor.beams.columns));
+  infer::SimFrame frame;
+  int partly = 0, truncated_tracks = 0, accelerating = 0;
+  for (int k = 0; k < 40; ++k) {
+    pipeline.run_frame(k, frame);
+    sensor::Frame s;
+    sensor::ego_to_sensor(frame.ego, sc.sensor.mount, s);
+    sensor::apply_fov(s.objects, fov);
+    occlusion.apply(s.objects, s.lanes);
+    ASSERT_EQ(s.objects.size(), frame.sensor.objects.size()) << "frame " << k;
+    for (std::size_t i = 0; i < s.objects.size(); ++i) {
+      const sensor::Object& got = frame.sensor.objects[i];
+      ASSERT_EQ(got.id, s.objects[i].id);
+      EXPECT_DOUBLE_EQ(got.truncation, sensor::fov_truncation(s.objects[i], fov)) << "frame " << k;
+      EXPECT_NEAR(got.visible_fraction, s.objects[i].visible_fraction * (1 - got.truncation), 1e-12)
+          << "frame " << k << " id " << got.id;
+      partly += got.truncation > 0.05 && got.truncation < 0.95 && s.objects[i].visible_fraction > 0;
+    }
+    // What the KPI manager sees: the measured tracks carry their truth's truncation and its
+    // acceleration from the scenario (over ground, like the velocity, in sensor axes).
+    for (const auto& r : frame.reported) {
+      if (r.truth_id < 0 || r.coasting) continue;
+      for (const auto& g : frame.sensor.objects)
+        if (g.id == r.truth_id) {
+          EXPECT_EQ(r.object.truncation, g.truncation) << "frame " << k << " id " << g.id;
+          EXPECT_NEAR((r.object.acceleration - g.acceleration).norm(), 0, 1e-9) << "frame " << k << " id " << g.id;
+          accelerating += g.acceleration.head<2>().norm() > 0.1;
+          truncated_tracks += g.truncation > 0.05;
+        }
+    }
+  }
+  EXPECT_GE(partly, 3) << "the demo's traffic should cross the +-20 deg edges";
+  EXPECT_GE(truncated_tracks, 1);
+  EXPECT_GE(accelerating, 1) << "the demo should have an object changing speed or direction";
 }
 
 TEST_F(SimPipelineTest, SameSeedGivesTheSameReportedObjects) {

@@ -105,11 +105,22 @@ TEST(LoopObjects, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) {
 }
 
 TEST(LoopObjects, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70Percent) {
-  const auto j = object_loop(data::ObjectEffect::TruncationSize);
+  const fs::path model = fresh_dir("truncation_model.json");
+  const auto j = object_loop(data::ObjectEffect::TruncationSize, model);
   expect_found(j, "truncation");
-  // Truncation is not on a sensor::Object, so the KPI model cannot carry it: said, not faked.
-  EXPECT_TRUE(j["model_term"].is_null());
-  EXPECT_EQ(j["after_simulated"], j["before_simulated"]);
+  // sensor::Object carries truncation, so the term goes into the KPI model and the manager with it
+  // does what the loop claimed.
+  expect_simulated(j);
+  EXPECT_EQ(j["model_term_on"], "errors.length");
+  EXPECT_FALSE(j.contains("model_term_absent_because")) << j["model_term_absent_because"];
+  const sensor::KpiModel m = sensor::load_kpi_model(model);
+  const auto& ct = m.classes.at("Car").errors[int(sensor::KpiParam::Length)].conditional;
+  EXPECT_EQ(ct.feature, "truncation");
+  // A truncated box is measured short (-0.45 x truncation x length, ~4.2 m cars): the most
+  // truncated bin's bias is at least 1 m below the least truncated one's.
+  ASSERT_GE(ct.bias.size(), 2u);
+  EXPECT_LT(ct.bias.back(), ct.bias.front() - 1.0) << nlohmann::json(ct.bias).dump();
+  fs::remove(model);
 }
 
 TEST(LoopObjects, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {

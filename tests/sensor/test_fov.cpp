@@ -93,3 +93,78 @@ TEST(Fov, ApplyRemovesOnlyOutsideObjectsAndTrimsLanes) {
   EXPECT_NEAR(lanes[0].points.front().x(), 5, 1e-12);
   EXPECT_NEAR(lanes[0].points.back().x(), 49, 1e-12);
 }
+
+// --- Truncation: share of the corners' (azimuth, elevation) rectangle outside the FoV ---
+
+namespace {
+// A cube of side s whose centre is at (range, azimuth) in the horizontal plane, its heading along
+// the line of sight: its corners span the centre azimuth +- atan(s/2 / (range - s/2)) exactly
+// (the nearer face's corners) and elevations symmetric about 0.
+Object aligned_cube(double range, double az_deg, double s = 1) {
+  Object o = cube_at(range, az_deg, 0);
+  o.size = {s, s, s};
+  o.heading = az_deg * kDeg;
+  return o;
+}
+double half_span(double range, double s = 1) { return std::atan(s / 2 / (range - s / 2)); }
+FieldOfView wide_vertical(double az_min_deg, double az_max_deg) {
+  FieldOfView f;
+  f.azimuth_min = az_min_deg * kDeg;
+  f.azimuth_max = az_max_deg * kDeg;
+  return f;
+}
+}  // namespace
+
+TEST(FovTruncation, FullyInsideIsZeroAndFullCircleIsZero) {
+  EXPECT_EQ(fov_truncation(aligned_cube(20, 0), narrow()), 0);
+  EXPECT_EQ(fov_truncation(cube_at(20, 17, -5), narrow()), 0) << "any heading, well inside";
+  EXPECT_EQ(fov_truncation(aligned_cube(3, 180), FieldOfView{}), 0) << "default FoV: the whole sphere";
+}
+
+TEST(FovTruncation, BoxStraddlingTheAzimuthLimitSymmetricallyIsHalfOut) {
+  EXPECT_NEAR(fov_truncation(aligned_cube(20, 60), narrow()), 0.5, 1e-12) << "left limit 60 deg";
+  EXPECT_NEAR(fov_truncation(aligned_cube(20, -30), narrow()), 0.5, 1e-12) << "right limit -30 deg";
+}
+
+TEST(FovTruncation, BoxMostlyOutsideIsCloseToOne) {
+  // Centre 0.8 half-spans past the 60 deg limit: inside is (1 - 0.8) / 2 = 0.1 of the span.
+  const double h = half_span(20);
+  const Object o = aligned_cube(20, 60 + 0.8 * h / kDeg);
+  EXPECT_NEAR(fov_truncation(o, narrow()), 0.9, 1e-9);
+  // apply_fov keeps it (a corner is in view) and records the share.
+  std::vector<Object> objs = {o, aligned_cube(20, 0)};
+  EXPECT_EQ(apply_fov(objs, narrow()), 0);
+  ASSERT_EQ(objs.size(), 2u);
+  EXPECT_NEAR(objs[0].truncation, 0.9, 1e-9);
+  EXPECT_EQ(objs[1].truncation, 0);
+}
+
+TEST(FovTruncation, ElevationLimitAndBothLimitsMultiplyAsAreas) {
+  FieldOfView f = wide_vertical(-30, 60);
+  f.elevation_max = 0;  // the cube's upper half is above the view
+  EXPECT_NEAR(fov_truncation(aligned_cube(20, 0), f), 0.5, 1e-12);
+  // Half out in azimuth and half out in elevation: a quarter of the rectangle is inside.
+  EXPECT_NEAR(fov_truncation(aligned_cube(20, 60), f), 0.75, 1e-12);
+}
+
+TEST(FovTruncation, AcrossTheRearSeam) {
+  // A rear-looking FoV given beyond +-180 deg: a cube straddling the seam is inside; one centred
+  // on its 90 deg limit is half out.
+  EXPECT_NEAR(fov_truncation(aligned_cube(3, 180), wide_vertical(90, 270)), 0, 1e-12);
+  EXPECT_NEAR(fov_truncation(aligned_cube(3, 90), wide_vertical(90, 270)), 0.5, 1e-12);
+  // A FoV with a 20 deg gap behind ([-170, 170] deg) and a close cube behind spanning +-11.3 deg:
+  // its two ends (past 170 and past -170 deg) are in view, 10 deg of each half-span is not.
+  const double h = half_span(3);
+  ASSERT_GT(h, 10 * kDeg);
+  EXPECT_NEAR(fov_truncation(aligned_cube(3, 180), wide_vertical(-170, 170)), 10 * kDeg / h, 1e-12);
+  EXPECT_NEAR(fov_truncation(aligned_cube(3, -180), wide_vertical(-170, 170)), 10 * kDeg / h, 1e-12);
+}
+
+TEST(FovTruncation, BoxAroundTheSensorSpansEveryDirection) {
+  Object big;  // the sensor at its centre: every azimuth, elevation -90..90 deg
+  big.size = {4, 2, 2};
+  EXPECT_NEAR(fov_truncation(big, wide_vertical(-90, 90)), 0.5, 1e-12);
+  FieldOfView f = wide_vertical(-90, 90);
+  f.elevation_max = 0;
+  EXPECT_NEAR(fov_truncation(big, f), 0.75, 1e-12);
+}

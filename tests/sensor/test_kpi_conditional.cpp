@@ -105,6 +105,47 @@ TEST(KpiConditional, FeaturesComeFromTheTruthObjectAndTheTrackAge) {
   }
 }
 
+// Acceleration and truncation as the object loop defines them (qualify/objects.h): acceleration
+// the BEV norm of the truth's acceleration (the loop bins |a.head<2>()|, not the 3-D norm),
+// truncation the object's share outside the FoV as it stands. tests/qualify/test_loop_features.cpp
+// checks the same against the loop's own records.
+TEST(KpiConditional, AccelerationIsTheBevNormAndTruncationTheObjectsShare) {
+  KpiModel m = one_bin_car(0.0);
+  auto& e = m.classes["Car"].errors;
+  e[int(KpiParam::PositionAlong)].conditional = {"acceleration", {0, 4}, {0, 1}, {}};
+  e[int(KpiParam::Length)].conditional = {"truncation", {0, 0.25, 0.75}, {0, 2, 3}, {}};
+  Object a = car(1, {20, 0, -0.9}, {0, 0, 0}), b = car(2, {20, 5, -0.9}, {0, 0, 0});
+  a.acceleration = {3, 0, 4};  // BEV 3 (bin 0); the 3-D norm 5 would be bin 1
+  b.acceleration = {3, 4, 0};  // BEV 5 (bin 1)
+  a.truncation = 0.2;
+  b.truncation = 0.3;
+  EXPECT_DOUBLE_EQ(conditional_feature("acceleration", a, 20, 0), 3);
+  EXPECT_DOUBLE_EQ(conditional_feature("acceleration", b, 20, 0), 5);
+  EXPECT_DOUBLE_EQ(conditional_feature("truncation", b, 20, 0), 0.3);
+  KpiManager kpi(m, 1);
+  std::vector<Object> out;
+  kpi.apply({a, b}, out);
+  const auto& inj = kpi.injections();
+  EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::PositionAlong)], 0) << "BEV acceleration 3 < 4";
+  EXPECT_DOUBLE_EQ(inj[1].error[int(KpiParam::PositionAlong)], 1) << "BEV acceleration 5 >= 4";
+  EXPECT_DOUBLE_EQ(inj[0].error[int(KpiParam::Length)], 0) << "truncation 0.2 < 0.25";
+  EXPECT_DOUBLE_EQ(inj[1].error[int(KpiParam::Length)], 2) << "truncation 0.3 in [0.25, 0.75)";
+  // Both load as features of a model file; a non-finite input is refused naming the field.
+  for (const char* f : {"acceleration", "truncation"}) {
+    KpiModel w = default_kpi_model();
+    w.classes["Car"].errors[0].conditional = {f, {0, 1}, {0, 0.1}, {}};
+    EXPECT_NO_THROW(parse_kpi_model(kpi_model_to_json(w), "w.json")) << f;
+  }
+  b.truncation = std::nan("");
+  try {
+    kpi.apply({a, b}, out);
+    ADD_FAILURE() << "NaN truncation accepted";
+  } catch (const Error& err) {
+    EXPECT_NE(std::string(err.what()).find("object 2: acceleration/truncation: must be finite"), std::string::npos)
+        << err.what();
+  }
+}
+
 TEST(KpiConditional, ZeroTermChangesNothingAndAbsentTermIsNotWritten) {
   KpiModel plain = default_kpi_model();
   KpiModel zero = plain;
@@ -147,7 +188,7 @@ TEST(KpiConditional, BadTermsAreRefusedNamingFileAndField) {
   const nlohmann::json ok = {{"feature", "speed"}, {"edges", {0, 5}}, {"bias", {0, 0.5}}};
   EXPECT_EQ(with(ok), "(no error)");
   auto t = ok;
-  t["feature"] = "truncation";  // in the loop's vocabulary, but not on a sensor::Object
+  t["feature"] = "class";  // in the loop's vocabulary, but the model conditions on it already
   EXPECT_NE(with(t).find(f + ".feature: must be one of the features"), std::string::npos) << with(t);
   t = ok;
   t.erase("feature");
