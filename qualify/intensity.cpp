@@ -182,7 +182,9 @@ nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir
   md << "# Intensity model qualification: predicted vs measured\n\nCheckpoint " << checkpoint.string() << "; "
      << ds.size() << " scans from " << dir.string() << "; held-out cells = validation sectors 3, 7, 11, 15.\n\n"
      << "Similarity = histogram intersection (1 - total variation) of predicted and measured intensity on shared bins "
-        "(40 bins over the pooled 1st-99th percentile + 2 overflow bins) with a bootstrap 95% interval; ceiling = "
+        "(40 bins over the pooled 1st-99th percentile + 2 overflow bins) with a basic-bootstrap 95% interval for the "
+        "similarity of the two distributions (sampling noise lowers an intersection, so the interval can lie above "
+        "the sample's value); ceiling = "
         "measured intensity of the held-out sectors in scans 1, 3, ... vs scans 2, 4, ... (real vs real: the sensor's "
         "repeatability on nearly the same scene; n/a with one scan); sectors = measured intensity of sectors 3, 11 vs "
         "7, 15 (different scenery: a low bar, not a ceiling).\n\n"
@@ -400,7 +402,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
     fs::create_directories(options.plots_dir);
     write_residual_png(options.plots_dir / ("residual_intensity_vs_" + top.feature + ".png"), shown,
                        pick(c.feature[tf], held_i), pick(resid, held_i),
-                       {"Held-out intensity residual vs " + top.feature, top.feature,
+                       {"Held-out intensity residual vs " + top.feature, feature_axis_label(top.feature),
                         "intensity residual, measured - " + options.base_model + " (0..1 scale)"});
   }
   if (unet && !options.out_model.empty()) {

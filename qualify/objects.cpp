@@ -375,7 +375,9 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
         "(same class, score > 0, 2 m BEV gate, Hungarian).\n\n"
      << "**Similarity** of one KPI = histogram intersection (1 - total variation) of the simulated and the measured "
         "distribution on shared bins (40 equal bins over the pooled 1st-99th percentile, plus two overflow bins), "
-        "with a bootstrap 95% interval (200 resamples, seed 1). **Ceiling** = the same intersection between the "
+        "with a basic-bootstrap 95% interval (200 resamples, seed 1) for the similarity of the two distributions: "
+        "sampling noise lowers an intersection on average, so with few samples the interval can lie above the "
+        "sample's value. **Ceiling** = the same intersection between the "
         "measured data of the even-indexed and the odd-indexed sequences (real vs real, disjoint halves). "
         "**Overall similarity** = mean of the per-KPI intersections over every KPI with at least 30 measured "
         "samples; it is judged against the mean ceiling of the same KPIs (ratio).\n\n";
@@ -677,7 +679,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     fs::create_directories(options.plots_dir);
     write_residual_png(options.plots_dir / ("residual_" + top.target + "_vs_" + top.feature + ".png"), tab.pooled, xh,
                        held_r[t].r,
-                       {"Held-out " + top.target + " residual vs " + top.feature, top.feature,
+                       {"Held-out " + top.target + " residual vs " + top.feature, feature_axis_label(top.feature),
                         top.target + " residual, measured - model " +
                             (top.target == "heading"     ? "(rad)"
                              : top.target == "detection" ? "(detected 0/1)"

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <map>
 
 #include "common/image.h"
 #include "common/plot.h"
@@ -44,6 +45,31 @@ namespace {
 constexpr Rgb kMeasured{110, 160, 220}, kSimulated{225, 110, 0}, kOverflow{238, 238, 238}, kResidual{150, 150, 150};
 
 }  // namespace
+
+std::string feature_axis_label(const std::string& feature) {
+  // Units of both loops' vocabularies (qualify/objects.h, qualify/intensity.h).
+  static const std::map<std::string, std::string> unit = {
+      {"range", "m"},
+      {"azimuth", "rad"},
+      {"radial_velocity", "m/s"},
+      {"speed", "m/s"},
+      {"longitudinal_velocity", "m/s"},
+      {"lateral_velocity", "m/s"},
+      {"acceleration", "m/s^2"},
+      {"heading_to_line_of_sight", "rad"},
+      {"occlusion", "KITTI level 0-3"},
+      {"truncation", "share outside the view"},
+      {"class", "id"},
+      {"size", "box length, m"},
+      {"track_age", "frames"},
+      {"incidence_angle", "rad"},
+      {"elevation", "rad"},
+      {"height", "m above the sensor"},
+      {"material", "id"},
+      {"depth_discontinuity", "1 at an occlusion edge"}};
+  const auto it = unit.find(feature);
+  return it == unit.end() ? feature : feature + " (" + it->second + ")";
+}
 
 std::string write_histogram_png(const std::filesystem::path& path, const std::vector<double>& sim,
                                 const std::vector<double>& real, const PlotLabels& labels, double intersection,
@@ -116,7 +142,7 @@ std::string write_residual_png(const std::filesystem::path& path, const BinnedTa
   // scale would squeeze the dense bins. Ticks: the edges, and the data's ends outside them.
   ChartSpec spec;
   spec.title = labels.title;
-  spec.x_label = labels.x_label + (labels.x_label.empty() ? "" : " ") + "(bins of equal count; ticks at bin edges)";
+  spec.x_label = labels.x_label + (labels.x_label.empty() ? "" : "; ") + "bins of equal count, ticks at bin edges";
   spec.y_label = labels.y_label.empty() ? "mean residual" : labels.y_label;
   spec.x_lo = 0, spec.x_hi = n;
   spec.y_lo = lo, spec.y_hi = hi + 0.4 * (hi - lo);  // headroom for the legend

@@ -35,6 +35,9 @@ std::string write_histogram_png(const std::filesystem::path& path, const std::ve
 std::string write_residual_png(const std::filesystem::path& path, const BinnedTable& table,
                                const std::vector<double>& x, const std::vector<double>& r, const PlotLabels& labels);
 
+// A loop feature as an axis label, with its unit where it has one: "size (box length, m)".
+std::string feature_axis_label(const std::string& feature);
+
 // Markdown/JSON file names: safe stems ("Car position_along" -> "car_position_along").
 std::string file_stem(std::string s);
 

@@ -34,6 +34,9 @@ struct Interval {
   double lo = 0, hi = 0;
 };
 // Basic bootstrap 95% interval (2 est - q97.5, 2 est - q2.5) of the intersection; `reps` resamples, fixed `seed`.
+// It is an interval for the intersection of the two distributions, not of the samples: sampling
+// noise lowers an intersection on average, so the resamples sit below the estimate and the basic
+// interval corrects that bias upward, so with few samples it can lie wholly above the estimate.
 Interval bootstrap_intersection(const std::vector<double>& a, const std::vector<double>& b, int bins = kDefaultBins,
                                 int reps = 200, std::uint64_t seed = 1);
 
