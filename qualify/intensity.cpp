@@ -445,7 +445,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   if (candidate && !add)
     j["rejected_effect"] = {{"feature", top.feature},
                             {"method", method},
-                            {"held_out_mae", tried.mae},
+                            {"held_out_after", tried.mae},
                             {"change_interval95", {interval[0], interval[1]}},
                             {"seeds", unet ? nlohmann::json(after_fits.seed_mae) : nlohmann::json(nullptr)},
                             {"why", "the refit did not lower the held-out error beyond the block-bootstrap noise"}};

@@ -163,8 +163,8 @@ int run(int argc, char** argv) {
             std::to_string(j["after_simulated"].get<double>()) + "\n";
     if (j.contains("rejected_effect"))
       md += "\nTried and rejected: " + j["rejected_effect"]["feature"].get<std::string>() + " (" +
-            j["rejected_effect"]["why"].get<std::string>() + "; held-out MAE with it " +
-            std::to_string(j["rejected_effect"]["held_out_mae"].get<double>()) + ")\n";
+            j["rejected_effect"]["why"].get<std::string>() + "; held-out error with it " +
+            std::to_string(j["rejected_effect"]["held_out_after"].get<double>()) + ")\n";
     if (j.contains("seeds_before"))
       md += "\nBase model: " + j["base_model"].get<std::string>() + ". Per seed, before " + j["seeds_before"].dump() +
             ", after " + j["seeds_after"].dump() + " (class x range lookup: " +

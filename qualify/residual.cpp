@@ -102,31 +102,40 @@ double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std
 std::array<double, 2> held_out_r2_interval(const BinnedTable& t, const std::vector<double>& x,
                                            const std::vector<double>& r, double fit_mean,
                                            const std::vector<long>& block, int replicates) {
-  std::map<long, std::array<double, 2>> sums;  // block -> (sse, sst)
+  std::map<long, std::array<double, 3>> sums;  // block -> (sse, sst, unused)
   for (size_t i = 0; i < x.size(); ++i) {
     const double d = r[i] - t(x[i]), e = r[i] - fit_mean;
     auto& s = sums[block[i]];
     s[0] += d * d, s[1] += e * e;
   }
-  std::vector<std::array<double, 2>> b;
+  BlockSums b;
   for (const auto& [k, v] : sums) b.push_back(v);
-  if (b.empty()) return {0, 0};
-  double sse = 0, sst = 0;
-  for (const auto& v : b) sse += v[0], sst += v[1];
-  const double point = sst > 0 ? 1 - sse / sst : 0;
-  SplitMix rng(11);
+  return block_bootstrap_interval(b, r2_of_sums, replicates);
+}
+
+double r2_of_sums(const std::array<double, 3>& s) { return s[1] > 0 ? 1 - s[0] / s[1] : 0; }
+
+std::array<double, 2> block_bootstrap_interval(const BlockSums& blocks,
+                                               double (*stat)(const std::array<double, 3>& sums), int replicates,
+                                               std::uint64_t seed) {
+  if (blocks.empty()) return {0, 0};
+  std::array<double, 3> all{0, 0, 0};
+  for (const auto& v : blocks)
+    for (size_t k = 0; k < 3; ++k) all[k] += v[k];
+  const double point = stat(all);
+  SplitMix rng(seed);
   std::vector<double> reps;
   for (int k = 0; k < replicates; ++k) {
-    double a = 0, c = 0;
-    for (size_t j = 0; j < b.size(); ++j) {
-      const auto& v = b[rng.next() % b.size()];
-      a += v[0], c += v[1];
+    std::array<double, 3> s{0, 0, 0};
+    for (size_t j = 0; j < blocks.size(); ++j) {
+      const auto& v = blocks[rng.next() % blocks.size()];
+      for (size_t m = 0; m < 3; ++m) s[m] += v[m];
     }
-    reps.push_back(c > 0 ? 1 - a / c : 0);
+    reps.push_back(stat(s));
   }
   std::sort(reps.begin(), reps.end());
   const auto q = [&](double p) { return reps[static_cast<size_t>(p * (reps.size() - 1))]; };
-  return {2 * point - q(0.975), 2 * point - q(0.025)};  // basic bootstrap
+  return {2 * point - q(0.975), 2 * point - q(0.025)};
 }
 
 }  // namespace lidarsim::qualify

@@ -38,11 +38,23 @@ Winsor winsor_limits(const std::vector<double>& r, double q = 0.01);
 
 double mean_of(const std::vector<double>& v);
 double held_out_r2(const BinnedTable& t, const std::vector<double>& x, const std::vector<double>& r, double fit_mean);
+// held_out_r2 from sums (sse, sst, -) of squared deviations from the table and from the fit mean.
+double r2_of_sums(const std::array<double, 3>& sums);
 // Basic-bootstrap 95% interval of held_out_r2 over blocks of held-out cells (block[i] = the
 // block of cell i, e.g. scan x sector): neighbouring cells are not independent, blocks nearly are.
 std::array<double, 2> held_out_r2_interval(const BinnedTable& t, const std::vector<double>& x,
                                            const std::vector<double>& r, double fit_mean,
                                            const std::vector<long>& block, int replicates = 1000);
+
+// Sums of one block of held-out samples, for a statistic of whole-split sums (an R^2, an RMS).
+using BlockSums = std::vector<std::array<double, 3>>;
+
+// Basic-bootstrap 95% interval (2 stat - q97.5, 2 stat - q2.5) of stat(sums over blocks),
+// resampling whole blocks with a fixed seed: samples of one block (a scan sector, a track) are not
+// independent, blocks nearly are. {0, 0} without blocks.
+std::array<double, 2> block_bootstrap_interval(const BlockSums& blocks,
+                                               double (*stat)(const std::array<double, 3>& sums),
+                                               int replicates = 1000, std::uint64_t seed = 11);
 
 struct FeatureScore {
   std::string feature;
