@@ -46,6 +46,14 @@ void print_loop(const nlohmann::json& j) {
               << j["rejected_effect"]["why"].get<std::string>() << "\n";
   if (j.contains("seeds_before"))
     std::cout << "per seed: before " << j["seeds_before"].dump() << "  after " << j["seeds_after"].dump() << "\n";
+  if (j.contains("held_out_tracks"))
+    std::cout << "held-out tracks better with it: " << j["held_out_tracks_better"].get<int>() << " of "
+              << j["held_out_tracks"].get<int>() << "; 95% interval of the change "
+              << j["change_interval95"].dump() << "\n";
+  if (j.contains("folds"))
+    for (const auto& f : j["folds"])
+      std::cout << "fold: fit " << f["fit_sequences"].dump() << ", judged on " << f["held_out_sequences"].dump()
+                << ": before " << f["before"].get<double>() << "  after " << f["after"].get<double>() << "\n";
   if (j.contains("after_simulated") && !j["after_simulated"].is_null())
     std::cout << "re-simulated through the KPI manager: before " << j["before_simulated"].get<double>() << "  after "
               << j["after_simulated"].get<double>() << "\n";
@@ -172,6 +180,20 @@ int run(int argc, char** argv) {
     if (j.contains("change_interval95"))
       md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
             ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";
+    if (j.contains("held_out_tracks"))
+      md += "\nHeld-out tracks better with it: " + std::to_string(j["held_out_tracks_better"].get<int>()) + " of " +
+            std::to_string(j["held_out_tracks"].get<int>()) + "\n";
+    if (j.contains("folds")) {
+      md += "\n| fold | fit on | judged on | before | after |\n|---|---|---|---|---|\n";
+      int k = 0;
+      for (const auto& f : j["folds"]) {
+        std::string fit, held;
+        for (const auto& s : f["fit_sequences"]) fit += s.get<std::string>() + " ";
+        for (const auto& s : f["held_out_sequences"]) held += s.get<std::string>() + " ";
+        md += "| " + std::to_string(++k) + " | " + fit + "| " + held + "| " + std::to_string(f["before"].get<double>()) +
+              " | " + std::to_string(f["after"].get<double>()) + " |\n";
+      }
+    }
     if (j.contains("plot"))
       md += "\n![residual vs " + j["ranking"][0]["feature"].get<std::string>() + "](" + j["plot"].get<std::string>() +
             ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";

@@ -98,18 +98,24 @@ struct LoopOptions {
   std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
 };
 
-// `lidar-qualify loop objects`: base model fitted on the fit split (even-indexed sequences),
-// residuals (measured error - model's conditional mean; detected - detection probability) on
-// the held-out split (odd-indexed), features ranked by held-out R^2 of a per-class binned-mean
-// table fitted on the fit split (best target per feature), the top one added as a per-class
-// per-bin bias table on that target (the conditional term), and the held-out RMS residual of that target before and after.
-// The added term also goes into a refitted KPI model (base + the loop's range-bin offsets +
-// sensor::ConditionalTerm; written to out_model if given) when the feature is one the KPI
-// manager computes: on an error target as ErrorModel::conditional (offsets into the means), on
-// detection as ClassModel::detection_conditional (offsets into detection_probability of the range
-// bin, clamped to [0, 1]). "after_simulated" is the same RMS with what the KPI manager really uses
-// with that model per held-out truth object — the conditional mean error (noise off, ground-truth
-// velocities by differences) or the detection probability — and "before_simulated" with the base.
+// `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
+// even-indexed sequences and judges the odd-indexed ones, fold 2 the other way round, so every
+// sequence is held out once. Residuals (measured error - model's conditional mean; detected -
+// detection probability) on each fold's held-out sequences; features ranked by the pooled
+// held-out R^2 of a per-class binned-mean table fitted on the fold's fit sequences (best target per
+// feature; 95% interval by a block bootstrap over held-out tracks). The top one is added as a
+// per-class per-bin bias table on that target (the conditional term) if its score clears the
+// threshold and the refit lowers the held-out RMS of the winsorised residuals beyond the
+// track-to-track noise (block-bootstrap interval of the change below 0); else it is reported as
+// rejected. "before"/"after": the raw held-out RMS residual of that target over both folds.
+// The term also goes into a refitted KPI model (base + the loop's range-bin offsets +
+// sensor::ConditionalTerm, fitted on every sequence; written to out_model if given) when the
+// feature is one the KPI manager computes: on an error target as ErrorModel::conditional (offsets
+// into the means), on detection as ClassModel::detection_conditional (offsets into
+// detection_probability of the range bin, clamped to [0, 1]). "after_simulated" is the same RMS
+// with what the KPI manager really uses with each fold's refitted model per held-out truth object
+// — the conditional mean error (noise off, ground-truth velocities by differences) or the
+// detection probability — and "before_simulated" with each fold's base.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify

@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <set>
 #include <string>
 
 #include "data/reference_sensor.h"
@@ -24,7 +25,7 @@ fs::path fresh_dir(const std::string& name) {
   return p;
 }
 
-nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}) {
+nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}, double threshold = 0.05) {
   const fs::path dir = fresh_dir("objects_" + data::to_string(effect));
   data::ReferenceTrackingOptions o;
   o.effect = effect;
@@ -32,6 +33,7 @@ nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model 
   data::write_reference_tracking(dir, o);
   qualify::LoopOptions lo;
   lo.out_model = out_model;
+  lo.threshold = threshold;
   const auto j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   if (!std::getenv("LIDARSIM_KEEP_REFERENCE")) fs::remove_all(dir);
   return j;
@@ -134,6 +136,25 @@ TEST(LoopObjects, ControlWithoutHiddenEffectAddsNothing) {
   std::cout << "  control ranking " << j["ranking"].dump().substr(0, 160) << "\n";
   EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump();
   EXPECT_EQ(j["before"], j["after"]);
+  // The cross-fit holds every sequence out exactly once.
+  ASSERT_EQ(j["folds"].size(), 2u);
+  std::multiset<std::string> held;
+  for (const auto& f : j["folds"])
+    for (const auto& s : f["held_out_sequences"]) held.insert(s.get<std::string>());
+  EXPECT_EQ(held.size(), 2u);
+  EXPECT_EQ(std::set<std::string>(held.begin(), held.end()).size(), 2u);
+}
+
+// With the threshold off, the control set's best feature is a candidate; the refit must not beat
+// the track-to-track noise, so the loop names it as rejected and adds nothing.
+TEST(LoopObjects, ControlCandidateIsRejectedByTheChangeTest) {
+  const auto j = object_loop(data::ObjectEffect::None, {}, -1.0);
+  ASSERT_TRUE(j.contains("rejected_effect")) << j.dump().substr(0, 400);
+  EXPECT_EQ(j["rejected_effect"]["feature"], j["ranking"][0]["feature"]);
+  EXPECT_GE(j["change_interval95"][1].get<double>(), 0.0);
+  EXPECT_TRUE(j["added_effect"].is_null());
+  EXPECT_EQ(j["before"], j["after"]);
+  EXPECT_TRUE(j["model_term"].is_null());
 }
 
 TEST(LoopIntensity, NamesIncidenceFalloffAndCutsHeldOutErrorBelow70Percent) {
