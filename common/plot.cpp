@@ -443,3 +443,141 @@ void Chart::legend(const std::vector<LegendEntry>& entries) {
 }
 
 }  // namespace lidarsim
+
+// ---- Text on pictures that are not charts.
+namespace lidarsim {
+
+namespace {
+
+int swatch_width(int scale) { return 2 * kCellWidth * scale; }
+
+// An entry's mark in [x, x + swatch_width) x [y, y + cap height). Boxes are outlined so that a
+// white or black swatch still shows on a background of its own colour.
+void draw_swatch(Image& image, int x, int y, const LegendEntry& e, const TextStyle& style) {
+  const int s = std::max(style.scale, 1), w = swatch_width(s), h = 7 * s, mid = y + h / 2;
+  switch (e.mark) {
+    case Mark::box:
+      fill_rect(image, x, y, x + w, y + h, style.border);
+      fill_rect(image, x + 1, y + 1, x + w - 1, y + h - 1, e.colour);
+      break;
+    case Mark::line: fill_rect(image, x, mid - s / 2, x + w, mid - s / 2 + s, e.colour); break;
+    case Mark::marker:
+      for (int dy = -2 * s; dy <= 2 * s; ++dy)
+        for (int dx = -2 * s; dx <= 2 * s; ++dx)
+          if (dx * dx + dy * dy <= 4 * s * s + s) put(image, x + w / 2 + dx, mid + dy, e.colour);
+      break;
+    case Mark::none: break;
+  }
+}
+
+}  // namespace
+
+void fill_rect(Image& image, int x0, int y0, int x1, int y1, Rgb colour) {
+  for (int y = std::max(y0, 0); y < std::min(y1, image.height); ++y)
+    for (int x = std::max(x0, 0); x < std::min(x1, image.width); ++x) image.at(x, y) = colour;
+}
+
+Image add_margins(const Image& image, int left, int top, int right, int bottom, Rgb fill) {
+  left = std::max(left, 0), top = std::max(top, 0);
+  Image out(image.width + left + std::max(right, 0), image.height + top + std::max(bottom, 0), fill);
+  for (int y = 0; y < image.height && image.width > 0; ++y)
+    std::copy_n(&image.at(0, y), image.width, &out.at(left, top + y));
+  return out;
+}
+
+int band_pad(int scale) { return 3 * std::max(scale, 1); }
+int band_height(int scale) { return text_height(std::max(scale, 1)) + 2 * band_pad(scale); }
+
+int colour_key_width(const ColourKey& key, int scale) {
+  const int s = std::max(scale, 1);
+  return text_width(key.lo, s) + key.bar_width + text_width(key.hi, s) + 2 * 3 * s;
+}
+
+void draw_colour_key(Image& image, int x, int y, const ColourKey& key, const TextStyle& style) {
+  const int s = std::max(style.scale, 1), bar_x = x + text_width(key.lo, s) + 3 * s, w = key.bar_width;
+  draw_text(image, x, y, key.lo, style.ink, s);
+  fill_rect(image, bar_x, y, bar_x + w, y + 7 * s, style.border);  // 1-pixel outline around the gradient
+  for (int i = 1; i + 1 < w; ++i)
+    fill_rect(image, bar_x + i, y + 1, bar_x + i + 1, y + 7 * s - 1,
+              key.colormap(static_cast<float>(i - 1) / static_cast<float>(std::max(w - 3, 1))));
+  draw_text(image, bar_x + w + 3 * s, y, key.hi, style.ink, s);
+}
+
+Image add_caption_band(const Image& image, std::string_view caption, const TextStyle& style) {
+  const int s = std::max(style.scale, 1);
+  Image out = add_margins(image, 0, band_height(s), 0, 0, style.background);
+  draw_text(out, band_pad(s), band_pad(s), caption, style.ink, s);
+  return out;
+}
+
+Image add_caption_band(const Image& image, std::string_view caption, const ColourKey& key, const TextStyle& style) {
+  Image out = add_caption_band(image, caption, style);
+  const int s = std::max(style.scale, 1);
+  draw_colour_key(out, out.width - band_pad(s) - colour_key_width(key, s), band_pad(s), key, style);
+  return out;
+}
+
+int caption_end(std::string_view caption, int scale) {
+  return band_pad(scale) + text_width(caption, std::max(scale, 1)) + 2 * kCellWidth * std::max(scale, 1);
+}
+
+int draw_legend_row(Image& image, int x, int y, const std::vector<LegendEntry>& entries, int max_x,
+                    const TextStyle& style) {
+  const int s = std::max(style.scale, 1), gap = 2 * kCellWidth * s, text_x = swatch_width(s) + 3 * s;
+  int drawn = 0;
+  for (const LegendEntry& e : entries) {
+    const int w = text_x + text_width(e.label, s);
+    if (x + w > max_x) break;
+    draw_swatch(image, x, y, e, style);
+    draw_text(image, x + text_x, y, e.label, style.ink, s);
+    x += w + gap;
+    ++drawn;
+  }
+  return drawn;
+}
+
+int legend_box_width(const std::vector<LegendEntry>& entries, int scale) {
+  const int s = std::max(scale, 1);
+  int label_w = 0;
+  for (const LegendEntry& e : entries) label_w = std::max(label_w, text_width(e.label, s));
+  return 3 * 4 * s + swatch_width(s) + label_w;
+}
+
+int legend_box_height(const std::vector<LegendEntry>& entries, int scale) {
+  const int s = std::max(scale, 1);
+  return 2 * 4 * s + static_cast<int>(entries.size()) * kLineHeight * s - 2 * s;  // no gap below the last line
+}
+
+void draw_legend_box(Image& image, int x, int y, const std::vector<LegendEntry>& entries, const TextStyle& style) {
+  const int s = std::max(style.scale, 1), pad = 4 * s;
+  const int w = legend_box_width(entries, s), h = legend_box_height(entries, s);
+  fill_rect(image, x, y, x + w, y + h, style.border);
+  fill_rect(image, x + 1, y + 1, x + w - 1, y + h - 1, style.background);
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const int ty = y + pad + static_cast<int>(i) * kLineHeight * s;
+    draw_swatch(image, x + pad, ty, entries[i], style);
+    draw_text(image, x + 2 * pad + swatch_width(s), ty, entries[i].label, style.ink, s);
+  }
+}
+
+int scale_bar_height(int scale) { return 7 * std::max(scale, 1) + text_height(scale); }
+
+void draw_scale_bar(Image& image, int x, int y, int length, std::string_view label, const TextStyle& style) {
+  const int s = std::max(style.scale, 1);
+  fill_rect(image, x, y, x + s, y + 5 * s, style.ink);
+  fill_rect(image, x + length - s, y, x + length, y + 5 * s, style.ink);
+  fill_rect(image, x, y + 2 * s, x + length, y + 3 * s, style.ink);
+  draw_text(image, x + (length - text_width(label, s)) / 2, y + 7 * s, label, style.ink, s);
+}
+
+double round_down_nice(double max) {
+  if (!(max > 0) || !std::isfinite(max)) return 0;
+  double p = std::pow(10.0, std::floor(std::log10(max)));
+  if (p * 10 <= max) p *= 10;  // log10 can round just below a power of ten
+  if (p > max) p /= 10;
+  for (double m : {5.0, 2.0})
+    if (m * p <= max) return m * p;
+  return p;
+}
+
+}  // namespace lidarsim

@@ -95,4 +95,56 @@ class Chart {
   int left_ = 0, right_ = 0, top_ = 0, bottom_ = 0;
 };
 
+// Text on pictures that are not charts (range images, maps): a caption band above an image,
+// legends, colour keys and scale bars, so a picture explains itself without its Markdown caption.
+
+// Light by default (dark ink on white); a dark picture passes a dark background and light ink.
+struct TextStyle {
+  Rgb ink{40, 40, 40}, background{255, 255, 255}, border{150, 150, 150};  // border: boxes, swatch outlines
+  int scale = 2;
+};
+// A figure's header on grey, so it does not read as the caption of the row below it.
+inline constexpr TextStyle kHeaderStyle{{0, 0, 0}, {225, 225, 225}};
+
+// Fills [x0, x1) x [y0, y1), clipped to the image.
+void fill_rect(Image& image, int x0, int y0, int x1, int y1, Rgb colour);
+// `image` inside margins of `fill`: every pixel keeps its colour, moved by (left, top).
+Image add_margins(const Image& image, int left, int top, int right, int bottom, Rgb fill);
+
+// A band of one text line: band_height(scale) rows, the text's top band_pad(scale) below the band's.
+int band_pad(int scale);
+int band_height(int scale);
+
+// "lo [bar] hi": the colour map from t = 0 (left) to 1 (right) between the values they stand for.
+struct ColourKey {
+  std::string lo, hi;
+  Rgb (*colormap)(float) = colormap_viridis;
+  int bar_width = 160;  // pixels
+};
+int colour_key_width(const ColourKey& key, int scale);
+// Text top at y, left end at x.
+void draw_colour_key(Image& image, int x, int y, const ColourKey& key, const TextStyle& style);
+
+// `image` below a band of style.background with `caption` at its left (and `key` at its right).
+Image add_caption_band(const Image& image, std::string_view caption, const TextStyle& style);
+Image add_caption_band(const Image& image, std::string_view caption, const ColourKey& key, const TextStyle& style);
+// First column of the band that the caption leaves free (a legend row can start there).
+int caption_end(std::string_view caption, int scale);
+
+// Entries side by side ("[] road  [] car"), text top at y, from x; an entry that would reach
+// max_x and all after it are left out. Returns how many were drawn.
+int draw_legend_row(Image& image, int x, int y, const std::vector<LegendEntry>& entries, int max_x,
+                    const TextStyle& style);
+
+// Boxed legend, one entry a line, top-left corner at (x, y).
+int legend_box_width(const std::vector<LegendEntry>& entries, int scale);
+int legend_box_height(const std::vector<LegendEntry>& entries, int scale);
+void draw_legend_box(Image& image, int x, int y, const std::vector<LegendEntry>& entries, const TextStyle& style);
+
+// A bar `length` pixels long with end ticks, `label` centred below it; (x, y) = its top-left.
+int scale_bar_height(int scale);
+void draw_scale_bar(Image& image, int x, int y, int length, std::string_view label, const TextStyle& style);
+// The largest 1, 2 or 5 x 10^k not above max (a scale bar's length); 0 unless max > 0 and finite.
+double round_down_nice(double max);
+
 }  // namespace lidarsim

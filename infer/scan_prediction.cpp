@@ -10,6 +10,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/image.h"
+#include "common/plot.h"
 #include "common/progress.h"
 #include "data/kitti_object.h"
 #include "data/point_cloud_io.h"
@@ -72,8 +73,9 @@ ScanSource list_sources(const PredictOptions& o) {
   return source;
 }
 
-// Three panels, rows scaled so a 64-row scan is readable: measured / predicted / |error|.
-Image comparison_image(const pgm::PolarGridMap& pgm, const std::vector<float>& predicted) {
+}  // namespace
+
+Image comparison_image(const pgm::PolarGridMap& pgm, const std::vector<float>& predicted, const std::string& title) {
   const int rows = pgm.rows(), cols = pgm.cols();
   const float* measured = pgm.channel("intensity");
   const float* mask = pgm.channel("mask");
@@ -84,13 +86,17 @@ Image comparison_image(const pgm::PolarGridMap& pgm, const std::vector<float>& p
     error[i] = std::fabs(predicted[i] - measured[i]);
   }
   const int scale = std::max(1, 192 / std::max(1, rows));
-  return stack_vertically({scale_rows(field_to_image(measured, valid.data(), cols, rows, 0.f, 1.f), scale),
-                           scale_rows(field_to_image(predicted.data(), valid.data(), cols, rows, 0.f, 1.f), scale),
-                           scale_rows(field_to_image(error.data(), valid.data(), cols, rows, 0.f, 0.5f), scale)},
-                          4);
+  auto row = [&](const float* values, float hi, const char* caption, const char* hi_label) {
+    return add_caption_band(scale_rows(field_to_image(values, valid.data(), cols, rows, 0.f, hi), scale), caption,
+                            ColourKey{"0", hi_label}, TextStyle{});
+  };
+  const char* error_caption = "absolute error |predicted - measured|";
+  const Image stacked = stack_vertically({row(measured, 1.f, "measured intensity", "1"),
+                                          row(predicted.data(), 1.f, "predicted intensity", "1"),
+                                          row(error.data(), 0.5f, error_caption, "0.5 or more")},
+                                         4);
+  return add_caption_band(stacked, title + "  (black: no return)", kHeaderStyle);
 }
-
-}  // namespace
 
 PredictSummary predict_scans(const PredictOptions& o) {
   if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer predict: --format must be pcd or ply");
@@ -159,7 +165,9 @@ PredictSummary predict_scans(const PredictOptions& o) {
     result.cloud = o.out / (scan.id + "." + o.format);
     data::write_point_cloud(result.cloud, cloud);
     result.image = o.out / (scan.id + "_intensity.png");
-    write_png(result.image, comparison_image(projected.pgm, predicted));
+    char title[128];
+    std::snprintf(title, sizeof title, "scan %s  MAE %.4f", scan.id.c_str(), result.mae);
+    write_png(result.image, comparison_image(projected.pgm, predicted, title));
     summary.scans.push_back(result);
     char status[64];
     std::snprintf(status, sizeof status, "MAE %.4f", result.mae);
@@ -199,7 +207,7 @@ PredictSummary predict_scans(const PredictOptions& o) {
     std::snprintf(line, sizeof line, "| %s | %.4f | %ld |\n", c.name.c_str(), c.mae, c.cells);
     md += line;
   }
-  md += "\nRows of each image: measured, predicted, absolute error (0 to 0.5).\n\n";
+  md += "\n";
   for (const auto& s : summary.scans) md += "![" + s.id + "](" + s.image.filename().string() + ")\n";
   write_file_atomically(o.out / "summary.md", md);
   return summary;

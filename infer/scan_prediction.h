@@ -9,6 +9,12 @@
 #include <string>
 #include <vector>
 
+#include "common/image.h"
+
+namespace lidarsim::pgm {
+class PolarGridMap;
+}
+
 namespace lidarsim::infer {
 
 struct PredictOptions {
@@ -45,5 +51,9 @@ struct PredictSummary {
 };
 
 PredictSummary predict_scans(const PredictOptions& options);
+
+// The per-scan picture: measured / predicted / |error| rows (one image row per beam, scaled to
+// about 192 px), each under a caption with its colour scale, below a header band with `title`.
+Image comparison_image(const pgm::PolarGridMap& pgm, const std::vector<float>& predicted, const std::string& title);
 
 }  // namespace lidarsim::infer

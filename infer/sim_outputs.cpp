@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <numbers>
 
 #include <nlohmann/json.hpp>
@@ -11,6 +12,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/image.h"
+#include "common/plot.h"
 #include "data/point_cloud_io.h"
 #include "pgm/materials.h"
 #include "sensor/fov.h"
@@ -20,6 +22,12 @@ namespace lidarsim::infer {
 namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
+
+// Bird's-eye view colours: one place for what the map draws and what its legend says.
+constexpr Rgb kBevBackground{20, 20, 24}, kBevRule{70, 70, 78}, kBevPoint{90, 90, 90}, kBevLane{230, 230, 230},
+    kBevTruth{60, 200, 60}, kBevTruthOccluded{30, 100, 30}, kBevReported{230, 50, 50}, kBevCoasting{255, 160, 0},
+    kBevFalsePositive{230, 60, 230}, kBevSensor{255, 255, 255};
+constexpr TextStyle kBevText{{225, 225, 225}, kBevBackground, {110, 110, 118}, 2};
 
 std::string frame_name(const char* stem, int index, const char* ext) {
   char buf[64];
@@ -72,6 +80,37 @@ Image category_image(const float* values, const float* mask, int width, int heig
   return img;
 }
 
+// Key of a categorical channel: the ids present, most cells first, named as in pgm/materials.h.
+std::vector<LegendEntry> category_key(const float* values, const float* mask, std::size_t cells,
+                                      const std::string& (*name)(int)) {
+  std::map<int, long> count;
+  for (std::size_t i = 0; i < cells; ++i)
+    if (mask[i] > 0) ++count[static_cast<int>(values[i])];
+  std::vector<std::pair<long, int>> by_count;
+  for (const auto& [id, n] : count) by_count.emplace_back(-n, id);
+  std::sort(by_count.begin(), by_count.end());
+  std::vector<LegendEntry> key;
+  for (const auto& [minus_n, id] : by_count) {
+    std::string label = name(id);
+    std::replace(label.begin(), label.end(), '_', ' ');
+    key.push_back({label, colormap_category(id), Mark::box});
+  }
+  return key;
+}
+
+// A categorical channel under a band with its caption and the key of the ids present.
+Image category_row(const pgm::PolarGridMap& m, const char* channel, int scale, const std::string& (*name)(int)) {
+  const float *values = m.channel(channel), *mask = m.channel("mask");
+  const TextStyle style;
+  const int s = style.scale;
+  Image row = add_caption_band(scale_rows(category_image(values, mask, m.cols(), m.rows()), scale), channel, style);
+  draw_legend_row(row, caption_end(channel, s), band_pad(s), category_key(values, mask, m.cells(), name),
+                  row.width - band_pad(s), style);
+  return row;
+}
+
+}  // namespace
+
 Image pgm_image(const SimFrame& f) {
   const auto& m = f.pgm;
   const int rows = m.rows(), cols = m.cols();
@@ -80,13 +119,21 @@ Image pgm_image(const SimFrame& f) {
   for (std::size_t i = 0; i < m.cells(); ++i) valid[i] = mask[i] > 0;
   const float max_range = std::max(1.f, *std::max_element(m.channel("range"), m.channel("range") + m.cells()));
   const int scale = std::max(1, 128 / std::max(1, rows));
-  return stack_vertically(
-      {scale_rows(field_to_image(m.channel("range"), valid.data(), cols, rows, 0.f, max_range), scale),
-       scale_rows(category_image(m.channel("class"), mask, cols, rows), scale),
-       scale_rows(category_image(m.channel("material"), mask, cols, rows), scale),
-       scale_rows(field_to_image(m.channel("intensity"), valid.data(), cols, rows, 0.f, 1.f), scale)},
+  const TextStyle style;
+  char hi[32], header[96];
+  std::snprintf(hi, sizeof hi, "%.0f", max_range);
+  std::snprintf(header, sizeof header, "PGM channels, frame %d  t = %.1f s  (black: no return)", f.index, f.time);
+  const Image stacked = stack_vertically(
+      {add_caption_band(scale_rows(field_to_image(m.channel("range"), valid.data(), cols, rows, 0.f, max_range), scale),
+                        "range (m)", ColourKey{"0", hi}, style),
+       category_row(m, "class", scale, pgm::class_name), category_row(m, "material", scale, pgm::material_name),
+       add_caption_band(scale_rows(field_to_image(m.channel("intensity"), valid.data(), cols, rows, 0.f, 1.f), scale),
+                        "predicted intensity", ColourKey{"0", "1"}, style)},
       4);
+  return add_caption_band(stacked, header, kHeaderStyle);
 }
+
+namespace {
 
 // Bird's-eye view of the sensor frame: x forward is up, y left is left.
 struct Bev {
@@ -94,7 +141,7 @@ struct Bev {
   double res;   // m per pixel
   double x_lo;  // x at the bottom row
   double y_hi;  // y at the left column
-  Bev(double range) : img(800, 800, Rgb{20, 20, 24}), res(2 * range / 800), x_lo(-range), y_hi(range) {}
+  Bev(double range) : img(800, 800, kBevBackground), res(2 * range / 800), x_lo(-range), y_hi(range) {}
   bool px(double x, double y, int& u, int& v) const {
     u = static_cast<int>(std::floor((y_hi - y) / res));
     v = img.height - 1 - static_cast<int>(std::floor((x - x_lo) / res));
@@ -130,28 +177,70 @@ struct Bev {
   }
 };
 
-Image bev_image(const SimFrame& f, double range) {
+Bev draw_bev(const SimFrame& f, double range) {
   Bev b(range);
-  for (std::size_t i = 0; i < f.cloud.size(); ++i) b.dot(f.cloud.x[i], f.cloud.y[i], Rgb{90, 90, 90});
+  for (std::size_t i = 0; i < f.cloud.size(); ++i) b.dot(f.cloud.x[i], f.cloud.y[i], kBevPoint);
   for (const auto& l : f.lanes) {
     double px = l.x_min, py = sensor::evaluate(l, px);
     for (double x = l.x_min + 0.5; x <= l.x_max + 1e-9; x += 0.5) {
       const double y = sensor::evaluate(l, x);
-      b.line(px, py, x, y, Rgb{230, 230, 230});
+      b.line(px, py, x, y, kBevLane);
       px = x;
       py = y;
     }
   }
-  for (const auto& o : f.sensor.objects) b.box(o, o.visible_fraction > 0 ? Rgb{60, 200, 60} : Rgb{30, 100, 30});
+  for (const auto& o : f.sensor.objects) b.box(o, o.visible_fraction > 0 ? kBevTruth : kBevTruthOccluded);
   for (const auto& r : f.reported)
-    b.box(r.object, r.truth_id < 0 ? Rgb{230, 60, 230} : r.coasting ? Rgb{255, 160, 0} : Rgb{230, 50, 50});
+    b.box(r.object, r.truth_id < 0 ? kBevFalsePositive : r.coasting ? kBevCoasting : kBevReported);
   // The sensor: a small cross at the origin.
-  b.line(-1, 0, 1, 0, Rgb{255, 255, 255});
-  b.line(0, -1, 0, 1, Rgb{255, 255, 255});
-  return b.img;
+  b.line(-1, 0, 1, 0, kBevSensor);
+  b.line(0, -1, 0, 1, kBevSensor);
+  return b;
+}
+
+// One entry per kind of mark draw_bev makes, in its colours.
+std::vector<LegendEntry> bev_legend() {
+  return {{"ground truth", kBevTruth},
+          {"truth, occluded", kBevTruthOccluded},
+          {"reported", kBevReported},
+          {"coasting", kBevCoasting},
+          {"false positive", kBevFalsePositive},
+          {"lane", kBevLane, Mark::line},
+          {"points", kBevPoint, Mark::marker},
+          {"sensor", kBevSensor, Mark::marker}};
+}
+
+// The panel right of the map: legend at the top, orientation below it, scale bar at the bottom.
+void draw_bev_panel(Image& img, int x0, int y0, double metres_per_pixel) {
+  const int s = kBevText.scale, m = 6 * s;
+  const auto legend = bev_legend();
+  draw_legend_box(img, x0 + m, y0 + m, legend, kBevText);
+  const int note_y = y0 + m + legend_box_height(legend, s) + 2 * m;
+  draw_text(img, x0 + m, note_y, "sensor frame:", kBevText.ink, s);
+  draw_text(img, x0 + m, note_y + kLineHeight * s, "x forward = up", kBevText.ink, s);
+  draw_text(img, x0 + m, note_y + 2 * kLineHeight * s, "y left = left", kBevText.ink, s);
+  const double metres = round_down_nice((img.width - x0 - 2 * m) * metres_per_pixel);
+  char label[32];
+  std::snprintf(label, sizeof label, "%g m", metres);
+  const int length = static_cast<int>(std::lround(metres / metres_per_pixel));
+  draw_scale_bar(img, x0 + m, img.height - m - scale_bar_height(s), length, label, kBevText);
 }
 
 }  // namespace
+
+Image bev_image(const SimFrame& f, double range) {
+  const Bev b = draw_bev(f, range);
+  const int s = kBevText.scale, panel = legend_box_width(bev_legend(), s) + 2 * 6 * s;
+  Image img = add_margins(b.img, 0, band_height(s), panel, 0, kBevBackground);
+  // Thin rules keep the text apart from the map without covering any of it.
+  fill_rect(img, 0, band_height(s) - 1, img.width, band_height(s), kBevRule);
+  fill_rect(img, b.img.width, band_height(s), b.img.width + 1, img.height, kBevRule);
+  char header[64];
+  std::snprintf(header, sizeof header, "bird's-eye view, frame %d  t = %.1f s", f.index, f.time);
+  draw_text(img, band_pad(s), band_pad(s), header, kBevText.ink, s);
+  draw_bev_panel(img, b.img.width + 1, band_height(s), b.res);
+  return img;
+}
 
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0;
@@ -326,9 +415,8 @@ std::string SimStats::to_markdown(const Info& info) const {
   if (info.outputs) {
     md += "\nFiles per frame NNNN: `objects_NNNN.csv|json` (reported list and ground truth, sensor frame), "
           "`lanes_NNNN.json` (cubic polynomials), `cloud_NNNN." + info.format +
-          "` (x y z intensity class material object_id range), `pgm_NNNN.png` (rows: range, class, material, "
-          "intensity), `bev_NNNN.png` (bird's-eye view: ground truth green, reported red, coasting orange, false "
-          "positives magenta, lanes white).\n\n";
+          "` (x y z intensity class material object_id range), `pgm_NNNN.png` (PGM channels) and `bev_NNNN.png` "
+          "(bird's-eye view), each with its legend.\n\n";
     if (frames() > 0 && info.images) {
       const int last = frames() - 1, mid = last / 2;
       md += "![bird's-eye view, frame " + std::to_string(mid) + "](" + frame_name("bev", mid, "png") + ")\n\n";

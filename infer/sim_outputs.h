@@ -10,15 +10,18 @@
 //   lanes_NNNN.json    {"frame", "time", "lanes": [{id, type, c0..c3, x_min, x_max}]},
 //                      y = c0 + c1 x + c2 x^2 + c3 x^3 in the sensor frame on [x_min, x_max]
 //   cloud_NNNN.pcd|ply x y z (sensor frame) intensity class material object_id range
-//   pgm_NNNN.png       the PGM channels stacked: range, class, material, intensity
+//   pgm_NNNN.png       the PGM channels stacked: range, class, material, intensity, each under a
+//                      caption with its colour scale or the classes / materials present
 //   bev_NNNN.png       bird's-eye view: ground truth boxes (green), reported (red; coasting
-//                      orange), false positives (magenta), lane polynomials (white), points (grey)
+//                      orange), false positives (magenta), lane polynomials (white), points (grey),
+//                      with frame and time above and a legend and scale bar on the right
 // At the end: summary.json (machine) and summary.md (people).
 #include <array>
 #include <filesystem>
 #include <string>
 #include <vector>
 
+#include "common/image.h"
 #include "infer/sim_pipeline.h"
 
 namespace lidarsim::infer {
@@ -31,6 +34,12 @@ struct SimOutputOptions {
 
 // Writes one frame's files (atomically, each). Returns the milliseconds spent.
 double write_frame_outputs(const SimOutputOptions& options, const SimFrame& frame);
+
+// The two pictures of a frame. The map is 800 x 800 px covering [-range, range] m around the
+// sensor, below a header band and left of a legend panel; the PGM rows (one image row per beam,
+// scaled to about 128 px) each sit below a caption band, all below a header band.
+Image bev_image(const SimFrame& frame, double range);
+Image pgm_image(const SimFrame& frame);
 
 // Accumulates per-frame statistics and writes the summary.
 class SimStats {

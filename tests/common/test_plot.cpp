@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "common/plot.h"
+#include "tests/support/image_checks.h"
 
 using namespace lidarsim;
 
@@ -211,4 +212,71 @@ TEST(Chart, TooSmallForItsMarginsStillDrawsSafely) {
   chart.hline(0.5, {1, 2, 3});
   chart.legend({{"legend", {1, 2, 3}, Mark::marker}});
   EXPECT_EQ(chart.image().pixels.size(), 600u);
+}
+
+using test::count_colour;
+
+TEST(Annotate, MarginsAndCaptionBandsMoveThePictureWithoutChangingIt) {
+  Image im(3, 2, {1, 2, 3});
+  im.at(2, 1) = {9, 9, 9};
+  const Image m = add_margins(im, 4, 5, 6, 7, {0, 0, 0});
+  EXPECT_EQ(m.width, 13);
+  EXPECT_EQ(m.height, 14);
+  EXPECT_TRUE(is(m.at(4, 5), {1, 2, 3}));
+  EXPECT_TRUE(is(m.at(6, 6), {9, 9, 9}));
+  EXPECT_TRUE(is(m.at(3, 5), {0, 0, 0}));
+
+  const TextStyle style;
+  const Image c = add_caption_band(Image(300, 10, {1, 2, 3}), "range", ColourKey{"0", "70"}, style);
+  const int band = band_height(style.scale);
+  ASSERT_EQ(c.width, 300);
+  ASSERT_EQ(c.height, 10 + band);
+  EXPECT_EQ(count_colour(c, 0, band, 300, c.height, {1, 2, 3}), 300 * 10);  // the picture, all of it
+  EXPECT_GT(count_colour(c, 0, 0, 100, band, style.ink), 30);                // the caption at the left
+  EXPECT_GT(count_colour(c, 0, 0, 100, band, style.background), 100);
+  // The key at the right: both ends of the colour map, between its two labels.
+  EXPECT_GT(count_colour(c, 100, 0, 300, band, colormap_viridis(0)), 5);
+  EXPECT_GT(count_colour(c, 100, 0, 300, band, colormap_viridis(1)), 5);
+  EXPECT_GT(count_colour(c, c.width - band_pad(2) - text_width("70", 2), 0, 300, band, style.ink), 10);
+}
+
+TEST(Annotate, LegendsDrawEverySwatchAndLabelAndARowStopsAtItsEnd) {
+  const TextStyle style;
+  const Rgb red{200, 0, 0}, green{0, 200, 0}, blue{0, 0, 200};
+  const std::vector<LegendEntry> entries{{"box", red}, {"line", green, Mark::line}, {"dot", blue, Mark::marker}};
+  Image box(300, 120, style.background);
+  const int w = legend_box_width(entries, 2), h = legend_box_height(entries, 2);
+  draw_legend_box(box, 10, 10, entries, style);
+  EXPECT_TRUE(is(box.at(10, 10), style.border));
+  EXPECT_TRUE(is(box.at(10 + w - 1, 10 + h - 1), style.border));
+  EXPECT_TRUE(is(box.at(10 + w, 10 + h), style.background));
+  for (Rgb c : {red, green, blue}) EXPECT_GT(count_colour(box, 10, 10, 10 + w, 10 + h, c), 5);
+  EXPECT_GT(count_colour(box, 10, 10, 10 + w, 10 + h, style.ink), 50);
+
+  Image row(300, 30, style.background);
+  EXPECT_EQ(draw_legend_row(row, 0, 5, entries, 300, style), 3);
+  Image narrow(300, 30, style.background);
+  EXPECT_EQ(draw_legend_row(narrow, 0, 5, entries, 70, style), 1);  // room for "[] box" (64 px) only
+  EXPECT_EQ(count_colour(narrow, 0, 0, 300, 30, green), 0);
+}
+
+TEST(Annotate, ScaleBarsHaveRoundLengthsAndTheirLabelBelow) {
+  EXPECT_EQ(round_down_nice(23.6), 20);
+  EXPECT_EQ(round_down_nice(50), 50);
+  EXPECT_EQ(round_down_nice(1000), 1000);
+  EXPECT_EQ(round_down_nice(9.99), 5);
+  EXPECT_EQ(round_down_nice(1), 1);
+  EXPECT_DOUBLE_EQ(round_down_nice(0.7), 0.5);
+  EXPECT_EQ(round_down_nice(0), 0);
+  EXPECT_EQ(round_down_nice(-3), 0);
+  EXPECT_EQ(round_down_nice(std::numeric_limits<double>::infinity()), 0);
+
+  const TextStyle style;
+  Image im(200, 60, style.background);
+  draw_scale_bar(im, 10, 5, 100, "20 m", style);
+  EXPECT_TRUE(is(im.at(10, 5), style.ink));    // left tick
+  EXPECT_TRUE(is(im.at(109, 5), style.ink));   // right tick
+  EXPECT_FALSE(is(im.at(110, 5), style.ink));  // exactly 100 px
+  EXPECT_TRUE(is(im.at(60, 5 + 2 * 2), style.ink));  // the bar
+  EXPECT_GT(count_colour(im, 10, 5 + 7 * 2, 110, 5 + scale_bar_height(2), style.ink), 30);  // "20 m"
 }

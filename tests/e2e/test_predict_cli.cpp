@@ -12,8 +12,12 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.h"
+#include "common/plot.h"
 #include "data/point_cloud_io.h"
+#include "infer/scan_prediction.h"
+#include "pgm/polar_grid_map.h"
 #include "tests/support/shared_data.h"
+#include "tests/support/image_checks.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
@@ -56,6 +60,35 @@ TEST(PredictCli, BundledModelOnTheBundledScanWritesCloudImageAndSummary) {
   EXPECT_LT(summary.at("mae").get<double>(), 0.08);
   EXPECT_GT(summary.at("cells").get<long>(), 50000);
   EXPECT_FALSE(summary.at("per_class").empty());
+}
+
+using test::count_colour;
+
+// The picture explains itself: a header naming the scan, a caption and colour scale above each
+// row, the rows as they were.
+TEST(PredictPicture, RowsHaveCaptionsAndColourScalesBelowAHeaderNamingTheScan) {
+  pgm::PolarGridMap grid(pgm::BeamLayout::uniform(8, 2, -24, 1024), {"intensity", "mask"});
+  for (int col = 0; col < 1024; ++col) {
+    grid.at(grid.channel_index("mask"), 4, col) = 1;
+    grid.at(grid.channel_index("intensity"), 4, col) = 0.25f;
+  }
+  const std::vector<float> predicted(grid.cells(), 0.75f);
+  const Image im = infer::comparison_image(grid, predicted, "scan 00_000000");
+  const int band = band_height(2), row = 192, gap = 4;  // 8 beams, 24 px each
+  ASSERT_EQ(im.width, 1024);
+  ASSERT_EQ(im.height, band + 3 * (band + row) + 2 * gap);
+  EXPECT_GT(count_colour(im, 0, 0, 1024, band, {0, 0, 0}), 200) << "header";
+  const TextStyle style;
+  for (int k = 0; k < 3; ++k) {
+    const int top = band + k * (band + row + gap);
+    EXPECT_GT(count_colour(im, 0, top, 400, top + band, style.ink), 100) << "caption of row " << k;
+    EXPECT_GT(count_colour(im, 600, top, 1024, top + band, colormap_viridis(0)), 5) << "colour scale of row " << k;
+    EXPECT_GT(count_colour(im, 600, top, 1024, top + band, style.ink), 20) << "scale's end values, row " << k;
+  }
+  // The data: beam 4 measured 0.25 and off by 0.5, the top of the error scale.
+  const int measured = 2 * band + 4 * 24, error = measured + 2 * (row + gap + band);
+  EXPECT_EQ(count_colour(im, 0, measured, 1024, measured + 24, colormap_viridis(0.25f)), 1024 * 24);
+  EXPECT_EQ(count_colour(im, 0, error, 1024, error + 24, colormap_viridis(1)), 1024 * 24);
 }
 
 TEST(PredictCli, MissingModelGivesOneLineNamingTheFileAndNonZeroExit) {
