@@ -282,27 +282,17 @@ UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::
 // Block bootstrap of the held-out MAE change over (scan, validation sector) blocks.
 std::array<double, 2> change_interval(const IntensityCells& c, const std::vector<size_t>& held_i,
                                       const std::vector<double>& before, const std::vector<double>& after) {
-  std::map<long, std::array<double, 3>> blocks;
+  std::map<long, std::array<double, 3>> blocks;  // block -> (sum |after error|, sum |before error|, n)
   for (size_t i : held_i) {
     auto& b = blocks[long(c.frame[i]) * 16 + c.sector[i]];
-    b[0] += std::abs(before[i] - c.measured[i]);
-    b[1] += std::abs(after[i] - c.measured[i]);
+    b[0] += std::abs(after[i] - c.measured[i]);
+    b[1] += std::abs(before[i] - c.measured[i]);
     b[2] += 1;
   }
-  std::vector<std::array<double, 3>> bl;
+  BlockSums bl;
   for (const auto& [k, v] : blocks) bl.push_back(v);
-  SplitMix rng(7);
-  std::vector<double> deltas;
-  for (int r = 0; r < 1000; ++r) {
-    double a = 0, b = 0, n = 0;
-    for (size_t k = 0; k < bl.size(); ++k) {
-      const auto& v = bl[rng.next() % bl.size()];
-      a += v[0], b += v[1], n += v[2];
-    }
-    deltas.push_back((b - a) / n);
-  }
-  std::sort(deltas.begin(), deltas.end());
-  return {deltas[25], deltas[974]};
+  return block_bootstrap_interval(
+      bl, [](const std::array<double, 3>& s) { return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0; }, 1000, 7);
 }
 
 }  // namespace
