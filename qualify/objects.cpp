@@ -53,6 +53,11 @@ bool used_by_model(const std::string& f) {
          kObjectFeaturesUsedByModel.end();
 }
 
+// Unit of a residual target, for axis labels.
+std::string target_unit(const std::string& target) {
+  return target == "heading" ? "(rad)" : target == "detection" ? "(detected 0/1)" : "(m)";
+}
+
 double rms(const std::vector<double>& v) {
   double s = 0;
   for (double x : v) s += x * x;
@@ -410,7 +415,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
       const std::string caption = write_histogram_png(
           out_dir / png, s_all, r_all,
           {name + " error: simulated vs measured",
-           kObjectTargets[t] + (kObjectTargets[t] == "heading" ? " error (rad)" : " error (m)"), "share of samples"},
+           kObjectTargets[t] + " error " + target_unit(kObjectTargets[t]), "share of samples"},
           sm.intersection);
       k["plot"] = png;
       kpis.push_back(k);
@@ -870,10 +875,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     write_residual_png(options.plots_dir / plot, refs[0].table.pooled, h.column(f), h.r,
                        {"Held-out " + top.target + " residual vs " + top.feature + " (fold 1)",
                         feature_axis_label(top.feature),
-                        top.target + " residual, measured - model " +
-                            (top.target == "heading"     ? "(rad)"
-                             : top.target == "detection" ? "(detected 0/1)"
-                                                         : "(m)")});
+                        top.target + " residual, measured - model " + target_unit(top.target)});
   }
 
   nlohmann::json j;
