@@ -18,5 +18,8 @@ if ((${#missing[@]})); then
 fi
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
+# ccache, where installed, makes rebuilds in other checkouts of the same tree nearly free.
+launcher=()
+command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} "${launcher[@]}" >/dev/null
 cmake --build "$build_dir" -j"$(nproc)"
