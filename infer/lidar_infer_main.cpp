@@ -1,6 +1,7 @@
 // lidar-infer: run the trained models.
 //   predict  intensity for recorded scans (SemanticKITTI, KITTI object, or one .bin)
 //   sim      the simulation pipeline over a scenario (object list, lanes, point cloud, images)
+//   osi      the sensor model behind ASAM OSI: SensorView trace in, SensorData trace out
 #include <cstdio>
 #include <chrono>
 #include <cstring>
@@ -14,6 +15,7 @@
 
 #include "common/error.h"
 #include "common/progress.h"
+#include "infer/osi_command.h"
 #include "infer/scan_prediction.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
@@ -26,6 +28,8 @@ void usage() {
                "  predict   predicted intensity for recorded scans: point clouds (PCD/PLY), PNG figures, summary\n"
                "  sim       simulate a scenario: object lists, lanes, point clouds with intensity, images, timings\n"
                "            (no options: the bundled demo scenario and models into out/sim)\n"
+               "  osi       ASAM OSI: a trace of osi3.SensorView in, osi3.SensorData out (files or stdin/stdout)\n"
+               "  osi-trace a scenario JSON as an OSI SensorView trace (to try 'osi' without a simulator)\n"
                "run 'lidar-infer <command> --help' for the options of a command\n";
 }
 
@@ -180,6 +184,8 @@ int main(int argc, char** argv) {
   try {
     if (command == "predict") return run_predict(argc - 1, argv + 1);
     if (command == "sim") return run_sim(argc - 1, argv + 1);
+    if (command == "osi") return lidarsim::infer::run_osi_command(argc - 1, argv + 1, resolve_default);
+    if (command == "osi-trace") return lidarsim::infer::run_osi_trace_command(argc - 1, argv + 1, resolve_default);
     std::fprintf(stderr, "error: unknown command '%s'\n", command.c_str());
     usage();
     return 2;

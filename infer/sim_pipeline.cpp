@@ -80,8 +80,19 @@ SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const
 }
 
 void SimPipeline::run_frame(int k, SimFrame& out) {
+  const auto start = std::chrono::steady_clock::now();
+  sensor::sample_frame(scenario_, scenario_.frame_time(k), map_frame_);
+  run_stages(k, map_frame_, start, out);
+}
+
+void SimPipeline::run_ground_truth(int k, const sensor::Frame& map_frame, SimFrame& out) {
+  run_stages(k, map_frame, std::chrono::steady_clock::now(), out);
+}
+
+void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start,
+                             SimFrame& out) {
   using clock = std::chrono::steady_clock;
-  auto mark = clock::now();
+  auto mark = start;
   auto lap = [&](SimStage s) {
     const auto now = clock::now();
     out.stage_ms[static_cast<int>(s)] = std::chrono::duration<double, std::milli>(now - mark).count();
@@ -89,13 +100,11 @@ void SimPipeline::run_frame(int k, SimFrame& out) {
   };
   out.stage_ms.fill(0);
   out.index = k;
-  out.time = scenario_.frame_time(k);
-
-  sensor::sample_frame(scenario_, out.time, map_frame_);
-  out.objects_existing = static_cast<int>(map_frame_.objects.size());
+  out.time = map_frame.time;
+  out.objects_existing = static_cast<int>(map_frame.objects.size());
   lap(SimStage::Sample);
 
-  sensor::map_to_ego(map_frame_, out.ego);
+  sensor::map_to_ego(map_frame, out.ego);
   sensor::ego_to_sensor(out.ego, scenario_.sensor.mount, out.sensor);
   lap(SimStage::Frames);
 

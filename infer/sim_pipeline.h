@@ -12,6 +12,7 @@
 // (almost) nothing. Each stage is timed with steady_clock; nothing here writes files
 // (infer/sim_outputs.h does).
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -89,9 +90,15 @@ class SimPipeline {
   // Runs frame k (time k / rate) into `out`, whose buffers are reused between calls. Frames must
   // be run in increasing order (tracking and the KPI noise carry state from frame to frame).
   void run_frame(int k, SimFrame& out);
+  // The same stages on ground truth given from outside (the OSI interface, infer/osi_runner.h):
+  // `map_frame` as sample_frame() would give it (map frame: time, ego pose, objects, lanes).
+  // Same ordering rule as run_frame.
+  void run_ground_truth(int k, const sensor::Frame& map_frame, SimFrame& out);
 
  private:
   sensor::Scenario scenario_;
+  void run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start, SimFrame& out);
+
   std::unique_ptr<IntensityModel> intensity_;
   SimOptions options_;
   sensor::Tracker tracker_;

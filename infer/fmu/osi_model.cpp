@@ -1,0 +1,74 @@
+// The model behind the OSMP FMU: OsiRunner (the same as `lidar-infer osi`) with OSMP's double
+// buffered output. Exported as a C interface (osi_model.h); loaded by osmp_sensor.cpp.
+#include "infer/fmu/osi_model.h"
+
+#include <cstdio>
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "common/error.h"
+#include "infer/osi_runner.h"
+#include "osi/osi3_subset.pb.h"
+
+namespace {
+
+struct Model {
+  std::unique_ptr<lidarsim::infer::OsiRunner> runner;
+  osi3::SensorView view;
+  osi3::SensorData data;
+  std::string out[2];  // OSMP: the previous output stays valid while the next one is computed
+  int current = 0;
+  long steps = 0;
+};
+
+void set_error(char* error, std::size_t size, const std::string& what) {
+  if (error && size > 0) std::snprintf(error, size, "%s", what.c_str());
+}
+
+}  // namespace
+
+extern "C" {
+
+__attribute__((visibility("default"))) void* lidarsim_osi_model_create(const char* resources_dir, char* error,
+                                                                         std::size_t error_size) {
+  try {
+    const std::filesystem::path r = resources_dir;
+    auto m = std::make_unique<Model>();
+    m->runner = std::make_unique<lidarsim::infer::OsiRunner>(lidarsim::infer::OsiRunner::from_files(
+        r / "sensor.json", r / "kpi_pointrcnn.json", r / "intensity_unet.h5"));
+    return m.release();
+  } catch (const std::exception& e) {
+    set_error(error, error_size, e.what());
+    return nullptr;
+  }
+}
+
+__attribute__((visibility("default"))) int lidarsim_osi_model_step(void* model, const void* in, int in_size,
+                                                                   const void** out, int* out_size, char* error,
+                                                                   std::size_t error_size) {
+  Model& m = *static_cast<Model*>(model);
+  try {
+    if (!m.view.ParseFromArray(in, in_size))
+      throw lidarsim::Error("OSMPSensorViewIn: message " + std::to_string(m.steps) +
+                            ": does not parse as osi3.SensorView");
+    m.runner->step(m.view, m.steps, "OSMPSensorViewIn", m.data);
+    m.current ^= 1;
+    std::string& buffer = m.out[m.current];
+    if (!m.data.SerializeToString(&buffer)) throw lidarsim::Error("OSMPSensorDataOut: serialization failed");
+    *out = buffer.data();
+    *out_size = static_cast<int>(buffer.size());
+    ++m.steps;
+    return 0;
+  } catch (const std::exception& e) {
+    set_error(error, error_size, e.what());
+    return 1;
+  }
+}
+
+__attribute__((visibility("default"))) void lidarsim_osi_model_destroy(void* model) {
+  delete static_cast<Model*>(model);
+}
+
+}  // extern "C"

@@ -1,0 +1,102 @@
+#include "osi/scenario_trace.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "osi/sensor_data.h"
+#include "osi/sensor_view.h"
+#include "sensor/frames.h"
+
+namespace lidarsim::osi {
+
+namespace {
+
+void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v) {
+  v.set_x(p.x());
+  v.set_y(p.y());
+  v.set_z(p.z());
+}
+
+// Roll, pitch, yaw of R = Rz(yaw) Ry(pitch) Rx(roll).
+void set_orientation(const Eigen::Matrix3d& r, osi3::Orientation3d& o) {
+  o.set_yaw(std::atan2(r(1, 0), r(0, 0)));
+  o.set_pitch(std::asin(std::clamp(-r(2, 0), -1.0, 1.0)));
+  o.set_roll(std::atan2(r(2, 1), r(2, 2)));
+}
+
+osi3::LaneBoundary::Classification::Type lane_type(sensor::LaneType t) {
+  using C = osi3::LaneBoundary::Classification;
+  switch (t) {
+    case sensor::LaneType::Dashed: return C::TYPE_DASHED_LINE;
+    case sensor::LaneType::RoadEdge: return C::TYPE_ROAD_EDGE;
+    default: return C::TYPE_SOLID_LINE;
+  }
+}
+
+}  // namespace
+
+void sensor_view_from_scenario(const sensor::Scenario& sc, double t, osi3::SensorView& out) {
+  out.Clear();
+  sensor::Frame frame;
+  sensor::sample_frame(sc, t, frame);
+  sensor::KinematicState ego;
+  sensor::sample_state(sc.ego, t, ego, /*extrapolate=*/true);
+
+  set_version(*out.mutable_version());
+  set_timestamp(t, *out.mutable_timestamp());
+  out.mutable_sensor_id()->set_value(kSensorId);
+  out.mutable_host_vehicle_id()->set_value(kHostId);
+  // Our mount is relative to the road point below the rear axle; OSI's to the axle itself.
+  auto* mp = out.mutable_mounting_position();
+  set_vector(sc.sensor.mount.translation - kRearAxleHeight * Eigen::Vector3d::UnitZ(), *mp->mutable_position());
+  set_orientation(sc.sensor.mount.rotation, *mp->mutable_orientation());
+
+  auto* gt = out.mutable_global_ground_truth();
+  set_version(*gt->mutable_version());
+  *gt->mutable_timestamp() = out.timestamp();
+  gt->mutable_host_vehicle_id()->set_value(kHostId);
+
+  auto* host = gt->add_moving_object();
+  host->mutable_id()->set_value(kHostId);
+  host->set_type(osi3::MovingObject::TYPE_VEHICLE);
+  host->mutable_vehicle_classification()->set_type(osi3::MovingObject::VehicleClassification::TYPE_MEDIUM_CAR);
+  const Eigen::Vector3d centre_from_rear(kRearAxleBehindCentre, 0, kHostHeight / 2 - kRearAxleHeight);
+  set_vector(-centre_from_rear, *host->mutable_vehicle_attributes()->mutable_bbcenter_to_rear());
+  auto* hb = host->mutable_base();
+  const Eigen::Vector3d rear_axle = sensor::apply(frame.ego_in_map, Eigen::Vector3d(0, 0, kRearAxleHeight));
+  set_vector(rear_axle + frame.ego_in_map.rotation * centre_from_rear, *hb->mutable_position());
+  set_orientation(frame.ego_in_map.rotation, *hb->mutable_orientation());
+  hb->mutable_dimension()->set_length(kHostLength);
+  hb->mutable_dimension()->set_width(kHostWidth);
+  hb->mutable_dimension()->set_height(kHostHeight);
+  set_vector(ego.velocity, *hb->mutable_velocity());
+  set_vector(ego.acceleration, *hb->mutable_acceleration());
+
+  for (const auto& o : frame.objects) {
+    auto* m = gt->add_moving_object();
+    m->mutable_id()->set_value(static_cast<std::uint64_t>(o.id));
+    m->set_type(osi_type(o.cls));
+    if (m->type() == osi3::MovingObject::TYPE_VEHICLE)
+      m->mutable_vehicle_classification()->set_type(osi_vehicle_type(o.cls));
+    auto* b = m->mutable_base();
+    set_vector(o.position, *b->mutable_position());
+    b->mutable_orientation()->set_roll(0);
+    b->mutable_orientation()->set_pitch(0);
+    b->mutable_orientation()->set_yaw(o.heading);
+    b->mutable_dimension()->set_length(o.size.x());
+    b->mutable_dimension()->set_width(o.size.y());
+    b->mutable_dimension()->set_height(o.size.z());
+    set_vector(o.velocity, *b->mutable_velocity());
+    set_vector(o.acceleration, *b->mutable_acceleration());
+  }
+
+  for (const auto& l : frame.lanes) {
+    auto* lb = gt->add_lane_boundary();
+    lb->mutable_id()->set_value(kLaneIdBase + static_cast<std::uint64_t>(l.id));
+    lb->mutable_classification()->set_type(lane_type(l.type));
+    lb->mutable_classification()->set_color(osi3::LaneBoundary::Classification::COLOR_WHITE);
+    for (const auto& p : l.points) set_vector(p, *lb->add_boundary_line()->mutable_position());
+  }
+}
+
+}  // namespace lidarsim::osi

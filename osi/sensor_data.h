@@ -1,0 +1,58 @@
+#pragma once
+// Our model's output for one frame -> osi3.SensorData.
+//
+//   version                     kOsiVersion; timestamp and last_measurement_time = the input's
+//   sensor_id, mounting_position echoed from the SensorView (host vehicle frame)
+//   moving_object               one per reported object: header (tracking_id = our track id,
+//                               ground_truth_id = the OSI id of the associated truth object, none
+//                               for a false positive; existence_probability = the detector's
+//                               score; measurement_state measured or predicted for a coasting
+//                               track), base in the virtual sensor frame (box centre, yaw,
+//                               dimension, velocity relative to the sensor = over ground minus the
+//                               host's), one classification candidate (probability 1)
+//   lane_boundary               one per lane polynomial: points every 1 m (at least 2) over its
+//                               valid range in the sensor frame, the boundary type as candidate
+//   feature_data.lidar_sensor[0] the point cloud: spherical position in the sensor frame
+//                               (azimuth about z from x, elevation positive upwards), intensity in
+//                               percent, object_id = the OSI id of the object hit (MAX(uint64)
+//                               for road and paint)
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "osi/osi3_subset.pb.h"
+#include "osi/sensor_view.h"
+#include "pgm/beam_layout.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::osi {
+
+inline constexpr std::uint32_t kOsiVersion[3] = {3, 5, 0};
+inline constexpr std::uint64_t kNoObject = std::numeric_limits<std::uint64_t>::max();
+// Tracking ids of false positives (our ids <= -1000) are mapped above this, real tracks keep theirs.
+inline constexpr std::uint64_t kFalsePositiveIdBase = 1ull << 40;
+
+struct ReportedDetection {
+  sensor::Object object;  // sensor frame; id = track id (false positive: <= -1000)
+  int truth_id = -1;      // model id of the truth object, -1 for a false positive
+  bool coasting = false;
+};
+
+// Columns of the point cloud (sensor frame, one entry per return); pointers into the caller's arrays.
+struct CloudRef {
+  std::size_t size = 0;
+  const float* range = nullptr;
+  const float* intensity = nullptr;  // 0..1
+  const float* object_id = nullptr;  // model ids, < 0 for road and paint
+  const int* cell = nullptr;         // row * columns + column
+  const pgm::BeamLayout* layout = nullptr;
+};
+
+// Fills `out` (cleared first). `cycle` is the frame counter written into the headers.
+void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetection>& objects,
+                       const std::vector<sensor::LanePolynomial>& lanes, const CloudRef& cloud, const IdMap& ids,
+                       std::uint64_t cycle, osi3::SensorData& out);
+
+void set_version(osi3::InterfaceVersion& v);
+
+}  // namespace lidarsim::osi

@@ -1,0 +1,72 @@
+#pragma once
+// osi3.SensorView -> the scene our sensor model runs on.
+//
+// Frames. OSI's global frame is our map frame. The host vehicle frame of OSI has its origin at
+// the middle of the rear axle (host base.position + R(host orientation) * bbcenter_to_rear), our
+// ego frame at the road point below it (the PCL generator's road is the plane z = 0 of the ego
+// frame): the two differ by the rear axle's height above the bottom of the host's box,
+// h = bbcenter_to_rear.z + height / 2. So ego_in_map = (rear-axle point - h z, host yaw) and the
+// mount in our ego frame is the OSI mounting_position raised by h. Host roll and pitch are not
+// used (the road is flat in our model). Missing vehicle_attributes count as a rear axle at the
+// box centre.
+//
+// Objects: every moving object except the host, box centre, yaw, velocity and acceleration as
+// given; class from type and vehicle_classification.type (class_from_osi), material from the
+// class. Lanes: lane_boundary polylines (no_line boundaries skipped), resampled to at most 0.5 m
+// between points like scenario lanes, so occlusion drops exactly the hidden part.
+#include <cstdint>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "osi/osi3_subset.pb.h"
+#include "sensor/scene.h"
+
+namespace lidarsim::osi {
+
+// OSI ids are uint64; the model's ids are small ints. One map per run keeps both stable.
+class IdMap {
+ public:
+  int to_model(std::uint64_t osi_id);           // assigns the next int on first sight
+  bool known(int model_id) const { return model_id >= 0 && model_id < static_cast<int>(to_osi_.size()); }
+  std::uint64_t to_osi(int model_id) const { return to_osi_.at(static_cast<std::size_t>(model_id)); }
+  std::size_t size() const { return to_osi_.size(); }
+
+ private:
+  std::unordered_map<std::uint64_t, int> to_model_;
+  std::vector<std::uint64_t> to_osi_;
+};
+
+struct SceneFrame {
+  double time = 0;                 // s (SensorView timestamp, else the ground truth's)
+  sensor::Frame map;               // map frame: ego pose, objects (host excluded), lanes
+  sensor::Pose mount;              // sensor in our ego frame
+  Eigen::Vector3d host_velocity = Eigen::Vector3d::Zero();  // map frame
+  std::uint64_t host_id = 0;
+  osi3::Identifier sensor_id;
+  osi3::Timestamp timestamp;
+  osi3::MountingPosition mounting_position;  // as given (host vehicle frame)
+};
+
+// Fills `out` from `view`. Errors (lidarsim::Error) read "<source>: message <index>: <field>: <what>":
+// no global_ground_truth, no host id, a host id not among the moving objects, no
+// mounting_position, a moving object without id or base position, non-finite numbers.
+// Object and lane ids go through `ids` (object ids and lane ids share it).
+void scene_from_sensor_view(const osi3::SensorView& view, long index, const std::string& source, IdMap& ids,
+                            SceneFrame& out);
+
+// Our class for an OSI moving object: pedestrians; vehicles by vehicle_classification.type
+// (vans, trucks and (semi)trailers, buses, trams and trains as buses, motorbikes, bicycles as
+// cyclists, cars and unknown vehicle types as cars); animals and others as Misc.
+sensor::ObjectClass class_from_osi(const osi3::MovingObject& o);
+// The OSI type and vehicle type we report for one of our classes.
+osi3::MovingObject::Type osi_type(sensor::ObjectClass c);
+osi3::MovingObject::VehicleClassification::Type osi_vehicle_type(sensor::ObjectClass c);
+
+// Seconds <-> osi3.Timestamp.
+double seconds(const osi3::Timestamp& t);
+void set_timestamp(double seconds, osi3::Timestamp& t);
+// A pose from an OSI position + orientation (p_parent = R p_child + t, R = Rz(yaw) Ry(pitch) Rx(roll)).
+sensor::Pose pose_from_osi(const osi3::Vector3d& position, const osi3::Orientation3d& orientation);
+
+}  // namespace lidarsim::osi

@@ -1,0 +1,125 @@
+// Binary OSI traces: messages come back as written; a torn length, a torn body, garbage and a
+// SensorView without ground truth each give one error naming the message index.
+#include <gtest/gtest.h>
+
+#include <random>
+#include <sstream>
+#include <string>
+
+#include "common/error.h"
+#include "osi/osi3_subset.pb.h"
+#include "osi/sensor_view.h"
+#include "osi/trace.h"
+
+namespace {
+
+using lidarsim::osi::TraceFormat;
+using lidarsim::osi::TraceReader;
+using lidarsim::osi::TraceWriter;
+
+std::string trace_of(int n) {
+  std::ostringstream out;
+  TraceWriter w(out, TraceFormat::Binary);
+  for (int i = 0; i < n; ++i) {
+    osi3::SensorView v;
+    v.mutable_sensor_id()->set_value(static_cast<std::uint64_t>(100 + i));
+    v.mutable_global_ground_truth()->mutable_host_vehicle_id()->set_value(1);
+    w.write(v);
+  }
+  return out.str();
+}
+
+// The error message reading `trace` to its end, "" if none.
+std::string read_error(const std::string& trace) {
+  std::istringstream in(trace);
+  TraceReader r(in, "t.osi");
+  osi3::SensorView v;
+  try {
+    while (r.next(v)) {
+    }
+  } catch (const lidarsim::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(OsiTrace, MessagesComeBackInOrderWithLittleEndianLengths) {
+  const std::string t = trace_of(3);
+  const auto first_length = static_cast<unsigned char>(t[0]) | static_cast<unsigned char>(t[1]) << 8;
+  EXPECT_EQ(t[2], 0);
+  EXPECT_EQ(t[3], 0);
+  osi3::SensorView first;
+  ASSERT_TRUE(first.ParseFromString(t.substr(4, first_length)));
+  EXPECT_EQ(first.sensor_id().value(), 100u);
+
+  std::istringstream in(t);
+  TraceReader r(in, "t.osi");
+  osi3::SensorView v;
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(r.next(v));
+    EXPECT_EQ(r.index(), i);
+    EXPECT_EQ(v.sensor_id().value(), static_cast<std::uint64_t>(100 + i));
+  }
+  EXPECT_FALSE(r.next(v));
+  EXPECT_EQ(read_error(t), "");
+}
+
+TEST(OsiTrace, EmptyTraceEndsCleanly) {
+  std::istringstream in("");
+  TraceReader r(in, "t.osi");
+  std::string bytes;
+  EXPECT_FALSE(r.next(bytes));
+}
+
+TEST(OsiTrace, TornLengthFieldNamesTheMessage) {
+  const std::string e = read_error(trace_of(3) + std::string("\x05\x00", 2));
+  EXPECT_NE(e.find("t.osi: message 3: length field torn (2 of 4 bytes"), std::string::npos) << e;
+}
+
+TEST(OsiTrace, TornBodyNamesTheMessageAndTheMissingBytes) {
+  const std::string t = trace_of(3);
+  const std::string e = read_error(t.substr(0, t.size() - 2));
+  EXPECT_NE(e.find("t.osi: message 2: torn"), std::string::npos) << e;
+}
+
+TEST(OsiTrace, MessageThatDoesNotParseNamesItsIndexAndType) {
+  // A well-formed length followed by bytes that are no protobuf (field number 0 is invalid).
+  const std::string bad = std::string("\x03\x00\x00\x00", 4) + std::string("\x00\x00\x00", 3);
+  const std::string e = read_error(trace_of(2) + bad);
+  EXPECT_NE(e.find("t.osi: message 2: does not parse as osi3.SensorView"), std::string::npos) << e;
+}
+
+TEST(OsiTrace, GarbageGivesOneErrorAtMessageZero) {
+  std::mt19937 rng(7);
+  std::string garbage(4096, '\0');
+  for (auto& c : garbage) c = static_cast<char>(rng());
+  garbage[3] = '\x7f';  // a length far beyond anything a trace holds
+  const std::string e = read_error(garbage);
+  EXPECT_NE(e.find("t.osi: message 0: length field says"), std::string::npos) << e;
+}
+
+TEST(OsiTrace, SensorViewWithoutGroundTruthIsRejectedWithItsIndex) {
+  osi3::SensorView v;
+  v.mutable_host_vehicle_id()->set_value(1);
+  lidarsim::osi::IdMap ids;
+  lidarsim::osi::SceneFrame scene;
+  try {
+    lidarsim::osi::scene_from_sensor_view(v, 4, "t.osi", ids, scene);
+    FAIL() << "no error";
+  } catch (const lidarsim::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("t.osi: message 4: global_ground_truth: missing"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(OsiTrace, TextFormatWritesOneReadableBlockPerMessage) {
+  std::ostringstream out;
+  TraceWriter w(out, TraceFormat::Text);
+  osi3::SensorView v;
+  v.mutable_sensor_id()->set_value(9);
+  w.write(v);
+  w.write(v);
+  EXPECT_EQ(out.str(), "sensor_id {\n  value: 9\n}\n\nsensor_id {\n  value: 9\n}\n\n");
+}
