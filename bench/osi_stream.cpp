@@ -132,6 +132,7 @@ int main(int argc, char** argv) {
     ("warmup", "frames before measuring (tracks confirm, buffers grow)", cxxopts::value<int>()->default_value("5"))
     ("objects", "moving objects besides the host", cxxopts::value<int>()->default_value("100"))
     ("threads", "OpenMP threads (both runs)", cxxopts::value<int>()->default_value("2"))
+    ("no-point-cloud", "object-level model only (both runs)")
     ("exe", "lidar-infer", cxxopts::value<std::string>()->default_value(""))
     ("h,help", "help");
   // clang-format on
@@ -152,9 +153,12 @@ int main(int argc, char** argv) {
 
     // Peer: the same frames in this process.
     omp_set_num_threads(threads);
+    const bool objects_only = args.count("no-point-cloud") > 0;
+    infer::SimOptions sim;
+    if (objects_only) sim.point_cloud = sim.intensity = false;
     auto runner = infer::OsiRunner::from_files(src + "/data/scenarios/demo_urban.json",
                                                src + "/data/models/kpi_pointrcnn.json",
-                                               src + "/data/models/intensity_unet.h5");
+                                               src + "/data/models/intensity_unet.h5", sim);
     std::vector<double> local;
     osi3::SensorView view;
     osi3::SensorData data;
@@ -168,7 +172,8 @@ int main(int argc, char** argv) {
       if (static_cast<int>(k) >= warmup) {
         local.push_back(ms(t0, clock::now()));
         objects_out += static_cast<std::size_t>(data.moving_object_size());
-        points_out += static_cast<std::size_t>(data.feature_data().lidar_sensor(0).detection_size());
+        if (data.feature_data().lidar_sensor_size() > 0)
+          points_out += static_cast<std::size_t>(data.feature_data().lidar_sensor(0).detection_size());
       }
     }
 
@@ -182,8 +187,12 @@ int main(int argc, char** argv) {
       close(to_child[1]);
       close(from_child[0]);
       const std::string t = std::to_string(threads);
-      execl(exe.c_str(), exe.c_str(), "osi", "--in", "-", "--out", "-", "--threads", t.c_str(), "--quiet",
-            static_cast<char*>(nullptr));
+      if (objects_only)
+        execl(exe.c_str(), exe.c_str(), "osi", "--in", "-", "--out", "-", "--threads", t.c_str(), "--quiet",
+              "--no-point-cloud", static_cast<char*>(nullptr));
+      else
+        execl(exe.c_str(), exe.c_str(), "osi", "--in", "-", "--out", "-", "--threads", t.c_str(), "--quiet",
+              static_cast<char*>(nullptr));
       std::perror("exec lidar-infer");
       _exit(127);
     }
@@ -216,9 +225,9 @@ int main(int argc, char** argv) {
       std::fclose(f);
     }
     const Stats a = stats(stream), b = stats(local);
-    std::printf("lidar-infer osi on a pipe, %d objects, %d threads, %d frames after %d warm-up "
+    std::printf("lidar-infer osi%s on a pipe, %d objects, %d threads, %d frames after %d warm-up "
                 "(%.0f reported objects, %.0f lidar detections per frame):\n",
-                args["objects"].as<int>(), threads, frames, warmup, double(objects_out) / frames,
+                objects_only ? " --no-point-cloud" : "", args["objects"].as<int>(), threads, frames, warmup, double(objects_out) / frames,
                 double(points_out) / frames);
     std::printf("  stream round trip (SensorView written -> SensorData read): median %.1f ms, p95 %.1f ms\n", a.median, a.p95);
     std::printf("  in-process peer (parse, model, serialize):                 median %.1f ms, p95 %.1f ms\n", b.median, b.p95);

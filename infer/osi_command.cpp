@@ -31,6 +31,8 @@ class OutputTrace {
       out_ = &std::cout;
       return;
     }
+    if (const auto parent = std::filesystem::path(path).parent_path(); !parent.empty())
+      std::filesystem::create_directories(parent);
     atomic_ = std::make_unique<AtomicFile>(path);
     file_.open(atomic_->temp_path(), std::ios::binary);
     if (!file_) throw Error(path + ": cannot be written");
