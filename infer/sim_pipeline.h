@@ -96,9 +96,9 @@ class SimPipeline {
   void run_ground_truth(int k, const sensor::Frame& map_frame, SimFrame& out);
 
  private:
-  sensor::Scenario scenario_;
   void run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start, SimFrame& out);
 
+  sensor::Scenario scenario_;
   std::unique_ptr<IntensityModel> intensity_;
   SimOptions options_;
   sensor::Tracker tracker_;

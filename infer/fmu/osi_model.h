@@ -1,8 +1,8 @@
 #pragma once
 // The C interface between the FMU's entry library (osmp_sensor.cpp, lidarsim_osi.so) and the
 // model library (osi_model.cpp, lidarsim_osi_model.so). Only serialized bytes cross it, so the
-// model and its protobuf can live in their own link namespace (dlmopen): an importer that has
-// the official OSI messages registered in its own libprotobuf cannot clash with ours.
+// model can carry the schema under a package name of its own (infer/fmu/CMakeLists.txt): an
+// importer that has the official OSI messages registered in its libprotobuf cannot clash with it.
 #include <cstddef>
 
 extern "C" {

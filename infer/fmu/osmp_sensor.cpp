@@ -4,10 +4,12 @@
 // same OsiRunner as `lidar-infer osi`.
 //
 // This library holds only the FMI side and passes bytes; the model (lidarsim_osi_model.so, next
-// to it) is loaded with dlmopen into a link namespace of its own, with its own libprotobuf:
-// importers register the official OSI messages in their libprotobuf, and a second registration
-// of osi3.SensorView in the same process-wide pool aborts (tests/osi/test_fmu.cpp runs exactly
-// that case). Where dlmopen fails the model is dlopen'ed locally, with a warning.
+// to it) is dlopen'ed with its symbols kept local. It carries the schema under its own package
+// name (infer/fmu/CMakeLists.txt): importers register the official OSI messages in their
+// libprotobuf, and a second registration of osi3.SensorView in that process-wide pool would abort
+// (tests/osi/test_fmu.cpp runs in a process that has our osi3 registered). dlmopen would isolate
+// libprotobuf too, but a second libc in the process shares the threads' pthread key slots with the
+// first and corrupted the importer's thread-local data.
 //
 // The model files (intensity_unet.h5, kpi_pointrcnn.json and sensor.json, a scenario whose sensor
 // block gives beams, field of view and range) are read from the FMU's resources folder
@@ -17,7 +19,6 @@
 // OSMP buffer lifetimes: the input buffer is only read during fmi2DoStep; the output buffer stays
 // valid until the second fmi2DoStep after the one that produced it (two buffers, alternating).
 #include <dlfcn.h>
-#include <link.h>
 
 #include <algorithm>
 #include <cstdint>
@@ -132,13 +133,8 @@ LIDARSIM_FMI_EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2T
     return nullptr;
   }
   const fs::path model_so = library_dir() / "lidarsim_osi_model.so";
-  inst->library = dlmopen(LM_ID_NEWLM, model_so.c_str(), RTLD_NOW | RTLD_LOCAL);
-  if (!inst->library) {
-    const std::string why = dlerror();
-    inst->library = dlopen(model_so.c_str(), RTLD_NOW | RTLD_LOCAL);
-    if (inst->library)
-      inst->log(fmi2Warning, "FMI", "dlmopen failed (" + why + "); the model shares the process's libprotobuf");
-  }
+  // RTLD_NODELETE: the model's OpenMP worker threads may outlive fmi2FreeInstance.
+  inst->library = dlopen(model_so.c_str(), RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
   if (!inst->library) {
     inst->log(fmi2Error, "FMI", "cannot load " + model_so.string() + ": " + dlerror());
     return nullptr;
