@@ -87,6 +87,7 @@ int run(int argc, char** argv) {
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
     ("threads", "loop intensity: OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (old, leaks) | guarded:<half-width>", cxxopts::value<std::string>()->default_value("guarded"))
     ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
@@ -139,6 +140,7 @@ int run(int argc, char** argv) {
       io.unet.steps = a["steps"].as<int>();
       io.unet.seeds = a["seeds"].as<int>();
       io.unet.threads = a["threads"].as<int>();
+      io.split = a["split"].as<std::string>();
       io.progress = !a.count("quiet");
       if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
       j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
@@ -148,6 +150,9 @@ int run(int argc, char** argv) {
     write_file_atomically(report, j.dump(2) + "\n");
     // The same for people, beside the JSON: R.json -> R.md.
     std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
+                     (j.contains("split") ? "Split: " + j["split"].get<std::string>() + "; receptive-field half-width " +
+                                                std::to_string(j["receptive_field_half_width"].get<int>()) + " columns\n\n"
+                                          : std::string()) +
                      "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
                      std::to_string(j["threshold"].get<double>()) +
                      "\n\n| feature | score | 95 % interval | explains |\n|---|---|---|---|\n";
