@@ -162,6 +162,17 @@ int run(int argc, char** argv) {
                                             std::to_string(r["interval95"][1].get<double>()) + "]"
                                       : std::string("-")) +
             " | " + (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
+    if (j.contains("candidates_tested")) {
+      // Everything tried, so a reader sees what was ruled out as well as what was added.
+      md += "\nEvery candidate tested (held-out R^2 of the residual; significant = interval above 0):\n\n"
+            "| feature | form | effect size | held-out R^2 | 95 % interval | significant |\n|---|---|---|---|---|---|\n";
+      for (const auto& k : j["candidates_tested"])
+        md += "| " + k["feature"].get<std::string>() + " | " + k["form"].get<std::string>() + " | " +
+              std::to_string(k["effect_size"].get<double>()) + " | " + std::to_string(k["held_out_r2"].get<double>()) +
+              " | [" + std::to_string(k["interval95"][0].get<double>()) + ", " +
+              std::to_string(k["interval95"][1].get<double>()) + "] | " + (k["significant"].get<bool>() ? "yes" : "no") +
+              " |\n";
+    }
     md += "\nAlready used by the base model:";
     for (const auto& r : j["used_by_model"])
       md += " " + r["feature"].get<std::string>() + " (" + std::to_string(r["score"].get<double>()) + ")";
