@@ -85,6 +85,9 @@ data::Dataset import_for_qualify(const fs::path& dir, std::vector<std::string> e
   for (const auto& ch : kLoopChannels)
     if (std::find(extra.begin(), extra.end(), ch) == extra.end()) extra.push_back(ch);
   opt.extra_channels = extra;
+  // A KITTI object folder (velodyne/, label_2/, calib/): frames from different drives, for
+  // validating across places (--split frames:...).
+  if (fs::is_directory(dir / "label_2") && fs::is_directory(dir / "calib")) return data::import_kitti_object(dir, opt);
   return data::import_semantickitti(dir, opt);
 }
 
@@ -113,7 +116,8 @@ IntensityCells intensity_cells(const data::Dataset& ds, const data::SectorSplit&
         const double range = ch(ir, r, col);
         c.measured.push_back(T[(static_cast<size_t>(n) * H + r) * W + col]);
         c.frame.push_back(n);
-        c.sector.push_back(col / 16);
+        // Bootstrap block: a held-out frame (a place) when whole frames are held out, else a strip.
+        c.sector.push_back(split.validation_frames.empty() ? col / 16 : 100000 + n);
         const bool held = roles[col] == data::kValidation;
         c.region.push_back(held ? std::max(0, split.region_of(col, W)) : -1);
         c.row.push_back(r);

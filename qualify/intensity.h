@@ -52,7 +52,8 @@ struct IntensityCells {
   std::size_t size() const { return measured.size(); }
 };
 
-// Imports DIR (needs the velodyne + labels layout; errors name the file at fault).
+// Imports DIR: SemanticKITTI (velodyne + labels), or a KITTI object folder (velodyne, label_2,
+// calib) for cross-place validation with a frames split; errors name the file at fault.
 data::Dataset import_for_qualify(const std::filesystem::path& dir, std::vector<std::string> extra_channels = {});
 // Cells with a return outside the guard bands of `split`.
 IntensityCells intensity_cells(const data::Dataset& ds, const data::SectorSplit& split);
