@@ -22,7 +22,7 @@ const char* kUsage =
     "usage: lidar-data <command> [options]\n"
     "commands:\n"
     "  import     read SemanticKITTI or KITTI object scans into an HDF5 dataset\n"
-    "  baselines  MAE/RMSE of the lookup baselines on a dataset's reference validation split\n"
+    "  baselines  MAE/RMSE of the lookup baselines on a dataset's validation split (default: guarded)\n"
     "  info       frames, channels and beam layout of a dataset\n"
     "run 'lidar-data <command> --help' for the options of a command\n";
 
