@@ -42,9 +42,9 @@ struct Accum {
 std::vector<BaselineResult> evaluate_baselines(const Dataset& d, const SectorSplit& split) {
   const int ci = d.channel_index("class"), ri = d.channel_index("range");
   const int H = d.rows(), W = d.cols();
-  const auto val_cols = split.validation_columns(W);
   std::vector<Cell> cells;
   for (int n = 0; n < d.size(); ++n) {
+    const auto roles = split.roles(W, n < static_cast<int>(d.frames.size()) ? d.frames[n] : "");
     const float* cls = d.pgm.channel(n, ci);
     const float* rng = d.pgm.channel(n, ri);
     const float* mask = d.mask.image(n);
@@ -52,8 +52,8 @@ std::vector<BaselineResult> evaluate_baselines(const Dataset& d, const SectorSpl
     for (int r = 0; r < H; ++r)
       for (int c = 0; c < W; ++c) {
         const std::size_t i = static_cast<std::size_t>(r) * W + c;
-        if (mask[i] <= 0) continue;
-        cells.push_back({static_cast<int>(cls[i]), r, range_bin(rng[i]), y[i], val_cols[c] != 0});
+        if (mask[i] <= 0 || roles[c] == kGuard) continue;  // guard cells: neither fitted nor scored
+        cells.push_back({static_cast<int>(cls[i]), r, range_bin(rng[i]), y[i], roles[c] == kValidation});
       }
   }
   Mean global;
@@ -94,14 +94,16 @@ Metrics evaluate_prediction(const Dataset& d, const nn::Tensor& prediction, bool
   const nn::Shape want{d.size(), 1, d.rows(), d.cols()};
   if (!(prediction.shape() == want))
     throw Error("evaluate_prediction: prediction shape " + prediction.shape().str() + ", expected " + want.str());
-  const auto val_cols = split.validation_columns(d.cols());
   Accum acc;
   const std::size_t plane = static_cast<std::size_t>(d.rows()) * d.cols();
-  for (int n = 0; n < d.size(); ++n)
+  const std::uint8_t want_role = validation ? kValidation : kTrain;
+  for (int n = 0; n < d.size(); ++n) {
+    const auto roles = split.roles(d.cols(), n < static_cast<int>(d.frames.size()) ? d.frames[n] : "");
     for (std::size_t i = 0; i < plane; ++i) {
-      if (d.mask.image(n)[i] <= 0 || (val_cols[i % d.cols()] != 0) != validation) continue;
+      if (d.mask.image(n)[i] <= 0 || roles[i % d.cols()] != want_role) continue;
       acc.add(static_cast<double>(prediction.image(n)[i]) - d.target.image(n)[i]);
     }
+  }
   return acc.get();
 }
 

@@ -10,6 +10,8 @@
 #include "common/error.h"
 #include "common/progress.h"
 #include "data/baselines.h"
+#include "data/split.h"
+#include "nn/receptive_field.h"
 #include "data/import.h"
 
 namespace {
@@ -20,7 +22,7 @@ const char* kUsage =
     "usage: lidar-data <command> [options]\n"
     "commands:\n"
     "  import     read SemanticKITTI or KITTI object scans into an HDF5 dataset\n"
-    "  baselines  MAE/RMSE of the lookup baselines on a dataset's reference validation split\n"
+    "  baselines  MAE/RMSE of the lookup baselines on a dataset's validation split (default: guarded)\n"
     "  info       frames, channels and beam layout of a dataset\n"
     "run 'lidar-data <command> --help' for the options of a command\n";
 
@@ -103,8 +105,13 @@ int run_import(int argc, char** argv) {
 int run_baselines(int argc, char** argv) {
   cxxopts::Options opts("lidar-data baselines",
                         "Fit the lookup baselines on the training cells of a dataset and report MAE/RMSE on the\n"
-                        "validation cells (azimuth sectors 3, 7, 11, 15 of 16 in every frame).");
-  opts.add_options()("dataset", "dataset (.h5)", cxxopts::value<std::string>())("h,help", "show this help");
+                        "validation cells of --split (data/split.h). The default, guarded, holds out the same\n"
+                        "cells as lidar-train's default for the bundled recipe (base 8, depth 3).");
+  opts.add_options()("dataset", "dataset (.h5)", cxxopts::value<std::string>())(
+      "split", "guarded | guarded:<receptive-field half-width> | interleaved (old, leaks) | frames:<id>,...",
+      cxxopts::value<std::string>()->default_value("guarded"))(
+      "depth", "guarded: the guard of a UNet this deep", cxxopts::value<int>()->default_value("3"))(
+      "h,help", "show this help");
   opts.parse_positional({"dataset"});
   opts.positional_help("DATASET.h5");
   auto args = opts.parse(argc, argv);
@@ -114,7 +121,10 @@ int run_baselines(int argc, char** argv) {
   }
   if (!args.count("dataset")) throw Error("baselines: give a dataset file");
   const auto d = data::read_dataset(args["dataset"].as<std::string>(), {"class", "range"});
-  std::cout << data::baseline_table(data::evaluate_baselines(d));
+  const int half = nn::receptive_field_half_width({1, 1, 8, args["depth"].as<int>()});
+  const data::SectorSplit split = data::parse_split(args["split"].as<std::string>(), half, d.cols());
+  std::cout << "split: " << split.describe(d.cols()) << "\n\n";
+  std::cout << data::baseline_table(data::evaluate_baselines(d, split));
   return 0;
 }
 

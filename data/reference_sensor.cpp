@@ -59,6 +59,8 @@ std::string to_string(IntensityEffect e) {
     case IntensityEffect::Incidence: return "incidence";
     case IntensityEffect::Height: return "height";
     case IntensityEffect::Azimuth: return "azimuth";
+    case IntensityEffect::BeamGain: return "beam_gain";
+    case IntensityEffect::AzimuthWindow: return "azimuth_window";
     default: return "none";
   }
 }
@@ -76,6 +78,8 @@ std::string effect_feature(IntensityEffect e) {
     case IntensityEffect::Incidence: return "incidence_angle";
     case IntensityEffect::Height: return "height";
     case IntensityEffect::Azimuth: return "azimuth";
+    case IntensityEffect::BeamGain: return "beam_row";
+    case IntensityEffect::AzimuthWindow: return "azimuth";
     default: return "";
   }
 }
@@ -188,6 +192,16 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
   write_file_atomically(dir / "evaluate_tracking.seqmap.val", seqmap);
 }
 
+double reference_beam_gain(int row) {
+  // A fixed pseudo-random u in [-1, 1) per laser (splitmix64 of the row).
+  std::uint64_t x = static_cast<std::uint64_t>(row) + 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  x ^= x >> 31;
+  const double u = static_cast<double>(x >> 11) * 0x1.0p-53 * 2 - 1;
+  return 1 + 0.4 * u;
+}
+
 void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptions& o) {
   if (o.scans < 1 || o.columns < 16) throw Error("reference sensor: scans >= 1, columns >= 16");
   const fs::path seq = dir / "sequences" / "00";
@@ -256,6 +270,8 @@ void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptio
           case IntensityEffect::Incidence: gain = std::cos(incidence); break;
           case IntensityEffect::Height: gain = 0.6 + 0.3 * (z + sensor_h); break;
           case IntensityEffect::Azimuth: gain = 1 + 0.5 * std::sin(az); break;
+          case IntensityEffect::BeamGain: gain = reference_beam_gain(row); break;
+          case IntensityEffect::AzimuthWindow: gain = az >= kWindowAzimuthLo && az <= kWindowAzimuthHi ? 0.5 : 1.0; break;
           case IntensityEffect::None: break;
         }
         const double intensity = std::clamp(albedo * gain + o.noise * N01(rng), 0.0, 1.0);

@@ -3,8 +3,10 @@
 // and the intensity loop.
 //
 // Scans are imported as they are (data/import.h: HDL-64E layout, 1024 columns, firing-order
-// rows) with the effect channels; the reference sector split (data/split.h) gives the held-out
-// cells (sectors 3, 7, 11, 15) and the fit cells (the rest), in every scan.
+// rows) with the effect channels; the guarded split (data/split.h) gives the held-out cells (two
+// azimuth regions of 128 columns in every scan), the fit cells, and the guard bands between them
+// (twice the loop UNet's receptive-field half-width; neither fitted nor scored, so the held-out
+// error cannot come from scenery the fit saw). Lookup and UNet are scored on the same cells.
 //
 // Feature vocabulary, per cell with a return:
 //   range                 m
@@ -16,6 +18,9 @@
 //   class, material       ids (pgm/materials.h)
 //   depth_discontinuity   1 next to an occlusion edge (pgm "depth_discontinuity": left or right
 //                         neighbour in the row more than 10 % nearer or farther), else 0
+//   beam_row              the PGM row = the laser (dataset's beam layout); binned one bin per row
+// Each feature is tried in two forms (qualify/windows.h): a table (16 equal-count bins; one bin per
+// beam row) and a window (the best contiguous range of 32 fine bins / beam rows, fitted edges).
 // The loop's base model is a UNet on the range, class and material channels (the inputs of the
 // shipped model), or, with base_model "lookup", the class x 5 m range-bin lookup (data/baselines.h):
 // either way range, class and material are the features it already uses.
@@ -26,26 +31,35 @@
 #include <nlohmann/json.hpp>
 
 #include "data/dataset.h"
+#include "data/split.h"
 
 namespace lidarsim::qualify {
 
 inline const std::vector<std::string> kIntensityFeatures = {"range",  "incidence_angle", "elevation",
                                                             "azimuth", "height",          "class",
-                                                            "material", "depth_discontinuity"};
+                                                            "material", "depth_discontinuity", "beam_row"};
 inline const std::vector<std::string> kIntensityFeaturesUsedByModel = {"range", "class", "material"};
 
 struct IntensityCells {
   std::vector<double> measured;
-  std::vector<int> frame, sector, cls;
-  std::vector<char> held_out;                   // validation sector
+  std::vector<int> frame, cls;
+  std::vector<int> sector;                      // bootstrap block: 16-column chunk (all scans together)
+  std::vector<int> region;                      // validation region (-1: fit cell)
+  std::vector<int> row;                         // beam row of the PGM
+  std::vector<char> held_out;                   // validation region
   std::vector<std::vector<double>> feature;     // [feature][cell], kIntensityFeatures order
   std::vector<long> cell;                       // n * H * W + row * W + col
   std::size_t size() const { return measured.size(); }
 };
 
-// Imports DIR (needs the velodyne + labels layout; errors name the file at fault).
+// Imports DIR: SemanticKITTI (velodyne + labels), or a KITTI object folder (velodyne, label_2,
+// calib) for cross-place validation with a frames split; errors name the file at fault.
 data::Dataset import_for_qualify(const std::filesystem::path& dir, std::vector<std::string> extra_channels = {});
-IntensityCells intensity_cells(const data::Dataset& ds);
+// Cells with a return outside the guard bands of `split`.
+IntensityCells intensity_cells(const data::Dataset& ds, const data::SectorSplit& split);
+// The split the intensity qualification and loop use: `spec` (data::parse_split) with the guard
+// of a UNet of `depth` (the loop's; 3 = the bundled recipe).
+data::SectorSplit intensity_split(const data::Dataset& ds, const std::string& spec = "guarded", int depth = 3);
 
 // Class x 5 m range-bin lookup fitted on the fit cells (fallback: class mean, global mean).
 std::vector<double> lookup_prediction(const IntensityCells& c);
@@ -76,6 +90,7 @@ struct IntensityLoopOptions {
   int bins = 16;
   std::filesystem::path plots_dir;
   std::string base_model = "unet";  // or "lookup"
+  std::string split = "guarded";    // data::parse_split spec; guard of the loop UNet's receptive field
   LoopTraining unet;
   std::filesystem::path out_model;  // unet: the model the loop ends with (first seed), as a checkpoint
   bool progress = false;            // one line per training and the trainer's progress bar, on stderr

@@ -78,7 +78,7 @@ int run(int argc, char** argv) {
     ("kitti-tracking", "KITTI tracking folder (label_02/, calib/, detection/<det>_<Class>_val/)", cxxopts::value<std::string>())
     ("seqmap", "sequence list (default DIR/evaluate_tracking.seqmap.val if present, else every label_02 file)", cxxopts::value<std::string>()->default_value(""))
     ("detector", "detection folder prefix", cxxopts::value<std::string>()->default_value("pointrcnn"))
-    ("semantickitti", "SemanticKITTI folder (sequences/NN/velodyne, labels)", cxxopts::value<std::string>())
+    ("semantickitti", "SemanticKITTI folder (sequences/NN/velodyne, labels); loop intensity also takes a KITTI object folder (velodyne, label_2, calib) with --split frames:...", cxxopts::value<std::string>())
     ("model", "KPI model JSON (objects) or checkpoint (intensity)", cxxopts::value<std::string>())
     ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
     ("report", "loop report JSON", cxxopts::value<std::string>())
@@ -87,6 +87,7 @@ int run(int argc, char** argv) {
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
     ("threads", "loop intensity: OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (old, leaks) | guarded:<half-width> | frames:<id>,... (whole frames held out)", cxxopts::value<std::string>()->default_value("guarded"))
     ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
@@ -139,6 +140,7 @@ int run(int argc, char** argv) {
       io.unet.steps = a["steps"].as<int>();
       io.unet.seeds = a["seeds"].as<int>();
       io.unet.threads = a["threads"].as<int>();
+      io.split = a["split"].as<std::string>();
       io.progress = !a.count("quiet");
       if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
       j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
@@ -148,6 +150,9 @@ int run(int argc, char** argv) {
     write_file_atomically(report, j.dump(2) + "\n");
     // The same for people, beside the JSON: R.json -> R.md.
     std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
+                     (j.contains("split") ? "Split: " + j["split"].get<std::string>() + "; receptive-field half-width " +
+                                                std::to_string(j["receptive_field_half_width"].get<int>()) + " columns\n\n"
+                                          : std::string()) +
                      "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
                      std::to_string(j["threshold"].get<double>()) +
                      "\n\n| feature | score | 95 % interval | explains |\n|---|---|---|---|\n";
@@ -157,6 +162,17 @@ int run(int argc, char** argv) {
                                             std::to_string(r["interval95"][1].get<double>()) + "]"
                                       : std::string("-")) +
             " | " + (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
+    if (j.contains("candidates_tested")) {
+      // Everything tried, so a reader sees what was ruled out as well as what was added.
+      md += "\nEvery candidate tested (held-out R^2 of the residual; significant = interval above 0):\n\n"
+            "| feature | form | effect size | held-out R^2 | 95 % interval | significant |\n|---|---|---|---|---|---|\n";
+      for (const auto& k : j["candidates_tested"])
+        md += "| " + k["feature"].get<std::string>() + " | " + k["form"].get<std::string>() + " | " +
+              std::to_string(k["effect_size"].get<double>()) + " | " + std::to_string(k["held_out_r2"].get<double>()) +
+              " | [" + std::to_string(k["interval95"][0].get<double>()) + ", " +
+              std::to_string(k["interval95"][1].get<double>()) + "] | " + (k["significant"].get<bool>() ? "yes" : "no") +
+              " |\n";
+    }
     md += "\nAlready used by the base model:";
     for (const auto& r : j["used_by_model"])
       md += " " + r["feature"].get<std::string>() + " (" + std::to_string(r["score"].get<double>()) + ")";

@@ -9,6 +9,7 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
+#include "nn/receptive_field.h"
 #include "train/trainer.h"
 
 namespace {
@@ -32,12 +33,14 @@ int main(int argc, char** argv) {
   using namespace lidarsim;
   cxxopts::Options options("lidar-train",
                            "Train the intensity UNet (masked MSE + L2 on the weights) on Polar Grid Map datasets.\n"
-                           "Without --val, validation holds out the azimuth sectors 3, 7, 11, 15 of 16 of every scan.\n"
+                           "Without --val, validation holds out the cells of --split (data/split.h): by default\n"
+                           "azimuth regions with guard bands of twice the model's receptive-field half-width.\n"
                            "Ctrl-C saves a checkpoint and exits; --resume continues it to the same result.");
   // clang-format off
   options.add_options()
     ("data", "training dataset(s), HDF5 from lidar-data import (comma-separated)", cxxopts::value<std::string>())
-    ("val", "separate validation dataset (default: the sector split of --data)", cxxopts::value<std::string>())
+    ("val", "separate validation dataset (default: --split of --data)", cxxopts::value<std::string>())
+    ("split", "guarded | guarded:<half-width> | interleaved (old, leaks) | frames:<id>,...", cxxopts::value<std::string>()->default_value("guarded"))
     ("channels", "input channels of the PGM, comma-separated", cxxopts::value<std::string>()->default_value("range,class,material"))
     ("epochs", "epochs", cxxopts::value<int>()->default_value("100"))
     ("steps-per-epoch", "steps per epoch (0: one pass over the frames)", cxxopts::value<int>()->default_value("0"))
@@ -82,6 +85,8 @@ int main(int argc, char** argv) {
     config.resume = args.count("resume") > 0;
     if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
     config.progress = !args.count("quiet");
+    config.split = args["split"].as<std::string>();
+    const int half_width = nn::receptive_field_half_width({1, 1, config.base, config.depth});
 
     std::string csv = "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
     std::signal(SIGINT, on_sigint);
@@ -102,8 +107,10 @@ int main(int argc, char** argv) {
     }
     if (!result.epochs.empty()) {
       const auto& last = result.epochs.back();
-      std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s\n", last.validation.mae,
-                  last.validation.rmse, last.validation.cells, config.out.c_str());
+      std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s; receptive field half-width %d columns; "
+                  "split %s\n",
+                  last.validation.mae, last.validation.rmse, last.validation.cells, config.out.c_str(), half_width,
+                  config.validation ? "--val" : config.split.c_str());
     }
     return 0;
   } catch (const cxxopts::exceptions::exception& e) {

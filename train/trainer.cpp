@@ -15,6 +15,7 @@
 #include "nn/checkpoint.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
+#include "nn/receptive_field.h"
 
 namespace lidarsim::train {
 namespace {
@@ -102,7 +103,7 @@ std::string describe_config(const TrainConfig& c) {
   std::vector<std::string> data;
   for (const auto& p : c.data) data.push_back(p.string());
   j["data"] = data;
-  j["validation"] = c.validation ? c.validation->string() : std::string("sectors 3, 7, 11, 15 of 16 of --data");
+  j["validation"] = c.validation ? c.validation->string() : "split " + c.split + " of --data";
   j["epochs"] = c.epochs;
   j["batch"] = c.batch;
   j["crop_columns"] = c.crop_columns;
@@ -171,14 +172,23 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
                                                   std::to_string(train_sets[i]->cols()) + " differs from " +
                                                   std::to_string(rows) + " x " + std::to_string(cols));
   const bool sector_split = val_set == nullptr;
-  const data::SectorSplit split = data::reference_split();
-  const auto val_columns = split.validation_columns(cols);  // checks cols is a multiple of 16
+  const int in_channels = config.encoder.input_channels();
+  const nn::UNetConfig arch{in_channels, 1, config.base, config.depth};
+  const int half_width = nn::receptive_field_half_width(arch);
+  const data::SectorSplit split = data::parse_split(config.split, half_width, cols);
+  if (sector_split && split.validation_frames.empty() && !split.regions.empty() && split.guard_columns < 2 * half_width)
+    throw Error("lidar-train: --split " + config.split + ": guard bands of " + std::to_string(split.guard_columns) +
+                " columns are narrower than twice the model's receptive-field half-width (" +
+                std::to_string(half_width) + " columns): validation would leak");
+  if (sector_split && config.progress)
+    std::fprintf(stderr, "lidar-train: receptive field half-width %d columns; split: %s\n", half_width,
+                 split.describe(cols).c_str());
 
   std::vector<EncodedFrame> frames;
-  const int in_channels = config.encoder.input_channels();
   for (const data::Dataset* set_ptr : train_sets) {
     const data::Dataset& set = *set_ptr;
     for (int n = 0; n < set.size(); ++n) {
+      const auto roles = split.roles(cols, n < static_cast<int>(set.frames.size()) ? set.frames[n] : "");
       EncodedFrame f;
       f.input.resize({1, in_channels, rows, cols});
       pgm::encode_input(set.view(n), config.encoder, f.input, 0);
@@ -188,7 +198,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
       const float* mask = set.mask.image(n);
       for (std::size_t i = 0; i < static_cast<std::size_t>(rows) * cols; ++i) {
         f.target.data()[i] = target[i];
-        const bool held_out = sector_split && val_columns[i % cols];
+        const bool held_out = sector_split && roles[i % cols] != data::kTrain;  // validation or guard
         f.train_mask.data()[i] = (mask[i] > 0 && !held_out) ? 1.f : 0.f;
       }
       frames.push_back(std::move(f));
@@ -205,7 +215,6 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   const int width = config.crop_columns > 0 ? std::min(config.crop_columns, cols) : cols;
 
   // --- model, optimizer, resume ----------------------------------------------------------------
-  nn::UNetConfig arch{in_channels, 1, config.base, config.depth};
   auto model_ptr = std::make_shared<nn::UNet>(arch);
   nn::UNet& model = *model_ptr;
   model.init(config.seed);
@@ -240,6 +249,8 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   meta.attributes["seed"] = std::to_string(config.seed);
   meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
   meta.attributes["train_config"] = describe_config(config);
+  meta.attributes["receptive_field_half_width"] = std::to_string(half_width);
+  meta.attributes["split"] = sector_split ? split.describe(cols) : "separate validation dataset";
   auto save = [&](std::int64_t at_step) {
     meta.state.step = at_step;
     meta.state.epoch = at_step / steps_per_epoch;

@@ -26,7 +26,11 @@ namespace lidarsim::train {
 
 struct TrainConfig {
   std::vector<std::filesystem::path> data;         // training datasets (HDF5)
-  std::optional<std::filesystem::path> validation;  // separate validation dataset; else the sector split
+  std::optional<std::filesystem::path> validation;  // separate validation dataset; else `split` of the data
+  // Split of the training sets when there is no separate validation set (data/split.h): "guarded"
+  // (guard bands of twice this model's receptive-field half-width), "guarded:<half-width>" (at
+  // least the model's), "interleaved" (the old split, leaks; for comparison), "frames:<id>,...".
+  std::string split = "guarded";
   pgm::EncoderConfig encoder;
   int base = 16, depth = 4;
   int epochs = 100;

@@ -208,8 +208,9 @@ TEST(QualifyRealData, BothLoopsRunOnTheMeasuredData) {
       run("loop intensity --base lookup --semantickitti " + sk.string() + " --report " + (out / "i.json").string());
   ASSERT_EQ(b.code, 0) << b.out;
   expect_loop_keys(out / "i.json", "intensity");
-  // The base model of the intensity loop is the class x range lookup: DESIGN.md's reference 0.082.
+  // The base model of the intensity loop is the class x range lookup, on the guarded split's cells:
+  // `lidar-data baselines` measures 0.0851 on the same cells (0.082 on the old, leaking split).
   std::ifstream in(out / "i.json");
-  EXPECT_NEAR(nlohmann::json::parse(in)["before"].get<double>(), 0.082, 0.003);
+  EXPECT_NEAR(nlohmann::json::parse(in)["before"].get<double>(), 0.0851, 0.0005);
   fs::remove_all(out);
 }

@@ -72,6 +72,9 @@ train::TrainConfig small_config(const fs::path& data, const fs::path& out) {
   c.threads = 2;
   c.out = out;
   c.progress = false;
+  // 64 columns are too few for guard bands of a depth-2 UNet (2 x 23 columns on each side); these
+  // tests are about the training mechanics, not about honest validation.
+  c.split = "interleaved";
   return c;
 }
 
@@ -165,7 +168,8 @@ TEST(Train, MissingInputChannelNamesTheDatasetAndTheChannel) {
 }
 
 // The CI smoke test on real data: one real SemanticKITTI scan, a small UNet, well under a minute;
-// the validation sectors' MAE must end below the per-class-mean baseline on the same cells.
+// the validation MAE on the guarded split (lidar-train's default) must end below the
+// per-class-mean baseline on the same cells.
 TEST(Train, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
   LIDARSIM_REQUIRE_SHARED_DATA(scans, "semantickitti-seq00-sample");
   const fs::path dir = temp_dir("smoke");
@@ -175,7 +179,7 @@ TEST(Train, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
   const data::Dataset dataset = data::import_semantickitti(scans, import);
   data::write_dataset(dir / "scan.h5", dataset);
   double class_mean = 0;
-  for (const auto& b : data::evaluate_baselines(dataset))
+  for (const auto& b : data::evaluate_baselines(dataset, data::guarded_split(51, dataset.cols())))
     if (b.name == "class_mean") class_mean = b.validation.mae;
   ASSERT_GT(class_mean, 0.05);
 

@@ -1,0 +1,95 @@
+// The intensity loop on discrete and local effects (issue 11), on the reference sensor's scans
+// (data/reference_sensor.h) and the guarded split: a per-laser gain must be named as beam_row
+// (one bin per beam row, not smeared over equal-count elevation bins), a gain over a window of
+// azimuth (the split variable itself) as azimuth; each cuts the held-out error to <= 0.7 x, and
+// every candidate tested is listed in the report. The control adds nothing.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "data/reference_sensor.h"
+#include "qualify/intensity.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+
+namespace {
+
+nlohmann::json lookup_loop(data::IntensityEffect effect) {
+  const fs::path dir = fs::temp_directory_path() /
+                       ("lidarsim_loop_local_" + data::to_string(effect) + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  data::ReferenceScanOptions o;
+  o.effect = effect;
+  o.seed = 31;
+  data::write_reference_semantickitti(dir, o);
+  qualify::IntensityLoopOptions lo;
+  lo.base_model = "lookup";
+  const auto j = qualify::loop_intensity(dir, lo);
+  fs::remove_all(dir);
+  std::cout << "  " << data::to_string(effect) << ": top " << j["ranking"][0].dump() << " form " << j["top_form"]
+            << "\n  method " << j["method"] << " before " << j["before"] << " after " << j["after"] << "\n";
+  return j;
+}
+
+void expect_found(const nlohmann::json& j, const std::string& feature) {
+  EXPECT_EQ(j["ranking"][0]["feature"], feature) << j["ranking"].dump();
+  EXPECT_EQ(j["added_effect"], feature);
+  EXPECT_LE(j["after"].get<double>(), 0.7 * j["before"].get<double>());
+  // Every feature in both forms is listed, the added one among them.
+  EXPECT_GE(j["candidates_tested"].size(), 11u);  // depth_discontinuity (0/1) has no window
+  EXPECT_NE(j["split"].get<std::string>().find("guard"), std::string::npos);
+}
+
+}  // namespace
+
+TEST(LoopIntensityLocal, NamesPerLaserGainAsBeamRowAndCutsHeldOutErrorBelow70Percent) {
+  const auto j = lookup_loop(data::IntensityEffect::BeamGain);
+  expect_found(j, "beam_row");
+  EXPECT_EQ(j["top_form"], "per-beam table");
+}
+
+TEST(LoopIntensityLocal, NamesAzimuthWindowOnTheSplitVariableAndCutsHeldOutErrorBelow70Percent) {
+  const auto j = lookup_loop(data::IntensityEffect::AzimuthWindow);
+  expect_found(j, "azimuth");
+}
+
+TEST(LoopIntensityLocal, ControlAddsNothingAndStillListsWhatWasTested) {
+  const auto j = lookup_loop(data::IntensityEffect::None);
+  EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump();
+  EXPECT_EQ(j["before"], j["after"]);
+  EXPECT_GE(j["candidates_tested"].size(), 11u);  // depth_discontinuity (0/1) has no window
+}
+
+// The UNet on a per-laser gain: the base network sees the absolute row through its zero padding
+// (64 rows are fewer than its receptive field), so it learns part of a per-row gain by itself;
+// what it leaves is named as beam_row. Both forms are measured: the beam id as an input channel
+// (retrained; the one added) and a per-beam gain table on the prediction (reported only: on the
+// control set it corrects the short-trained UNet's under-training). The bar is 0.85 x, not 0.7 x:
+// the base UNet is already at 0.029 where the lookup is at 0.052, over a noise floor of 0.016
+// (measured: 0.029 -> 0.0236 with the channel, 0.0233 with the table).
+TEST(LoopIntensityUnetLocal, NamesPerLaserGainAsBeamRowMeasuresBothFormsAndCutsHeldOutErrorBelow85Percent) {
+  const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_local_unet_beam_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  data::ReferenceScanOptions o;
+  o.effect = data::IntensityEffect::BeamGain;
+  o.seed = 31;
+  data::write_reference_semantickitti(dir, o);
+  qualify::IntensityLoopOptions lo;
+  lo.base_model = "unet";
+  lo.unet.steps = 300;
+  lo.unet.seeds = 1;
+  lo.unet.crop_columns = 128;
+  const auto j = qualify::loop_intensity(dir, lo);
+  fs::remove_all(dir);
+  std::cout << "  unet beam_gain: top " << j["ranking"][0].dump() << "\n  method " << j["method"] << " before "
+            << j["before"] << " after " << j["after"] << " lookup " << j["lookup_before"] << "\n";
+  if (j.contains("rejected_effect")) std::cout << "  rejected " << j["rejected_effect"].dump() << "\n";
+  std::cout << "  forms " << j["candidates_held_out_mae"].dump() << "\n";
+  EXPECT_EQ(j["ranking"][0]["feature"], "beam_row");
+  EXPECT_EQ(j["added_effect"], "beam_row");
+  EXPECT_EQ(j["candidates_held_out_mae"].size(), 2u);
+  EXPECT_LE(j["after"].get<double>(), 0.85 * j["before"].get<double>());
+}
