@@ -5,12 +5,19 @@
 #include <cxxopts.hpp>
 
 #include <iostream>
+#include <filesystem>
+#include <map>
 #include <sstream>
 
 #include "common/error.h"
 #include "common/progress.h"
 #include "data/baselines.h"
+#include "data/dataset_reader.h"
 #include "data/import.h"
+#include "data/ouster.h"
+#include "common/atomic_file.h"
+#include <cmath>
+#include <nlohmann/json.hpp>
 
 namespace {
 
@@ -19,7 +26,8 @@ using namespace lidarsim;
 const char* kUsage =
     "usage: lidar-data <command> [options]\n"
     "commands:\n"
-    "  import     read SemanticKITTI or KITTI object scans into an HDF5 dataset\n"
+    "  import     read SemanticKITTI, KITTI object, nuScenes, RELLIS-3D or Ouster scans into an HDF5 dataset\n"
+    "  layout     write the beam layout JSON of an Ouster sensor from its metadata\n"
     "  baselines  MAE/RMSE of the lookup baselines on a dataset's reference validation split\n"
     "  info       frames, channels and beam layout of a dataset\n"
     "run 'lidar-data <command> --help' for the options of a command\n";
@@ -30,6 +38,13 @@ std::vector<std::string> split_list(const std::string& s) {
   for (std::string item; std::getline(ss, item, ',');)
     if (!item.empty()) out.push_back(item);
   return out;
+}
+
+// A bundled file (relative path): the current directory first, then the source tree.
+std::string resolve_default(const std::string& relative) {
+  if (std::filesystem::exists(relative)) return relative;
+  const std::filesystem::path in_source = std::filesystem::path(LIDARSIM_SOURCE_DIR) / relative;
+  return std::filesystem::exists(in_source) ? in_source.string() : relative;
 }
 
 pgm::RowMode parse_row_mode(const std::string& s) {
@@ -48,6 +63,12 @@ int run_import(int argc, char** argv) {
       ("semantickitti", "SemanticKITTI folder (root with sequences/NN/, or one sequence with velodyne/ and labels/)",
        cxxopts::value<std::string>())
       ("kitti-object", "KITTI object training-style folder (velodyne/, label_2/, calib/)", cxxopts::value<std::string>())
+      ("nuscenes", "folder of nuScenes LIDAR_TOP .pcd.bin sweeps (HDL-32E)", cxxopts::value<std::string>())
+      ("rellis3d", "RELLIS-3D OS1-64 scans (.bin + .label, PLY for reflectivity)", cxxopts::value<std::string>())
+      ("ouster", "Ouster .pcap (or a folder of them) with the sensor's JSON metadata", cxxopts::value<std::string>())
+      ("sensor", "beam layout JSON to project onto (default: the format's sensor, data/sensors/)", cxxopts::value<std::string>())
+      ("classes", "RELLIS-3D class table", cxxopts::value<std::string>()->default_value("data/ontologies/rellis3d.csv"))
+      ("metadata", "Ouster JSON metadata (default: beside the pcap)", cxxopts::value<std::string>())
       ("out", "output dataset (.h5), written atomically", cxxopts::value<std::string>())
       ("columns", "azimuth bins (multiple of 16; 1024 or 2048)", cxxopts::value<int>()->default_value("1024"))
       ("sequences", "SemanticKITTI sequences to read, comma-separated (default all)", cxxopts::value<std::string>())
@@ -64,8 +85,16 @@ int run_import(int argc, char** argv) {
     std::cout << opts.help() << std::endl;
     return 0;
   }
-  const bool sk = args.count("semantickitti"), ko = args.count("kitti-object");
-  if (sk == ko) throw Error("import: give exactly one of --semantickitti DIR or --kitti-object DIR");
+  // One source: the flag names the format.
+  std::vector<std::pair<data::SourceFormat, std::string>> given;
+  for (const auto& [flag, format] : std::vector<std::pair<std::string, data::SourceFormat>>{
+           {"semantickitti", data::SourceFormat::SemanticKitti}, {"kitti-object", data::SourceFormat::KittiObject},
+           {"nuscenes", data::SourceFormat::Nuscenes}, {"rellis3d", data::SourceFormat::Rellis3d},
+           {"ouster", data::SourceFormat::Ouster}})
+    if (args.count(flag)) given.emplace_back(format, args[flag].as<std::string>());
+  if (given.size() != 1)
+    throw Error("import: give exactly one of --semantickitti, --kitti-object, --nuscenes, --rellis3d DIR or --ouster PCAP");
+  const auto [format, source] = given[0];
   if (!args.count("out")) throw Error("import: --out FILE.h5 is required");
   data::ImportOptions o;
   o.columns = args["columns"].as<int>();
@@ -75,6 +104,14 @@ int run_import(int argc, char** argv) {
   o.row_mode = parse_row_mode(args["rows"].as<std::string>());
   o.include_unlabelled = args.count("include-unlabelled") > 0;
   if (args.count("sequences")) o.sequences = split_list(args["sequences"].as<std::string>());
+  // Sensors as data: the layout files under data/sensors/ (the HDL-64E of KITTI stays built in).
+  std::string sensor;
+  if (args.count("sensor")) sensor = args["sensor"].as<std::string>();
+  else if (format == data::SourceFormat::Nuscenes) sensor = resolve_default("data/sensors/hdl32e-nuscenes.json");
+  else if (format == data::SourceFormat::Rellis3d) sensor = resolve_default("data/sensors/os1-64-rellis3d.json");
+  if (!sensor.empty()) o.layout = pgm::BeamLayout::from_file(sensor);
+  o.class_table = args.count("classes") ? args["classes"].as<std::string>() : resolve_default(args["classes"].as<std::string>());
+  if (args.count("metadata")) o.ouster_metadata = args["metadata"].as<std::string>();
   std::vector<std::string> notes;
   o.note = [&](const std::string& n) { notes.push_back(n); };
   std::unique_ptr<ProgressBar> bar;
@@ -83,20 +120,15 @@ int run_import(int argc, char** argv) {
     if (!bar) bar = std::make_unique<ProgressBar>("import", total, show);
     if (done < total) bar->update(done, std::to_string(done) + "/" + std::to_string(total) + " scans");
   };
-  data::Dataset d = sk ? data::import_semantickitti(args["semantickitti"].as<std::string>(), o)
-                       : data::import_kitti_object(args["kitti-object"].as<std::string>(), o);
-  if (bar) bar->finish(std::to_string(d.size()) + " scans");
-  for (const auto& n : notes) std::cerr << "note: " << n << "\n";
   const std::string out = args["out"].as<std::string>();
-  data::write_dataset(out, d);
-  long returns = 0;
-  for (std::size_t i = 0; i < d.mask.numel(); ++i) returns += d.mask.data()[i] > 0;
-  std::map<std::string, int> modes;
-  for (const auto& m : d.row_modes) ++modes[m];
+  const auto summary = data::import_to_file(format, source, out, o);
+  if (bar) bar->finish(std::to_string(summary.frames) + " scans");
+  for (const auto& n : notes) std::cerr << "note: " << n << "\n";
   std::string mode_text;
-  for (const auto& [m, n] : modes) mode_text += (mode_text.empty() ? "" : ", ") + m + " " + std::to_string(n);
-  std::cerr << "wrote " << out << ": " << d.size() << " frames, " << d.channels.size() << " channels x " << d.rows()
-            << " x " << d.cols() << ", " << returns << " cells with a return; rows: " << mode_text << "\n";
+  for (const auto& [m, n] : summary.row_modes) mode_text += (mode_text.empty() ? "" : ", ") + m + " " + std::to_string(n);
+  std::cerr << "wrote " << out << ": " << summary.frames << " frames, " << summary.channels.size() << " channels x "
+            << summary.layout.rows() << " x " << summary.layout.columns << ", " << summary.returns
+            << " cells with a return; rows: " << mode_text << "\n";
   return 0;
 }
 
@@ -120,19 +152,59 @@ int run_baselines(int argc, char** argv) {
 
 int run_info(int argc, char** argv) {
   cxxopts::Options opts("lidar-data info", "Describe a dataset.");
-  opts.add_options()("dataset", "dataset (.h5)", cxxopts::value<std::string>())("h,help", "show this help");
+  opts.add_options()("dataset", "dataset (.h5)", cxxopts::value<std::string>())(
+      "frames", "list every frame id")("h,help", "show this help");
   opts.parse_positional({"dataset"});
   auto args = opts.parse(argc, argv);
   if (args.count("help") || !args.count("dataset")) {
     std::cout << opts.help() << std::endl;
     return args.count("help") ? 0 : 1;
   }
-  const auto d = data::read_dataset(args["dataset"].as<std::string>());
-  std::cout << "format: " << d.source_format << "\nframes: " << d.size() << "\ngrid: " << d.rows() << " x " << d.cols()
+  // Header only: the frames stay on disk, so this is instant on any size of file.
+  const data::DatasetReader in(args["dataset"].as<std::string>());
+  const data::Dataset& d = in.header();
+  std::cout << "format: " << d.source_format << "\nframes: " << in.size() << "\ngrid: " << in.rows() << " x " << in.cols()
             << "\nchannels:";
   for (const auto& c : d.channels) std::cout << " " << c;
-  std::cout << "\nbeam layout: " << d.layout.name << "\nsources: " << d.sources.size() << " files\n";
-  for (int n = 0; n < d.size(); ++n) std::cout << "  " << d.frames[n] << " (rows: " << d.row_modes[n] << ")\n";
+  std::cout << "\nbeam layout: " << d.layout.name << " (" << d.layout.rows() << " beams x " << d.layout.columns
+            << " columns)\nsources: " << d.sources.size() << " files\n";
+  std::map<std::pair<std::string, std::string>, int> places;
+  std::map<std::string, int> modes;
+  for (int n = 0; n < in.size(); ++n) {
+    const auto p = d.frame_place(n);
+    ++places[{p.source, p.sequence}];
+    ++modes[d.row_modes[n]];
+  }
+  std::cout << "places (source/sequence: frames):";
+  for (const auto& [p, n] : places) std::cout << " " << p.first << "/" << (p.second.empty() ? "-" : p.second) << ": " << n;
+  std::cout << "\nrow modes:";
+  for (const auto& [m, n] : modes) std::cout << " " << m << ": " << n;
+  std::cout << "\n";
+  if (args.count("frames"))
+    for (int n = 0; n < in.size(); ++n) std::cout << "  " << d.frames[n] << " (rows: " << d.row_modes[n] << ")\n";
+  return 0;
+}
+
+int run_layout(int argc, char** argv) {
+  cxxopts::Options opts("lidar-data layout",
+                        "Write a sensor's beam layout as JSON (data/sensors/ holds the bundled ones): from an\n"
+                        "Ouster metadata file (beam altitudes and azimuth offsets), or check an existing layout file.");
+  opts.add_options()("ouster-metadata", "Ouster JSON metadata", cxxopts::value<std::string>())(
+      "check", "read a layout JSON and print its summary", cxxopts::value<std::string>())(
+      "out", "output JSON (written atomically)", cxxopts::value<std::string>())("h,help", "show this help");
+  auto args = opts.parse(argc, argv);
+  if (args.count("help")) {
+    std::cout << opts.help() << std::endl;
+    return 0;
+  }
+  pgm::BeamLayout layout;
+  if (args.count("ouster-metadata")) layout = data::read_ouster_metadata(args["ouster-metadata"].as<std::string>()).layout();
+  else if (args.count("check")) layout = pgm::BeamLayout::from_file(args["check"].as<std::string>());
+  else throw Error("layout: give --ouster-metadata FILE.json or --check FILE.json");
+  if (args.count("out")) write_file_atomically(args["out"].as<std::string>(), nlohmann::json::parse(layout.to_json()).dump(1) + "\n");
+  std::cout << layout.name << ": " << layout.rows() << " beams (" << layout.elevations_rad.front() * 180 / M_PI << " to "
+            << layout.elevations_rad.back() * 180 / M_PI << " deg) x " << layout.columns << " columns"
+            << (layout.azimuth_offsets_rad.empty() ? "" : ", per-beam azimuth offsets") << "\n";
   return 0;
 }
 
@@ -152,6 +224,7 @@ int main(int argc, char** argv) {
     if (cmd == "import") return run_import(argc - 1, argv + 1);
     if (cmd == "baselines") return run_baselines(argc - 1, argv + 1);
     if (cmd == "info") return run_info(argc - 1, argv + 1);
+    if (cmd == "layout") return run_layout(argc - 1, argv + 1);
     std::cerr << "error: unknown command '" << cmd << "'\n" << kUsage;
     return 2;
   } catch (const cxxopts::exceptions::exception& e) {
