@@ -10,6 +10,8 @@
 #include <sstream>
 
 #include "common/error.h"
+#include "common/image.h"
+#include "common/plot.h"
 #include "common/progress.h"
 #include "data/baselines.h"
 #include "data/dataset_reader.h"
@@ -150,10 +152,42 @@ int run_baselines(int argc, char** argv) {
   return 0;
 }
 
+// One frame as people look at it: the range row above the intensity row, each under a caption
+// with its colour scale; rows stretched so that a 32-beam and a 128-beam sensor read alike.
+Image frame_picture(const data::DatasetReader& in, int n) {
+  const int H = in.rows(), W = in.cols(), C = in.channels();
+  std::vector<float> pgm(static_cast<std::size_t>(C) * H * W), target(H * W), mask(H * W);
+  in.read_frame(n, pgm.data(), target.data(), mask.data());
+  std::vector<std::uint8_t> valid(H * W);
+  float max_range = 0, max_intensity = 0;
+  const float* range = pgm.data() + static_cast<std::size_t>(in.header().channel_index("range")) * H * W;
+  for (int i = 0; i < H * W; ++i) {
+    valid[i] = mask[i] > 0;
+    if (valid[i]) max_range = std::max(max_range, range[i]), max_intensity = std::max(max_intensity, target[i]);
+  }
+  // Range on a 0-50 m scale (most returns; farther ones saturate), intensity on its own maximum.
+  const float range_hi = std::min(50.f, std::max(1.f, max_range));
+  const float intensity_hi = std::max(1e-3f, max_intensity);
+  const int factor = std::max(1, 256 / H);
+  const TextStyle style;
+  char hi[32];
+  std::snprintf(hi, sizeof hi, "%.0f m", range_hi);
+  const Image r = add_caption_band(scale_rows(field_to_image(range, valid.data(), W, H, 0, range_hi), factor),
+                                   "range, " + in.header().layout.name + ", " + std::to_string(H) + " x " +
+                                       std::to_string(W),
+                                   ColourKey{"0", hi}, style);
+  std::snprintf(hi, sizeof hi, "%.2f", intensity_hi);
+  const Image t = add_caption_band(scale_rows(field_to_image(target.data(), valid.data(), W, H, 0, intensity_hi), factor),
+                                   in.header().frames[n] + " intensity", ColourKey{"0", hi}, style);
+  return stack_vertically({r, t});
+}
+
 int run_info(int argc, char** argv) {
   cxxopts::Options opts("lidar-data info", "Describe a dataset.");
   opts.add_options()("dataset", "dataset (.h5)", cxxopts::value<std::string>())(
-      "frames", "list every frame id")("h,help", "show this help");
+      "frames", "list every frame id")("png", "write frame --frame's range and intensity rows to this PNG",
+                                       cxxopts::value<std::string>())(
+      "frame", "frame for --png", cxxopts::value<int>()->default_value("0"))("h,help", "show this help");
   opts.parse_positional({"dataset"});
   auto args = opts.parse(argc, argv);
   if (args.count("help") || !args.count("dataset")) {
@@ -182,6 +216,11 @@ int run_info(int argc, char** argv) {
   std::cout << "\n";
   if (args.count("frames"))
     for (int n = 0; n < in.size(); ++n) std::cout << "  " << d.frames[n] << " (rows: " << d.row_modes[n] << ")\n";
+  if (args.count("png")) {
+    const int n = args["frame"].as<int>();
+    write_png(args["png"].as<std::string>(), frame_picture(in, n));
+    std::cout << "wrote " << args["png"].as<std::string>() << " (frame " << d.frames.at(n) << ")\n";
+  }
   return 0;
 }
 

@@ -113,7 +113,7 @@ Rellis3dScan read_rellis3d_scan(const Rellis3dFiles& files, const ClassTable& cl
     if (c.x == 0.f && c.y == 0.f && c.z == 0.f) continue;  // no return
     pgm::Point p = c;
     p.ring = static_cast<int>(k % kRellisRings);
-    if (!reflectivity.empty()) p.intensity = static_cast<float>(std::min(reflectivity[k] / 255.0, 1.0));
+    if (!reflectivity.empty()) p.intensity = static_cast<float>(std::min(reflectivity[k] / kRellisReflectivityScale, 1.0));
     const int ours = classes.map(rellis);
     if (ours < 0) ++scan.unmapped[classes.name_of(rellis)];
     p.class_id = ours < 0 ? pgm::cls::unlabeled : ours;

@@ -4,8 +4,10 @@
 // 0 the top beam; no return = the point (0, 0, 0)), its .label (uint32 per point, lower 16 bits
 // the RELLIS class id), and, when found, the sensor's own PLY of the same scan, whose
 // `reflectivity` becomes the intensity (the .bin's intensity is a rescaled value, max ~0.01).
-// Reflectivity is divided by 255 and capped at 1: OS1 reflectivity is calibrated to about
-// 0-255 for diffuse targets and only retro-reflectors exceed it.
+// This firmware's reflectivity is 16-bit and not on the 0-255 scale of later Ouster firmware
+// (returns of the sample: median 1538, 99th percentile 4679, max 59345), so intensity =
+// reflectivity / kRellisReflectivityScale capped at 1: a fixed scale (not per scan), chosen so
+// that only retro-reflectors saturate.
 //
 // Folder layouts: the dataset's (SEQ/os1_cloud_node_kitti_bin/NNNNNN.bin with
 // SEQ/os1_cloud_node_semantickitti_label_id/NNNNNN.label and SEQ/os1_cloud_node_color_ply/
@@ -22,6 +24,7 @@
 namespace lidarsim::data {
 
 inline constexpr int kRellisRings = 64;
+inline constexpr double kRellisReflectivityScale = 4096;
 
 struct Rellis3dFiles {
   std::string sequence;  // "00000" (the folder above the kitti_bin folder), or the folder's name

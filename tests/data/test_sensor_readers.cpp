@@ -90,6 +90,15 @@ TEST(Rellis3dReal, ReturnsClassesAndUnmappedPuddleMatchSourceCounts) {
   EXPECT_EQ(scan.unmapped.at("puddle"), 1269u);
   EXPECT_NEAR(median(range), 7.3, 0.1);
   EXPECT_EQ(rings.size(), 64u);
+  // Intensity is the PLY's reflectivity on a fixed scale: spread out, saturating only rarely.
+  std::size_t saturated = 0;
+  std::vector<double> intensity;
+  for (const auto& p : scan.points) {
+    saturated += p.intensity >= 1.f;
+    intensity.push_back(p.intensity);
+  }
+  EXPECT_LT(saturated, scan.points.size() * 3 / 100);  // 2.6 %: retro-reflectors and the brightest leaves
+  EXPECT_NEAR(median(intensity), 1538.0 / data::kRellisReflectivityScale, 0.01);
 }
 
 TEST(ClassTable, UnknownClassNameAndRepeatedIdAreNamedWithTheLine) {
