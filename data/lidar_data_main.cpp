@@ -1,14 +1,19 @@
 // lidar-data: recorded LiDAR data -> HDF5 Polar Grid Map datasets, and the reference baselines.
-//   lidar-data import --semantickitti DIR | --kitti-object DIR --out file.h5 [--columns 1024]
+//   lidar-data import --semantickitti DIR | --kitti-object DIR | --nuscenes DIR | --rellis3d DIR
+//                     | --ouster PCAP  --out file.h5 [--columns 1024] [--sensor layout.json]
 //   lidar-data baselines file.h5     (global / class / class x range / class x row, MAE and RMSE)
-//   lidar-data info file.h5
+//   lidar-data info file.h5 [--png frame.png]
+//   lidar-data layout --ouster-metadata X.json --out layout.json
 #include <cxxopts.hpp>
 
-#include <iostream>
+#include <cmath>
 #include <filesystem>
+#include <iostream>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/image.h"
 #include "common/plot.h"
@@ -17,9 +22,6 @@
 #include "data/dataset_reader.h"
 #include "data/import.h"
 #include "data/ouster.h"
-#include "common/atomic_file.h"
-#include <cmath>
-#include <nlohmann/json.hpp>
 
 namespace {
 
