@@ -1,24 +1,45 @@
 #include "data/import.h"
 
+#include <omp.h>
+
 #include <algorithm>
+#include <exception>
+#include <memory>
 
 #include "common/error.h"
+#include "data/dataset_writer.h"
+#include "data/class_table.h"
 #include "data/kitti_object.h"
+#include "data/nuscenes.h"
+#include "data/ouster.h"
+#include "data/rellis3d.h"
 #include "data/semantickitti.h"
 
 namespace lidarsim::data {
+namespace fs = std::filesystem;
 namespace {
 
-Dataset empty_dataset(const ImportOptions& options, const std::string& format) {
-  if (options.columns < 16 || options.columns % 16 != 0)
-    throw Error("import: columns: must be a positive multiple of 16 (the validation split cuts 16 sectors), got " +
-                std::to_string(options.columns));
-  Dataset d;
-  d.channels = dataset_channels(options);
-  d.layout = pgm::BeamLayout::hdl64e(options.columns);
-  d.source_format = format;
-  return d;
-}
+// One scan as its reader returns it.
+struct RecordedScan {
+  std::vector<pgm::Point> points;
+  std::vector<fs::path> sources;
+  std::string note;  // for the user (unknown labels, ...), empty when nothing to say
+};
+
+// One scan to import: its ids and how to read it (called on any thread).
+struct ScanJob {
+  std::string id;  // frame id in /frames
+  FramePlace place;
+  std::string path;  // named in projection errors
+  std::function<RecordedScan()> read;
+};
+
+struct ProjectedScan {
+  pgm::PolarGridMap pgm;
+  std::string row_mode;
+  std::vector<fs::path> sources;
+  std::string note;
+};
 
 template <typename T>
 std::vector<T> window(const std::vector<T>& all, const ImportOptions& o) {
@@ -28,34 +49,13 @@ std::vector<T> window(const std::vector<T>& all, const ImportOptions& o) {
   return std::vector<T>(all.begin() + first, all.begin() + last);
 }
 
-void add_frame(Dataset& d, const std::vector<pgm::Point>& points, const ImportOptions& o, const std::string& id,
-               const std::string& source) {
-  pgm::ProjectOptions po;
-  po.row_mode = o.row_mode;
-  po.extra_channels = o.extra_channels;
-  po.min_range = o.min_range;
-  const auto result = pgm::project(points, d.layout, po, source);
-  d.append(result.pgm, id, pgm::to_string(result.row_mode));
+void check_columns(int columns) {
+  if (columns < 16 || columns % 16 != 0)
+    throw Error("import: columns: must be a positive multiple of 16 (the validation split cuts 16 sectors), got " +
+                std::to_string(columns));
 }
 
-}  // namespace
-
-std::vector<std::string> dataset_channels(const ImportOptions& options) {
-  std::vector<std::string> c = {"range", "class", "material"};
-  for (const auto& e : options.extra_channels) {
-    if (std::find(pgm::kEffectChannels.begin(), pgm::kEffectChannels.end(), e) == pgm::kEffectChannels.end())
-    {
-      std::string known;
-      for (const auto& k : pgm::kEffectChannels) known += (known.empty() ? "" : ", ") + k;
-      throw Error("import: channel '" + e + "': unknown (known: " + known + ")");
-    }
-    if (std::find(c.begin(), c.end(), e) == c.end()) c.push_back(e);
-  }
-  return c;
-}
-
-Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptions& options) {
-  Dataset d = empty_dataset(options, "semantickitti");
+std::vector<ScanJob> semantickitti_jobs(const fs::path& dir, const ImportOptions& options) {
   std::vector<ScanFiles> scans;
   int unlabelled = 0;
   for (const auto& s : list_semantickitti(dir, options.sequences)) {
@@ -68,29 +68,243 @@ Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptio
   if (scans.empty())
     throw input_error(dir.string(), "scans", options.include_unlabelled ? "no velodyne/*.bin scans found"
                                                                          : "no labelled scans (velodyne/*.bin with labels/*.label) found");
-  for (std::size_t i = 0; i < scans.size(); ++i) {
-    const LabelledScan scan = read_semantickitti_scan(scans[i]);
-    if (scan.unknown_labels && options.note)
-      options.note(scans[i].label->string() + ": " + std::to_string(scan.unknown_labels) +
-                   " labels outside the SemanticKITTI classes, imported as unlabeled");
-    add_frame(d, scan.points, options, "semantickitti/" + scans[i].sequence + "/" + scans[i].id, scans[i].bin.string());
-    for (const auto& s : scan.sources) d.sources.push_back(s.string());
-    if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(scans.size()));
+  std::vector<ScanJob> jobs;
+  for (const auto& s : scans) {
+    jobs.push_back({"semantickitti/" + s.sequence + "/" + s.id, {"semantickitti", s.sequence, s.id}, s.bin.string(), [s] {
+                      LabelledScan scan = read_semantickitti_scan(s);
+                      RecordedScan r{std::move(scan.points), std::move(scan.sources), ""};
+                      if (scan.unknown_labels)
+                        r.note = s.label->string() + ": " + std::to_string(scan.unknown_labels) +
+                                 " labels outside the SemanticKITTI classes, imported as unlabeled";
+                      return r;
+                    }});
   }
+  return jobs;
+}
+
+std::vector<ScanJob> kitti_object_jobs(const fs::path& dir, const ImportOptions& options) {
+  const auto frames = window(list_kitti_object(dir), options);
+  if (frames.empty()) throw input_error(dir.string(), "frames", "no velodyne/*.bin frames found");
+  std::vector<ScanJob> jobs;
+  // KITTI object frames do not say which drive they come from: each frame is its own place.
+  for (const auto& f : frames)
+    jobs.push_back({"kitti_object/" + f.id, {"kitti_object", "", f.id}, f.bin.string(), [f] {
+                      KittiObjectScan scan = read_kitti_object_scan(f);
+                      return RecordedScan{std::move(scan.points), std::move(scan.sources), ""};
+                    }});
+  return jobs;
+}
+
+std::vector<ScanJob> nuscenes_jobs(const fs::path& dir, const ImportOptions& options) {
+  const auto files = window(list_nuscenes(dir), options);
+  if (files.empty()) throw input_error(dir.string(), "sweeps", "no *.pcd.bin files found");
+  std::vector<ScanJob> jobs;
+  for (const auto& f : files) {
+    const std::string log = f.log.empty() ? "-" : f.log;
+    jobs.push_back({"nuscenes/" + log + "/" + f.timestamp, {"nuscenes", f.log, f.timestamp}, f.path.string(), [f] {
+                      return RecordedScan{read_nuscenes_pcd_bin(f.path), {f.path}, ""};
+                    }});
+  }
+  return jobs;
+}
+
+std::vector<ScanJob> rellis3d_jobs(const fs::path& dir, const ImportOptions& options) {
+  if (options.class_table.empty()) throw Error("import: rellis3d needs a class table (data/ontologies/rellis3d.csv)");
+  auto table = std::make_shared<const ClassTable>(read_class_table(options.class_table));
+  const auto files = window(list_rellis3d(dir), options);
+  std::vector<ScanJob> jobs;
+  for (const auto& f : files) {
+    jobs.push_back({"rellis3d/" + f.sequence + "/" + f.id, {"rellis3d", f.sequence, f.id}, f.bin.string(), [f, table] {
+                      Rellis3dScan scan = read_rellis3d_scan(f, *table);
+                      RecordedScan r{std::move(scan.points), std::move(scan.sources), ""};
+                      std::string unmapped;
+                      for (const auto& [name, n] : scan.unmapped)
+                        unmapped += (unmapped.empty() ? "" : ", ") + name + " " + std::to_string(n);
+                      if (!unmapped.empty())
+                        r.note = f.bin.string() + ": points of RELLIS classes without a class of ours, imported as "
+                                 "unlabeled: " + unmapped;
+                      if (!f.ply)
+                        r.note += std::string(r.note.empty() ? "" : "; ") + f.bin.string() +
+                                  ": no PLY beside it, intensity is the .bin's rescaled value";
+                      return r;
+                    }});
+  }
+  return jobs;
+}
+
+std::vector<fs::path> ouster_pcaps(const fs::path& dir) {
+  std::error_code ec;
+  if (fs::is_regular_file(dir, ec)) return {dir};
+  if (!fs::is_directory(dir, ec)) throw input_error(dir.string(), "pcap", "not found");
+  std::vector<fs::path> pcaps;
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.is_regular_file() && e.path().extension() == ".pcap") pcaps.push_back(e.path());
+  std::sort(pcaps.begin(), pcaps.end());
+  if (pcaps.empty()) throw input_error(dir.string(), "pcaps", "no .pcap files found");
+  return pcaps;
+}
+
+std::vector<ScanJob> ouster_jobs(const fs::path& dir, const ImportOptions& options) {
+  std::vector<ScanJob> jobs;
+  for (const auto& pcap : ouster_pcaps(dir)) {
+    auto meta = std::make_shared<const OusterMetadata>(
+        read_ouster_metadata(options.ouster_metadata.empty() ? ouster_metadata_for(pcap) : options.ouster_metadata));
+    // Decoded once here: packets of one frame are spread over the file.
+    auto frames = std::make_shared<const std::vector<OusterFrame>>(read_ouster_pcap(pcap, *meta));
+    const std::string recording = pcap.stem().string();
+    for (std::size_t k = 0; k < frames->size(); ++k) {
+      const std::string id = std::to_string((*frames)[k].frame_id);
+      jobs.push_back({"ouster/" + recording + "/" + id, {"ouster", recording, id}, pcap.string(), [meta, frames, k, pcap] {
+                        const OusterFrame& f = (*frames)[k];
+                        RecordedScan r{ouster_points(f, *meta), {pcap, fs::path(meta->path)}, ""};
+                        if (f.valid_columns() < f.cols)
+                          r.note = pcap.string() + ": frame " + std::to_string(f.frame_id) + " has " +
+                                   std::to_string(f.valid_columns()) + " of " + std::to_string(f.cols) + " columns";
+                        return r;
+                      }});
+    }
+  }
+  return window(jobs, options);
+}
+
+std::vector<ScanJob> list_jobs(SourceFormat format, const fs::path& dir, const ImportOptions& options) {
+  switch (format) {
+    case SourceFormat::SemanticKitti: return semantickitti_jobs(dir, options);
+    case SourceFormat::KittiObject: return kitti_object_jobs(dir, options);
+    case SourceFormat::Nuscenes: return nuscenes_jobs(dir, options);
+    case SourceFormat::Rellis3d: return rellis3d_jobs(dir, options);
+    case SourceFormat::Ouster: return ouster_jobs(dir, options);
+  }
+  throw Error("import: unknown source format");
+}
+
+pgm::BeamLayout default_layout(SourceFormat format, const fs::path& dir, const ImportOptions& options) {
+  if (options.layout) {
+    options.layout->validate("import: beam layout");
+    check_columns(options.layout->columns);
+    return *options.layout;
+  }
+  check_columns(options.columns);
+  switch (format) {
+    case SourceFormat::SemanticKitti:
+    case SourceFormat::KittiObject: return pgm::BeamLayout::hdl64e(options.columns);
+    case SourceFormat::Ouster: {
+      const fs::path pcap = ouster_pcaps(dir).front();
+      auto layout = read_ouster_metadata(options.ouster_metadata.empty() ? ouster_metadata_for(pcap) : options.ouster_metadata).layout();
+      check_columns(layout.columns);
+      return layout;
+    }
+    case SourceFormat::Nuscenes:
+    case SourceFormat::Rellis3d:
+      throw Error("import: " + to_string(format) + ": give the sensor's beam layout (--sensor data/sensors/...json)");
+  }
+  throw Error("import: unknown source format");
+}
+
+// Reads and projects the jobs a block at a time in parallel and hands each frame, in order, to
+// `sink`. Errors are rethrown in job order, so the first bad file is the one reported.
+template <typename Sink>
+void run_jobs(const std::vector<ScanJob>& jobs, const pgm::BeamLayout& layout, const ImportOptions& o, Sink&& sink) {
+  pgm::ProjectOptions po;
+  po.row_mode = o.row_mode;
+  po.extra_channels = o.extra_channels;
+  po.min_range = o.min_range;
+  const int block = o.block > 0 ? o.block : 4 * omp_get_max_threads();
+  const int total = static_cast<int>(jobs.size());
+  std::vector<ProjectedScan> done(block);
+  std::vector<std::exception_ptr> errors(block);
+  for (int start = 0; start < total; start += block) {
+    const int count = std::min(block, total - start);
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int i = 0; i < count; ++i) {
+      try {
+        const ScanJob& job = jobs[start + i];
+        RecordedScan scan = job.read();
+        auto result = pgm::project(scan.points, layout, po, job.path);
+        done[i] = {std::move(result.pgm), pgm::to_string(result.row_mode), std::move(scan.sources), std::move(scan.note)};
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+    for (int i = 0; i < count; ++i) {
+      if (errors[i]) std::rethrow_exception(errors[i]);
+      if (!done[i].note.empty() && o.note) o.note(done[i].note);
+      sink(jobs[start + i], done[i]);
+      done[i] = {};  // frees the grid before the next block
+      if (o.progress) o.progress(start + i + 1, total);
+    }
+  }
+}
+
+}  // namespace
+
+std::string to_string(SourceFormat format) {
+  switch (format) {
+    case SourceFormat::SemanticKitti: return "semantickitti";
+    case SourceFormat::KittiObject: return "kitti_object";
+    case SourceFormat::Nuscenes: return "nuscenes";
+    case SourceFormat::Rellis3d: return "rellis3d";
+    case SourceFormat::Ouster: return "ouster";
+  }
+  return "unknown";
+}
+
+SourceFormat source_format_from_string(const std::string& name) {
+  for (SourceFormat f : {SourceFormat::SemanticKitti, SourceFormat::KittiObject, SourceFormat::Nuscenes,
+                         SourceFormat::Rellis3d, SourceFormat::Ouster})
+    if (to_string(f) == name) return f;
+  throw Error("import: format '" + name + "': unknown (known: semantickitti, kitti_object, nuscenes, rellis3d, ouster)");
+}
+
+std::vector<std::string> dataset_channels(const ImportOptions& options) {
+  std::vector<std::string> c = {"range", "class", "material"};
+  for (const auto& e : options.extra_channels) {
+    if (std::find(pgm::kEffectChannels.begin(), pgm::kEffectChannels.end(), e) == pgm::kEffectChannels.end()) {
+      std::string known;
+      for (const auto& k : pgm::kEffectChannels) known += (known.empty() ? "" : ", ") + k;
+      throw Error("import: channel '" + e + "': unknown (known: " + known + ")");
+    }
+    if (std::find(c.begin(), c.end(), e) == c.end()) c.push_back(e);
+  }
+  return c;
+}
+
+ImportSummary import_to_file(SourceFormat format, const fs::path& dir, const fs::path& out, const ImportOptions& options) {
+  ImportSummary summary;
+  summary.layout = default_layout(format, dir, options);
+  summary.channels = dataset_channels(options);
+  const auto jobs = list_jobs(format, dir, options);
+  DatasetWriter writer(out, summary.channels, summary.layout, to_string(format));
+  run_jobs(jobs, summary.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
+    writer.append(scan.pgm, job.id, scan.row_mode, job.place);
+    for (const auto& s : scan.sources) writer.add_source(s.string());
+  });
+  writer.commit();
+  summary.frames = writer.size();
+  summary.returns = writer.returns();
+  summary.row_modes = writer.row_mode_counts();
+  return summary;
+}
+
+Dataset import_dataset(SourceFormat format, const fs::path& dir, const ImportOptions& options) {
+  Dataset d;
+  d.layout = default_layout(format, dir, options);
+  d.channels = dataset_channels(options);
+  d.source_format = to_string(format);
+  const auto jobs = list_jobs(format, dir, options);
+  run_jobs(jobs, d.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
+    d.append(scan.pgm, job.id, scan.row_mode, job.place);
+    for (const auto& s : scan.sources) d.sources.push_back(s.string());
+  });
   return d;
 }
 
-Dataset import_kitti_object(const std::filesystem::path& dir, const ImportOptions& options) {
-  Dataset d = empty_dataset(options, "kitti_object");
-  const auto frames = window(list_kitti_object(dir), options);
-  if (frames.empty()) throw input_error(dir.string(), "frames", "no velodyne/*.bin frames found");
-  for (std::size_t i = 0; i < frames.size(); ++i) {
-    const KittiObjectScan scan = read_kitti_object_scan(frames[i]);
-    add_frame(d, scan.points, options, "kitti_object/" + frames[i].id, frames[i].bin.string());
-    for (const auto& s : scan.sources) d.sources.push_back(s.string());
-    if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(frames.size()));
-  }
-  return d;
+Dataset import_semantickitti(const fs::path& dir, const ImportOptions& options) {
+  return import_dataset(SourceFormat::SemanticKitti, dir, options);
+}
+
+Dataset import_kitti_object(const fs::path& dir, const ImportOptions& options) {
+  return import_dataset(SourceFormat::KittiObject, dir, options);
 }
 
 }  // namespace lidarsim::data

@@ -70,9 +70,25 @@ SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
   pcl_objects_.reserve(64);
 }
 
+void use_sensor(sensor::Scenario& scenario, const pgm::BeamLayout& layout) {
+  layout.validate("sensor layout");
+  auto& spec = scenario.sensor;
+  spec.beams.kind = "layout";
+  spec.beams.full = layout;
+  spec.beams.columns = layout.columns;
+  // Half a beam spacing beyond the outer beams, so the outer rows stay inside the field of view.
+  const int n = layout.rows();
+  const double margin = n > 1 ? 0.5 * (layout.elevations_rad[0] - layout.elevations_rad[n - 1]) / (n - 1) : 0.01;
+  spec.fov.elevation_max = layout.elevations_rad[0] + margin;
+  spec.fov.elevation_min = layout.elevations_rad[n - 1] - margin;
+  if (layout.max_range_m > 0) spec.fov.range_max = layout.max_range_m;
+  if (layout.min_range_m > 0) spec.fov.range_min = layout.min_range_m;
+}
+
 SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
                                     const std::filesystem::path& intensity_checkpoint, SimOptions options) {
   sensor::Scenario s = sensor::read_scenario(scenario);
+  if (options.sensor) use_sensor(s, *options.sensor);
   sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
   std::unique_ptr<IntensityModel> m;
   if (options.intensity && options.point_cloud) m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));

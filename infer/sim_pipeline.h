@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -42,7 +43,13 @@ struct SimOptions {
   sensor::KpiOptions kpi;
   bool intensity = true;          // false: skip the UNet (intensity stays 0)
   bool point_cloud = true;        // false: the object-level model only (no PCL generator, UNet, cloud)
+  // Another sensor (lidar-infer sim --sensor FILE.json): replaces the scenario's beams, and its
+  // vertical field of view and range limits follow the layout's beams and ranges.
+  std::optional<pgm::BeamLayout> sensor;
 };
+
+// Puts `layout` in the scenario's sensor (beams, vertical field of view, range limits).
+void use_sensor(sensor::Scenario& scenario, const pgm::BeamLayout& layout);
 
 // One reported object with where it came from.
 struct ReportedObject {

@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <numbers>
+#include <sstream>
 
 #include <nlohmann/json.hpp>
 
@@ -93,6 +95,13 @@ void BeamLayout::validate(const std::string& where) const {
       throw input_error(where, "elevations[" + std::to_string(r) + "]",
                         "must be strictly below the row above (row 0 is the top beam)");
   }
+  if (!azimuth_offsets_rad.empty() && static_cast<int>(azimuth_offsets_rad.size()) != rows())
+    throw input_error(where, "azimuth_offsets_deg",
+                      "expected one per beam (" + std::to_string(rows()) + "), got " + std::to_string(azimuth_offsets_rad.size()));
+  for (double a : azimuth_offsets_rad)
+    if (!std::isfinite(a)) throw input_error(where, "azimuth_offsets_deg", "must be finite");
+  if (!(min_range_m >= 0) || !(max_range_m >= 0) || (max_range_m > 0 && !(min_range_m < max_range_m)))
+    throw input_error(where, "min_range_m/max_range_m", "expected 0 <= min_range_m < max_range_m (0 = not given)");
 }
 
 std::string BeamLayout::to_json() const {
@@ -102,6 +111,14 @@ std::string BeamLayout::to_json() const {
   std::vector<double> deg;
   for (double e : elevations_rad) deg.push_back(e / kDeg);
   j["elevations_deg"] = deg;
+  if (!azimuth_offsets_rad.empty()) {
+    std::vector<double> az;
+    for (double a : azimuth_offsets_rad) az.push_back(a / kDeg);
+    j["azimuth_offsets_deg"] = az;
+  }
+  if (min_range_m > 0) j["min_range_m"] = min_range_m;
+  if (max_range_m > 0) j["max_range_m"] = max_range_m;
+  if (!sensor.empty()) j["sensor"] = sensor;
   return j.dump();
 }
 
@@ -133,6 +150,20 @@ BeamLayout BeamLayout::from_json(const std::string& text, const std::string& whe
     layout.name = name;
     layout.columns = columns;
     for (double e : deg) layout.elevations_rad.push_back(e * kDeg);
+    if (j.contains("azimuth_offsets_deg")) {
+      if (!j["azimuth_offsets_deg"].is_array()) throw input_error(where, "azimuth_offsets_deg", "expected an array of degrees");
+      for (std::size_t i = 0; i < j["azimuth_offsets_deg"].size(); ++i) {
+        const auto& v = j["azimuth_offsets_deg"][i];
+        if (!v.is_number()) throw input_error(where, "azimuth_offsets_deg[" + std::to_string(i) + "]", "expected a number");
+        layout.azimuth_offsets_rad.push_back(v.get<double>() * kDeg);
+      }
+    }
+    if (j.contains("min_range_m")) layout.min_range_m = get_number("min_range_m");
+    if (j.contains("max_range_m")) layout.max_range_m = get_number("max_range_m");
+    if (j.contains("sensor")) {
+      if (!j["sensor"].is_string()) throw input_error(where, "sensor", "expected a string");
+      layout.sensor = j["sensor"].get<std::string>();
+    }
     layout.validate(where);
     return layout;
   }
@@ -142,6 +173,14 @@ BeamLayout BeamLayout::from_json(const std::string& text, const std::string& whe
   layout.name = name;
   layout.validate(where);
   return layout;
+}
+
+BeamLayout BeamLayout::from_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw input_error(path, "file", "not found or cannot be opened");
+  std::stringstream text;
+  text << in.rdbuf();
+  return from_json(text.str(), path);
 }
 
 }  // namespace lidarsim::pgm

@@ -8,6 +8,11 @@
 //   {"name": "hdl64e", "columns": 1024, "elevations_deg": [2.61, 2.23, ...]}
 // or, for a uniform layout, {"name": "uniform", "columns": 1024, "rows": 32,
 //   "top_deg": 15, "bottom_deg": -15} (the explicit list wins when both are given).
+// Optional, for sensors described by data (data/sensors/*.json): "azimuth_offsets_deg" (one
+// per beam, row order: the beam fires this far from its column's centre, counter-clockwise
+// positive, as Ouster's beam_azimuth_angles are clockwise positive with the sign flipped),
+// "min_range_m" / "max_range_m" (the sensor's range limits), "sensor" (a free description).
+// Written only when set, so layouts without them keep their JSON and compare equal.
 #include <string>
 #include <vector>
 
@@ -17,6 +22,11 @@ struct BeamLayout {
   std::string name;                    // e.g. "hdl64e", "uniform"
   std::vector<double> elevations_rad;  // one per row, descending (row 0 = top)
   int columns = 1024;                  // azimuth bins over 360 degrees
+  std::vector<double> azimuth_offsets_rad;  // per row, empty = every beam fires at the column centre
+  double min_range_m = 0, max_range_m = 0;  // 0 = not given
+  std::string sensor;                        // description, e.g. "Ouster OS-1-128, fw v2.3.0"
+
+  double azimuth_offset(int row) const { return azimuth_offsets_rad.empty() ? 0.0 : azimuth_offsets_rad[row]; }
 
   int rows() const { return static_cast<int>(elevations_rad.size()); }
   // Uniform spacing from top to bottom elevation (degrees at the edge, radians inside).
@@ -36,12 +46,13 @@ struct BeamLayout {
   int nearest_row(double elevation_rad) const;
 
   // Throws lidarsim::Error (naming `where`) unless rows >= 1, columns >= 1, elevations finite
-  // and strictly descending.
+  // and strictly descending, azimuth offsets one per row and finite, 0 <= min_range < max_range.
   void validate(const std::string& where = "beam layout") const;
 
   std::string to_json() const;  // compact JSON, degrees
   // `where` names the file (or checkpoint attribute) the text came from, for error messages.
   static BeamLayout from_json(const std::string& text, const std::string& where = "beam layout");
+  static BeamLayout from_file(const std::string& path);  // a JSON file as above
   bool operator==(const BeamLayout&) const = default;
 };
 

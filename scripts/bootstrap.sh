@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 packages=(cmake g++ make libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev libgmock-dev
-          nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler)
+          nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -31,6 +31,9 @@ PclConfig PclConfig::from_fov(const FieldOfView& fov) {
 PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclConfig& config)
     : layout_(std::move(layout)), mount_(mount), sensor_from_ego_(inverse(mount)), cfg_(config) {
   layout_.validate("pcl generator");
+  // A sensor described by data brings its own range limits; the narrower of both wins.
+  if (layout_.max_range_m > 0) cfg_.max_range = std::min(cfg_.max_range, layout_.max_range_m);
+  cfg_.min_range = std::max(cfg_.min_range, layout_.min_range_m);
   const int H = layout_.rows(), W = layout_.columns;
   dir_sensor_.resize(static_cast<std::size_t>(H) * W);
   dir_ego_.resize(dir_sensor_.size());
@@ -45,7 +48,8 @@ PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclC
   for (int r = 0; r < H; ++r) {
     const double el = layout_.elevations_rad[r];
     for (int c = 0; c < W; ++c) {
-      const double az = layout_.azimuth_of_column(c);
+      // Beams of one column fire at per-beam azimuth offsets (Ouster's beam_azimuth_angles).
+      const double az = layout_.azimuth_of_column(c) + layout_.azimuth_offset(r);
       const std::size_t i = static_cast<std::size_t>(r) * W + c;
       dir_sensor_[i] = Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
       dir_ego_[i] = mount_.rotation * dir_sensor_[i];

@@ -221,6 +221,7 @@ void extrapolate(const KinematicState& s, double t, KinematicState& out) {
 
 pgm::BeamLayout BeamSpec::layout() const {
   if (kind == "hdl64e") return pgm::BeamLayout::hdl64e(columns);
+  if (kind == "layout") return full;
   if (kind == "list") return pgm::BeamLayout::from_elevations_deg("list", elevations_deg, columns);
   return pgm::BeamLayout::uniform(rows, top_deg, bottom_deg, columns);
 }

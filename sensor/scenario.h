@@ -44,10 +44,11 @@
 namespace lidarsim::sensor {
 
 struct BeamSpec {
-  std::string kind = "hdl64e";  // "hdl64e", "uniform" or "list"
+  std::string kind = "hdl64e";  // "hdl64e", "uniform", "list" or "layout" (a whole layout, e.g. a sensor file)
   int rows = 64;                // uniform only
   double top_deg = 2.0, bottom_deg = -24.9;  // uniform only
   std::vector<double> elevations_deg;        // list only
+  pgm::BeamLayout full;                      // layout only (data/sensors/*.json: offsets, ranges)
   int columns = 1024;
   pgm::BeamLayout layout() const;
 };

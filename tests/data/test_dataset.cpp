@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "common/error.h"
@@ -82,9 +83,23 @@ TEST(Dataset, WrongShapeAndNonHdf5FileAreErrors) {
   TempDir dir;
   { std::ofstream(dir / "x.h5") << "not hdf5"; }
   EXPECT_NE(error_of([&] { data::read_dataset(dir / "x.h5"); }).find("not an HDF5 file"), std::string::npos);
-  auto d = two_frames();
-  d.layout = pgm::BeamLayout::uniform(5, 2, -2, 32);  // attribute says 5 rows, /pgm has 4
-  data::write_dataset(dir / "d.h5", d);
+  data::write_dataset(dir / "d.h5", two_frames());
+  {  // the attribute says 5 rows, /pgm has 4
+    hid_t f = H5Fopen((dir / "d.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    ASSERT_GE(H5Adelete_by_name(f, "/", "beam_layout", H5P_DEFAULT), 0);
+    hid_t type = H5Tcopy(H5T_C_S1);
+    H5Tset_size(type, H5T_VARIABLE);
+    hid_t space = H5Screate(H5S_SCALAR);
+    hid_t attr = H5Acreate_by_name(f, "/", "beam_layout", type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    const std::string json = pgm::BeamLayout::uniform(5, 2, -2, 32).to_json();
+    const char* p = json.c_str();
+    ASSERT_GE(H5Awrite(attr, type, &p), 0);
+    H5Aclose(attr);
+    H5Sclose(space);
+    H5Tclose(type);
+    H5Fclose(f);
+  }
   const std::string msg = error_of([&] { data::read_dataset(dir / "d.h5"); });
   EXPECT_NE(msg.find("dataset /pgm: shape"), std::string::npos) << msg;
 }
@@ -111,4 +126,55 @@ TEST(Dataset, EncodeInputsRunsEveryFrameThroughTheEncoderAndNamesMissingChannels
   cfg.channels = {"range", "incidence"};
   const std::string msg = error_of([&] { data::encode_inputs(d, cfg, "d.h5"); });
   EXPECT_NE(msg.find("d.h5: channel 'incidence'"), std::string::npos) << msg;
+}
+
+TEST(Dataset, PlacesRoundTripAndOldFilesFallBackToTheFrameId) {
+  TempDir dir;
+  auto d = two_frames();
+  d.places = {{"semantickitti", "08", "000001"}, {"semantickitti", "00", "000002"}};
+  data::write_dataset(dir / "d.h5", d);
+  const auto r = data::read_dataset(dir / "d.h5");
+  EXPECT_EQ(r.frame_place(0), (data::FramePlace{"semantickitti", "08", "000001"}));
+  EXPECT_EQ(r.frame_place(1), (data::FramePlace{"semantickitti", "00", "000002"}));
+  // A version 1 file: no place datasets, row modes only in the attribute.
+  data::Dataset old = two_frames();
+  old.frames = {"semantickitti/03/000007", "kitti_object/000123"};
+  old.places.clear();
+  data::write_dataset(dir / "old.h5", old);
+  hid_t f = H5Fopen((dir / "old.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  for (const char* name : {"/place_source", "/place_sequence", "/place_frame", "/row_modes"})
+    ASSERT_GE(H5Ldelete(f, name, H5P_DEFAULT), 0);
+  H5Fclose(f);
+  const auto o = data::read_dataset(dir / "old.h5");
+  EXPECT_EQ(o.row_modes, old.row_modes);
+  EXPECT_EQ(o.frame_place(0), (data::FramePlace{"semantickitti", "03", "000007"}));
+  EXPECT_EQ(o.frame_place(1), (data::FramePlace{"kitti_object", "", "000123"}));
+}
+
+TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledAndDeflated) {
+  TempDir dir;
+  data::write_dataset(dir / "d.h5", two_frames());
+  hid_t f = H5Fopen((dir / "d.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  for (const char* name : {"/pgm", "/target", "/mask", "/point_index"}) {
+    hid_t ds = H5Dopen2(f, name, H5P_DEFAULT);
+    ASSERT_GE(ds, 0) << name;
+    hid_t plist = H5Dget_create_plist(ds);
+    hsize_t chunk[4] = {0, 0, 0, 0};
+    ASSERT_EQ(H5Pget_layout(plist), H5D_CHUNKED) << name;
+    H5Pget_chunk(plist, 4, chunk);
+    EXPECT_EQ(chunk[0], 1u) << name;
+    std::vector<H5Z_filter_t> filters;
+    for (int i = 0; i < H5Pget_nfilters(plist); ++i) {
+      unsigned flags = 0;
+      size_t nelems = 0;
+      filters.push_back(H5Pget_filter2(plist, i, &flags, &nelems, nullptr, 0, nullptr, nullptr));
+    }
+    EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_SHUFFLE), filters.end()) << name;
+    EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_DEFLATE), filters.end()) << name;
+    H5Pclose(plist);
+    H5Dclose(ds);
+  }
+  H5Fclose(f);
 }

@@ -164,3 +164,32 @@ TEST(LidarDataCli, UnknownOptionsAndMissingSourceAreOneLineErrors) {
   expect_one_error_line(run("import --out " + (dir / "x.h5").string()), "--semantickitti");
   expect_one_error_line(run("import --semantickitti /nonexistent/sk --out " + (dir / "x.h5").string()), "/nonexistent/sk");
 }
+
+TEST(LidarDataCliReal, EverySensorFormatImportsAtItsOwnResolutionAndInfoNamesItsPlaces) {
+  REQUIRE_EXE();
+  LIDARSIM_REQUIRE_SHARED_DATA(shared, "");
+  TempDir dir;
+  struct Case {
+    std::string flag, source, rows_cols, place;
+  };
+  const Case cases[] = {
+      {"--nuscenes", "nuscenes-sample-frame", "32 x 1024", "nuscenes/n015-2018-07-24-11-22-45+0800: 1"},
+      {"--rellis3d", "rellis3d-os1-sample", "64 x 2048", "rellis3d/rellis3d-os1-sample: 1"},
+      {"--ouster", "ouster-sample-pcaps/OS-1-128_v2.3.0_1024x10_lb_n3.pcap", "128 x 1024",
+       "ouster/OS-1-128_v2.3.0_1024x10_lb_n3: 3"},
+      {"--kitti-object", "kitti-object-more/training", "64 x 1024", "kitti_object/-: 9"}};
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.flag);
+    const auto out = dir / (c.flag.substr(2) + ".h5");
+    const ::Run imp = run("import " + c.flag + " " + (shared / c.source).string() + " --out " + out.string() + " --quiet");
+    ASSERT_EQ(imp.code, 0) << imp.output;
+    const ::Run info = run("info " + out.string());
+    ASSERT_EQ(info.code, 0) << info.output;
+    EXPECT_NE(info.output.find("grid: " + c.rows_cols), std::string::npos) << info.output;
+    EXPECT_NE(info.output.find(c.place), std::string::npos) << info.output;
+    // Sensors that record a ring index get their rows from it.
+    if (c.flag != "--kitti-object") {
+      EXPECT_NE(info.output.find("row modes: ring: "), std::string::npos) << info.output;
+    }
+  }
+}

@@ -345,6 +345,37 @@ TEST_F(SimPipelineTest, CliRunsAFewFramesAndWritesTheSummary) {
   EXPECT_EQ(nlohmann::json::parse(read_text(out / "summary.json"))["frames"], 2);
 }
 
+TEST_F(SimPipelineTest, CliEveryWritesOnlyEveryNthFrameThroughTheWriterThread) {
+  std::string err;
+  const fs::path out = dir_ / "every";
+  const int rc = run_cli("--model " + checkpoint().string() + " --frames 5 --every 2 --no-images --quiet --out " +
+                             out.string(), err);
+  ASSERT_EQ(rc, 0) << err;
+  for (int k = 0; k < 5; ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "cloud_%04d.pcd", k);
+    EXPECT_EQ(fs::exists(out / name), k % 2 == 0) << name;
+  }
+  EXPECT_EQ(nlohmann::json::parse(read_text(out / "summary.json"))["frames"], 5);
+}
+
+TEST_F(SimPipelineTest, SensorLayoutFileSetsTheGridAndTheVerticalFieldOfView) {
+  infer::SimOptions o;
+  o.sensor = pgm::BeamLayout::from_file((testing::source_dir() / "data/sensors/os1-32.json").string());
+  auto pipeline = infer::SimPipeline::from_files(scenario(), kpi(), checkpoint(), o);
+  infer::SimFrame frame;
+  pipeline.run_frame(3, frame);
+  EXPECT_EQ(frame.pgm.rows(), 32);
+  EXPECT_EQ(frame.pgm.cols(), 1024);
+  // The OS-1-32's top beams look up to +12.75 deg, above the demo scenario's +3 deg field of
+  // view: with the layout's own field of view no beam is cut off, so the lowest rows see road.
+  EXPECT_GT(pipeline.scenario().sensor.fov.elevation_max, 12.75 * M_PI / 180);
+  int road = 0;
+  const float* mask = frame.pgm.channel("mask");
+  for (int c = 0; c < 1024; ++c) road += mask[31 * 1024 + c] > 0;
+  EXPECT_GT(road, 500);
+}
+
 // One line on stderr, naming the file, and a non-zero exit.
 void expect_one_error_line(int rc, const std::string& err, const std::string& file) {
   EXPECT_NE(rc, 0);
