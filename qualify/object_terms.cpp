@@ -1,0 +1,85 @@
+#include "qualify/object_terms.h"
+
+#include <algorithm>
+
+namespace lidarsim::qualify::obj {
+
+ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                             int bins) {
+  ClassTables t;
+  t.pooled = fit_binned_mean(x, r, bins);
+  for (int c = 0; c < 3; ++c) {
+    std::vector<double> xc, rc;
+    for (size_t i = 0; i < x.size(); ++i)
+      if (cls[i] == c) xc.push_back(x[i]), rc.push_back(r[i]);
+    if (xc.size() >= 200) t.per_class[c] = fit_binned_mean(xc, rc, bins), t.own[c] = true;
+  }
+  return t;
+}
+
+Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+              const std::vector<int>& rb, int bins) {
+  Refit f;
+  std::vector<double> y(r.size());
+  for (int pass = 0; pass < 4; ++pass) {
+    for (size_t i = 0; i < r.size(); ++i) {
+      const auto it = f.d.find({cls[i], rb[i]});
+      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
+    }
+    f.table = fit_class_tables(x, y, cls, bins);
+    std::map<std::pair<int, int>, std::pair<double, long>> acc;
+    for (size_t i = 0; i < r.size(); ++i) {
+      auto& a = acc[{cls[i], rb[i]}];
+      a.first += r[i] - f.table(cls[i], x[i]);
+      ++a.second;
+    }
+    f.d.clear();
+    for (const auto& [k, a] : acc)
+      if (a.second >= 20) f.d[k] = a.first / a.second;
+  }
+  return f;
+}
+
+Refit refit_on(const Fold& k, int t, int f, int nvis, int bins) {
+  const Split& s = k.fit_r[t];
+  return backfit(s.column(f), s.clipped(k.win[t]), s.classes(), s.cells(t, nvis), bins);
+}
+
+sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
+                           int nvis) {
+  sensor::KpiModel m = base;
+  for (int c = 0; c < 3; ++c) {
+    const auto it = m.classes.find(kObjectClasses[c]);
+    if (it == m.classes.end()) continue;
+    sensor::ClassModel& cm = it->second;
+    const BinnedTable& bt = ref.table.own[c] ? ref.table.per_class[c] : ref.table.pooled;
+    // BinnedTable cut points -> the term's lower edges (bin 0 takes everything below edges[1]).
+    sensor::ConditionalTerm ct;
+    ct.feature = feature;
+    ct.edges.push_back(bt.edges.empty() ? 0.0 : bt.edges.front() - 1);
+    ct.edges.insert(ct.edges.end(), bt.edges.begin(), bt.edges.end());
+    ct.bias = bt.value;
+    if (t == kDetectionTarget) {
+      for (int rb = 0; rb < static_cast<int>(cm.detection_probability.size()); ++rb)
+        for (int vb = 0; vb < static_cast<int>(cm.detection_probability[rb].size()); ++vb) {
+          const auto d = ref.d.find({c, rb * nvis + vb});
+          double& p = cm.detection_probability[rb][vb];
+          if (d != ref.d.end()) p = std::clamp(p + d->second, 0.0, 1.0);
+        }
+      for (double& b : ct.bias) b = std::clamp(b, -1.0, 1.0);  // a probability shift
+      cm.detection_conditional = ct;
+    } else {
+      sensor::ErrorModel& em = cm.errors[int(kTargetParam[t])];
+      for (int rb = 0; rb < static_cast<int>(em.mean.size()); ++rb) {
+        const auto d = ref.d.find({c, rb});
+        if (d != ref.d.end()) em.mean[rb] += d->second;
+      }
+      em.conditional = ct;
+    }
+  }
+  m.source = base.source + "; plus the object loop's conditional term on " + feature + " (" +
+             (t == kDetectionTarget ? std::string("detection probability") : kObjectTargets[t]) + ")";
+  return m;
+}
+
+}  // namespace lidarsim::qualify::obj

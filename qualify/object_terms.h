@@ -1,0 +1,54 @@
+#pragma once
+// The effect forms the object loop fits on a fold's fit sequences and adds to the KPI model
+// (internal to qualify/): a per-class binned table on a feature, refitted jointly with the
+// model's own cells (backfitting), and the refitted KPI model that carries it as a
+// sensor::ConditionalTerm.
+#include <array>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "qualify/object_folds.h"
+
+namespace lidarsim::qualify::obj {
+
+// The conditional term: a bias table on the feature per class (the KPI model is per class),
+// the pooled table for classes with fewer than 200 fit samples.
+struct ClassTables {
+  BinnedTable pooled;
+  std::array<BinnedTable, 3> per_class;
+  std::array<bool, 3> own{false, false, false};
+  double operator()(int cls, double x) const { return cls >= 0 && cls < 3 && own[cls] ? per_class[cls](x) : pooled(x); }
+};
+
+ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                             int bins);
+
+// The added conditional term refitted together with the model's own cells (backfitting): the
+// range-bin means of an error, or the [range bin][visibility bin] detection probabilities. On the
+// fit split those cells have absorbed whatever part of the hidden effect correlates with them, so
+// the table alone would be fitted against a distorted residual (and, for detection, come out
+// attenuated). r ~ d[class][cell] + table(class, feature), alternating 4 passes.
+struct Refit {
+  ClassTables table;
+  std::map<std::pair<int, int>, double> d;
+  double operator()(int cls, int rb, double x) const {
+    const auto it = d.find({cls, rb});
+    return (it == d.end() ? 0.0 : it->second) + table(cls, x);
+  }
+};
+
+Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+              const std::vector<int>& rb, int bins);
+
+// Target t's term on feature f fitted on fold k's fit residuals (winsorised).
+Refit refit_on(const Fold& k, int t, int f, int nvis, int bins);
+
+// The base model with the loop's range-bin offsets added to target t's means (detection: to the
+// detection probabilities of the range x visibility cell, clamped to [0, 1]) and the feature
+// table as its conditional term (on that error, or on detection probability).
+sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
+                           int nvis);
+
+}  // namespace lidarsim::qualify::obj
