@@ -43,6 +43,13 @@ std::map<std::array<int, 3>, double> simulated_mean_error(const std::vector<sens
                               [p](const sensor::KpiInjection& inj) { return inj.error[static_cast<int>(p)]; });
 }
 
+std::map<std::array<int, 3>, double> simulated_error_draw(const std::vector<sensor::CalibrationSequence>& seqs,
+                                                          const std::vector<int>& which, const sensor::KpiModel& model,
+                                                          sensor::KpiParam p, std::uint64_t seed) {
+  return simulated_per_object(seqs, which, model, seed,
+                              [p](const sensor::KpiInjection& inj) { return inj.error[static_cast<int>(p)]; });
+}
+
 std::map<std::array<int, 3>, double> simulated_detection_probability(
     const std::vector<sensor::CalibrationSequence>& seqs, const std::vector<int>& which, const sensor::KpiModel& model,
     std::uint64_t seed) {

@@ -17,6 +17,11 @@ std::map<std::array<int, 3>, double> simulated_mean_error(const std::vector<sens
                                                           const std::vector<int>& which, sensor::KpiModel model,
                                                           sensor::KpiParam p, std::uint64_t seed);
 
+// The error of parameter p the KPI manager injects per truth object with its noise on (one draw).
+std::map<std::array<int, 3>, double> simulated_error_draw(const std::vector<sensor::CalibrationSequence>& seqs,
+                                                          const std::vector<int>& which, const sensor::KpiModel& model,
+                                                          sensor::KpiParam p, std::uint64_t seed);
+
 // The detection probability the KPI manager uses per truth object (its misses are draws from it).
 std::map<std::array<int, 3>, double> simulated_detection_probability(
     const std::vector<sensor::CalibrationSequence>& seqs, const std::vector<int>& which, const sensor::KpiModel& model,

@@ -40,6 +40,72 @@ Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const 
   return f;
 }
 
+BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& y, int fine_bins, long min_side) {
+  const BinnedTable fine = fit_binned_mean(x, y, fine_bins, 0);
+  const int K = static_cast<int>(fine.value.size());
+  std::vector<double> S(K + 1, 0.0);
+  std::vector<long> N(K + 1, 0);
+  for (int b = 0; b < K; ++b) S[b + 1] = S[b] + fine.value[b] * fine.count[b], N[b + 1] = N[b] + fine.count[b];
+  const long n = N[K];
+  double best = 0;
+  int bi = -1, bj = -1;
+  for (int i = 0; i < K; ++i)
+    for (int j = i; j < K; ++j) {
+      if (i == 0 && j == K - 1) continue;
+      const long n_in = N[j + 1] - N[i], n_out = n - n_in;
+      if (n_in < min_side || n_out < min_side) continue;
+      // A step is the same split as its complement: keep the smaller side as the run, so the
+      // term's bias sits where the effect is and the model's cells carry the rest.
+      if ((i == 0 || j == K - 1) && 2 * n_in > n) continue;
+      const double s_in = S[j + 1] - S[i], d = s_in / n_in - (S[K] - s_in) / n_out;
+      const double between = d * d * double(n_in) * double(n_out) / double(n);
+      if (between > best) best = between, bi = i, bj = j;
+    }
+  BinnedTable w;
+  if (bi < 0) {
+    w.value = {0.0};
+    w.count = {n};
+    return w;
+  }
+  const long n_in = N[bj + 1] - N[bi];
+  const double s_in = S[bj + 1] - S[bi];
+  const double delta = (s_in / n_in - (S[K] - s_in) / (n - n_in)) * n_in / (n_in + 5.0);
+  if (bi > 0) w.edges.push_back(fine.edges[bi - 1]), w.value.push_back(0), w.count.push_back(N[bi]);
+  w.value.push_back(delta), w.count.push_back(n_in);
+  if (bj < K - 1) w.edges.push_back(fine.edges[bj]), w.value.push_back(0), w.count.push_back(n - N[bj + 1]);
+  return w;
+}
+
+Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                     const std::vector<int>& rb, int fine_bins) {
+  Refit f;
+  std::vector<double> y(r.size());
+  for (int pass = 0; pass < 4; ++pass) {
+    for (size_t i = 0; i < r.size(); ++i) {
+      const auto it = f.d.find({cls[i], rb[i]});
+      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
+    }
+    f.table = ClassTables{};
+    f.table.pooled = fit_window(x, y, fine_bins);
+    std::map<std::pair<int, int>, std::pair<double, long>> acc;
+    for (size_t i = 0; i < r.size(); ++i) {
+      auto& a = acc[{cls[i], rb[i]}];
+      a.first += r[i] - f.table(cls[i], x[i]);
+      ++a.second;
+    }
+    f.d.clear();
+    for (const auto& [k, a] : acc)
+      if (a.second >= 20) f.d[k] = a.first / a.second;
+  }
+  return f;
+}
+
+double refit_probability(const Refit& ref, int cls, int cell, double x, double p) {
+  const auto it = ref.d.find({cls, cell});
+  const double q = std::clamp(p + (it == ref.d.end() ? 0.0 : it->second), 0.0, 1.0);
+  return std::clamp(q + std::clamp(ref.table(cls, x), -1.0, 1.0), 0.0, 1.0);
+}
+
 Refit refit_on(const Fold& k, int t, int f, int nvis, int bins) {
   const Split& s = k.fit_r[t];
   return backfit(s.column(f), s.clipped(k.win[t]), s.classes(), s.cells(t, nvis), bins);

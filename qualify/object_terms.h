@@ -42,6 +42,21 @@ struct Refit {
 Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
               const std::vector<int>& rb, int bins);
 
+// A window (or step) of x with fitted edges: the contiguous run of up to `fine_bins` equal-count
+// bins of the fit split whose mean of y differs most from the rest (between-groups sum of
+// squares), at least `min_side` samples inside and outside. Returned as a table over the run's
+// edges: 0 outside, the in-minus-out difference (shrunk by n / (n + 5)) inside. Without a run
+// that qualifies: one bin of 0.
+BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& y, int fine_bins = 40,
+                       long min_side = 30);
+// backfit with the window (pooled over classes) in place of the per-class tables.
+Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                     const std::vector<int>& rb, int fine_bins = 40);
+
+// The detection probability the KPI manager uses with a rate term (with_term): the cell's
+// probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
+double refit_probability(const Refit& ref, int cls, int cell, double x, double p);
+
 // Target t's term on feature f fitted on fold k's fit residuals (winsorised).
 Refit refit_on(const Fold& k, int t, int f, int nvis, int bins);
 

@@ -168,4 +168,25 @@ std::string write_residual_png(const std::filesystem::path& path, const BinnedTa
          "); grey bars: mean held-out residual, orange marks: the table fitted on the fit split, black: zero.";
 }
 
+std::string candidates_markdown(const nlohmann::json& candidates) {
+  std::vector<const nlohmann::json*> rows;
+  for (const auto& c : candidates) rows.push_back(&c);
+  std::stable_sort(rows.begin(), rows.end(), [](const nlohmann::json* a, const nlohmann::json* b) {
+    return (*a)["score"].get<double>() > (*b)["score"].get<double>();
+  });
+  std::string md = "\n## Every candidate tested (" + std::to_string(rows.size()) +
+                   ")\n\n| target | feature | kind | form (fold 1) | effect size | held-out score [95%] | error | "
+                   "before | after | decision |\n|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const nlohmann::json* c : rows) {
+    const auto& r = *c;
+    md += "| " + r["target"].get<std::string>() + " | " + r["feature"].get<std::string>() + " | " +
+          r["kind"].get<std::string>() + " | " + r["form_fold1"].get<std::string>() + " | " +
+          fmt(r["effect_size"].get<double>()) + " | " + fmt(r["score"].get<double>()) + " [" +
+          fmt(r["interval95"][0].get<double>()) + ", " + fmt(r["interval95"][1].get<double>()) + "] | " +
+          r["error_metric"].get<std::string>() + " | " + fmt(r["error_before"].get<double>(), 4) + " | " +
+          fmt(r["error_after"].get<double>(), 4) + " | " + r["decision"].get<std::string>() + " |\n";
+  }
+  return md;
+}
+
 }  // namespace lidarsim::qualify
