@@ -305,4 +305,31 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
   return m;
 }
 
+sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
+                              int bins) {
+  Fold fold;
+  make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
+  const int nvis = fold.base.visibility_bins();
+  sensor::KpiModel m = fold.base;
+  const auto car = recipe.classes.find("Car");
+  if (car == recipe.classes.end()) return m;
+  for (int t = 0; t < kObjectTargetCount; ++t) {
+    const sensor::ConditionalTerm& ct =
+        t == kDetectionTarget ? car->second.detection_conditional : car->second.errors[int(kTargetParam[t])].conditional;
+    if (!ct.present()) continue;
+    const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct.feature);
+    if (it == kObjectFeatures.end()) continue;
+    const int f = static_cast<int>(it - kObjectFeatures.begin());
+    const Kind kind = t == kDetectionTarget ? Kind::RateTable : ct.scale.empty() ? Kind::MeanTable : Kind::SpreadTable;
+    const Effect e = fit_effect(fold, t, f, kind, nvis, bins);
+    if (is_spread(kind)) {
+      m = with_spread_term(m, e, ct.feature);
+    } else {
+      m = with_term(m, e.bias, t, ct.feature, nvis);
+      shrink_noise_for_term(m, e.bias, t, ct.feature, fold.fit_r[t], fold.win[t], nvis);
+    }
+  }
+  return m;
+}
+
 }  // namespace lidarsim::qualify::obj

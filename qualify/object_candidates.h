@@ -77,4 +77,11 @@ Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind k
 // The base model with a spread term: sigma of target t's error x scale per bin of the feature.
 sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e, const std::string& feature);
 
+// The model `recipe` describes, refitted on the sequences fit_idx only: sensor::fit_kpi_model on
+// them plus every conditional term the recipe carries (on an error: a spread table when it has a
+// scale, else a mean table; on detection: a rate table), each refitted on the same sequences with
+// the loop's forms (object_candidates.h). For held-out checks of a model that carries terms.
+sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
+                              int bins = 10);
+
 }  // namespace lidarsim::qualify::obj

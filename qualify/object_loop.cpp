@@ -233,8 +233,13 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   const Refit final_ref = fit_effect(whole, t, f, top.kind, nvis, options.bins).bias;
   std::optional<Effect> final_spread;
   if (add_spread) final_spread = fit_effect(whole, sp->target, sp->feature, sp->kind, nvis, options.bins);
+  sensor::KpiModel final_term_model;
+  if (term) {
+    final_term_model = with_term(whole.base, final_ref, t, top_feature, nvis);
+    shrink_noise_for_term(final_term_model, final_ref, t, top_feature, whole.fit_r[t], whole.win[t], nvis);
+  }
   if (!options.out_model.empty())
-    sensor::save_kpi_model(term           ? with_term(whole.base, final_ref, t, top_feature, nvis)
+    sensor::save_kpi_model(term           ? final_term_model
                            : add_spread ? with_spread_term(whole.base, *final_spread, kObjectFeatures[sp->feature])
                                           : whole.base,
                            options.out_model);

@@ -100,6 +100,41 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
   return f;
 }
 
+void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
+                           const Winsor& w, int nvis) {
+  if (t == kDetectionTarget) return;
+  const bool track_constant = feature == "size" || feature == "class";
+  const auto x = fit.column(feature_index(feature));
+  const auto cls = fit.classes();
+  const auto cells = fit.cells(t, nvis);
+  const auto r = fit.clipped(w);
+  for (int c = 0; c < 3; ++c) {
+    const auto it = m.classes.find(kObjectClasses[c]);
+    if (it == m.classes.end()) continue;
+    std::vector<double> vals, res;
+    for (size_t i = 0; i < x.size(); ++i)
+      if (cls[i] == c) vals.push_back(ref(c, cells[i], x[i])), res.push_back(r[i]);
+    if (vals.size() < 20) continue;
+    auto var = [](const std::vector<double>& v) {
+      const double m = mean_of(v);
+      double s = 0;
+      for (double a : v) s += (a - m) * (a - m);
+      return s / v.size();
+    };
+    const double V = var(res);
+    double v = var(vals);
+    if (V <= 0 || v <= 0) continue;
+    sensor::ErrorModel& em = it->second.errors[int(kTargetParam[t])];
+    if (track_constant) {
+      const double take = std::min(v, em.track_std * em.track_std);
+      em.track_std = std::sqrt(em.track_std * em.track_std - take);
+      v -= take;
+    }
+    const double f = std::sqrt(std::max(0.04, 1 - v / V));
+    for (double& s : em.sigma) s *= f;
+  }
+}
+
 double refit_probability(const Refit& ref, int cls, int cell, double x, double p) {
   const auto it = ref.d.find({cls, cell});
   const double q = std::clamp(p + (it == ref.d.end() ? 0.0 : it->second), 0.0, 1.0);

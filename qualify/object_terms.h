@@ -53,6 +53,15 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                      const std::vector<int>& rb, int fine_bins = 40);
 
+// A mean term on an error explains part of the spread the base model's noise was fitted to carry:
+// without this the refitted model's errors come out too wide (term + the old noise). Per class,
+// v = variance of the term's values (table + cell offsets) over the fit records, V = variance of
+// the winsorised fit residual; a feature constant along a track (size) takes v out of the per-track
+// constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
+// (sigma x sqrt(1 - v_rest / V), at least 0.2 of it).
+void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
+                           const Winsor& w, int nvis);
+
 // The detection probability the KPI manager uses with a rate term (with_term): the cell's
 // probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
 double refit_probability(const Refit& ref, int cls, int cell, double x, double p);
