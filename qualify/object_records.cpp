@@ -147,6 +147,8 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                      g.truncation,  // the label's truncated clamped to [0, 1], what the KPI manager reads
                      double(r.cls),
                      g.size.x(),
+                     g.size.y(),
+                     g.size.z(),
                      double(fi - tp.begin()->first)};
         out.records.push_back(std::move(r));
       }

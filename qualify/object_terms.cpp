@@ -103,7 +103,8 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
                            const Winsor& w, int nvis) {
   if (t == kDetectionTarget) return;
-  const bool track_constant = feature == "size" || feature == "class";
+  const bool track_constant =
+      feature == "size" || feature == "box_width" || feature == "box_height" || feature == "class";
   const auto x = fit.column(feature_index(feature));
   const auto cls = fit.classes();
   const auto cells = fit.cells(t, nvis);

@@ -61,6 +61,8 @@ std::string feature_axis_label(const std::string& feature) {
       {"truncation", "share outside the view"},
       {"class", "id"},
       {"size", "box length, m"},
+      {"box_width", "box width, m"},
+      {"box_height", "box height, m"},
       {"track_age", "frames"},
       {"incidence_angle", "rad"},
       {"elevation", "rad"},

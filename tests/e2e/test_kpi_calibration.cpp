@@ -120,8 +120,8 @@ TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWrites) {
   const fs::path shipped = testing::source_dir() / "data/models/kpi_pointrcnn.json";
   const sensor::KpiModel m = sensor::load_kpi_model(shipped);
   EXPECT_EQ(m.classes.size(), 3u);
-  // The loop's term (data/models/README.md): length error by box size.
-  EXPECT_EQ(m.classes.at("Car").errors[int(sensor::KpiParam::Length)].conditional.feature, "size");
+  // The loop's term (data/models/README.md): width error by the true box width.
+  EXPECT_EQ(m.classes.at("Car").errors[int(sensor::KpiParam::Width)].conditional.feature, "box_width");
   const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
   ASSERT_TRUE(fs::exists(exe)) << "build lidar-qualify first: " << exe;
   const fs::path out = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_model.json";
