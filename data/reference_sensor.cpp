@@ -51,6 +51,8 @@ std::string to_string(ObjectEffect e) {
     case ObjectEffect::TruncationSize: return "truncation_size";
     case ObjectEffect::AspectAcross: return "aspect_across";
     case ObjectEffect::AzimuthDropout: return "azimuth_dropout";
+    case ObjectEffect::AzimuthWindowDropout: return "azimuth_window_dropout";
+    case ObjectEffect::AspectSpread: return "aspect_spread";
     default: return "none";
   }
 }
@@ -70,6 +72,8 @@ std::string effect_feature(ObjectEffect e) {
     case ObjectEffect::TruncationSize: return "truncation";
     case ObjectEffect::AspectAcross: return "heading_to_line_of_sight";
     case ObjectEffect::AzimuthDropout: return "azimuth";
+    case ObjectEffect::AzimuthWindowDropout: return "azimuth";
+    case ObjectEffect::AspectSpread: return "heading_to_line_of_sight";
     default: return "";
   }
 }
@@ -144,6 +148,10 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
           const double az = std::atan2(c.y(), c.x());
           if (az >= kDropoutAzimuthLo && az <= kDropoutAzimuthHi) pd *= kDropoutFactor;
         }
+        if (o.effect == ObjectEffect::AzimuthWindowDropout) {
+          const double az = std::atan2(c.y(), c.x());
+          if (az >= kWindowAzimuthLo && az <= kWindowAzimuthHi) pd *= kDropoutFactor;
+        }
         if (U(rng) > pd) continue;
         const Eigen::Vector2d bev = c.head<2>();
         const Eigen::Vector2d u = bev / bev.norm(), left(-u.y(), u.x());
@@ -164,7 +172,14 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
             across += 1.2 * (rel / (kPi / 2)) - 0.6;
             break;
           }
+          case ObjectEffect::AspectSpread: {
+            double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+            if (rel > kPi / 2) rel = kPi - rel;
+            across *= kSpreadBase + kSpreadPerAspect * rel / (kPi / 2);
+            break;
+          }
           case ObjectEffect::AzimuthDropout:
+          case ObjectEffect::AzimuthWindowDropout:
           case ObjectEffect::None: break;
         }
         const Eigen::Vector2d pos = bev + along * u + across * left;

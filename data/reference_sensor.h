@@ -18,6 +18,13 @@
 //                     elsewhere, and all errors, as without effect. A condition on detection,
 //                     not on an error (feature: azimuth). One edge only: the loop's equal-count
 //                     bins blur a sharp edge, and the tracks thin out at large azimuth.
+//   azimuth_window_dropout  detection probability x 0.2 in a window of azimuth with two edges,
+//                     [kWindowAzimuthLo, kWindowAzimuthHi] (a patch of dirt on the front right of
+//                     the window); elsewhere as without effect (feature: azimuth).
+//   aspect_spread     the error across the line of sight gets noisier the more the box is seen
+//                     side-on: its noise is multiplied by kSpreadBase + kSpreadPerAspect x the
+//                     heading relative to the line of sight folded to [0, 1] (0 end-on, 1
+//                     side-on); its mean stays 0 (feature: heading_to_line_of_sight).
 // Intensity (SemanticKITTI layout): DIR/sequences/00/velodyne/NNNNNN.bin + labels/NNNNNN.label.
 // A 64-beam HDL-64E-like scan in firing order (ring by ring, azimuth rising from -pi to pi) of a
 // flat ground (road, sidewalk) inside a ring of random wall facets (building, fence,
@@ -37,7 +44,7 @@
 
 namespace lidarsim::data {
 
-enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout };
+enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread };
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
 inline constexpr double kWindowAzimuthLo = 0.3, kWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
@@ -53,6 +60,12 @@ std::string effect_feature(IntensityEffect e);
 inline constexpr double kDropoutAzimuthLo = 20 * 3.14159265358979323846 / 180;
 inline constexpr double kDropoutAzimuthHi = 3.14159265358979323846;  // to the back: no upper edge
 inline constexpr double kDropoutFactor = 0.2;
+// azimuth_window_dropout's window (rad): both edges inside the tracks' azimuth range.
+inline constexpr double kWindowAzimuthLo = -35 * 3.14159265358979323846 / 180;
+inline constexpr double kWindowAzimuthHi = -15 * 3.14159265358979323846 / 180;
+// aspect_spread: noise across the line of sight x (kSpreadBase + kSpreadPerAspect * aspect in [0, 1]).
+inline constexpr double kSpreadBase = 0.3;
+inline constexpr double kSpreadPerAspect = 2.4;
 
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;

@@ -13,6 +13,7 @@
 #include "common/error.h"
 #include "qualify/intensity.h"
 #include "qualify/objects.h"
+#include "qualify/report.h"
 #include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;
@@ -213,6 +214,11 @@ int run(int argc, char** argv) {
     if (j.contains("plot"))
       md += "\n![residual vs " + j["ranking"][0]["feature"].get<std::string>() + "](" + j["plot"].get<std::string>() +
             ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";
+    if (j.contains("added_kind") && !j["added_kind"].is_null())
+      md += "\nForm of the added effect: " + j["added_kind"].get<std::string>() + "; " +
+            j["error_metric"].get<std::string>() + " before " + qualify::fmt(j["error_before"].get<double>(), 4) +
+            ", after " + qualify::fmt(j["error_after"].get<double>(), 4) + "\n";
+    if (j.contains("candidates")) md += qualify::candidates_markdown(j["candidates"]);
     fs::path md_path = report;
     md_path.replace_extension(".md");
     write_file_atomically(md_path, md);

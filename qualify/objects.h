@@ -22,6 +22,7 @@
 //                            tracking labels give a level 0, 1, 2, so 0 or 1 there)
 //   class                    0 Car, 1 Pedestrian, 2 Cyclist
 //   size                     box length, m
+//   box_width, box_height    box width and height, m (width errors follow the true width)
 //   track_age                frames since the track's first appearance
 // The KPI model (sensor/kpi_model.h) already conditions on class, range bin and visibility
 // (occlusion level); the loop ranks the others, every one of which the KPI manager computes
@@ -42,7 +43,8 @@ namespace lidarsim::qualify {
 
 inline const std::vector<std::string> kObjectFeatures = {
     "range",      "azimuth",    "radial_velocity", "speed", "longitudinal_velocity", "lateral_velocity",
-    "acceleration", "heading_to_line_of_sight", "occlusion", "truncation", "class", "size", "track_age"};
+    "acceleration", "heading_to_line_of_sight", "occlusion", "truncation", "class", "size", "box_width", "box_height",
+    "track_age"};
 inline const std::vector<std::string> kObjectFeaturesUsedByModel = {"range", "occlusion", "class"};
 // Residual targets: errors of the matched detection, and detection itself (1 detected, 0 missed).
 inline const std::vector<std::string> kObjectTargets = {"position_along", "position_across", "length",

@@ -61,6 +61,8 @@ std::string feature_axis_label(const std::string& feature) {
       {"truncation", "share outside the view"},
       {"class", "id"},
       {"size", "box length, m"},
+      {"box_width", "box width, m"},
+      {"box_height", "box height, m"},
       {"track_age", "frames"},
       {"incidence_angle", "rad"},
       {"elevation", "rad"},
@@ -166,6 +168,27 @@ std::string write_residual_png(const std::filesystem::path& path, const BinnedTa
   for (double e : t.edges) edges += (edges.empty() ? "" : ", ") + fmt(e, 3);
   return "One slot per equal-count bin of the feature (cuts at " + edges +
          "); grey bars: mean held-out residual, orange marks: the table fitted on the fit split, black: zero.";
+}
+
+std::string candidates_markdown(const nlohmann::json& candidates) {
+  std::vector<const nlohmann::json*> rows;
+  for (const auto& c : candidates) rows.push_back(&c);
+  std::stable_sort(rows.begin(), rows.end(), [](const nlohmann::json* a, const nlohmann::json* b) {
+    return (*a)["score"].get<double>() > (*b)["score"].get<double>();
+  });
+  std::string md = "\n## Every candidate tested (" + std::to_string(rows.size()) +
+                   ")\n\n| target | feature | kind | form (fold 1) | effect size | held-out score [95%] | error | "
+                   "before | after | decision |\n|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const nlohmann::json* c : rows) {
+    const auto& r = *c;
+    md += "| " + r["target"].get<std::string>() + " | " + r["feature"].get<std::string>() + " | " +
+          r["kind"].get<std::string>() + " | " + r["form_fold1"].get<std::string>() + " | " +
+          fmt(r["effect_size"].get<double>()) + " | " + fmt(r["score"].get<double>()) + " [" +
+          fmt(r["interval95"][0].get<double>()) + ", " + fmt(r["interval95"][1].get<double>()) + "] | " +
+          r["error_metric"].get<std::string>() + " | " + fmt(r["error_before"].get<double>(), 4) + " | " +
+          fmt(r["error_after"].get<double>(), 4) + " | " + r["decision"].get<std::string>() + " |\n";
+  }
+  return md;
 }
 
 }  // namespace lidarsim::qualify

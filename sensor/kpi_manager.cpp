@@ -86,6 +86,8 @@ double conditional_feature(const std::string& name, const Object& o, double rang
   if (name == "lateral_velocity") return -h.y() * v.x() + h.x() * v.y();
   if (name == "acceleration") return o.acceleration.head<2>().norm();  // BEV, as the loop computes it
   if (name == "size") return o.size.x();
+  if (name == "box_width") return o.size.y();
+  if (name == "box_height") return o.size.z();
   if (name == "heading_to_line_of_sight") {
     const double a = std::abs(wrap_angle(o.heading - azimuth));  // [0, pi]
     return a > std::numbers::pi / 2 ? std::numbers::pi - a : a;

@@ -60,7 +60,8 @@ struct ConditionalTerm {
 };
 inline const std::vector<std::string> kConditionalFeatures = {
     "range", "azimuth", "speed", "radial_velocity", "lateral_velocity", "longitudinal_velocity",
-    "acceleration", "size", "heading_to_line_of_sight", "truncation", "visibility", "track_age"};
+    "acceleration", "size", "box_width", "box_height", "heading_to_line_of_sight", "truncation", "visibility",
+    "track_age"};
 
 struct ErrorModel {
   std::vector<double> mean;                  // per range bin

@@ -1,6 +1,7 @@
 // The KPI calibration end to end on the real KITTI tracking validation sequences: the measured
 // numbers DESIGN.md quotes, the re-simulated detection rate by range bin, a held-out check, the
-// shipped default model being exactly what lidar-calibrate produces, and the CLI's bad input.
+// shipped default model being exactly what the object loop writes (lidar-calibrate's fit plus the
+// loop's term), and the CLI's bad input.
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -114,22 +115,28 @@ TEST(KpiCalibration, HistogramIntersectionOnHandWorkedSamples) {
   EXPECT_NEAR(sensor::histogram_intersection(a, b, 9), 0.5, 1e-12);
 }
 
-TEST(KpiCalibration, ShippedDefaultModelIsWhatLidarCalibrateProduces) {
+TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWrites) {
   LIDARSIM_REQUIRE_SHARED_DATA(root, "kitti-tracking-gt-pointrcnn");
   const fs::path shipped = testing::source_dir() / "data/models/kpi_pointrcnn.json";
   const sensor::KpiModel m = sensor::load_kpi_model(shipped);
   EXPECT_EQ(m.classes.size(), 3u);
-  const fs::path exe = testing::binary_dir() / "data/lidar-calibrate";
-  ASSERT_TRUE(fs::exists(exe)) << "build lidar-calibrate first: " << exe;
+  // The loop's term (data/models/README.md): width error by the true box width.
+  EXPECT_EQ(m.classes.at("Car").errors[int(sensor::KpiParam::Width)].conditional.feature, "box_width");
+  const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
+  ASSERT_TRUE(fs::exists(exe)) << "build lidar-qualify first: " << exe;
   const fs::path out = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_model.json";
-  const std::string cmd = exe.string() + " --kitti-tracking " + root.string() + " --out " + out.string() + " >/dev/null 2>&1";
+  const fs::path report = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_loop" / "loop.json";
+  fs::create_directories(report.parent_path());
+  const std::string cmd = exe.string() + " loop objects --kitti-tracking " + root.string() + " --report " +
+                          report.string() + " --out-model " + out.string() + " >/dev/null 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   std::ifstream a(shipped), b(out);
   std::stringstream sa, sb;
   sa << a.rdbuf();
   sb << b.rdbuf();
-  EXPECT_EQ(sa.str(), sb.str()) << "regenerate with: lidar-calibrate --kitti-tracking " << root
-                                << " --out data/models/kpi_pointrcnn.json";
+  EXPECT_EQ(sa.str(), sb.str()) << "regenerate with: lidar-qualify loop objects --kitti-tracking " << root
+                                << " --report loop.json --out-model data/models/kpi_pointrcnn.json";
+  fs::remove_all(report.parent_path());
 }
 
 TEST(KpiCalibration, CliBadInputGivesOneErrorLineAndNonZeroExit) {

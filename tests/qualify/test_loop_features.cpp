@@ -52,7 +52,7 @@ fs::path write_sequence() {
 
 }  // namespace
 
-TEST(LoopFeatures, KpiManagerComputesTheLoopsAccelerationTruncationAndMotionFeatures) {
+TEST(LoopFeatures, KpiManagerComputesTheLoopsAccelerationTruncationMotionAndBoxSizeFeatures) {
   const fs::path dir = write_sequence();
   const qualify::TrackingData data = qualify::load_tracking(dir, "", "pointrcnn", 1);
   fs::remove_all(dir);
@@ -78,13 +78,18 @@ TEST(LoopFeatures, KpiManagerComputesTheLoopsAccelerationTruncationAndMotionFeat
       ++checked;
     }
   }
-  EXPECT_EQ(checked, 5 * 10);
+  EXPECT_EQ(checked, 5 * 12);
 
   // The hand-worked values. Frame 1: (p2 - 2 p1 + p0) / dt^2 = (0.5, -0.4, 0.2) / 0.01, BEV norm
   // sqrt(50^2 + 40^2) = 64.03 (3-D: 67.08); frame 2: (0.5, 0.3, 0.3) / 0.01 -> 58.31; the ends 0.
   const double acceleration[4] = {0, std::hypot(50, 40), std::hypot(50, 30), 0};
   const double truncation[4] = {0.3, 0, 0.55, 1};  // level 2 reads as 1
   for (const auto& r : set.records) {
+    // Box sizes from the labels (h w l): the car 1.5 1.6 4, the pedestrian 1.8 0.6 0.8.
+    const bool car = r.track == 7;
+    EXPECT_DOUBLE_EQ(r.feature[index("size")], car ? 4 : 0.8);
+    EXPECT_DOUBLE_EQ(r.feature[index("box_width")], car ? 1.6 : 0.6);
+    EXPECT_DOUBLE_EQ(r.feature[index("box_height")], car ? 1.5 : 1.8);
     if (r.track != 7) {
       EXPECT_EQ(r.feature[index("acceleration")], 0) << "a single frame has no motion";
       continue;

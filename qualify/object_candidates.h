@@ -1,0 +1,87 @@
+#pragma once
+// The object loop's candidate effects (internal to qualify/). For a target (an error of the
+// matched detection, or detection itself) and a feature, an effect form is fitted on a fold's fit
+// sequences and judged on its held-out sequences by a loss per held-out object:
+//   mean_table     per-class binned bias on an error (the loop's first form)     squared error
+//   mean_window    one bias inside a window of the feature with fitted edges    squared error
+//   rate_table     per-class binned shift of the detection probability          Bernoulli deviance
+//   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
+//   spread_table   the error's sigma x a scale per bin (pooled over classes)     Gaussian deviance
+//   spread_window  the error's sigma x one scale inside, one outside a window    Gaussian deviance
+// A window is the best contiguous run of up to 40 equal-count bins of the fit split (a run that
+// touches an end is a step), chosen by the between-groups sum of squares (bias forms) or the
+// Gaussian likelihood ratio of two variances (spread forms); at least 30 fit samples each side.
+// Bias forms are refitted jointly with the model's own cells (backfitting, object_terms.h).
+// Spread forms are measured around the fit split's per-class x range-bin mean, in units of that
+// cell's standard deviation, so a feature-dependent bias does not pose as a spread.
+#include <array>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "qualify/object_terms.h"
+
+namespace lidarsim::qualify::obj {
+
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow };
+std::string to_string(Kind k);
+bool is_spread(Kind k);
+bool is_window(Kind k);
+std::vector<Kind> kinds_for(int target);  // errors: mean and spread forms; detection: rate forms
+
+struct Effect {
+  Kind kind = Kind::MeanTable;
+  int target = 0, feature = 0;
+  Refit bias;         // bias forms: the term with its cell offsets
+  BinnedTable scale;  // spread forms: sigma multiplier per bin of the feature (pooled over classes)
+  std::map<std::pair<int, int>, double> cell_mean, cell_sd;  // spread forms: per (class, range bin), fit split
+  double class_sd[3] = {1, 1, 1};
+  double mean(int cls, int cell) const;
+  double sd(int cls, int cell) const;
+};
+Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins);
+
+// Per held-out record of target t in fold k: the loss before (base model) and after (with e), and
+// what the reported error needs: x (feature), centred residual and predicted sd (spread forms).
+struct Losses {
+  std::vector<double> before, after;
+  std::vector<double> x, centred, sd_before, sd_after;  // spread forms only
+};
+Losses held_losses(const Fold& k, const Effect& e, int nvis);
+
+// Bernoulli deviance of outcome y under probability p (clamped to [0.005, 0.995]).
+double deviance(double y, double p);
+// Spread error: held-out objects in `bins` equal-count bins of x; per bin log(measured sd /
+// predicted sd) with measured sd = RMS of the centred residual, predicted = RMS of sd; the
+// count-weighted RMS over bins. 0 when the spread is right in every bin.
+double spread_error(const std::vector<double>& x, const std::vector<double>& centred, const std::vector<double>& sd,
+                    int bins = 10);
+
+struct Candidate {
+  Kind kind = Kind::MeanTable;
+  int target = 0, feature = 0;
+  double score = 0;                      // held-out: R^2, deviance R^2 (rate) or 1 - exp(-gain) (spread)
+  std::array<double, 2> interval{0, 0};  // its basic block-bootstrap 95% interval over held-out tracks
+  double error_before = 0, error_after = 0;  // RMS (mean), deviance per object (rate), spread error (spread)
+  double effect_size = 0;  // largest |bias| (mean, rate) or largest / smallest scale (spread), fold 1
+  std::string form;        // fold 1's fitted form, e.g. "window [-0.61, -0.26)" or "table, 10 bins"
+  long n = 0;              // held-out objects over both folds
+};
+
+// Fits and judges one candidate on both folds; block[k][i] = the track block of fold k's i-th
+// held-out record of target t.
+Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind kind, int nvis, int bins,
+                          const std::array<std::vector<int>, 2>& block, size_t nblocks);
+
+// The base model with a spread term: sigma of target t's error x scale per bin of the feature.
+sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e, const std::string& feature);
+
+// The model `recipe` describes, refitted on the sequences fit_idx only: sensor::fit_kpi_model on
+// them plus every conditional term the recipe carries (on an error: a spread table when it has a
+// scale, else a mean table; on detection: a rate table), each refitted on the same sequences with
+// the loop's forms (object_candidates.h). For held-out checks of a model that carries terms.
+sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
+                              int bins = 10);
+
+}  // namespace lidarsim::qualify::obj

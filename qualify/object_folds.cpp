@@ -1,0 +1,114 @@
+#include "qualify/object_folds.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "common/error.h"
+
+namespace lidarsim::qualify::obj {
+
+double wrap(double a) {
+  constexpr double kPi = std::numbers::pi;
+  a = std::fmod(a + kPi, 2 * kPi);
+  if (a < 0) a += 2 * kPi;
+  return a - kPi;
+}
+
+int class_index(sensor::ObjectClass c) {
+  switch (c) {
+    case sensor::ObjectClass::Car: return 0;
+    case sensor::ObjectClass::Pedestrian: return 1;
+    case sensor::ObjectClass::Cyclist: return 2;
+    default: return -1;
+  }
+}
+
+int feature_index(const std::string& name) {
+  for (size_t i = 0; i < kObjectFeatures.size(); ++i)
+    if (kObjectFeatures[i] == name) return static_cast<int>(i);
+  throw Error("object feature \"" + name + "\" is not in the vocabulary");
+}
+
+bool used_by_model(const std::string& f) {
+  return std::find(kObjectFeaturesUsedByModel.begin(), kObjectFeaturesUsedByModel.end(), f) !=
+         kObjectFeaturesUsedByModel.end();
+}
+
+// Unit of a residual target, for axis labels.
+std::string target_unit(const std::string& target) {
+  return target == "heading" ? "(rad)" : target == "detection" ? "(detected 0/1)" : "(m)";
+}
+
+double rms(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x * x;
+  return v.empty() ? 0 : std::sqrt(s / v.size());
+}
+
+std::vector<double> Split::column(int f) const {
+  std::vector<double> x(rec.size());
+  for (size_t i = 0; i < x.size(); ++i) x[i] = rec[i]->feature[f];
+  return x;
+}
+std::vector<int> Split::classes() const {
+  std::vector<int> c(rec.size());
+  for (size_t i = 0; i < c.size(); ++i) c[i] = rec[i]->cls;
+  return c;
+}
+std::vector<int> Split::cells(int t, int nvis) const {
+  std::vector<int> c(rec.size());
+  for (size_t i = 0; i < c.size(); ++i)
+    c[i] = t == kDetectionTarget ? rec[i]->range_bin * nvis + rec[i]->visibility_bin : rec[i]->range_bin;
+  return c;
+}
+std::vector<double> Split::clipped(const Winsor& w) const {
+  std::vector<double> out(r.size());
+  for (size_t i = 0; i < out.size(); ++i) out[i] = w(r[i]);
+  return out;
+}
+
+double base_residual(const sensor::KpiModel& base, const ObjectRecord& r, int t) {
+  const auto it = base.classes.find(kObjectClasses[r.cls]);
+  if (it == base.classes.end()) return kNaN;
+  const sensor::ClassModel& cm = it->second;
+  if (t == kDetectionTarget) return r.value[t] - cm.detection_probability[r.range_bin][r.visibility_bin];
+  if (!r.detected) return kNaN;
+  return r.value[t] - cm.errors[int(kTargetParam[t])].mean[r.range_bin];
+}
+
+Split gather(const ObjectSet& s, const sensor::KpiModel& base, int t) {
+  Split out;
+  for (const auto& r : s.records) {
+    const double v = base_residual(base, r, t);
+    if (std::isnan(v)) continue;
+    out.r.push_back(v);
+    out.rec.push_back(&r);
+  }
+  return out;
+}
+
+// Built in place: the Splits point into the fold's own ObjectSets.
+void make_fold(Fold& k, const TrackingData& data, std::vector<int> fit_idx, std::vector<int> held_idx,
+               const sensor::FitOptions& opt) {
+  k.fit_idx = std::move(fit_idx);
+  k.held_idx = std::move(held_idx);
+  std::vector<sensor::CalibrationSequence> seqs;
+  for (int s : k.fit_idx) seqs.push_back(data.calib[s]);
+  k.base = sensor::fit_kpi_model(seqs, opt);
+  k.fit_set = collect_objects(data, k.fit_idx, nullptr, opt);
+  if (!k.held_idx.empty()) k.held_set = collect_objects(data, k.held_idx, nullptr, opt);
+  for (int t = 0; t < kObjectTargetCount; ++t) {
+    k.fit_r.push_back(gather(k.fit_set, k.base, t));
+    k.held_r.push_back(gather(k.held_set, k.base, t));
+    k.win.push_back(winsor_limits(k.fit_r[t].r));
+  }
+}
+
+std::vector<std::string> names_of(const TrackingData& data, const std::vector<int>& idx) {
+  std::vector<std::string> out;
+  for (int s : idx) out.push_back(data.names[s]);
+  return out;
+}
+
+}  // namespace lidarsim::qualify::obj

@@ -1,0 +1,65 @@
+#pragma once
+// The object loop's cross-fit data (internal to qualify/): small helpers shared by the object
+// files, a target's residuals under a fold's base model, and the folds themselves (base model
+// fitted on the fold's fit sequences; residuals of every target on fit and held-out sequences).
+// A fold never mixes sequences: fit_idx and held_idx are disjoint sets of whole sequences, so a
+// track (which lives in one sequence) is always entirely on one side.
+#include <array>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "qualify/objects.h"
+#include "qualify/residual.h"
+#include "sensor/kpi_fit.h"
+#include "sensor/kpi_model.h"
+
+namespace lidarsim::qualify::obj {
+
+inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+inline constexpr sensor::KpiParam kTargetParam[6] = {
+    sensor::KpiParam::PositionAlong, sensor::KpiParam::PositionAcross, sensor::KpiParam::Length,
+    sensor::KpiParam::Width,         sensor::KpiParam::Height,         sensor::KpiParam::Heading};
+
+double wrap(double a);  // to [-pi, pi)
+int class_index(sensor::ObjectClass c);  // 0 Car, 1 Pedestrian, 2 Cyclist, else -1
+int feature_index(const std::string& name);  // in kObjectFeatures; throws when absent
+bool used_by_model(const std::string& feature);
+std::string target_unit(const std::string& target);  // for axis labels
+double rms(const std::vector<double>& v);
+
+// Residuals of one target and the records they belong to (pointers into a Fold's ObjectSets).
+struct Split {
+  std::vector<double> r;
+  std::vector<const ObjectRecord*> rec;
+
+  std::vector<double> column(int f) const;
+  std::vector<int> classes() const;
+  // The model's own cell of each record for target t: range bin (error means), or range bin x
+  // visibility bin (detection probability).
+  std::vector<int> cells(int t, int nvis) const;
+  std::vector<double> clipped(const Winsor& w) const;
+};
+
+// Residual of one record for one target under a base model; NaN when not defined.
+double base_residual(const sensor::KpiModel& base, const ObjectRecord& r, int t);
+
+// One side of the cross-fit: the base model fitted on fit_idx, the residuals of every target on
+// its own sequences (to fit the term) and on held_idx (to judge it).
+struct Fold {
+  std::vector<int> fit_idx, held_idx;
+  sensor::KpiModel base;
+  ObjectSet fit_set, held_set;
+  std::vector<Split> fit_r, held_r;  // per target
+  std::vector<Winsor> win;           // per target, from the fit residuals
+};
+
+Split gather(const ObjectSet& s, const sensor::KpiModel& base, int t);
+
+// Built in place: the Splits point into the fold's own ObjectSets.
+void make_fold(Fold& k, const TrackingData& data, std::vector<int> fit_idx, std::vector<int> held_idx,
+               const sensor::FitOptions& opt);
+
+std::vector<std::string> names_of(const TrackingData& data, const std::vector<int>& idx);
+
+}  // namespace lidarsim::qualify::obj

@@ -1,0 +1,399 @@
+// `lidar-qualify loop objects`: the two-fold cross-fit loop (see objects.h).
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <optional>
+
+#include "common/error.h"
+#include "qualify/object_candidates.h"
+#include "qualify/object_folds.h"
+#include "qualify/object_simulated.h"
+#include "qualify/object_terms.h"
+#include "qualify/objects.h"
+#include "qualify/report.h"
+#include "sensor/kpi_manager.h"
+
+namespace fs = std::filesystem;
+
+namespace lidarsim::qualify {
+
+using namespace obj;
+
+nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options) {
+  const int nseq = static_cast<int>(data.calib.size());
+  if (nseq < 2) throw Error("loop objects: need at least two sequences (one to fit, one held out), got " +
+                            std::to_string(nseq));
+  // Two-fold cross-fit: fold 1 fits on the even-indexed sequences and judges the odd-indexed ones,
+  // fold 2 the other way round, so every sequence is held out once and judged by a model that
+  // never saw it. With few sequences one split judges on too few tracks to tell an effect from
+  // the track-to-track spread (on KITTI: 107 tracks, 3 of which hold a third of the error).
+  std::vector<int> even, odd, all;
+  for (int s = 0; s < nseq; ++s) (s % 2 == 0 ? even : odd).push_back(s), all.push_back(s);
+  const sensor::FitOptions opt;
+  std::array<Fold, 2> folds;
+  make_fold(folds[0], data, even, odd, opt);
+  make_fold(folds[1], data, odd, even, opt);
+  const int nvis = folds[0].base.visibility_bins();
+
+  // Held-out tracks are the bootstrap blocks: a track's errors are correlated frame to frame.
+  std::map<std::pair<int, int>, int> block_id;
+  std::array<std::vector<std::vector<int>>, 2> block;  // [fold][target][held record]
+  for (int k = 0; k < 2; ++k)
+    for (int t = 0; t < kObjectTargetCount; ++t) {
+      block[k].emplace_back();
+      for (const ObjectRecord* r : folds[k].held_r[t].rec)
+        block[k][t].push_back(
+            block_id.try_emplace({r->seq, r->track}, static_cast<int>(block_id.size())).first->second);
+    }
+  const size_t nblocks = block_id.size();
+  auto non_empty = [](const BlockSums& s) {
+    BlockSums out;
+    for (const auto& b : s)
+      if (b[2] > 0) out.push_back(b);
+    return out;
+  };
+
+  // Every candidate effect: each feature x target x form (object_candidates.h), judged on the
+  // held-out folds. Bias forms (mean and rate) are ranked first; a spread form is added only when
+  // no bias form is: an unmodelled bias makes the spread around the model's mean look
+  // feature-dependent, so the spread is tested again on the next run with the bias in the model.
+  std::vector<Candidate> cands;
+  for (size_t f = 0; f < kObjectFeatures.size(); ++f)
+    for (int t = 0; t < kObjectTargetCount; ++t) {
+      bool enough = true;
+      for (const Fold& k : folds) enough &= k.fit_r[t].r.size() >= 20 && k.held_r[t].r.size() >= 20;
+      if (!enough) continue;
+      const std::array<std::vector<int>, 2> blocks_t = {block[0][t], block[1][t]};
+      for (Kind kind : kinds_for(t))
+        cands.push_back(judge_candidate(folds, t, static_cast<int>(f), kind, nvis, options.bins, blocks_t, nblocks));
+    }
+  // A feature's entry in a ranking: its best candidate of the forms asked for.
+  auto best_per_feature = [&](bool spread, bool model_features) {
+    std::vector<const Candidate*> out;
+    for (size_t f = 0; f < kObjectFeatures.size(); ++f) {
+      if (used_by_model(kObjectFeatures[f]) != model_features) continue;
+      const Candidate* best = nullptr;
+      for (const Candidate& c : cands)
+        if (c.feature == static_cast<int>(f) && is_spread(c.kind) == spread && (!best || c.score > best->score))
+          best = &c;
+      if (best) out.push_back(best);
+    }
+    std::sort(out.begin(), out.end(), [](const Candidate* a, const Candidate* b) { return a->score > b->score; });
+    return out;
+  };
+  const auto ranking = best_per_feature(false, false), used = best_per_feature(false, true),
+             spread_ranking = best_per_feature(true, false);
+  nlohmann::json matrix = nlohmann::json::object(), spread_matrix = nlohmann::json::object();
+  for (const Candidate& c : cands) {
+    auto& m = is_spread(c.kind) ? spread_matrix : matrix;
+    const std::string& fn = kObjectFeatures[c.feature];
+    const std::string& tn = kObjectTargets[c.target];
+    if (!m[fn].contains(tn) || m[fn][tn].get<double>() < c.score) m[fn][tn] = c.score;
+  }
+  if (ranking.empty()) throw Error("loop objects: too few matched objects to score any feature");
+
+  const Candidate& top = *ranking.front();
+  const int t = top.target, f = top.feature;
+  const std::string top_feature = kObjectFeatures[f], top_target = kObjectTargets[t];
+  const bool candidate = top.score >= options.threshold;
+  const std::array<Refit, 2> refs = {fit_effect(folds[0], t, f, top.kind, nvis, options.bins).bias,
+                                     fit_effect(folds[1], t, f, top.kind, nvis, options.bins).bias};
+  // Held-out residuals before and after (each fold's own refit), and per track the winsorised
+  // sums the acceptance test uses.
+  std::vector<double> before_r, after_r;
+  std::array<std::pair<double, double>, 2> fold_rms{};
+  BlockSums change_sums(nblocks, {0, 0, 0});  // per track: (sum after^2, sum before^2, n), winsorised
+  for (int k = 0; k < 2; ++k) {
+    const Split& h = folds[k].held_r[t];
+    const auto xh = h.column(f);
+    const auto ch = h.classes(), bh = h.cells(t, nvis);
+    std::vector<double> a(h.r.size());
+    for (size_t i = 0; i < h.r.size(); ++i) {
+      // Detection: the probability as the KPI manager will clamp it; errors: the table's mean.
+      const double fitted =
+          t == kDetectionTarget
+              ? refit_probability(refs[k], ch[i], bh[i], xh[i], h.rec[i]->value[t] - h.r[i]) -
+                    (h.rec[i]->value[t] - h.r[i])
+              : refs[k](ch[i], bh[i], xh[i]);
+      a[i] = h.r[i] - fitted;
+      auto& s = change_sums[block[k][t][i]];
+      if (t == kDetectionTarget) {
+        const double y = h.rec[i]->value[t], p = y - h.r[i];
+        s[0] += deviance(y, p + fitted), s[1] += deviance(y, p), s[2] += 1;  // p + fitted: clamped above
+      } else {
+        const double before_w = folds[k].win[t](h.r[i]), after_w = before_w - fitted;
+        s[0] += after_w * after_w, s[1] += before_w * before_w, s[2] += 1;
+      }
+    }
+    fold_rms[k] = {rms(h.r), rms(a)};
+    before_r.insert(before_r.end(), h.r.begin(), h.r.end());
+    after_r.insert(after_r.end(), a.begin(), a.end());
+  }
+  // Added only if the refit lowers the held-out RMS beyond the track-to-track noise: block
+  // bootstrap 95% interval of the change below 0 (as the intensity loop does over scan sectors),
+  // on the winsorised residuals the score used, so that a few tracks with gross errors cannot
+  // decide it alone.
+  std::array<double, 2> change{0, 0};
+  int tracks = 0, tracks_better = 0;
+  if (candidate) {
+    const BlockSums used_blocks = non_empty(change_sums);
+    tracks = static_cast<int>(used_blocks.size());
+    for (const auto& s : used_blocks) tracks_better += s[0] < s[1];
+    // Detection: the change of the deviance per object; errors: of the winsorised RMS.
+    change = t == kDetectionTarget
+                 ? block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
+                     return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0;
+                   })
+                 : block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
+                     return s[2] > 0 ? std::sqrt(s[0] / s[2]) - std::sqrt(s[1] / s[2]) : 0.0;
+                   });
+  }
+  const bool add = candidate && change[1] < 0;
+  const double candidate_after = rms(after_r);
+  if (!add) after_r = before_r;
+
+  // Only features the KPI manager can compute become a term; otherwise the model stays the base.
+  std::string not_in_model;
+  if (!add) not_in_model = "no effect added";
+  else if (std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), top_feature) ==
+           sensor::kConditionalFeatures.end())
+    not_in_model = "the KPI manager cannot compute \"" + top_feature + "\" from a truth object";
+  const bool term = not_in_model.empty();
+
+  // No bias form added: the best spread form is, if it clears the threshold, its score's block-bootstrap
+  // interval lies above 0 and the KPI manager can compute its feature.
+  const Candidate* sp = !add && !spread_ranking.empty() ? spread_ranking.front() : nullptr;
+  const bool add_spread =
+      sp && sp->score >= options.threshold && sp->interval[0] > 0 &&
+      std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(),
+                kObjectFeatures[sp->feature]) != sensor::kConditionalFeatures.end();
+  double spread_before_sim = kNaN, spread_after_sim = kNaN;
+  std::array<std::pair<double, double>, 2> spread_fold{};
+  if (add_spread) {
+    // Re-simulated: per held-out object one draw of the error with each fold's base and refitted
+    // model, centred on the base's conditional mean; measured errors centred the same way; both
+    // winsorised at the fold's fit limits. Spread error of the draws against the measured errors.
+    const auto motion = sensor::with_truth_motion(data.calib);
+    const int st = sp->target, sf = sp->feature;
+    std::vector<double> sx, sm, sb, sa;
+    for (int k = 0; k < 2; ++k) {
+      const Fold& fd = folds[k];
+      const Effect e = fit_effect(fd, st, sf, sp->kind, nvis, options.bins);
+      const Losses L = held_losses(fd, e, nvis);
+      spread_fold[k] = {spread_error(L.x, L.centred, L.sd_before), spread_error(L.x, L.centred, L.sd_after)};
+      const sensor::KpiModel refitted = with_spread_term(fd.base, e, kObjectFeatures[sf]);
+      const auto mean = simulated_mean_error(motion, fd.held_idx, fd.base, kTargetParam[st], options.seed);
+      const auto db = simulated_error_draw(motion, fd.held_idx, fd.base, kTargetParam[st], options.seed);
+      const auto da = simulated_error_draw(motion, fd.held_idx, refitted, kTargetParam[st], options.seed);
+      const Winsor& w = fd.win[st];
+      for (const ObjectRecord* r : fd.held_r[st].rec) {
+        const std::array<int, 3> key{r->seq, r->frame, r->track};
+        const auto im = mean.find(key), ib = db.find(key), ia = da.find(key);
+        if (im == mean.end() || ib == db.end() || ia == da.end()) continue;
+        sx.push_back(r->feature[sf]);
+        sm.push_back(w(r->value[st] - im->second));
+        sb.push_back(std::abs(w(ib->second) - im->second));
+        sa.push_back(std::abs(w(ia->second) - im->second));
+      }
+    }
+    if (!sx.empty()) spread_before_sim = spread_error(sx, sm, sb), spread_after_sim = spread_error(sx, sm, sa);
+  }
+
+  // The same RMS with what the KPI manager really uses per held-out truth object — the
+  // conditional mean error (noise off) or the detection probability — with each fold's base and
+  // refitted model; truth motion by differences, as the features the term was fitted on.
+  double before_sim = kNaN, after_sim = kNaN;
+  {
+    const auto motion = sensor::with_truth_motion(data.calib);
+    std::vector<double> rb, ra;
+    for (int k = 0; k < 2; ++k) {
+      const Fold& fd = folds[k];
+      const sensor::KpiModel refitted = term ? with_term(fd.base, refs[k], t, top_feature, nvis) : fd.base;
+      std::map<std::array<int, 3>, double> mb, ma;
+      if (t == kDetectionTarget) {
+        mb = simulated_detection_probability(motion, fd.held_idx, fd.base, options.seed);
+        ma = simulated_detection_probability(motion, fd.held_idx, refitted, options.seed);
+      } else {
+        mb = simulated_mean_error(motion, fd.held_idx, fd.base, kTargetParam[t], options.seed);
+        ma = simulated_mean_error(motion, fd.held_idx, refitted, kTargetParam[t], options.seed);
+      }
+      for (const ObjectRecord* r : fd.held_r[t].rec) {
+        const auto ib = mb.find({r->seq, r->frame, r->track}), ia = ma.find({r->seq, r->frame, r->track});
+        if (ib == mb.end() || ia == ma.end()) continue;
+        rb.push_back(r->value[t] - ib->second);
+        ra.push_back(r->value[t] - ia->second);
+      }
+    }
+    if (!rb.empty()) before_sim = rms(rb), after_sim = rms(ra);
+  }
+
+  // The model to use from now on: base and term fitted on every sequence.
+  Fold whole;
+  make_fold(whole, data, all, {}, opt);
+  const Refit final_ref = fit_effect(whole, t, f, top.kind, nvis, options.bins).bias;
+  std::optional<Effect> final_spread;
+  if (add_spread) final_spread = fit_effect(whole, sp->target, sp->feature, sp->kind, nvis, options.bins);
+  sensor::KpiModel final_term_model;
+  if (term) {
+    final_term_model = with_term(whole.base, final_ref, t, top_feature, nvis);
+    shrink_noise_for_term(final_term_model, final_ref, t, top_feature, whole.fit_r[t], whole.win[t], nvis);
+  }
+  if (!options.out_model.empty())
+    sensor::save_kpi_model(term           ? final_term_model
+                           : add_spread ? with_spread_term(whole.base, *final_spread, kObjectFeatures[sp->feature])
+                                          : whole.base,
+                           options.out_model);
+
+  std::string plot;
+  if (!options.plots_dir.empty()) {
+    // Fold 1's held-out residuals against the table fitted on its fit sequences.
+    plot = "residual_" + top_target + "_vs_" + top_feature + ".png";
+    fs::create_directories(options.plots_dir);
+    const Split& h = folds[0].held_r[t];
+    write_residual_png(options.plots_dir / plot, refs[0].table.pooled, h.column(f), h.r,
+                       {"Held-out " + top_target + " residual vs " + top_feature + " (fold 1)",
+                        feature_axis_label(top_feature),
+                        top_target + " residual, measured - model " + target_unit(top_target)});
+  }
+
+  nlohmann::json j;
+  j["domain"] = "objects";
+  j["metric"] = "held-out RMS residual of " + top_target +
+                (t == kDetectionTarget ? " (detected 0/1 minus the model's detection probability)"
+                                       : " (measured error minus the model's conditional mean error)") +
+                ", both folds of the cross-fit";
+  j["before"] = rms(before_r);
+  j["after"] = rms(after_r);
+  // The same RMS with what the KPI manager uses (base model / refitted model).
+  j["before_simulated"] = std::isnan(before_sim) ? nlohmann::json(nullptr) : nlohmann::json(before_sim);
+  j["after_simulated"] = std::isnan(after_sim) ? nlohmann::json(nullptr) : nlohmann::json(after_sim);
+  j["model_term"] = term ? nlohmann::json(top_feature) : nlohmann::json(nullptr);
+  if (term) j["model_term_on"] = t == kDetectionTarget ? "detection_probability" : "errors." + top_target;
+  if (!term) j["model_term_absent_because"] = not_in_model;
+  if (!options.out_model.empty()) j["out_model"] = options.out_model.string();
+  auto ranked = [](const std::vector<const Candidate*>& list) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const Candidate* c : list)
+      out.push_back({{"feature", kObjectFeatures[c->feature]}, {"score", c->score},
+                     {"target", kObjectTargets[c->target]}, {"kind", to_string(c->kind)}, {"interval95", c->interval}});
+    return out;
+  };
+  j["ranking"] = ranked(ranking);
+  j["used_by_model"] = ranked(used);
+  j["spread_ranking"] = ranked(spread_ranking);
+  j["added_effect"] = add ? nlohmann::json(top_feature) : nlohmann::json(nullptr);
+  if (candidate) {
+    j["change_interval95"] = change;  // of the winsorised RMS
+    j["held_out_tracks"] = tracks;
+    j["held_out_tracks_better"] = tracks_better;
+  }
+  if (candidate && !add)
+    j["rejected_effect"] = {{"feature", top_feature},
+                            {"target", top_target},
+                            {"held_out_after", candidate_after},
+                            {"change_interval95", change},
+                            {"why", "the refit did not lower the held-out RMS beyond the track-to-track noise"}};
+  j["threshold"] = options.threshold;
+  j["score_definition"] =
+      "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "
+      "rate_window on detection; spread_table, spread_window on an error's sigma). Each is fitted on a fold's fit "
+      "sequences and scored on its held-out ones, pooled over the two-fold cross-fit (fit on the even-indexed "
+      "sequences, judge the odd-indexed ones, and the other way round): mean forms by the held-out R^2 of the "
+      "winsorised residual (measured - base model) against the fit split's mean; rate forms by the deviance R^2 "
+      "1 - D_after / D_before (Bernoulli deviance with the model's detection probability); spread forms by "
+      "1 - exp(-(G_before - G_after) / n) with G the Gaussian deviance around the fit split's per-class range-bin "
+      "mean and sd. Tables: 10 equal-count bins on the fit split, shrunk by n/(n+5), per class where >= 200 "
+      "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end). Bias forms "
+      "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "
+      "interval95 = basic block bootstrap over held-out tracks (a track and its sequence are never on both sides). "
+      "The top bias form is added when its score is at least the threshold and the refit lowers the held-out loss "
+      "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; if none is, "
+      "the top spread form is added when its score is at least the threshold and its interval lies above 0";
+  j["scores"] = matrix;
+  j["spread_scores"] = spread_matrix;
+  // Every candidate tested, with what became of it.
+  nlohmann::json cj = nlohmann::json::array();
+  for (const Candidate& c : cands) {
+    std::string decision;
+    if (&c == &top && add) decision = "added";
+    else if (add_spread && &c == sp) decision = "added";
+    else if (&c == &top && candidate) decision = "rejected: the refit did not beat the track-to-track noise";
+    else if (c.score < options.threshold) decision = "ruled out: held-out score below the threshold";
+    else if (c.interval[0] <= 0) decision = "ruled out: interval reaches 0";
+    else if (is_spread(c.kind) && add) decision = "not tried: a bias form was added first";
+    else decision = "not added: only the best candidate is added per run";
+    cj.push_back({{"target", kObjectTargets[c.target]},
+                  {"feature", kObjectFeatures[c.feature]},
+                  {"kind", to_string(c.kind)},
+                  {"form_fold1", c.form},
+                  {"effect_size", c.effect_size},
+                  {"score", c.score},
+                  {"interval95", c.interval},
+                  {"significant", c.interval[0] > 0},
+                  {"error_metric", is_spread(c.kind)              ? "spread error"
+                                   : c.target == kDetectionTarget ? "deviance per object"
+                                                                  : "RMS residual"},
+                  {"error_before", c.error_before},
+                  {"error_after", c.error_after},
+                  {"held_out_objects", c.n},
+                  {"decision", decision}});
+  }
+  j["candidates"] = cj;
+  j["error_metric"] = t == kDetectionTarget ? "deviance per object" : "RMS residual";
+  j["error_before"] = top.error_before;
+  j["error_after"] = add ? top.error_after : top.error_before;
+  j["added_kind"] = add ? nlohmann::json(to_string(top.kind)) : nlohmann::json(nullptr);
+  if (add_spread) {
+    const std::string sf = kObjectFeatures[sp->feature], stn = kObjectTargets[sp->target];
+    j["metric"] = "held-out spread error of " + stn +
+                  ": in 10 equal-count bins of " + sf + ", log(measured sd / model sd), RMS over bins; both folds";
+    j["before"] = sp->error_before;
+    j["after"] = sp->error_after;
+    j["error_metric"] = "spread error";
+    j["error_before"] = sp->error_before;
+    j["error_after"] = sp->error_after;
+    j["before_simulated"] = std::isnan(spread_before_sim) ? nlohmann::json(nullptr) : nlohmann::json(spread_before_sim);
+    j["after_simulated"] = std::isnan(spread_after_sim) ? nlohmann::json(nullptr) : nlohmann::json(spread_after_sim);
+    j["added_effect"] = sf;
+    j["added_kind"] = to_string(sp->kind);
+    j["model_term"] = sf;
+    j["model_term_on"] = "errors." + stn + ".scale";
+    j.erase("model_term_absent_because");
+    j["effect"] = {{"feature", sf},
+                   {"target", stn},
+                   {"kind", to_string(sp->kind) + ": the error's sigma x scale per bin, pooled over classes, fitted on "
+                                                  "every sequence"},
+                   {"edges", final_spread->scale.edges},
+                   {"scale", final_spread->scale.value}};
+  }
+  if (add) {
+    const ClassTables& tab = final_ref.table;
+    nlohmann::json e = {{"feature", top_feature},
+                        {"target", top_target},
+                        {"kind", to_string(top.kind) +
+                                     (is_window(top.kind)
+                                          ? ": one bias inside a window of the feature with fitted edges (pooled over "
+                                            "classes), refitted jointly with per-class range-bin offsets on every sequence"
+                                          : ": per-class per-bin bias table (pooled for classes with < 200 fit "
+                                            "samples), refitted jointly with per-class range-bin offsets on every "
+                                            "sequence")},
+                        {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
+    for (int c = 0; c < 3; ++c)
+      if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+    j["effect"] = e;
+  }
+  nlohmann::json fj = nlohmann::json::array();
+  for (int k = 0; k < 2; ++k)
+    fj.push_back({{"fit_sequences", names_of(data, folds[k].fit_idx)},
+                  {"held_out_sequences", names_of(data, folds[k].held_idx)},
+                  {"before", fold_rms[k].first},
+                  {"after", add ? fold_rms[k].second : fold_rms[k].first}});
+  if (add_spread)
+    for (int k = 0; k < 2; ++k) fj[k]["before"] = spread_fold[k].first, fj[k]["after"] = spread_fold[k].second;
+  j["folds"] = fj;
+  j["held_out_samples"] = before_r.size();
+  if (!plot.empty()) j["plot"] = plot;
+  return j;
+}
+
+}  // namespace lidarsim::qualify

@@ -1,0 +1,78 @@
+#pragma once
+// The effect forms the object loop fits on a fold's fit sequences and adds to the KPI model
+// (internal to qualify/): a per-class binned table on a feature, refitted jointly with the
+// model's own cells (backfitting), and the refitted KPI model that carries it as a
+// sensor::ConditionalTerm.
+#include <array>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "qualify/object_folds.h"
+
+namespace lidarsim::qualify::obj {
+
+// The conditional term: a bias table on the feature per class (the KPI model is per class),
+// the pooled table for classes with fewer than 200 fit samples.
+struct ClassTables {
+  BinnedTable pooled;
+  std::array<BinnedTable, 3> per_class;
+  std::array<bool, 3> own{false, false, false};
+  double operator()(int cls, double x) const { return cls >= 0 && cls < 3 && own[cls] ? per_class[cls](x) : pooled(x); }
+};
+
+ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                             int bins);
+
+// The added conditional term refitted together with the model's own cells (backfitting): the
+// range-bin means of an error, or the [range bin][visibility bin] detection probabilities. On the
+// fit split those cells have absorbed whatever part of the hidden effect correlates with them, so
+// the table alone would be fitted against a distorted residual (and, for detection, come out
+// attenuated). r ~ d[class][cell] + table(class, feature), alternating 4 passes.
+struct Refit {
+  ClassTables table;
+  std::map<std::pair<int, int>, double> d;
+  double operator()(int cls, int rb, double x) const {
+    const auto it = d.find({cls, rb});
+    return (it == d.end() ? 0.0 : it->second) + table(cls, x);
+  }
+};
+
+Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+              const std::vector<int>& rb, int bins);
+
+// A window (or step) of x with fitted edges: the contiguous run of up to `fine_bins` equal-count
+// bins of the fit split whose mean of y differs most from the rest (between-groups sum of
+// squares), at least `min_side` samples inside and outside. Returned as a table over the run's
+// edges: 0 outside, the in-minus-out difference (shrunk by n / (n + 5)) inside. Without a run
+// that qualifies: one bin of 0.
+BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& y, int fine_bins = 40,
+                       long min_side = 30);
+// backfit with the window (pooled over classes) in place of the per-class tables.
+Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                     const std::vector<int>& rb, int fine_bins = 40);
+
+// A mean term on an error explains part of the spread the base model's noise was fitted to carry:
+// without this the refitted model's errors come out too wide (term + the old noise). Per class,
+// v = variance of the term's values (table + cell offsets) over the fit records, V = variance of
+// the winsorised fit residual; a feature constant along a track (size) takes v out of the per-track
+// constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
+// (sigma x sqrt(1 - v_rest / V), at least 0.2 of it).
+void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
+                           const Winsor& w, int nvis);
+
+// The detection probability the KPI manager uses with a rate term (with_term): the cell's
+// probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
+double refit_probability(const Refit& ref, int cls, int cell, double x, double p);
+
+// Target t's term on feature f fitted on fold k's fit residuals (winsorised).
+Refit refit_on(const Fold& k, int t, int f, int nvis, int bins);
+
+// The base model with the loop's range-bin offsets added to target t's means (detection: to the
+// detection probabilities of the range x visibility cell, clamped to [0, 1]) and the feature
+// table as its conditional term (on that error, or on detection probability).
+sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
+                           int nvis);
+
+}  // namespace lidarsim::qualify::obj
