@@ -286,7 +286,7 @@ void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptio
           case IntensityEffect::Height: gain = 0.6 + 0.3 * (z + sensor_h); break;
           case IntensityEffect::Azimuth: gain = 1 + 0.5 * std::sin(az); break;
           case IntensityEffect::BeamGain: gain = reference_beam_gain(row); break;
-          case IntensityEffect::AzimuthWindow: gain = az >= kWindowAzimuthLo && az <= kWindowAzimuthHi ? 0.5 : 1.0; break;
+          case IntensityEffect::AzimuthWindow: gain = az >= kIntensityWindowAzimuthLo && az <= kIntensityWindowAzimuthHi ? 0.5 : 1.0; break;
           case IntensityEffect::None: break;
         }
         const double intensity = std::clamp(albedo * gain + o.noise * N01(rng), 0.0, 1.0);

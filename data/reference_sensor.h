@@ -34,7 +34,7 @@
 //   azimuth     x (1 + 0.5 sin(azimuth))
 //   beam_gain   x a gain per laser (beam row): 1 + 0.4 u, u in [-1, 1] fixed per laser (a
 //               per-laser calibration error)
-//   azimuth_window  x 0.5 for azimuth in [kWindowAzimuthLo, kWindowAzimuthHi] (a window of the
+//   azimuth_window  x 0.5 for azimuth in [kIntensityWindowAzimuthLo, kIntensityWindowAzimuthHi] (a window of the
 //               split variable itself: it covers one guarded validation region, its guard and a
 //               strip of training columns on one side)
 // "none" is the control: no hidden effect in either domain.
@@ -46,7 +46,7 @@ namespace lidarsim::data {
 
 enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread };
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
-inline constexpr double kWindowAzimuthLo = 0.3, kWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
+inline constexpr double kIntensityWindowAzimuthLo = 0.3, kIntensityWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
 double reference_beam_gain(int row);
 
