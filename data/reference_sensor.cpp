@@ -144,11 +144,12 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
         labels += line;
         // The same draw for every effect, so the other effects' outputs stay as they were.
         double pd = o.detection_probability;
-        if (o.effect == ObjectEffect::AzimuthDropout) {
+        auto planted = [&](ObjectEffect e) { return o.effect == e || o.second_effect == e; };
+        if (planted(ObjectEffect::AzimuthDropout)) {
           const double az = std::atan2(c.y(), c.x());
           if (az >= kDropoutAzimuthLo && az <= kDropoutAzimuthHi) pd *= kDropoutFactor;
         }
-        if (o.effect == ObjectEffect::AzimuthWindowDropout) {
+        if (planted(ObjectEffect::AzimuthWindowDropout)) {
           const double az = std::atan2(c.y(), c.x());
           if (az >= kWindowAzimuthLo && az <= kWindowAzimuthHi) pd *= kDropoutFactor;
         }
@@ -158,7 +159,8 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
         double along = o.noise * N01(rng), across = o.noise * N01(rng);
         Eigen::Vector3d sz = t.size + Eigen::Vector3d(N01(rng), N01(rng), N01(rng)) * (o.noise / 2);
         double heading = t.heading + o.noise / 5 * N01(rng);
-        switch (o.effect) {
+        for (const ObjectEffect effect : {o.effect, o.second_effect}) {
+          switch (effect) {
           case ObjectEffect::VelocityLag: {
             const Eigen::Vector2d lag = -0.08 * t.v.head<2>();
             along += lag.dot(u);
@@ -181,6 +183,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
           case ObjectEffect::AzimuthDropout:
           case ObjectEffect::AzimuthWindowDropout:
           case ObjectEffect::None: break;
+          }
         }
         const Eigen::Vector2d pos = bev + along * u + across * left;
         const double dry = std::atan2(-std::cos(heading), -std::sin(heading));

@@ -69,6 +69,7 @@ inline constexpr double kSpreadPerAspect = 2.4;
 
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;
+  ObjectEffect second_effect = ObjectEffect::None;  // planted as well (give it a different target)
   int sequences = 2;
   int frames = 200;
   int tracks = 24;          // per sequence

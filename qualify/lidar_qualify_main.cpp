@@ -58,6 +58,17 @@ void print_loop(const nlohmann::json& j) {
   if (j.contains("after_simulated") && !j["after_simulated"].is_null())
     std::cout << "re-simulated through the KPI manager: before " << j["before_simulated"].get<double>() << "  after "
               << j["after_simulated"].get<double>() << "\n";
+  if (j.contains("added_effects") && j["added_effects"].size() > 1) {
+    std::cout << "every effect added (one per target):\n";
+    for (const auto& e : j["added_effects"]) {
+      std::cout << "  " << e["feature"].get<std::string>() << " on " << e["target"].get<std::string>() << ": held-out "
+                << e["before"].get<double>() << " -> " << e["after"].get<double>();
+      if (!e["after_simulated"].is_null())
+        std::cout << ", re-simulated " << e["before_simulated"].get<double>() << " -> "
+                  << e["after_simulated"].get<double>();
+      std::cout << "\n";
+    }
+  }
 }
 
 int run(int argc, char** argv) {
@@ -83,6 +94,7 @@ int run(int argc, char** argv) {
     ("model", "KPI model JSON (objects) or checkpoint (intensity)", cxxopts::value<std::string>())
     ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
     ("report", "loop report JSON", cxxopts::value<std::string>())
+    ("max-effects", "loop objects: bias forms added per run, at most one per target, best first (0: no limit)", cxxopts::value<int>()->default_value("0"))
     ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel)", cxxopts::value<std::string>())
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
@@ -129,6 +141,8 @@ int run(int argc, char** argv) {
     if (sub == "objects") {
       if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
       if (a.count("out-model")) lo.out_model = a["out-model"].as<std::string>();
+      lo.max_effects = a["max-effects"].as<int>();
+      if (lo.max_effects < 0) throw Error("loop objects: --max-effects must be >= 0, got " + std::to_string(lo.max_effects));
       lo.seed = seed;
       const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                                a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
@@ -186,6 +200,20 @@ int run(int argc, char** argv) {
       md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
             std::to_string(j["before_simulated"].get<double>()) + ", after " +
             std::to_string(j["after_simulated"].get<double>()) + "\n";
+    if (j.contains("added_effects") && !j["added_effects"].empty()) {
+      md += "\n### Effects added (greedy: the best accepted bias form per target)\n\n| target | feature | kind | score | "
+            "held-out before | after | re-simulated before | after | change [95%] | tracks better |\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n";
+      auto num = [](const nlohmann::json& v) { return v.is_null() ? std::string("-") : qualify::fmt(v.get<double>(), 4); };
+      for (const auto& e : j["added_effects"])
+        md += "| " + e["target"].get<std::string>() + " | " + e["feature"].get<std::string>() + " | " +
+              e["kind"].get<std::string>() + " | " + qualify::fmt(e["score"].get<double>()) + " | " + num(e["before"]) +
+              " | " + num(e["after"]) + " | " + num(e["before_simulated"]) + " | " + num(e["after_simulated"]) + " | [" +
+              qualify::fmt(e["change_interval95"][0].get<double>(), 4) + ", " +
+              qualify::fmt(e["change_interval95"][1].get<double>(), 4) + "] | " +
+              std::to_string(e["held_out_tracks_better"].get<int>()) + " of " +
+              std::to_string(e["held_out_tracks"].get<int>()) + " |\n";
+    }
     if (j.contains("rejected_effect"))
       md += "\nTried and rejected: " + j["rejected_effect"]["feature"].get<std::string>() + " (" +
             j["rejected_effect"]["why"].get<std::string>() + "; held-out error with it " +

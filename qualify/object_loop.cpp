@@ -92,65 +92,91 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   }
   if (ranking.empty()) throw Error("loop objects: too few matched objects to score any feature");
 
+  // One bias candidate judged for adding: its refit per fold, the held-out residuals before and
+  // after, and the block-bootstrap interval of the change.
+  struct Judged {
+    std::array<Refit, 2> refs;
+    std::vector<double> before_r, after_r;
+    std::array<std::pair<double, double>, 2> fold_rms{};
+    std::array<double, 2> change{0, 0};
+    int tracks = 0, tracks_better = 0;
+    bool candidate = false, add = false;
+    double candidate_after = kNaN;
+  };
+  auto judge_add = [&](const Candidate& c) {
+    Judged J;
+    const int t = c.target, f = c.feature;
+    J.candidate = c.score >= options.threshold;
+    J.refs = {fit_effect(folds[0], t, f, c.kind, nvis, options.bins).bias,
+              fit_effect(folds[1], t, f, c.kind, nvis, options.bins).bias};
+    // Held-out residuals before and after (each fold's own refit), and per track the winsorised
+    // sums the acceptance test uses.
+    BlockSums change_sums(nblocks, {0, 0, 0});  // per track: (sum after^2, sum before^2, n), winsorised
+    for (int k = 0; k < 2; ++k) {
+      const Split& h = folds[k].held_r[t];
+      const auto xh = h.column(f);
+      const auto ch = h.classes(), bh = h.cells(t, nvis);
+      std::vector<double> a(h.r.size());
+      for (size_t i = 0; i < h.r.size(); ++i) {
+        // Detection: the probability as the KPI manager will clamp it; errors: the table's mean.
+        const double fitted =
+            t == kDetectionTarget
+                ? refit_probability(J.refs[k], ch[i], bh[i], xh[i], h.rec[i]->value[t] - h.r[i]) -
+                      (h.rec[i]->value[t] - h.r[i])
+                : J.refs[k](ch[i], bh[i], xh[i]);
+        a[i] = h.r[i] - fitted;
+        auto& s = change_sums[block[k][t][i]];
+        if (t == kDetectionTarget) {
+          const double y = h.rec[i]->value[t], p = y - h.r[i];
+          s[0] += deviance(y, p + fitted), s[1] += deviance(y, p), s[2] += 1;  // p + fitted: clamped above
+        } else {
+          const double before_w = folds[k].win[t](h.r[i]), after_w = before_w - fitted;
+          s[0] += after_w * after_w, s[1] += before_w * before_w, s[2] += 1;
+        }
+      }
+      J.fold_rms[k] = {rms(h.r), rms(a)};
+      J.before_r.insert(J.before_r.end(), h.r.begin(), h.r.end());
+      J.after_r.insert(J.after_r.end(), a.begin(), a.end());
+    }
+    // Added only if the refit lowers the held-out RMS beyond the track-to-track noise: block
+    // bootstrap 95% interval of the change below 0 (as the intensity loop does over scan sectors),
+    // on the winsorised residuals the score used, so that a few tracks with gross errors cannot
+    // decide it alone.
+    if (J.candidate) {
+      const BlockSums used_blocks = non_empty(change_sums);
+      J.tracks = static_cast<int>(used_blocks.size());
+      for (const auto& s : used_blocks) J.tracks_better += s[0] < s[1];
+      // Detection: the change of the deviance per object; errors: of the winsorised RMS.
+      J.change = t == kDetectionTarget
+                     ? block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
+                         return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0;
+                       })
+                     : block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
+                         return s[2] > 0 ? std::sqrt(s[0] / s[2]) - std::sqrt(s[1] / s[2]) : 0.0;
+                       });
+    }
+    J.add = J.candidate && J.change[1] < 0;
+    J.candidate_after = rms(J.after_r);
+    if (!J.add) J.after_r = J.before_r;
+    return J;
+  };
+  auto in_manager = [](const std::string& feature) {
+    return std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), feature) !=
+           sensor::kConditionalFeatures.end();
+  };
+
   const Candidate& top = *ranking.front();
   const int t = top.target, f = top.feature;
   const std::string top_feature = kObjectFeatures[f], top_target = kObjectTargets[t];
-  const bool candidate = top.score >= options.threshold;
-  const std::array<Refit, 2> refs = {fit_effect(folds[0], t, f, top.kind, nvis, options.bins).bias,
-                                     fit_effect(folds[1], t, f, top.kind, nvis, options.bins).bias};
-  // Held-out residuals before and after (each fold's own refit), and per track the winsorised
-  // sums the acceptance test uses.
-  std::vector<double> before_r, after_r;
-  std::array<std::pair<double, double>, 2> fold_rms{};
-  BlockSums change_sums(nblocks, {0, 0, 0});  // per track: (sum after^2, sum before^2, n), winsorised
-  for (int k = 0; k < 2; ++k) {
-    const Split& h = folds[k].held_r[t];
-    const auto xh = h.column(f);
-    const auto ch = h.classes(), bh = h.cells(t, nvis);
-    std::vector<double> a(h.r.size());
-    for (size_t i = 0; i < h.r.size(); ++i) {
-      // Detection: the probability as the KPI manager will clamp it; errors: the table's mean.
-      const double fitted =
-          t == kDetectionTarget
-              ? refit_probability(refs[k], ch[i], bh[i], xh[i], h.rec[i]->value[t] - h.r[i]) -
-                    (h.rec[i]->value[t] - h.r[i])
-              : refs[k](ch[i], bh[i], xh[i]);
-      a[i] = h.r[i] - fitted;
-      auto& s = change_sums[block[k][t][i]];
-      if (t == kDetectionTarget) {
-        const double y = h.rec[i]->value[t], p = y - h.r[i];
-        s[0] += deviance(y, p + fitted), s[1] += deviance(y, p), s[2] += 1;  // p + fitted: clamped above
-      } else {
-        const double before_w = folds[k].win[t](h.r[i]), after_w = before_w - fitted;
-        s[0] += after_w * after_w, s[1] += before_w * before_w, s[2] += 1;
-      }
-    }
-    fold_rms[k] = {rms(h.r), rms(a)};
-    before_r.insert(before_r.end(), h.r.begin(), h.r.end());
-    after_r.insert(after_r.end(), a.begin(), a.end());
-  }
-  // Added only if the refit lowers the held-out RMS beyond the track-to-track noise: block
-  // bootstrap 95% interval of the change below 0 (as the intensity loop does over scan sectors),
-  // on the winsorised residuals the score used, so that a few tracks with gross errors cannot
-  // decide it alone.
-  std::array<double, 2> change{0, 0};
-  int tracks = 0, tracks_better = 0;
-  if (candidate) {
-    const BlockSums used_blocks = non_empty(change_sums);
-    tracks = static_cast<int>(used_blocks.size());
-    for (const auto& s : used_blocks) tracks_better += s[0] < s[1];
-    // Detection: the change of the deviance per object; errors: of the winsorised RMS.
-    change = t == kDetectionTarget
-                 ? block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
-                     return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0;
-                   })
-                 : block_bootstrap_interval(used_blocks, [](const std::array<double, 3>& s) {
-                     return s[2] > 0 ? std::sqrt(s[0] / s[2]) - std::sqrt(s[1] / s[2]) : 0.0;
-                   });
-  }
-  const bool add = candidate && change[1] < 0;
-  const double candidate_after = rms(after_r);
-  if (!add) after_r = before_r;
+  Judged top_j = judge_add(top);
+  const bool candidate = top_j.candidate, add = top_j.add;
+  const std::array<Refit, 2>& refs = top_j.refs;
+  const std::vector<double>& before_r = top_j.before_r;
+  const std::vector<double>& after_r = top_j.after_r;
+  const auto& fold_rms = top_j.fold_rms;
+  const std::array<double, 2> change = top_j.change;
+  const int tracks = top_j.tracks, tracks_better = top_j.tracks_better;
+  const double candidate_after = top_j.candidate_after;
 
   // Only features the KPI manager can compute become a term; otherwise the model stays the base.
   std::string not_in_model;
@@ -159,6 +185,41 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
            sensor::kConditionalFeatures.end())
     not_in_model = "the KPI manager cannot compute \"" + top_feature + "\" from a truth object";
   const bool term = not_in_model.empty();
+
+  // Greedy over targets: with the top bias form added as a term, the best bias form of every other
+  // target (of the features the KPI manager can compute) is judged the same way, in order of
+  // score, at most one per target; each must clear the threshold and the block-bootstrap change
+  // test on its own. A term on one target leaves the other targets' residuals unchanged, and the
+  // KPI model holds one conditional term per target, so each is judged against the base alone.
+  struct Extra {
+    const Candidate* c;
+    Judged j;
+  };
+  std::vector<Extra> extras;
+  std::vector<const Candidate*> extra_rejected;
+  if (term) {
+    std::array<const Candidate*, kObjectTargetCount> best_t{};
+    for (const Candidate& c : cands)
+      if (!is_spread(c.kind) && c.target != t && !used_by_model(kObjectFeatures[c.feature]) &&
+          in_manager(kObjectFeatures[c.feature]) && (!best_t[c.target] || c.score > best_t[c.target]->score))
+        best_t[c.target] = &c;
+    std::vector<const Candidate*> order;
+    for (const Candidate* c : best_t)
+      if (c && c->score >= options.threshold) order.push_back(c);
+    std::sort(order.begin(), order.end(), [](const Candidate* a, const Candidate* b) { return a->score > b->score; });
+    for (const Candidate* c : order) {
+      if (options.max_effects > 0 && 1 + static_cast<int>(extras.size()) >= options.max_effects) break;
+      Judged J = judge_add(*c);
+      if (J.add) extras.push_back({c, std::move(J)});
+      else extra_rejected.push_back(c);
+    }
+  }
+  // Fold k's model with every added term (each fitted on that fold's fit sequences).
+  auto with_added_terms = [&](const sensor::KpiModel& base, int k) {
+    sensor::KpiModel m = term ? with_term(base, refs[k], t, top_feature, nvis) : base;
+    for (const Extra& e : extras) m = with_term(m, e.j.refs[k], e.c->target, kObjectFeatures[e.c->feature], nvis);
+    return m;
+  };
 
   // No bias form added: the best spread form is, if it clears the threshold, its score's block-bootstrap
   // interval lies above 0 and the KPI manager can compute its feature.
@@ -202,30 +263,38 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   // The same RMS with what the KPI manager really uses per held-out truth object — the
   // conditional mean error (noise off) or the detection probability — with each fold's base and
   // refitted model; truth motion by differences, as the features the term was fitted on.
-  double before_sim = kNaN, after_sim = kNaN;
+  // Every added term's target, re-simulated with the model that carries all of them.
+  std::vector<int> sim_targets{t};
+  for (const Extra& e : extras) sim_targets.push_back(e.c->target);
+  std::vector<double> sim_before(sim_targets.size(), kNaN), sim_after(sim_targets.size(), kNaN);
   {
     const auto motion = sensor::with_truth_motion(data.calib);
-    std::vector<double> rb, ra;
+    std::vector<std::vector<double>> rb(sim_targets.size()), ra(sim_targets.size());
     for (int k = 0; k < 2; ++k) {
       const Fold& fd = folds[k];
-      const sensor::KpiModel refitted = term ? with_term(fd.base, refs[k], t, top_feature, nvis) : fd.base;
-      std::map<std::array<int, 3>, double> mb, ma;
-      if (t == kDetectionTarget) {
-        mb = simulated_detection_probability(motion, fd.held_idx, fd.base, options.seed);
-        ma = simulated_detection_probability(motion, fd.held_idx, refitted, options.seed);
-      } else {
-        mb = simulated_mean_error(motion, fd.held_idx, fd.base, kTargetParam[t], options.seed);
-        ma = simulated_mean_error(motion, fd.held_idx, refitted, kTargetParam[t], options.seed);
-      }
-      for (const ObjectRecord* r : fd.held_r[t].rec) {
-        const auto ib = mb.find({r->seq, r->frame, r->track}), ia = ma.find({r->seq, r->frame, r->track});
-        if (ib == mb.end() || ia == ma.end()) continue;
-        rb.push_back(r->value[t] - ib->second);
-        ra.push_back(r->value[t] - ia->second);
+      const sensor::KpiModel refitted = with_added_terms(fd.base, k);
+      for (size_t q = 0; q < sim_targets.size(); ++q) {
+        const int tq = sim_targets[q];
+        std::map<std::array<int, 3>, double> mb, ma;
+        if (tq == kDetectionTarget) {
+          mb = simulated_detection_probability(motion, fd.held_idx, fd.base, options.seed);
+          ma = simulated_detection_probability(motion, fd.held_idx, refitted, options.seed);
+        } else {
+          mb = simulated_mean_error(motion, fd.held_idx, fd.base, kTargetParam[tq], options.seed);
+          ma = simulated_mean_error(motion, fd.held_idx, refitted, kTargetParam[tq], options.seed);
+        }
+        for (const ObjectRecord* r : fd.held_r[tq].rec) {
+          const auto ib = mb.find({r->seq, r->frame, r->track}), ia = ma.find({r->seq, r->frame, r->track});
+          if (ib == mb.end() || ia == ma.end()) continue;
+          rb[q].push_back(r->value[tq] - ib->second);
+          ra[q].push_back(r->value[tq] - ia->second);
+        }
       }
     }
-    if (!rb.empty()) before_sim = rms(rb), after_sim = rms(ra);
+    for (size_t q = 0; q < sim_targets.size(); ++q)
+      if (!rb[q].empty()) sim_before[q] = rms(rb[q]), sim_after[q] = rms(ra[q]);
   }
+  const double before_sim = sim_before[0], after_sim = sim_after[0];
 
   // The model to use from now on: base and term fitted on every sequence.
   Fold whole;
@@ -237,6 +306,13 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   if (term) {
     final_term_model = with_term(whole.base, final_ref, t, top_feature, nvis);
     shrink_noise_for_term(final_term_model, final_ref, t, top_feature, whole.fit_r[t], whole.win[t], nvis);
+    for (const Extra& e : extras) {
+      const int te = e.c->target;
+      const std::string& fe = kObjectFeatures[e.c->feature];
+      const Refit r = fit_effect(whole, te, e.c->feature, e.c->kind, nvis, options.bins).bias;
+      final_term_model = with_term(final_term_model, r, te, fe, nvis);
+      shrink_noise_for_term(final_term_model, r, te, fe, whole.fit_r[te], whole.win[te], nvis);
+    }
   }
   if (!options.out_model.empty())
     sensor::save_kpi_model(term           ? final_term_model
@@ -315,13 +391,17 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   nlohmann::json cj = nlohmann::json::array();
   for (const Candidate& c : cands) {
     std::string decision;
-    if (&c == &top && add) decision = "added";
+    const bool extra_added =
+        std::any_of(extras.begin(), extras.end(), [&](const Extra& e) { return e.c == &c; });
+    const bool extra_tried = std::find(extra_rejected.begin(), extra_rejected.end(), &c) != extra_rejected.end();
+    if ((&c == &top && add) || extra_added) decision = "added";
+    else if (extra_tried) decision = "rejected: the refit did not beat the track-to-track noise";
     else if (add_spread && &c == sp) decision = "added";
     else if (&c == &top && candidate) decision = "rejected: the refit did not beat the track-to-track noise";
     else if (c.score < options.threshold) decision = "ruled out: held-out score below the threshold";
     else if (c.interval[0] <= 0) decision = "ruled out: interval reaches 0";
     else if (is_spread(c.kind) && add) decision = "not tried: a bias form was added first";
-    else decision = "not added: only the best candidate is added per run";
+    else decision = "not added: at most one bias form per target is added per run, the best first";
     cj.push_back({{"target", kObjectTargets[c.target]},
                   {"feature", kObjectFeatures[c.feature]},
                   {"kind", to_string(c.kind)},
@@ -382,6 +462,28 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
     j["effect"] = e;
   }
+  // Every bias form added (the top one first), each with its own before -> after; the simulated
+  // "after" is with the model that carries all of them.
+  nlohmann::json aj = nlohmann::json::array();
+  auto added_entry = [&](const Candidate& c, const Judged& J, double sb, double sa) {
+    return nlohmann::json{{"feature", kObjectFeatures[c.feature]},
+                          {"target", kObjectTargets[c.target]},
+                          {"kind", to_string(c.kind)},
+                          {"score", c.score},
+                          {"model_term_on", c.target == kDetectionTarget ? "detection_probability"
+                                                                          : "errors." + kObjectTargets[c.target]},
+                          {"before", rms(J.before_r)},
+                          {"after", rms(J.after_r)},
+                          {"before_simulated", std::isnan(sb) ? nlohmann::json(nullptr) : nlohmann::json(sb)},
+                          {"after_simulated", std::isnan(sa) ? nlohmann::json(nullptr) : nlohmann::json(sa)},
+                          {"change_interval95", J.change},
+                          {"held_out_tracks", J.tracks},
+                          {"held_out_tracks_better", J.tracks_better}};
+  };
+  if (add) aj.push_back(added_entry(top, top_j, before_sim, after_sim));
+  for (size_t q = 0; q < extras.size(); ++q)
+    aj.push_back(added_entry(*extras[q].c, extras[q].j, sim_before[q + 1], sim_after[q + 1]));
+  j["added_effects"] = aj;
   nlohmann::json fj = nlohmann::json::array();
   for (int k = 0; k < 2; ++k)
     fj.push_back({{"fit_sequences", names_of(data, folds[k].fit_idx)},

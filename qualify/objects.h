@@ -98,6 +98,7 @@ struct LoopOptions {
   std::filesystem::path plots_dir;  // where to write residual-vs-feature PNGs (empty: none)
   std::filesystem::path out_model;  // where to write the refitted KPI model (empty: not written)
   std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
+  int max_effects = 0;              // bias forms added per run, at most one per target (0: no limit)
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
@@ -118,6 +119,11 @@ struct LoopOptions {
 // with what the KPI manager really uses with each fold's refitted model per held-out truth object
 // — the conditional mean error (noise off, ground-truth velocities by differences) or the
 // detection probability — and "before_simulated" with each fold's base.
+// Greedy over targets: once the top one is added as a term, the best bias form of each other
+// target (features the KPI manager computes) is judged the same way, in order of score, and added
+// when it passes, at most one per target and max_effects in all; "added_effects" lists each with
+// its own before -> after, "after_simulated" with the model carrying all of them. The single-effect
+// fields ("added_effect", "before", "after", ...) describe the top one.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify

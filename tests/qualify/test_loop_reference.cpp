@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <set>
 #include <string>
 
@@ -25,10 +26,12 @@ fs::path fresh_dir(const std::string& name) {
   return p;
 }
 
-nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}, double threshold = 0.05) {
-  const fs::path dir = fresh_dir("objects_" + data::to_string(effect));
+nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}, double threshold = 0.05,
+                           data::ObjectEffect second_effect = data::ObjectEffect::None) {
+  const fs::path dir = fresh_dir("objects_" + data::to_string(effect) + "_" + data::to_string(second_effect));
   data::ReferenceTrackingOptions o;
   o.effect = effect;
+  o.second_effect = second_effect;
   o.seed = 17;
   data::write_reference_tracking(dir, o);
   qualify::LoopOptions lo;
@@ -129,6 +132,35 @@ TEST(LoopObjects, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Perce
   const auto j = object_loop(data::ObjectEffect::AspectAcross);
   expect_found(j, "heading_to_line_of_sight");
   expect_simulated(j);
+}
+
+// Two effects on different errors planted together (length by truncation, across by aspect): the
+// loop adds the best accepted effect per target, so both become terms of the written model, each
+// cuts its own held-out error to <= 0.7, and the model re-simulated with both terms does so too.
+TEST(LoopObjects, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOutError) {
+  const fs::path model = fresh_dir("two_effects_model.json");
+  const auto j = object_loop(data::ObjectEffect::TruncationSize, model, 0.05, data::ObjectEffect::AspectAcross);
+  std::cout << "  added " << j["added_effects"].dump() << "\n";
+  ASSERT_TRUE(j["added_effects"].is_array());
+  std::map<std::string, nlohmann::json> by_target;
+  for (const auto& e : j["added_effects"]) {
+    EXPECT_TRUE(by_target.emplace(e["target"].get<std::string>(), e).second) << "one effect per target";
+    EXPECT_LE(e["after"].get<double>(), 0.7 * e["before"].get<double>()) << e.dump();
+    EXPECT_LE(e["after_simulated"].get<double>(), 0.7 * e["before_simulated"].get<double>()) << e.dump();
+    EXPECT_LT(e["change_interval95"][1].get<double>(), 0.0) << e.dump();
+  }
+  ASSERT_TRUE(by_target.count("length")) << j["added_effects"].dump();
+  ASSERT_TRUE(by_target.count("position_across")) << j["added_effects"].dump();
+  EXPECT_EQ(by_target["length"]["feature"], "truncation");
+  EXPECT_EQ(by_target["position_across"]["feature"], "heading_to_line_of_sight");
+  // The first entry is the single-effect fields' effect.
+  EXPECT_EQ(j["added_effects"][0]["feature"], j["added_effect"]);
+  const sensor::KpiModel m = sensor::load_kpi_model(model);
+  const auto& car = m.classes.at("Car");
+  EXPECT_EQ(car.errors[int(sensor::KpiParam::Length)].conditional.feature, "truncation");
+  EXPECT_EQ(car.errors[int(sensor::KpiParam::PositionAcross)].conditional.feature, "heading_to_line_of_sight");
+  EXPECT_FALSE(car.errors[int(sensor::KpiParam::Width)].conditional.present());
+  fs::remove(model);
 }
 
 TEST(LoopObjects, ControlWithoutHiddenEffectAddsNothing) {
