@@ -7,8 +7,8 @@
 #include <cstring>
 #include <nlohmann/json.hpp>
 
-#include "common/atomic_file.h"
 #include "common/error.h"
+#include "nn/h5_memory_file.h"
 
 namespace lidarsim::data {
 namespace fs = std::filesystem;
@@ -26,6 +26,11 @@ class H5 {
   H5& operator=(const H5&) = delete;
   operator hid_t() const { return id_; }
   bool ok() const { return id_ >= 0; }
+  hid_t release() {
+    const hid_t id = id_;
+    id_ = -1;
+    return id;
+  }
 
  private:
   hid_t id_;
@@ -50,33 +55,45 @@ void write_array(hid_t file, const std::string& fname, const char* name, hid_t t
   if (any) {
     H5Pset_chunk(plist, static_cast<int>(chunk.size()), chunk.data());
     H5Pset_deflate(plist, 4);
+    // Fletcher-32 on each compressed chunk: HDF5 checks it on every read (issue 13).
+    if (!nn::add_checksum(plist, static_cast<int>(chunk.size()), chunk.data()))
+      throw input_error(fname, name, "cannot set up the checksum filter");
   }
   H5 ds(H5Dcreate2(file, name, type, space, H5P_DEFAULT, plist, H5P_DEFAULT), H5Dclose);
   if (!ds.ok()) throw input_error(fname, name, "cannot create dataset");
   if (any) check(H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data), fname, name);
 }
 
+// Fixed-length, null-padded strings in a checksummed chunk: variable-length strings live in
+// HDF5's global heap, which has no checksum, and HDF5 1.10 crashes reading a corrupted one.
 void write_strings(hid_t file, const std::string& fname, const char* name, const std::vector<std::string>& values) {
+  std::size_t width = 1;
+  for (const auto& v : values) width = std::max(width, v.size());
   H5 type(H5Tcopy(H5T_C_S1), H5Tclose);
-  H5Tset_size(type, H5T_VARIABLE);
+  H5Tset_size(type, width);
+  H5Tset_strpad(type, H5T_STR_NULLPAD);
   H5Tset_cset(type, H5T_CSET_UTF8);
   hsize_t n = values.size();
   H5 space(H5Screate_simple(1, &n, nullptr), H5Sclose);
-  H5 ds(H5Dcreate2(file, name, type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Dclose);
+  H5 plist(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+  if (!nn::add_checksum(plist, 1, &n)) throw input_error(fname, name, "cannot set up the checksum filter");
+  H5 ds(H5Dcreate2(file, name, type, space, H5P_DEFAULT, plist, H5P_DEFAULT), H5Dclose);
   if (!ds.ok()) throw input_error(fname, name, "cannot create dataset");
-  std::vector<const char*> ptrs;
-  for (const auto& v : values) ptrs.push_back(v.c_str());
-  if (n) check(H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, ptrs.data()), fname, name);
+  std::string packed(width * values.size(), '\0');
+  for (std::size_t i = 0; i < values.size(); ++i) std::copy(values[i].begin(), values[i].end(), packed.begin() + i * width);
+  if (n) check(H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, packed.data()), fname, name);
 }
 
+// Fixed-length: the text then sits in the checksummed object header, not the global heap.
 void write_attr(hid_t obj, const std::string& fname, const char* name, const std::string& value) {
   H5 type(H5Tcopy(H5T_C_S1), H5Tclose);
-  H5Tset_size(type, H5T_VARIABLE);
+  H5Tset_size(type, std::max<std::size_t>(value.size(), 1));
+  H5Tset_strpad(type, H5T_STR_NULLPAD);
   H5Tset_cset(type, H5T_CSET_UTF8);
   H5 space(H5Screate(H5S_SCALAR), H5Sclose);
   H5 attr(H5Acreate2(obj, name, type, space, H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
-  const char* p = value.c_str();
-  check(H5Awrite(attr, type, &p), fname, std::string("attribute ") + name);
+  const std::string padded = value.empty() ? std::string(1, '\0') : value;
+  check(H5Awrite(attr, type, padded.data()), fname, std::string("attribute ") + name);
 }
 
 void write_attr_int(hid_t obj, const std::string& fname, const char* name, long long value) {
@@ -104,6 +121,7 @@ std::string read_attr(hid_t obj, const std::string& fname, const char* name) {
   std::string s(size, '\0');
   H5 type(H5Tcopy(H5T_C_S1), H5Tclose);
   H5Tset_size(type, size);
+  H5Tset_strpad(type, H5T_STR_NULLPAD);  // all `size` bytes are text (a null-terminated read would drop the last)
   H5Tset_cset(type, H5Tget_cset(ftype));
   if (H5Aread(attr, type, s.data()) < 0) throw input_error(fname, std::string("attribute ") + name, "cannot be read");
   s.resize(std::strlen(s.c_str()));
@@ -151,8 +169,21 @@ std::vector<std::string> read_strings(hid_t file, const std::string& fname, cons
   std::vector<hsize_t> dims;
   H5 ds(open_checked(file, fname, name, {expect}, dims), H5Dclose);
   H5 ftype(H5Dget_type(ds), H5Tclose);
-  if (H5Tget_class(ftype) != H5T_STRING || H5Tis_variable_str(ftype) <= 0)
-    throw input_error(fname, std::string("dataset ") + name, "expected variable-length strings");
+  if (H5Tget_class(ftype) != H5T_STRING) throw input_error(fname, std::string("dataset ") + name, "expected strings");
+  if (H5Tis_variable_str(ftype) <= 0) {  // fixed-length (files since issue 13)
+    const std::size_t width = H5Tget_size(ftype);
+    if (width == 0 || width > (1u << 20)) throw input_error(fname, std::string("dataset ") + name, "implausible string width");
+    std::string packed(width * dims[0], '\0');
+    if (dims[0] && H5Dread(ds, ftype, H5S_ALL, H5S_ALL, H5P_DEFAULT, packed.data()) < 0)
+      throw input_error(fname, std::string("dataset ") + name, "cannot be read as strings (corrupt file?)");
+    std::vector<std::string> out;
+    for (std::size_t i = 0; i < dims[0]; ++i) {
+      std::string v = packed.substr(i * width, width);
+      v.resize(std::strlen(v.c_str()));
+      out.push_back(std::move(v));
+    }
+    return out;
+  }
   H5 type(H5Tcopy(H5T_C_S1), H5Tclose);
   H5Tset_size(type, H5T_VARIABLE);
   H5Tset_cset(type, H5Tget_cset(ftype));
@@ -258,9 +289,10 @@ void write_dataset(const fs::path& path, const Dataset& d) {
   if (d.pgm.shape().c != C) throw input_error(fname, "/pgm", "channel count differs from the channel names");
   if (static_cast<int>(d.frames.size()) != N || static_cast<int>(d.row_modes.size()) != N)
     throw input_error(fname, "/frames", "one frame id and row mode per frame expected");
-  AtomicFile out(path);
   {
-    H5 file(H5Fcreate(out.temp_path().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+    // Built in memory, written by save_memory_file: a full disk is an Error, not a crash in
+    // HDF5's exit handler (nn/h5_memory_file.h).
+    H5 file(nn::create_memory_file(path), H5Fclose);
     if (!file.ok()) throw input_error(fname, "file", "cannot be created");
     const hsize_t n = N, c = C, h = H, w = W;
     write_array(file, fname, "/pgm", H5T_NATIVE_FLOAT, {n, c, h, w}, d.pgm.data());
@@ -283,9 +315,8 @@ void write_dataset(const fs::path& path, const Dataset& d) {
     write_attr(root, fname, "source_format", d.source_format);
     write_attr(root, fname, "row_modes", nlohmann::json(d.row_modes).dump());
     write_attr(root, fname, "target_channel", "intensity");
-    if (H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) throw input_error(fname, "file", "flush failed");
+    nn::save_memory_file(file.release(), path);
   }
-  out.commit();
 }
 
 Dataset read_dataset(const fs::path& path, const std::vector<std::string>& required_channels) {

@@ -10,6 +10,9 @@ namespace lidarsim::data {
 namespace {
 
 Dataset empty_dataset(const ImportOptions& options, const std::string& format) {
+  if (options.first < 0 || options.max_frames < 0)
+    throw Error("import: --first and --max-frames must be >= 0, got " + std::to_string(options.first) + " and " +
+                std::to_string(options.max_frames));
   if (options.columns < 16 || options.columns % 16 != 0)
     throw Error("import: columns: must be a positive multiple of 16 (the validation split cuts 16 sectors), got " +
                 std::to_string(options.columns));
@@ -38,6 +41,31 @@ void add_frame(Dataset& d, const std::vector<pgm::Point>& points, const ImportOp
   d.append(result.pgm, id, pgm::to_string(result.row_mode));
 }
 
+// Reads one listed scan; with skip_unreadable an unreadable one is noted and counted instead.
+template <typename Read>
+bool read_or_skip(const ImportOptions& o, int& skipped, Read&& read) {
+  try {
+    read();
+    return true;
+  } catch (const Error& e) {
+    if (!o.skip_unreadable) throw;
+    ++skipped;
+    if (o.note) o.note(std::string("skipped unreadable scan: ") + e.what());
+    return false;
+  }
+}
+
+void note_counts(const ImportOptions& o, std::size_t found, int read, int unlabelled, int unreadable) {
+  if (!o.note) return;
+  std::string why;
+  if (unlabelled) why += std::to_string(unlabelled) + " without labels";
+  if (unreadable) why += std::string(why.empty() ? "" : ", ") + std::to_string(unreadable) + " unreadable";
+  const std::size_t skipped = static_cast<std::size_t>(unlabelled + unreadable);
+  o.note("found " + std::to_string(found) + " scans, read " + std::to_string(read) + ", skipped " +
+         std::to_string(skipped) + (why.empty() ? "" : " (" + why + ")") +
+         (found > static_cast<std::size_t>(read) + skipped ? "; the rest outside --first/--max-frames" : ""));
+}
+
 }  // namespace
 
 std::vector<std::string> dataset_channels(const ImportOptions& options) {
@@ -57,8 +85,9 @@ std::vector<std::string> dataset_channels(const ImportOptions& options) {
 Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptions& options) {
   Dataset d = empty_dataset(options, "semantickitti");
   std::vector<ScanFiles> scans;
-  int unlabelled = 0;
-  for (const auto& s : list_semantickitti(dir, options.sequences)) {
+  int unlabelled = 0, unreadable = 0;
+  const auto listed = list_semantickitti(dir, options.sequences);
+  for (const auto& s : listed) {
     if (s.label || options.include_unlabelled) scans.push_back(s);
     else ++unlabelled;
   }
@@ -69,7 +98,8 @@ Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptio
     throw input_error(dir.string(), "scans", options.include_unlabelled ? "no velodyne/*.bin scans found"
                                                                          : "no labelled scans (velodyne/*.bin with labels/*.label) found");
   for (std::size_t i = 0; i < scans.size(); ++i) {
-    const LabelledScan scan = read_semantickitti_scan(scans[i]);
+    LabelledScan scan;
+    if (!read_or_skip(options, unreadable, [&] { scan = read_semantickitti_scan(scans[i]); })) continue;
     if (scan.unknown_labels && options.note)
       options.note(scans[i].label->string() + ": " + std::to_string(scan.unknown_labels) +
                    " labels outside the SemanticKITTI classes, imported as unlabeled");
@@ -77,19 +107,26 @@ Dataset import_semantickitti(const std::filesystem::path& dir, const ImportOptio
     for (const auto& s : scan.sources) d.sources.push_back(s.string());
     if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(scans.size()));
   }
+  note_counts(options, listed.size(), d.size(), unlabelled, unreadable);
+  if (d.size() == 0) throw input_error(dir.string(), "scans", "none of the listed scans could be read");
   return d;
 }
 
 Dataset import_kitti_object(const std::filesystem::path& dir, const ImportOptions& options) {
   Dataset d = empty_dataset(options, "kitti_object");
-  const auto frames = window(list_kitti_object(dir), options);
+  const auto listed = list_kitti_object(dir);
+  const auto frames = window(listed, options);
   if (frames.empty()) throw input_error(dir.string(), "frames", "no velodyne/*.bin frames found");
+  int unreadable = 0;
   for (std::size_t i = 0; i < frames.size(); ++i) {
-    const KittiObjectScan scan = read_kitti_object_scan(frames[i]);
+    KittiObjectScan scan;
+    if (!read_or_skip(options, unreadable, [&] { scan = read_kitti_object_scan(frames[i]); })) continue;
     add_frame(d, scan.points, options, "kitti_object/" + frames[i].id, frames[i].bin.string());
     for (const auto& s : scan.sources) d.sources.push_back(s.string());
     if (options.progress) options.progress(static_cast<int>(i + 1), static_cast<int>(frames.size()));
   }
+  note_counts(options, listed.size(), d.size(), 0, unreadable);
+  if (d.size() == 0) throw input_error(dir.string(), "frames", "none of the listed frames could be read");
   return d;
 }
 

@@ -7,6 +7,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/progress.h"
 #include "data/baselines.h"
@@ -57,6 +58,7 @@ int run_import(int argc, char** argv) {
        cxxopts::value<std::string>()->default_value("elevation,azimuth,height,incidence"))
       ("rows", "row assignment: auto, firing_order, nearest_elevation", cxxopts::value<std::string>()->default_value("auto"))
       ("include-unlabelled", "also import SemanticKITTI scans without labels (class 0)")
+      ("skip-unreadable", "skip listed scans that cannot be read (counted and named) instead of stopping")
       ("quiet", "no progress bar")
       ("h,help", "show this help");
   auto args = opts.parse(argc, argv);
@@ -74,6 +76,7 @@ int run_import(int argc, char** argv) {
   o.extra_channels = split_list(args["channels"].as<std::string>());
   o.row_mode = parse_row_mode(args["rows"].as<std::string>());
   o.include_unlabelled = args.count("include-unlabelled") > 0;
+  o.skip_unreadable = args.count("skip-unreadable") > 0;
   if (args.count("sequences")) o.sequences = split_list(args["sequences"].as<std::string>());
   std::vector<std::string> notes;
   o.note = [&](const std::string& n) { notes.push_back(n); };
@@ -88,6 +91,7 @@ int run_import(int argc, char** argv) {
   if (bar) bar->finish(std::to_string(d.size()) + " scans");
   for (const auto& n : notes) std::cerr << "note: " << n << "\n";
   const std::string out = args["out"].as<std::string>();
+  remove_stale_temp_files(out);  // left by a run that was killed while writing
   data::write_dataset(out, d);
   long returns = 0;
   for (std::size_t i = 0; i < d.mask.numel(); ++i) returns += d.mask.data()[i] > 0;
