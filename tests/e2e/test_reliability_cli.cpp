@@ -62,11 +62,12 @@ struct Dir {
   fs::path operator/(const std::string& s) const { return path / s; }
 };
 
-// A small synthetic training set (16 x 64 grids).
+// A small synthetic training set (16 x 256 grids: the guarded split of issue 11 needs room for
+// its guard bands, twice the receptive-field half-width of 23 columns, around a quarter circle).
 fs::path small_dataset(const Dir& dir) {
   data::Dataset set;
   set.channels = {"range", "class", "material"};
-  const auto layout = pgm::BeamLayout::uniform(16, 2.0, -24.0, 64);
+  const auto layout = pgm::BeamLayout::uniform(16, 2.0, -24.0, 256);
   for (int f = 0; f < 2; ++f) {
     pgm::PolarGridMap map(layout, {"range", "class", "material", "intensity", "mask"});
     for (int r = 0; r < map.rows(); ++r)
