@@ -1,5 +1,6 @@
 #pragma once
 // Write-then-rename, so a killed run never leaves a torn checkpoint or output behind.
+#include <cstddef>
 #include <filesystem>
 #include <string>
 
@@ -22,7 +23,15 @@ class AtomicFile {
   bool committed_ = false;
 };
 
-// Convenience: write a whole text/binary string atomically.
+// Convenience: write a whole text/binary string atomically. Every write and the close are
+// checked (a full disk or a file-size limit is an Error, and the old file stays).
 void write_file_atomically(const std::filesystem::path& path, const std::string& contents);
+void write_file_atomically(const std::filesystem::path& path, const void* data, std::size_t size);
+
+// Removes temporaries "<name>.tmp.<pid>" that a killed run left beside `final_path` (only those
+// whose process no longer exists); returns how many were removed.
+int remove_stale_temp_files(const std::filesystem::path& final_path);
+// The same for every file of a folder (e.g. an output folder of many files).
+int remove_stale_temp_files_in(const std::filesystem::path& dir);
 
 }  // namespace lidarsim

@@ -1,10 +1,14 @@
 #include "data/dataset_writer.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "data/hdf5_io.h"
+#include "nn/h5_memory_file.h"
 
 namespace lidarsim::data {
 namespace fs = std::filesystem;
@@ -28,6 +32,9 @@ hid_t create_frames(hid_t file, const std::string& fname, const char* name, hid_
   H5Pset_chunk(plist, static_cast<int>(chunk.size()), chunk.data());
   H5Pset_shuffle(plist);
   H5Pset_deflate(plist, 4);
+  // Fletcher-32 last, so it sums each compressed chunk as stored; HDF5 checks it on every read.
+  if (!nn::add_checksum(plist, static_cast<int>(chunk.size()), chunk.data()))
+    throw input_error(fname, name, "cannot set up the checksum filter");
   hid_t ds = H5Dcreate2(file, name, type, space, H5P_DEFAULT, plist, H5P_DEFAULT);
   if (ds < 0) throw input_error(fname, name, "cannot create dataset");
   return ds;
@@ -49,6 +56,17 @@ void append_frame(hid_t ds, const std::string& fname, const char* name, hid_t ty
   h5::check(H5Dwrite(ds, type, mem, space, H5P_DEFAULT, data), fname, name);
 }
 
+// The temporary file, written by HDF5's default (sec2) driver. Format pinned to HDF5 1.10:
+// checksummed object headers, superblock and chunk index; links and attributes kept in the
+// header (nn::keep_compact). STRONG close degree: closing the file closes what is open in it.
+hid_t create_file(const std::string& temp) {
+  h5::Id fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose), fcpl(H5Pcreate(H5P_FILE_CREATE), H5Pclose);
+  if (!fapl.ok() || !fcpl.ok() || H5Pset_libver_bounds(fapl, H5F_LIBVER_V110, H5F_LIBVER_V110) < 0 ||
+      H5Pset_fclose_degree(fapl, H5F_CLOSE_STRONG) < 0 || !nn::keep_compact(fcpl))
+    return -1;
+  return H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, fcpl, fapl);
+}
+
 }  // namespace
 
 struct DatasetWriter::Impl {
@@ -59,12 +77,38 @@ struct DatasetWriter::Impl {
   std::vector<float> pgm_buf;
   std::vector<std::uint8_t> mask_buf;
   std::vector<std::int32_t> index_buf;
-  void close() {
+
+  // Gives up the temporary file (a failed write, flush or close, or no commit). HDF5 1.10 keeps a
+  // file whose close failed in its id table, half torn down, and its exit handler then crashes
+  // on it (segfault in H5F__close_cb): so the close must not fail. The file is discarded anyway,
+  // so its descriptor is pointed at /dev/null first (writes there cannot fail on a full disk),
+  // then every id still open in the file is closed, the file flushed once more (without this
+  // flush, HDF5 1.10.8's close still failed after an earlier failed flush) and closed.
+  // AtomicFile removes the temporary afterwards.
+  void abandon() {
+    if (file < 0) return;
+    void* handle = nullptr;
+    if (H5Fget_vfd_handle(file, H5P_DEFAULT, &handle) >= 0 && handle) {
+      const int null = ::open("/dev/null", O_RDWR | O_CLOEXEC);
+      if (null >= 0) {
+        ::dup2(null, *static_cast<int*>(handle));
+        ::close(null);
+      }
+    }
     for (hid_t* ds : {&pgm, &target, &mask, &point_index})
       if (*ds >= 0) H5Dclose(*ds), *ds = -1;
-    if (file >= 0) H5Fclose(file), file = -1;
+    const ssize_t open_ids = H5Fget_obj_count(file, H5F_OBJ_LOCAL | H5F_OBJ_DATASET | H5F_OBJ_GROUP | H5F_OBJ_DATATYPE | H5F_OBJ_ATTR);
+    if (open_ids > 0) {
+      std::vector<hid_t> ids(static_cast<std::size_t>(open_ids));
+      const ssize_t got = H5Fget_obj_ids(file, H5F_OBJ_LOCAL | H5F_OBJ_DATASET | H5F_OBJ_GROUP | H5F_OBJ_DATATYPE | H5F_OBJ_ATTR,
+                                         ids.size(), ids.data());
+      for (ssize_t i = 0; i < got; ++i) H5Idec_ref(ids[static_cast<std::size_t>(i)]);
+    }
+    H5Fflush(file, H5F_SCOPE_GLOBAL);
+    H5Fclose(file);
+    file = -1;
   }
-  ~Impl() { close(); }
+  ~Impl() { abandon(); }
 };
 
 DatasetWriter::DatasetWriter(const fs::path& path, std::vector<std::string> channels, pgm::BeamLayout layout,
@@ -76,7 +120,7 @@ DatasetWriter::DatasetWriter(const fs::path& path, std::vector<std::string> chan
   h5::quiet();
   layout_.validate(path.string() + ": beam layout");
   Impl& m = *impl_;
-  m.file = H5Fcreate(m.out.temp_path().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  m.file = create_file(m.out.temp_path().string());
   if (m.file < 0) throw input_error(m.fname, "file", "cannot be created");
   const hsize_t c = channels_.size(), h = layout_.rows(), w = layout_.columns;
   m.pgm = create_frames(m.file, m.fname, "/pgm", H5T_NATIVE_FLOAT, {c, h, w});
@@ -154,8 +198,16 @@ void DatasetWriter::commit() {
     if (modes.size() <= kMaxListAttribute) h5::write_attr(root, m.fname, "row_modes", modes);
     h5::write_attr(root, m.fname, "target_channel", "intensity");
   }
-  if (H5Fflush(m.file, H5F_SCOPE_GLOBAL) < 0) throw input_error(m.fname, "file", "flush failed");
-  m.close();
+  // Everything is written by the flush; a failure there leaves the file open for abandon() (the
+  // destructor). After a good flush, the close rewrites little more than the superblock, inside
+  // the file's current size.
+  if (H5Fflush(m.file, H5F_SCOPE_GLOBAL) < 0) throw input_error(m.fname, "file", "cannot be written (disk full?)");
+  bool closed = true;
+  for (hid_t* ds : {&m.pgm, &m.target, &m.mask, &m.point_index})
+    if (*ds >= 0) closed = H5Dclose(*ds) >= 0 && closed, *ds = -1;
+  closed = H5Fclose(m.file) >= 0 && closed;
+  m.file = -1;
+  if (!closed) throw input_error(m.fname, "file", "cannot be closed (disk full?)");
   m.out.commit();
 }
 

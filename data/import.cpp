@@ -39,7 +39,25 @@ struct ProjectedScan {
   std::string row_mode;
   std::vector<fs::path> sources;
   std::string note;
+  bool skipped = false;  // unreadable, and the user asked to skip such scans
 };
+
+// How many scans the listing found, and how many it left out for want of labels.
+struct ListCounts {
+  std::size_t found = 0;
+  int unlabelled = 0;
+};
+
+void note_counts(const ImportOptions& o, const ListCounts& c, int read, int unreadable) {
+  if (!o.note) return;
+  std::string why;
+  if (c.unlabelled) why += std::to_string(c.unlabelled) + " without labels";
+  if (unreadable) why += std::string(why.empty() ? "" : ", ") + std::to_string(unreadable) + " unreadable";
+  const std::size_t skipped = static_cast<std::size_t>(c.unlabelled + unreadable);
+  o.note("found " + std::to_string(c.found) + " scans, read " + std::to_string(read) + ", skipped " +
+         std::to_string(skipped) + (why.empty() ? "" : " (" + why + ")") +
+         (c.found > static_cast<std::size_t>(read) + skipped ? "; the rest outside --first/--max-frames" : ""));
+}
 
 template <typename T>
 std::vector<T> window(const std::vector<T>& all, const ImportOptions& o) {
@@ -55,13 +73,15 @@ void check_columns(int columns) {
                 std::to_string(columns));
 }
 
-std::vector<ScanJob> semantickitti_jobs(const fs::path& dir, const ImportOptions& options) {
+std::vector<ScanJob> semantickitti_jobs(const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
   std::vector<ScanFiles> scans;
   int unlabelled = 0;
-  for (const auto& s : list_semantickitti(dir, options.sequences)) {
+  const auto listed = list_semantickitti(dir, options.sequences);
+  for (const auto& s : listed) {
     if (s.label || options.include_unlabelled) scans.push_back(s);
     else ++unlabelled;
   }
+  counts = {listed.size(), unlabelled};
   if (unlabelled && options.note)
     options.note("skipped " + std::to_string(unlabelled) + " scans without labels (--include-unlabelled reads them)");
   scans = window(scans, options);
@@ -82,8 +102,10 @@ std::vector<ScanJob> semantickitti_jobs(const fs::path& dir, const ImportOptions
   return jobs;
 }
 
-std::vector<ScanJob> kitti_object_jobs(const fs::path& dir, const ImportOptions& options) {
-  const auto frames = window(list_kitti_object(dir), options);
+std::vector<ScanJob> kitti_object_jobs(const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
+  const auto listed = list_kitti_object(dir);
+  counts.found = listed.size();
+  const auto frames = window(listed, options);
   if (frames.empty()) throw input_error(dir.string(), "frames", "no velodyne/*.bin frames found");
   std::vector<ScanJob> jobs;
   // KITTI object frames do not say which drive they come from: each frame is its own place.
@@ -95,8 +117,10 @@ std::vector<ScanJob> kitti_object_jobs(const fs::path& dir, const ImportOptions&
   return jobs;
 }
 
-std::vector<ScanJob> nuscenes_jobs(const fs::path& dir, const ImportOptions& options) {
-  const auto files = window(list_nuscenes(dir), options);
+std::vector<ScanJob> nuscenes_jobs(const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
+  const auto listed = list_nuscenes(dir);
+  counts.found = listed.size();
+  const auto files = window(listed, options);
   if (files.empty()) throw input_error(dir.string(), "sweeps", "no *.pcd.bin files found");
   std::vector<ScanJob> jobs;
   for (const auto& f : files) {
@@ -108,10 +132,12 @@ std::vector<ScanJob> nuscenes_jobs(const fs::path& dir, const ImportOptions& opt
   return jobs;
 }
 
-std::vector<ScanJob> rellis3d_jobs(const fs::path& dir, const ImportOptions& options) {
+std::vector<ScanJob> rellis3d_jobs(const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
   if (options.class_table.empty()) throw Error("import: rellis3d needs a class table (data/ontologies/rellis3d.csv)");
   auto table = std::make_shared<const ClassTable>(read_class_table(options.class_table));
-  const auto files = window(list_rellis3d(dir), options);
+  const auto listed = list_rellis3d(dir);
+  counts.found = listed.size();
+  const auto files = window(listed, options);
   std::vector<ScanJob> jobs;
   for (const auto& f : files) {
     jobs.push_back({"rellis3d/" + f.sequence + "/" + f.id, {"rellis3d", f.sequence, f.id}, f.bin.string(), [f, table] {
@@ -144,7 +170,7 @@ std::vector<fs::path> ouster_pcaps(const fs::path& dir) {
   return pcaps;
 }
 
-std::vector<ScanJob> ouster_jobs(const fs::path& dir, const ImportOptions& options) {
+std::vector<ScanJob> ouster_jobs(const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
   std::vector<ScanJob> jobs;
   for (const auto& pcap : ouster_pcaps(dir)) {
     auto meta = std::make_shared<const OusterMetadata>(
@@ -164,16 +190,20 @@ std::vector<ScanJob> ouster_jobs(const fs::path& dir, const ImportOptions& optio
                       }});
     }
   }
+  counts.found = jobs.size();
   return window(jobs, options);
 }
 
-std::vector<ScanJob> list_jobs(SourceFormat format, const fs::path& dir, const ImportOptions& options) {
+std::vector<ScanJob> list_jobs(SourceFormat format, const fs::path& dir, const ImportOptions& options, ListCounts& counts) {
+  if (options.first < 0 || options.max_frames < 0)
+    throw Error("import: --first and --max-frames must be >= 0, got " + std::to_string(options.first) + " and " +
+                std::to_string(options.max_frames));
   switch (format) {
-    case SourceFormat::SemanticKitti: return semantickitti_jobs(dir, options);
-    case SourceFormat::KittiObject: return kitti_object_jobs(dir, options);
-    case SourceFormat::Nuscenes: return nuscenes_jobs(dir, options);
-    case SourceFormat::Rellis3d: return rellis3d_jobs(dir, options);
-    case SourceFormat::Ouster: return ouster_jobs(dir, options);
+    case SourceFormat::SemanticKitti: return semantickitti_jobs(dir, options, counts);
+    case SourceFormat::KittiObject: return kitti_object_jobs(dir, options, counts);
+    case SourceFormat::Nuscenes: return nuscenes_jobs(dir, options, counts);
+    case SourceFormat::Rellis3d: return rellis3d_jobs(dir, options, counts);
+    case SourceFormat::Ouster: return ouster_jobs(dir, options, counts);
   }
   throw Error("import: unknown source format");
 }
@@ -202,9 +232,10 @@ pgm::BeamLayout default_layout(SourceFormat format, const fs::path& dir, const I
 }
 
 // Reads and projects the jobs a block at a time in parallel and hands each frame, in order, to
-// `sink`. Errors are rethrown in job order, so the first bad file is the one reported.
+// `sink`. Errors are rethrown in job order, so the first bad file is the one reported; with
+// skip_unreadable a scan whose reader fails is noted and skipped instead. Returns how many were.
 template <typename Sink>
-void run_jobs(const std::vector<ScanJob>& jobs, const pgm::BeamLayout& layout, const ImportOptions& o, Sink&& sink) {
+int run_jobs(const std::vector<ScanJob>& jobs, const pgm::BeamLayout& layout, const ImportOptions& o, Sink&& sink) {
   pgm::ProjectOptions po;
   po.row_mode = o.row_mode;
   po.extra_channels = o.extra_channels;
@@ -213,13 +244,23 @@ void run_jobs(const std::vector<ScanJob>& jobs, const pgm::BeamLayout& layout, c
   const int total = static_cast<int>(jobs.size());
   std::vector<ProjectedScan> done(block);
   std::vector<std::exception_ptr> errors(block);
+  int skipped = 0;
   for (int start = 0; start < total; start += block) {
     const int count = std::min(block, total - start);
 #pragma omp parallel for schedule(dynamic, 1)
     for (int i = 0; i < count; ++i) {
       try {
         const ScanJob& job = jobs[start + i];
-        RecordedScan scan = job.read();
+        RecordedScan scan;
+        try {
+          scan = job.read();
+        } catch (const Error& e) {
+          if (!o.skip_unreadable) throw;
+          done[i] = {};
+          done[i].skipped = true;
+          done[i].note = std::string("skipped unreadable scan: ") + e.what();
+          continue;
+        }
         auto result = pgm::project(scan.points, layout, po, job.path);
         done[i] = {std::move(result.pgm), pgm::to_string(result.row_mode), std::move(scan.sources), std::move(scan.note)};
       } catch (...) {
@@ -229,11 +270,19 @@ void run_jobs(const std::vector<ScanJob>& jobs, const pgm::BeamLayout& layout, c
     for (int i = 0; i < count; ++i) {
       if (errors[i]) std::rethrow_exception(errors[i]);
       if (!done[i].note.empty() && o.note) o.note(done[i].note);
-      sink(jobs[start + i], done[i]);
+      if (done[i].skipped) ++skipped;
+      else sink(jobs[start + i], done[i]);
       done[i] = {};  // frees the grid before the next block
       if (o.progress) o.progress(start + i + 1, total);
     }
   }
+  return skipped;
+}
+
+// The summary note, and an error when no listed scan could be read.
+void finish_counts(const fs::path& dir, const ImportOptions& o, const ListCounts& counts, int read, int skipped) {
+  note_counts(o, counts, read, skipped);
+  if (read == 0) throw input_error(dir.string(), "scans", "none of the listed scans could be read");
 }
 
 }  // namespace
@@ -273,12 +322,14 @@ ImportSummary import_to_file(SourceFormat format, const fs::path& dir, const fs:
   ImportSummary summary;
   summary.layout = default_layout(format, dir, options);
   summary.channels = dataset_channels(options);
-  const auto jobs = list_jobs(format, dir, options);
+  ListCounts counts;
+  const auto jobs = list_jobs(format, dir, options, counts);
   DatasetWriter writer(out, summary.channels, summary.layout, to_string(format));
-  run_jobs(jobs, summary.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
+  const int skipped = run_jobs(jobs, summary.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
     writer.append(scan.pgm, job.id, scan.row_mode, job.place);
     for (const auto& s : scan.sources) writer.add_source(s.string());
   });
+  finish_counts(dir, options, counts, writer.size(), skipped);
   writer.commit();
   summary.frames = writer.size();
   summary.returns = writer.returns();
@@ -291,11 +342,13 @@ Dataset import_dataset(SourceFormat format, const fs::path& dir, const ImportOpt
   d.layout = default_layout(format, dir, options);
   d.channels = dataset_channels(options);
   d.source_format = to_string(format);
-  const auto jobs = list_jobs(format, dir, options);
-  run_jobs(jobs, d.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
+  ListCounts counts;
+  const auto jobs = list_jobs(format, dir, options, counts);
+  const int skipped = run_jobs(jobs, d.layout, options, [&](const ScanJob& job, const ProjectedScan& scan) {
     d.append(scan.pgm, job.id, scan.row_mode, job.place);
     for (const auto& s : scan.sources) d.sources.push_back(s.string());
   });
+  finish_counts(dir, options, counts, d.size(), skipped);
   return d;
 }
 

@@ -40,6 +40,7 @@ struct ImportOptions {
   int first = 0;                       // skip this many frames (after sorting)
   int max_frames = 0;                  // 0 = all
   bool include_unlabelled = false;     // SemanticKITTI scans without a .label (class 0 everywhere)
+  bool skip_unreadable = false;        // a listed scan that cannot be read: skipped and noted (else an Error)
   float min_range = 0.f;
   // The grid to project onto; default: the format's own sensor (HDL-64E for KITTI).
   std::optional<pgm::BeamLayout> layout;

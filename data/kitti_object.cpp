@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "common/error.h"
+#include "data/plausibility.h"
 #include "data/velodyne.h"
 #include "pgm/materials.h"
 
@@ -41,11 +42,8 @@ KittiCalib read_kitti_calib(const fs::path& path) {
     std::string tok;
     while (values >> tok) {
       double d;
-      try {
-        d = std::stod(tok);
-      } catch (...) {
+      if (!parse_double(tok, d))
         throw input_error(path.string(), key + " (line " + std::to_string(line_no) + ")", "'" + tok + "' is not a number");
-      }
       if (!std::isfinite(d)) throw input_error(path.string(), key, "not a finite number");
       v.push_back(d);
     }
@@ -68,6 +66,12 @@ KittiCalib read_kitti_calib(const fs::path& path) {
   const auto* tr = get({"Tr_velo_to_cam", "Tr_velo_cam"}, 12, true);
   for (int i = 0; i < 9; ++i) calib.R0_rect(i / 3, i % 3) = (*r0)[i];
   for (int i = 0; i < 12; ++i) calib.Tr_velo_to_cam(i / 4, i % 4) = (*tr)[i];
+  // A singular rotation part cannot map the Velodyne into the camera (and back).
+  if (std::abs(calib.R0_rect.determinant()) < kMinSingularDeterminant)
+    throw input_error(path.string(), "R0_rect", "singular matrix (determinant " + std::to_string(calib.R0_rect.determinant()) + ")");
+  const double det_tr = calib.Tr_velo_to_cam.leftCols<3>().determinant();
+  if (std::abs(det_tr) < kMinSingularDeterminant)
+    throw input_error(path.string(), "Tr_velo_to_cam", "singular rotation part (determinant " + std::to_string(det_tr) + ")");
   if (const auto* p2 = get({"P2"}, 12, false))
     for (int i = 0; i < 12; ++i) calib.P2(i / 4, i % 4) = (*p2)[i];
   return calib;
@@ -99,11 +103,8 @@ std::vector<KittiObjectLabel> read_kitti_object_labels(const fs::path& path) {
       throw input_error(path.string(), where, "expected 15 fields (type ... rotation_y), got " + std::to_string(tok.size()));
     double v[15];
     for (int i = 1; i < 15; ++i) {
-      try {
-        v[i] = std::stod(tok[i]);
-      } catch (...) {
+      if (!parse_double(tok[i], v[i]))
         throw input_error(path.string(), where + " field " + std::to_string(i + 1), "'" + tok[i] + "' is not a number");
-      }
       if (!std::isfinite(v[i])) throw input_error(path.string(), where + " field " + std::to_string(i + 1), "not finite");
     }
     KittiObjectLabel o;
@@ -125,6 +126,12 @@ std::vector<KittiObjectLabel> read_kitti_object_labels(const fs::path& path) {
       }
       if (!(o.h > 0 && o.w > 0 && o.l > 0))
         throw input_error(path.string(), where + " dimensions", "h, w, l must be positive");
+      if (o.h > kMaxBoxSize || o.w > kMaxBoxSize || o.l > kMaxBoxSize)
+        throw input_error(path.string(), where + " dimensions",
+                          "h, w, l must be at most " + std::to_string(static_cast<int>(kMaxBoxSize)) + " m");
+      if (o.location.cwiseAbs().maxCoeff() > kMaxBoxPosition)
+        throw input_error(path.string(), where + " location",
+                          "must lie within " + std::to_string(static_cast<int>(kMaxBoxPosition)) + " m of the camera");
     }
     out.push_back(o);
   }
@@ -138,7 +145,8 @@ std::vector<KittiObjectFrame> list_kitti_object(const fs::path& dir_in) {
     throw input_error(dir_in.string(), "layout", "no velodyne/ folder (expected DIR/velodyne, label_2, calib)");
   std::vector<KittiObjectFrame> frames;
   for (const auto& e : fs::directory_iterator(dir / "velodyne")) {
-    if (!e.is_regular_file() || e.path().extension() != ".bin") continue;
+    std::error_code ec;  // dangling links are listed too: reading them is then an error
+    if (e.path().extension() != ".bin" || e.is_directory(ec)) continue;
     KittiObjectFrame f;
     f.id = e.path().stem().string();
     f.bin = e.path();

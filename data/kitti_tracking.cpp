@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "common/error.h"
+#include "data/plausibility.h"
 
 namespace lidarsim::data {
 
@@ -67,14 +68,29 @@ double to_number(const std::string& s, const std::string& file, const std::strin
 
 int to_int(const std::string& s, const std::string& file, const std::string& where, const char* name) {
   const double v = to_number(s, file, where, name);
-  if (v != std::floor(v)) throw input_error(file, where, std::string(name) + ": expected an integer, got " + s);
+  if (v != std::floor(v) || std::abs(v) > 2e9)
+    throw input_error(file, where, std::string(name) + ": expected an integer, got " + s);
   return static_cast<int>(v);
 }
 
 void check_size(double h, double w, double l, const std::string& file, const std::string& where) {
-  if (h <= 0 || w <= 0 || l <= 0)
-    throw input_error(file, where, "box size h, w, l: must be positive, got " + std::to_string(h) + ", " +
-                                       std::to_string(w) + ", " + std::to_string(l));
+  if (h <= 0 || w <= 0 || l <= 0 || h > kMaxBoxSize || w > kMaxBoxSize || l > kMaxBoxSize)
+    throw input_error(file, where, "box size h, w, l: must be positive and at most " +
+                                       std::to_string(static_cast<int>(kMaxBoxSize)) + " m, got " + std::to_string(h) +
+                                       ", " + std::to_string(w) + ", " + std::to_string(l));
+}
+
+void check_position(const Eigen::Vector3d& p, const std::string& file, const std::string& where) {
+  if (p.cwiseAbs().maxCoeff() > kMaxBoxPosition)
+    throw input_error(file, where, "position x, y, z: must lie within " +
+                                       std::to_string(static_cast<int>(kMaxBoxPosition)) + " m of the camera");
+}
+
+int frame_index(const std::string& s, const std::string& file, const std::string& where) {
+  const int frame = to_int(s, file, where, "frame");
+  if (frame < 0 || frame > kMaxFrameIndex)
+    throw input_error(file, where, "frame: must be in [0, " + std::to_string(kMaxFrameIndex) + "], got " + s);
+  return frame;
 }
 
 // Calls record(fields, where) for each non-blank line of a text file ("where" = "line N"). Fields
@@ -117,9 +133,9 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     const std::string& type = f[2];
     if (type == "DontCare") return;
     KittiTrackingObject o;
-    o.frame = to_int(f[0], file, where, "frame");
-    if (o.frame < 0) throw input_error(file, where, "frame: must be >= 0, got " + f[0]);
+    o.frame = frame_index(f[0], file, where);
     const int track = to_int(f[1], file, where, "track_id");
+    if (track < 0) throw input_error(file, where, "track_id: must be >= 0 (only DontCare lines carry -1), got " + f[1]);
     o.type = type;
     try {
       o.object.cls = kitti_type_to_class(type);
@@ -133,6 +149,7 @@ std::vector<KittiTrackingObject> read_kitti_tracking_labels(const fs::path& path
     check_size(h, w, l, file, where);
     const Eigen::Vector3d bottom(to_number(f[13], file, where, "x"), to_number(f[14], file, where, "y"),
                                  to_number(f[15], file, where, "z"));
+    check_position(bottom, file, where);
     const double ry = to_number(f[16], file, where, "rotation_y");
     const ObjectClass cls = o.object.cls;
     o.object = conv.convert(h, w, l, bottom, ry);
@@ -159,8 +176,7 @@ std::vector<KittiTrackingObject> read_ab3dmot_detections(const fs::path& path, c
       throw input_error(file, where, "expected 15 comma-separated fields (frame, type_id, x1, y1, x2, y2, score, "
                                      "h, w, l, x, y, z, rot_y, alpha), got " + std::to_string(f.size()));
     KittiTrackingObject o;
-    o.frame = to_int(f[0], file, where, "frame");
-    if (o.frame < 0) throw input_error(file, where, "frame: must be >= 0, got " + f[0]);
+    o.frame = frame_index(f[0], file, where);
     const int type_id = to_int(f[1], file, where, "type_id");
     if (type_id < 1 || type_id > 3)
       throw input_error(file, where, "type_id: expected 1 (Pedestrian), 2 (Car) or 3 (Cyclist), got " + f[1]);
@@ -171,6 +187,7 @@ std::vector<KittiTrackingObject> read_ab3dmot_detections(const fs::path& path, c
     check_size(h, w, l, file, where);
     const Eigen::Vector3d bottom(to_number(f[10], file, where, "x"), to_number(f[11], file, where, "y"),
                                  to_number(f[12], file, where, "z"));
+    check_position(bottom, file, where);
     const double ry = to_number(f[13], file, where, "rot_y");
     to_number(f[14], file, where, "alpha");
     const ObjectClass cls = kitti_type_to_class(o.type);
@@ -213,15 +230,29 @@ KittiTrackingSequence read_kitti_tracking_sequence(const fs::path& root, const s
   const fs::path labels = root / "label_02" / (name + ".txt");
   std::vector<KittiTrackingObject> truth = read_kitti_tracking_labels(labels, conv);
   std::vector<KittiTrackingObject> dets;
+  std::vector<std::pair<fs::path, std::pair<std::size_t, std::size_t>>> det_files;  // file -> range in dets
   for (const char* cls : {"Car", "Pedestrian", "Cyclist"}) {
     const fs::path p = root / "detection" / (detector + "_" + cls + "_val") / (name + ".txt");
     if (!fs::exists(p)) continue;
     auto d = read_ab3dmot_detections(p, conv);
+    const std::size_t first = dets.size();
     for (auto& x : d) dets.push_back(std::move(x));
+    det_files.emplace_back(p, std::make_pair(first, dets.size()));
   }
+  // The sequence ends at the last labelled frame (DontCare lines included): a detection after
+  // it belongs to another sequence or a broken file.
   int last = -1;
+  for_each_record(labels, "KITTI tracking label file", 0, [&](const std::vector<std::string>& f, const std::string& where) {
+    if (!f.empty()) last = std::max(last, frame_index(f[0], labels.string(), where));
+  });
   for (const auto& o : truth) last = std::max(last, o.frame);
-  for (const auto& o : dets) last = std::max(last, o.frame);
+  for (const auto& [path, count] : det_files) {
+    const auto& d = dets;
+    for (std::size_t i = count.first; i < count.second; ++i)
+      if (d[i].frame > last)
+        throw input_error(path.string(), "frame " + std::to_string(d[i].frame),
+                          "detection after the last labelled frame (" + std::to_string(last) + ") of sequence " + name);
+  }
   seq.frames.resize(last + 1);
   for (int i = 0; i <= last; ++i) seq.frames[i].frame = i;
   for (auto& o : truth) seq.frames[o.frame].truth.push_back(std::move(o));

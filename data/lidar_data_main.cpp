@@ -84,6 +84,7 @@ int run_import(int argc, char** argv) {
        cxxopts::value<std::string>()->default_value("elevation,azimuth,height,incidence"))
       ("rows", "row assignment: auto, firing_order, nearest_elevation", cxxopts::value<std::string>()->default_value("auto"))
       ("include-unlabelled", "also import SemanticKITTI scans without labels (class 0)")
+      ("skip-unreadable", "skip listed scans that cannot be read (counted and named) instead of stopping")
       ("quiet", "no progress bar")
       ("h,help", "show this help");
   auto args = opts.parse(argc, argv);
@@ -109,6 +110,7 @@ int run_import(int argc, char** argv) {
   o.extra_channels = split_list(args["channels"].as<std::string>());
   o.row_mode = parse_row_mode(args["rows"].as<std::string>());
   o.include_unlabelled = args.count("include-unlabelled") > 0;
+  o.skip_unreadable = args.count("skip-unreadable") > 0;
   if (args.count("sequences")) o.sequences = split_list(args["sequences"].as<std::string>());
   // Sensors as data: the layout files under data/sensors/ (the HDL-64E of KITTI stays built in).
   std::string sensor;
@@ -127,6 +129,7 @@ int run_import(int argc, char** argv) {
     if (done < total) bar->update(done, std::to_string(done) + "/" + std::to_string(total) + " scans");
   };
   const std::string out = args["out"].as<std::string>();
+  remove_stale_temp_files(out);  // left by a run that was killed while writing
   const auto summary = data::import_to_file(format, source, out, o);
   if (bar) bar->finish(std::to_string(summary.frames) + " scans");
   for (const auto& n : notes) std::cerr << "note: " << n << "\n";

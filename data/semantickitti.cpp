@@ -14,7 +14,10 @@ namespace {
 void add_sequence(const fs::path& seq_dir, const std::string& seq, std::vector<ScanFiles>& out) {
   std::vector<ScanFiles> found;
   for (const auto& e : fs::directory_iterator(seq_dir / "velodyne")) {
-    if (!e.is_regular_file() || e.path().extension() != ".bin") continue;
+    // Anything named *.bin but a folder is listed, dangling links included: a scan that cannot
+    // be read is then an error (or, when asked, skipped and counted), never silently missing.
+    std::error_code ec;
+    if (e.path().extension() != ".bin" || e.is_directory(ec)) continue;
     ScanFiles f;
     f.sequence = seq;
     f.id = e.path().stem().string();

@@ -13,6 +13,7 @@
 
 #include <cxxopts.hpp>
 
+#include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/progress.h"
 #include "infer/osi_command.h"
@@ -69,7 +70,10 @@ int run_predict(int argc, char** argv) {
   o.format = args["format"].as<std::string>();
   o.max_frames = args["max-frames"].as<int>();
   o.progress = !args.count("quiet");
-  omp_set_num_threads(std::max(1, args["threads"].as<int>()));
+  if (o.max_frames < 0) throw Error("lidar-infer predict: --max-frames must be >= 0, got " + std::to_string(o.max_frames));
+  if (args["threads"].as<int>() < 1 || args["threads"].as<int>() > 1024)
+    throw Error("lidar-infer predict: --threads must be in [1, 1024], got " + std::to_string(args["threads"].as<int>()));
+  omp_set_num_threads(args["threads"].as<int>());
   const auto summary = infer::predict_scans(o);
   std::printf("%zu scans: MAE %.4f RMSE %.4f over %ld cells, %.3f s per scan; outputs in %s (summary.md)\n",
               summary.scans.size(), summary.mae, summary.rmse, summary.cells, summary.seconds_per_scan,
@@ -128,7 +132,10 @@ int run_sim(int argc, char** argv) {
   out.images = !args.count("no-images");
   if (out.format != "pcd" && out.format != "ply") throw Error("lidar-infer sim: --format must be pcd or ply, got '" + out.format + "'");
   const bool write = !args.count("no-outputs");
-  const int threads = std::max(1, args["threads"].as<int>());
+  const int threads = args["threads"].as<int>();
+  if (threads < 1 || threads > 1024) throw Error("lidar-infer sim: --threads must be in [1, 1024], got " + std::to_string(threads));
+  if (args["frames"].as<int>() < 0)
+    throw Error("lidar-infer sim: --frames must be >= 0 (0: the whole scenario), got " + std::to_string(args["frames"].as<int>()));
   omp_set_num_threads(threads);
   infer::SimOptions sim_options;
   sim_options.seed = args["seed"].as<std::uint64_t>();
@@ -142,12 +149,12 @@ int run_sim(int argc, char** argv) {
   const auto wall0 = std::chrono::steady_clock::now();
   infer::SimPipeline pipeline = infer::SimPipeline::from_files(scenario, kpi, model, sim_options);
   if (const auto* m = pipeline.intensity_model(); m && !(m->layout() == pipeline.scenario().sensor.beams.layout()))
-    std::fprintf(stderr, "warning: %s was trained for the beam layout '%s', the scenario's sensor is '%s' (%d rows)\n",
-                 model.string().c_str(), m->layout().name.c_str(), pipeline.scenario().sensor.beams.layout().name.c_str(),
-                 pipeline.scenario().sensor.beams.layout().rows());
+    std::fprintf(stderr, "warning: %s was trained for another beam layout than the scenario's sensor: %s (model vs scenario)\n",
+                 model.string().c_str(), m->layout().difference(pipeline.scenario().sensor.beams.layout()).c_str());
   int frames = pipeline.frame_count();
   if (args["frames"].as<int>() > 0) frames = std::min(frames, args["frames"].as<int>());
   std::filesystem::create_directories(out.out);
+  remove_stale_temp_files_in(out.out);  // left by a run that was killed while writing
 
   infer::SimStats stats;
   infer::SimFrame frame;

@@ -36,7 +36,12 @@ struct ScanSource {
   ScanInput read(std::size_t i) const {
     if (i < semantickitti.size()) {
       const auto& s = semantickitti[i];
-      return {s.sequence + "_" + s.id, data::read_semantickitti_scan(s).points};
+      data::LabelledScan scan = data::read_semantickitti_scan(s);
+      // As import says it: the network then sees these points as "unlabeled".
+      if (scan.unknown_labels)
+        std::fprintf(stderr, "note: %s: %zu labels outside the SemanticKITTI classes, predicted as unlabeled\n",
+                     s.label->string().c_str(), static_cast<std::size_t>(scan.unknown_labels));
+      return {s.sequence + "_" + s.id, std::move(scan.points)};
     }
     const auto& k = kitti[i - semantickitti.size()];
     return {"kitti_" + k.id, data::read_kitti_object_scan(k).points};

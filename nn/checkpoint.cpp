@@ -2,14 +2,15 @@
 
 #include <hdf5.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <functional>
 #include <vector>
 
-#include "common/atomic_file.h"
 #include "common/error.h"
+#include "nn/h5_memory_file.h"
 
 namespace lidarsim::nn {
 namespace {
@@ -40,6 +41,11 @@ class Handle {
   ~Handle() { reset(); }
   hid_t get() const { return id_; }
   bool valid() const { return id_ >= 0; }
+  hid_t release() {
+    const hid_t id = id_;
+    id_ = H5I_INVALID_HID;
+    return id;
+  }
   // Closes now and reports whether that worked (the file close flushes, so it can fail).
   bool close() {
     if (id_ < 0) return true;
@@ -76,24 +82,21 @@ std::string dims_str(const std::vector<hsize_t>& dims) {
 
 // ---------------------------------------------------------------------------------------------
 // Writing. Every object is created without timestamps and with fixed property lists, so two
-// saves of the same state are byte-identical files.
+// saves of the same state are byte-identical files. The file is built in memory and written by
+// save_memory_file (nn/h5_memory_file.h): a full disk is one Error, never a crash in HDF5's exit
+// handler. Integrity: every numeric dataset carries a Fletcher-32 checksum, strings are
+// fixed-length (so they live in the checksummed object headers, not the unsummed global heap).
 
 class Writer {
  public:
-  explicit Writer(const std::filesystem::path& path, const std::filesystem::path& final_path)
-      : name_(final_path.string()) {
-    Handle fcpl(H5Pcreate(H5P_FILE_CREATE), H5Pclose);
-    Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
-    // STRONG: closing the file closes anything still open, so an exception never leaks it.
-    if (!fcpl.valid() || !fapl.valid() || H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG) < 0)
-      fail("file", "cannot set up HDF5 property lists");
+  explicit Writer(const std::filesystem::path& final_path) : path_(final_path), name_(final_path.string()) {
     gcpl_ = Handle(H5Pcreate(H5P_GROUP_CREATE), H5Pclose);
     dcpl_ = Handle(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
-    if (!gcpl_.valid() || !dcpl_.valid() || H5Pset_obj_track_times(gcpl_.get(), false) < 0 ||
+    if (!gcpl_.valid() || !dcpl_.valid() || H5Pset_obj_track_times(gcpl_.get(), false) < 0 || !keep_compact(gcpl_.get()) ||
         H5Pset_obj_track_times(dcpl_.get(), false) < 0)
       fail("file", "cannot set up HDF5 property lists");
-    file_ = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, fcpl.get(), fapl.get()), H5Fclose);
-    if (!file_.valid()) fail("file", "cannot create " + path.string());
+    file_ = Handle(create_memory_file(final_path), H5Fclose);
+    if (!file_.valid()) fail("file", "cannot create the HDF5 file in memory");
   }
 
   // Creates every missing group along `path` (without timestamps) and returns the last one.
@@ -122,7 +125,10 @@ class Writer {
     Handle parent = group(path.substr(0, slash));
     const std::string leaf = path.substr(slash + 1);
     Handle space(H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr), H5Sclose);
-    Handle set(H5Dcreate2(parent.get(), leaf.c_str(), H5T_IEEE_F32LE, space.get(), H5P_DEFAULT, dcpl_.get(),
+    Handle dcpl(H5Pcopy(dcpl_.get()), H5Pclose);
+    if (!dcpl.valid() || !add_checksum(dcpl.get(), static_cast<int>(dims.size()), dims.data()))
+      fail(path, "cannot set up the checksum filter");
+    Handle set(H5Dcreate2(parent.get(), leaf.c_str(), H5T_IEEE_F32LE, space.get(), H5P_DEFAULT, dcpl.get(),
                           H5P_DEFAULT),
                H5Dclose);
     if (!space.valid() || !set.valid() ||
@@ -133,20 +139,24 @@ class Writer {
   void string_dataset(const std::string& path, const std::string& value) {
     const std::size_t slash = path.rfind('/');
     Handle parent = group(path.substr(0, slash));
-    Handle type = utf8_type();
-    Handle space(H5Screate(H5S_SCALAR), H5Sclose);
+    Handle type = utf8_type(value.size());
+    // One element, chunked, so the Fletcher-32 filter covers the text too.
+    const hsize_t one = 1;
+    Handle space(H5Screate_simple(1, &one, nullptr), H5Sclose);
+    Handle dcpl(H5Pcopy(dcpl_.get()), H5Pclose);
+    if (!dcpl.valid() || !add_checksum(dcpl.get(), 1, &one)) fail(path, "cannot set up the checksum filter");
     Handle set(H5Dcreate2(parent.get(), path.substr(slash + 1).c_str(), type.get(), space.get(), H5P_DEFAULT,
-                          dcpl_.get(), H5P_DEFAULT),
+                          dcpl.get(), H5P_DEFAULT),
                H5Dclose);
-    const char* ptr = value.c_str();
-    if (!set.valid() || H5Dwrite(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, &ptr) < 0)
+    const std::string padded = value.empty() ? std::string(1, '\0') : value;
+    if (!set.valid() || H5Dwrite(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, padded.data()) < 0)
       fail(path, "cannot write dataset");
   }
 
   void attr(hid_t obj, const std::string& where, const std::string& name, const std::string& value) {
-    Handle type = utf8_type();
-    const char* ptr = value.c_str();
-    write_attr(obj, where, name, type.get(), type.get(), &ptr);
+    Handle type = utf8_type(value.size());
+    const std::string padded = value.empty() ? std::string(1, '\0') : value;
+    write_attr(obj, where, name, type.get(), type.get(), padded.data());
   }
   void attr(hid_t obj, const std::string& where, const std::string& name, std::int64_t value) {
     write_attr(obj, where, name, H5T_STD_I64LE, H5T_NATIVE_INT64, &value);
@@ -162,10 +172,11 @@ class Writer {
     attr(obj, where, name, std::strtod(std::string(buf, res.ptr).c_str(), nullptr));
   }
 
+  // Builds the file image and writes it atomically (temporary + rename).
   void close() {
     gcpl_.close();
     dcpl_.close();
-    if (!file_.close()) fail("file", "cannot flush and close");
+    save_memory_file(file_.release(), path_);
   }
 
   [[noreturn]] void fail(const std::string& field, const std::string& message) const {
@@ -173,10 +184,11 @@ class Writer {
   }
 
  private:
-  // Variable-length UTF-8: h5py reads these attributes as str.
-  static Handle utf8_type() {
+  // Fixed-length UTF-8 of exactly the text's bytes, null-padded (h5py reads it as bytes).
+  static Handle utf8_type(std::size_t length) {
     Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
-    H5Tset_size(type.get(), H5T_VARIABLE);
+    H5Tset_size(type.get(), std::max<std::size_t>(length, 1));
+    H5Tset_strpad(type.get(), H5T_STR_NULLPAD);
     H5Tset_cset(type.get(), H5T_CSET_UTF8);
     return type;
   }
@@ -187,6 +199,7 @@ class Writer {
     if (!a.valid() || H5Awrite(a.get(), mem_type, data) < 0) fail(join(where, name), "cannot write attribute");
   }
 
+  std::filesystem::path path_;
   std::string name_;
   Handle file_, gcpl_, dcpl_;
 };
@@ -386,9 +399,8 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     throw input_error(path.string(), "optimizer", "state does not match the model's " +
                                                       std::to_string(params.size()) + " parameters");
 
-  AtomicFile atomic(path);
   {
-    Writer w(atomic.temp_path(), path);
+    Writer w(path);
     {
       Handle config = w.group("config");
       w.attr(config.get(), "config", "format", std::string(kFormat));
@@ -427,7 +439,6 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     w.string_dataset("state/rng", meta.state.rng);
     w.close();
   }
-  atomic.commit();
 }
 
 Checkpoint read_checkpoint_meta(const std::filesystem::path& path) {

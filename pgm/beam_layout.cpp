@@ -29,7 +29,8 @@ constexpr double kHdl64eKittiDeg[64] = {
 }  // namespace
 
 BeamLayout BeamLayout::uniform(int rows, double top_deg, double bottom_deg, int columns) {
-  if (rows < 1) throw Error("beam layout: rows: must be >= 1, got " + std::to_string(rows));
+  if (rows < 1 || rows > kMaxRows)
+    throw Error("beam layout: rows: must be in [1, " + std::to_string(kMaxRows) + "], got " + std::to_string(rows));
   BeamLayout layout;
   layout.name = "uniform";
   layout.columns = columns;
@@ -87,7 +88,11 @@ int BeamLayout::nearest_row(double elevation_rad) const {
 
 void BeamLayout::validate(const std::string& where) const {
   if (rows() < 1) throw input_error(where, "elevations", "need at least one beam");
-  if (columns < 1) throw input_error(where, "columns", "must be >= 1, got " + std::to_string(columns));
+  if (rows() > kMaxRows)
+    throw input_error(where, "rows", "at most " + std::to_string(kMaxRows) + ", got " + std::to_string(rows()));
+  if (columns < 1 || columns > kMaxColumns)
+    throw input_error(where, "columns",
+                      "must be in [1, " + std::to_string(kMaxColumns) + "], got " + std::to_string(columns));
   for (int r = 0; r < rows(); ++r) {
     if (!std::isfinite(elevations_rad[r]))
       throw input_error(where, "elevations[" + std::to_string(r) + "]", "must be finite");
@@ -181,6 +186,24 @@ BeamLayout BeamLayout::from_file(const std::string& path) {
   std::stringstream text;
   text << in.rdbuf();
   return from_json(text.str(), path);
+}
+
+}  // namespace lidarsim::pgm
+
+namespace lidarsim::pgm {
+
+std::string BeamLayout::difference(const BeamLayout& other) const {
+  std::vector<std::string> parts;
+  if (name != other.name) parts.push_back("name '" + name + "' vs '" + other.name + "'");
+  if (rows() != other.rows())
+    parts.push_back("rows " + std::to_string(rows()) + " vs " + std::to_string(other.rows()));
+  else if (elevations_rad != other.elevations_rad)
+    parts.push_back("row elevations differ");
+  if (columns != other.columns)
+    parts.push_back("columns " + std::to_string(columns) + " vs " + std::to_string(other.columns));
+  std::string out;
+  for (const auto& p : parts) out += (out.empty() ? "" : ", ") + p;
+  return out;
 }
 
 }  // namespace lidarsim::pgm

@@ -19,6 +19,10 @@
 namespace lidarsim::pgm {
 
 struct BeamLayout {
+  // Larger grids are no real sensor (an Ouster OS-2 has 128 x 2048): an Error, not an allocation.
+  static constexpr int kMaxRows = 1024;
+  static constexpr int kMaxColumns = 16384;
+
   std::string name;                    // e.g. "hdl64e", "uniform"
   std::vector<double> elevations_rad;  // one per row, descending (row 0 = top)
   int columns = 1024;                  // azimuth bins over 360 degrees
@@ -45,8 +49,9 @@ struct BeamLayout {
   // beyond the top or bottom beam.
   int nearest_row(double elevation_rad) const;
 
-  // Throws lidarsim::Error (naming `where`) unless rows >= 1, columns >= 1, elevations finite
-  // and strictly descending, azimuth offsets one per row and finite, 0 <= min_range < max_range.
+  // Throws lidarsim::Error (naming `where`) unless 1 <= rows <= kMaxRows, 1 <= columns <=
+  // kMaxColumns, elevations finite and strictly descending, azimuth offsets one per row and
+  // finite, 0 <= min_range < max_range.
   void validate(const std::string& where = "beam layout") const;
 
   std::string to_json() const;  // compact JSON, degrees
@@ -54,6 +59,8 @@ struct BeamLayout {
   static BeamLayout from_json(const std::string& text, const std::string& where = "beam layout");
   static BeamLayout from_file(const std::string& path);  // a JSON file as above
   bool operator==(const BeamLayout&) const = default;
+  // What differs from `other`, this first ("columns 1024 vs 512, rows 64 vs 32"); "" when equal.
+  std::string difference(const BeamLayout& other) const;
 };
 
 }  // namespace lidarsim::pgm

@@ -21,5 +21,7 @@ build_dir=${LIDARSIM_BUILD_DIR:-build}
 # ccache, where installed, makes rebuilds in other checkouts of the same tree nearly free.
 launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} "${launcher[@]}" >/dev/null
+# LIDARSIM_CMAKE_ARGS: extra settings, e.g. the sanitizer build of scripts/test.sh.
+read -r -a extra <<< "${LIDARSIM_CMAKE_ARGS:-}"
+cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} "${launcher[@]}" "${extra[@]}" >/dev/null
 cmake --build "$build_dir" -j"$(nproc)"

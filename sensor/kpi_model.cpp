@@ -131,7 +131,7 @@ double number(const json& j, const std::string& file, const std::string& path) {
 
 double number_at(const json& j, const char* key, const std::string& file, const std::string& path, double fallback,
                  bool optional) {
-  if (optional && (!j.is_object() || !j.contains(key))) return fallback;
+  if (optional && j.is_object() && !j.contains(key)) return fallback;
   return number(member(j, key, file, path), file, path.empty() ? key : path + "." + key);
 }
 
@@ -144,7 +144,7 @@ std::vector<double> numbers(const json& j, const std::string& file, const std::s
 
 std::vector<double> numbers_at(const json& j, const char* key, const std::string& file, const std::string& path,
                                bool optional) {
-  if (optional && !j.contains(key)) return {};
+  if (optional && j.is_object() && !j.contains(key)) return {};
   return numbers(member(j, key, file, path), file, path + "." + key);
 }
 
@@ -296,7 +296,10 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
   const json& fmt = member(j, "format", file, "");
   if (fmt != "lidarsim-kpi-model")
     throw input_error(file, "format", "must be \"lidarsim-kpi-model\", got " + fmt.dump());
-  if (j.contains("source") && j["source"].is_string()) m.source = j["source"].get<std::string>();
+  if (j.contains("source")) {
+    if (!j["source"].is_string()) throw input_error(file, "source", "must be a string, got " + j["source"].dump());
+    m.source = j["source"].get<std::string>();
+  }
   m.range_bin_edges = numbers_at(j, "range_bin_edges", file, "", false);
   m.visibility_bin_edges = numbers_at(j, "visibility_bin_edges", file, "", false);
   const size_t nv = m.visibility_bin_edges.size();
@@ -344,6 +347,7 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
   }
   if (j.contains("controller")) {
     const json& cj = j["controller"];
+    if (!cj.is_object()) throw input_error(file, "controller", "must be an object, got " + cj.dump());
     if (cj.contains("enabled")) {
       if (!cj["enabled"].is_boolean()) throw input_error(file, "controller.enabled", "must be true or false");
       m.controller.enabled = cj["enabled"].get<bool>();

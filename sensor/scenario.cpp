@@ -20,6 +20,11 @@ namespace {
 
 using nlohmann::json;
 constexpr double kDeg = std::numbers::pi / 180.0;
+// Limits that keep a scenario within what a simulation can hold (issue 13: 1e8 columns or
+// 10,000 objects ended in bad_alloc or minutes of work, without naming the field).
+constexpr std::size_t kMaxObjects = 2000;
+constexpr int kMaxFrames = 1000000;
+constexpr double kMaxLaneLength = 100000;  // m
 // Marks a NaN/Infinity/overflowing literal replaced by a string before parsing, so the reader
 // can name the field that held it (standard JSON has no such numbers; Python writes them).
 const std::string kNonFinite = "@@lidarsim-nonfinite@@:";
@@ -79,6 +84,8 @@ std::string mark_non_finite(const std::string& text) {
 
 class Reader {
  public:
+  static constexpr double kMaxMagnitude = 1e7;
+
   explicit Reader(std::string file) : file_(std::move(file)) {}
 
   [[noreturn]] void fail(const std::string& path, const std::string& msg) const {
@@ -115,6 +122,9 @@ class Reader {
     if (!j.is_number()) fail(path, "must be a number, got " + describe(j));
     const double v = j.get<double>();
     if (!std::isfinite(v)) fail(path, "must be a finite number, got " + describe(j));
+    // Metres, seconds, degrees: nothing in a scenario is this large, and bounding every number
+    // bounds what is derived from them (lane resampling, frame counts).
+    if (std::abs(v) > kMaxMagnitude) fail(path, "must lie within +-1e7, got " + describe(j));
     return v;
   }
   double number(const json& obj, const std::string& path, const char* key) const {
@@ -249,6 +259,9 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
   }
   sc.duration = r.positive(root, "", "duration");
   sc.rate_hz = r.positive(root, "", "rate_hz");
+  if (sc.duration * sc.rate_hz > kMaxFrames)
+    r.fail("duration", "duration x rate_hz gives " + Reader::fmt(sc.duration * sc.rate_hz) + " frames, at most " +
+                           std::to_string(kMaxFrames) + " are allowed");
 
   // Sensor.
   const json& sj = r.field(root, "", "sensor");
@@ -287,6 +300,12 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
       r.fail("sensor.beams", "elevations must lie within [-90, 90] degrees");
   }
   sc.sensor.beams.columns = r.integer(sj, "sensor", "columns", 1);
+  if (sc.sensor.beams.columns > pgm::BeamLayout::kMaxColumns)
+    r.fail("sensor.columns", "at most " + std::to_string(pgm::BeamLayout::kMaxColumns) + ", got " +
+                                 std::to_string(sc.sensor.beams.columns));
+  if (sc.sensor.beams.rows > pgm::BeamLayout::kMaxRows)
+    r.fail("sensor.beams", "at most " + std::to_string(pgm::BeamLayout::kMaxRows) + " rows, got " +
+                               std::to_string(sc.sensor.beams.rows));
   const json& fj = r.field(sj, "sensor", "fov");
   const json& hj = r.array(fj, "sensor.fov", "horizontal_deg", 2);
   const json& vj = r.array(fj, "sensor.fov", "vertical_deg", 2);
@@ -313,6 +332,8 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
 
   // Objects.
   const json& oj = r.array(root, "", "objects", 0);
+  if (oj.size() > kMaxObjects)
+    r.fail("objects", "at most " + std::to_string(kMaxObjects) + " objects, got " + std::to_string(oj.size()));
   std::set<int> ids;
   for (std::size_t i = 0; i < oj.size(); ++i) {
     const std::string p = Reader::index("objects", i);
@@ -354,7 +375,14 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
     lane.type = lane_type_from(r, r.string(lj[i], p, "type"), p + ".type");
     const json& pts = r.array(lj[i], p, "points", 2);
     std::vector<Eigen::Vector3d> raw;
-    for (std::size_t k = 0; k < pts.size(); ++k) raw.push_back(r.vec(pts[k], Reader::index(p + ".points", k), 2));
+    double length = 0;
+    for (std::size_t k = 0; k < pts.size(); ++k) {
+      raw.push_back(r.vec(pts[k], Reader::index(p + ".points", k), 2));
+      if (k > 0) length += (raw[k] - raw[k - 1]).norm();
+    }
+    if (length > kMaxLaneLength)
+      r.fail(p + ".points", "the lane is " + Reader::fmt(length) + " m long, at most " + Reader::fmt(kMaxLaneLength) +
+                                " m are allowed");
     lane.points = resample(raw, 0.5);
     sc.lanes.push_back(std::move(lane));
   }

@@ -9,6 +9,7 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
+#include "common/file_lock.h"
 #include "nn/receptive_field.h"
 #include "train/trainer.h"
 
@@ -54,7 +55,9 @@ int main(int argc, char** argv) {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-augment", "no azimuth roll or mirror")
     ("out", "checkpoint (HDF5), written every epoch", cxxopts::value<std::string>()->default_value("checkpoint.h5"))
-    ("resume", "continue from --out if it exists")
+    ("resume", "continue from --out if it exists (refused when a setting differs from the checkpoint's)")
+    ("override", "with --resume: settings that may differ from the checkpoint's, comma-separated (e.g. epochs,lr)",
+     cxxopts::value<std::string>())
     ("export-weights", "at the end, also write the weights alone (for inference) here", cxxopts::value<std::string>())
     ("log", "write per-epoch metrics as CSV here", cxxopts::value<std::string>())
     ("quiet", "no progress bar")
@@ -83,10 +86,17 @@ int main(int argc, char** argv) {
     config.augment_roll = config.augment_mirror = !args.count("no-augment");
     config.out = args["out"].as<std::string>();
     config.resume = args.count("resume") > 0;
+    if (args.count("override")) config.resume_overrides = split_list(args["override"].as<std::string>());
     if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
     config.progress = !args.count("quiet");
     config.split = args["split"].as<std::string>();
     const int half_width = nn::receptive_field_half_width({1, 1, config.base, config.depth});
+
+    // One trainer per output: a second one is refused instead of silently overwriting it.
+    const OutputLock lock(config.out);
+    for (const auto& path : {config.out, config.export_weights.value_or(""),
+                             std::filesystem::path(args.count("log") ? args["log"].as<std::string>() : "")})
+      if (!path.empty()) remove_stale_temp_files(path);  // left by a run that was killed while writing
 
     std::string csv = "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
     std::signal(SIGINT, on_sigint);

@@ -98,21 +98,84 @@ std::vector<std::string> required_channels(const pgm::EncoderConfig& encoder) {
   return names;
 }
 
-std::string describe_config(const TrainConfig& c) {
+// Every setting that changes the run's result (the checkpoint stores it as train_config and a
+// resume compares it key by key, so a setting added here is checked on resume too).
+nlohmann::json run_settings(const TrainConfig& c) {
   nlohmann::json j;
   std::vector<std::string> data;
   for (const auto& p : c.data) data.push_back(p.string());
   j["data"] = data;
   j["validation"] = c.validation ? c.validation->string() : "split " + c.split + " of --data";
+  j["channels"] = c.encoder.channels;
+  j["base"] = c.base;
+  j["depth"] = c.depth;
   j["epochs"] = c.epochs;
+  j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
   j["crop_columns"] = c.crop_columns;
   j["lr"] = c.lr;
   j["final_lr_fraction"] = c.final_lr_fraction;
+  j["lambda"] = c.lambda;
+  j["seed"] = c.seed;
   j["augment_roll"] = c.augment_roll;
   j["augment_mirror"] = c.augment_mirror;
-  j["threads"] = c.threads;
-  return j.dump();
+  j["threads"] = c.threads;  // results are bit-identical only with the same thread count
+  return j;
+}
+
+std::string describe_config(const TrainConfig& c) { return run_settings(c).dump(); }
+
+// Refuses a resume whose settings differ from the checkpoint's, except those the user named.
+void check_resume_settings(const TrainConfig& c, const nn::Checkpoint& meta) {
+  const auto stored_text = meta.attributes.find("train_config");
+  if (stored_text == meta.attributes.end()) return;  // checkpoints from before train_config
+  nlohmann::json stored;
+  try {
+    stored = nlohmann::json::parse(stored_text->second);
+  } catch (const nlohmann::json::exception&) {
+    throw input_error(c.out.string(), "/config/train_config", "not valid JSON");
+  }
+  if (!stored.is_object()) throw input_error(c.out.string(), "/config/train_config", "expected a JSON object");
+  const nlohmann::json now = run_settings(c);
+  std::string differences, names;
+  for (const auto& [key, value] : now.items()) {
+    if (!stored.contains(key) || stored[key] == value) continue;
+    const bool overridden = std::find(c.resume_overrides.begin(), c.resume_overrides.end(), key) != c.resume_overrides.end();
+    if (overridden) {
+      std::fprintf(stderr, "lidar-train: resuming with %s %s (the checkpoint has %s), as overridden\n", key.c_str(),
+                   value.dump().c_str(), stored[key].dump().c_str());
+      continue;
+    }
+    differences += (differences.empty() ? "" : ", ") + key + " " + stored[key].dump() + " -> " + value.dump();
+    names += (names.empty() ? "" : ",") + key;
+  }
+  if (!differences.empty())
+    throw input_error(c.out.string(), "/config/train_config",
+                      "resume with other settings than the checkpoint's (" + differences +
+                          "); the run would not continue the same training. Pass --override " + names +
+                          " to resume anyway");
+}
+
+// Settings that cannot work, refused before anything is read or allocated.
+void validate_settings(const TrainConfig& c) {
+  auto refuse = [](const std::string& option, const std::string& rule, const std::string& got) {
+    throw Error("lidar-train: --" + option + ": " + rule + ", got " + got);
+  };
+  if (c.epochs < 1 || c.epochs > 1000000) refuse("epochs", "must be in [1, 1000000]", std::to_string(c.epochs));
+  if (c.steps_per_epoch < 0 || c.steps_per_epoch > 100000000)
+    refuse("steps-per-epoch", "must be in [0, 100000000] (0: one pass over the frames)", std::to_string(c.steps_per_epoch));
+  if (c.batch < 1 || c.batch > 256) refuse("batch", "must be in [1, 256]", std::to_string(c.batch));
+  if (c.threads < 1 || c.threads > 1024) refuse("threads", "must be in [1, 1024]", std::to_string(c.threads));
+  if (c.base < 1 || c.base > 1024) refuse("base", "must be in [1, 1024]", std::to_string(c.base));
+  if (c.depth < 1 || c.depth > 10) refuse("depth", "must be in [1, 10]", std::to_string(c.depth));
+  const int multiple = 1 << c.depth;
+  if (c.crop_columns < 0 || c.crop_columns % multiple != 0)
+    refuse("crop", "must be 0 (whole scans) or a positive multiple of 2^depth = " + std::to_string(multiple),
+           std::to_string(c.crop_columns));
+  if (!(c.lr > 0) || !std::isfinite(c.lr)) refuse("lr", "must be a finite number > 0", std::to_string(c.lr));
+  if (!(c.lambda >= 0) || !std::isfinite(c.lambda)) refuse("lambda", "must be a finite number >= 0", std::to_string(c.lambda));
+  if (!(c.final_lr_fraction >= 0 && c.final_lr_fraction <= 1))
+    refuse("final-lr-fraction", "must be in [0, 1]", std::to_string(c.final_lr_fraction));
 }
 
 }  // namespace
@@ -144,6 +207,7 @@ pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoi
 
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
   if (config.data.empty()) throw Error("lidar-train: no training data given");
+  validate_settings(config);  // before reading gigabytes of data
   const auto channels = required_channels(config.encoder);
   std::vector<data::Dataset> sets;
   for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
@@ -159,9 +223,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
                      const std::vector<std::string>& names, const data::Dataset* val_set,
                      const std::function<void(const EpochReport&)>& on_epoch) {
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
-  if (config.batch < 1 || config.epochs < 1 || config.threads < 1)
-    throw Error("lidar-train: batch, epochs and threads must be at least 1");
-  if (!(config.lr > 0) || !(config.lambda >= 0)) throw Error("lidar-train: lr must be > 0 and lambda >= 0");
+  validate_settings(config);
   omp_set_num_threads(config.threads);
 
   // --- data: every frame encoded once ---------------------------------------------------------
@@ -235,6 +297,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     const auto enc = meta.attributes.find("encoder");
     if (enc == meta.attributes.end() || enc->second != config.encoder.to_json())
       throw input_error(config.out.string(), "/config/encoder", "input encoding differs from the requested one");
+    check_resume_settings(config, meta);
     nn::load_checkpoint(config.out, model, &optimizer);
     step = meta.state.step;
     std::fprintf(stderr, "lidar-train: resuming %s at step %lld (epoch %lld)\n", config.out.c_str(),

@@ -46,6 +46,10 @@ struct TrainConfig {
   bool augment_mirror = true;  // left-right mirror
   std::filesystem::path out = "checkpoint.h5";  // empty: no checkpoints (train_on only)
   bool resume = false;         // continue from `out` if it exists
+  // Settings that may differ from the checkpoint's on resume (names as in its train_config,
+  // e.g. "epochs", "lr"); any other difference is refused. Every field above that changes the
+  // run is recorded in train_config (trainer.cpp, run_settings) and so compared.
+  std::vector<std::string> resume_overrides;
   // At the end, also write the weights alone (no optimizer state): a third of the size, for
   // shipping a model for inference.
   std::optional<std::filesystem::path> export_weights;

@@ -152,7 +152,7 @@ TEST(Dataset, PlacesRoundTripAndOldFilesFallBackToTheFrameId) {
   EXPECT_EQ(o.frame_place(1), (data::FramePlace{"kitti_object", "", "000123"}));
 }
 
-TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledAndDeflated) {
+TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledDeflatedAndChecksummed) {
   TempDir dir;
   data::write_dataset(dir / "d.h5", two_frames());
   hid_t f = H5Fopen((dir / "d.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
@@ -173,8 +173,70 @@ TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledAndDeflated) {
     }
     EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_SHUFFLE), filters.end()) << name;
     EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_DEFLATE), filters.end()) << name;
+    // Fletcher-32 last: it sums each chunk as stored, after compression (issue 13).
+    ASSERT_FALSE(filters.empty()) << name;
+    EXPECT_EQ(filters.back(), H5Z_FILTER_FLETCHER32) << name;
     H5Pclose(plist);
     H5Dclose(ds);
   }
   H5Fclose(f);
+}
+
+namespace {
+// Writes a variable-length string attribute or 1-D dataset, as files before issue 13 held them.
+void write_vlen_attr(hid_t obj, const char* name, const std::string& value) {
+  hid_t type = H5Tcopy(H5T_C_S1);
+  H5Tset_size(type, H5T_VARIABLE);
+  hid_t space = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(obj, name, type, space, H5P_DEFAULT, H5P_DEFAULT);
+  const char* p = value.c_str();
+  H5Awrite(a, type, &p);
+  H5Aclose(a), H5Sclose(space), H5Tclose(type);
+}
+void write_vlen_strings(hid_t file, const char* name, const std::vector<std::string>& values) {
+  hid_t type = H5Tcopy(H5T_C_S1);
+  H5Tset_size(type, H5T_VARIABLE);
+  hsize_t n = values.size();
+  hid_t space = H5Screate_simple(1, &n, nullptr);
+  hid_t ds = H5Dcreate2(file, name, type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  std::vector<const char*> ptrs;
+  for (const auto& v : values) ptrs.push_back(v.c_str());
+  H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, ptrs.data());
+  H5Dclose(ds), H5Sclose(space), H5Tclose(type);
+}
+void write_plain(hid_t file, const char* name, hid_t type, std::vector<hsize_t> dims, const void* data) {
+  hid_t space = H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr);
+  hid_t ds = H5Dcreate2(file, name, type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
+  H5Dclose(ds), H5Sclose(space);
+}
+}  // namespace
+
+TEST(Dataset, OldFilesWithVariableLengthStringsAndNoChecksumsStillLoad) {
+  TempDir dir;
+  const auto d = two_frames();
+  const hsize_t n = d.size(), c = d.channels.size(), h = d.rows(), w = d.cols();
+  hid_t f = H5Fcreate((dir / "old.h5").c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);  // default (1.8-compatible) format
+  ASSERT_GE(f, 0);
+  write_plain(f, "/pgm", H5T_NATIVE_FLOAT, {n, c, h, w}, d.pgm.data());
+  write_plain(f, "/target", H5T_NATIVE_FLOAT, {n, 1, h, w}, d.target.data());
+  std::vector<std::uint8_t> mask(d.mask.begin(), d.mask.end());
+  write_plain(f, "/mask", H5T_NATIVE_UINT8, {n, 1, h, w}, mask.data());
+  write_vlen_strings(f, "/frames", d.frames);
+  write_vlen_strings(f, "/sources", d.sources);
+  hid_t root = H5Gopen2(f, "/", H5P_DEFAULT);
+  write_vlen_attr(root, "format", "lidarsim-dataset");
+  write_vlen_attr(root, "channels", R"(["range","class","material"])");
+  write_vlen_attr(root, "beam_layout", d.layout.to_json());
+  write_vlen_attr(root, "source_format", "test");
+  write_vlen_attr(root, "row_modes", R"(["nearest_elevation","nearest_elevation"])");
+  H5Gclose(root);
+  H5Fclose(f);
+  const auto r = data::read_dataset(dir / "old.h5");
+  EXPECT_EQ(r.frames, d.frames);
+  EXPECT_EQ(r.sources, d.sources);
+  EXPECT_EQ(r.source_format, "test");
+  EXPECT_EQ(r.row_modes.size(), 2u);
+  EXPECT_TRUE(std::equal(r.pgm.begin(), r.pgm.end(), d.pgm.begin(), d.pgm.end()));
+  EXPECT_TRUE(std::equal(r.target.begin(), r.target.end(), d.target.begin(), d.target.end()));
 }

@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# Fuzz every reader with libFuzzer (clang, ASan + UBSan): scripts/fuzz.sh [seconds per target] [target...]
+# Builds build-fuzz/ with clang (installed here if missing; the normal build never needs it),
+# seeds each target from data/, ../shared/data and fuzz/regressions/, runs the targets one after
+# the other at nice 19 and prints executions, crashes, hangs (timeouts), leaks and out-of-memory
+# per target. Findings land in fuzz/regressions/<target>/, which tests/fuzz replays in every build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${1:-60}
+shift || true
+root=$PWD
+shared=${LIDARSIM_SHARED_DATA:-$root/../shared/data}
+build=${LIDARSIM_FUZZ_BUILD_DIR:-build-fuzz}
+
+packages=(clang libclang-rt-dev libomp-dev)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "fuzz: installing ${missing[*]}" >&2
+  sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+  "${sudo_cmd[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+targets=$(cat fuzz/targets.txt)
+(($#)) && targets="$*"
+CC=clang CXX=clang++ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DLIDARSIM_FUZZ=ON \
+  -DLIDARSIM_SANITIZE=address,undefined >/dev/null
+for t in $targets; do nice -n 19 cmake --build "$build" -j2 --target "fuzz_$t" >/dev/null; done
+
+# Seeds: small pieces of real files (a libFuzzer input is at most -max_len bytes; scans are MBs).
+seeds=$build/seeds
+rm -rf "$seeds"
+seed() {  # seed TARGET FILE [BYTES]
+  mkdir -p "$seeds/$1"
+  [ -f "$2" ] || return 0
+  head -c "${3:-65536}" "$2" > "$seeds/$1/$(echo "$2" | md5sum | cut -c1-12)"
+}
+for f in $(ls data/samples/semantickitti/sequences/*/velodyne/*.bin "$shared"/kitti-object-*/training/velodyne/*.bin 2>/dev/null | head -4); do
+  seed velodyne "$f" 4096
+done
+for f in $(ls "$shared"/kitti-object-*/training/label_2/*.txt 2>/dev/null | head -8); do seed kitti_object_label "$f"; done
+for f in $(ls "$shared"/kitti-object-*/training/calib/*.txt "$shared"/kitti-tracking-gt-pointrcnn/calib/*.txt 2>/dev/null | head -8); do
+  seed kitti_calib "$f"
+done
+for f in $(ls "$shared"/kitti-tracking-gt-pointrcnn/label_02/*.txt 2>/dev/null | head -4); do seed tracking_labels "$f" 8192; done
+for f in $(ls "$shared"/kitti-tracking-gt-pointrcnn/detection/*/*.txt 2>/dev/null | head -6); do seed tracking_detections "$f" 8192; done
+for f in "$shared"/kitti-tracking-gt-pointrcnn/*.seqmap*; do seed tracking_seqmap "$f"; done
+for f in data/scenarios/*.json; do seed scenario "$f" 1000000; done
+for f in data/models/*.json; do seed kpi_model "$f" 1000000; done
+for f in data/models/*.h5 tests/fixtures/*.h5; do seed checkpoint "$f" 10000000; done
+# A dataset seed: the bundled scan imported at a small grid (a few KB).
+if [ -x build/data/lidar-data ]; then
+  build/data/lidar-data import --quiet --semantickitti data/samples/semantickitti --columns 16 \
+    --channels incidence --out "$build/seed_dataset.h5" >/dev/null 2>&1 && seed dataset "$build/seed_dataset.h5" 10000000
+fi
+
+printf "%-20s %12s %8s %8s %6s %6s\n" target execs crashes hangs leaks ooms
+for t in $targets; do
+  corpus=$build/corpus/$t
+  regressions=fuzz/regressions/$t
+  mkdir -p "$corpus" "$regressions" "$seeds/$t"
+  log=$build/logs/$t.log
+  mkdir -p "$(dirname "$log")"
+  before=$(ls "$regressions" | wc -l)
+  # -fork-less run; leaks are checked at exit of each input by LeakSanitizer (detect_leaks=1).
+  ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+    nice -n 19 "$build/fuzz/fuzz_$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len=65536 \
+      -print_final_stats=1 -artifact_prefix="$regressions/" "$corpus" "$seeds/$t" "$regressions" >"$log" 2>&1 || true
+  execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+  count() { ls "$regressions" | grep -c "^$1-" || true; }
+  printf "%-20s %12s %8s %8s %6s %6s\n" "$t" "${execs:-?}" "$(count crash)" "$(count timeout)" "$(count leak)" "$(count oom)"
+done
+echo "logs: $build/logs/; findings (if any): fuzz/regressions/<target>/ (replayed by tests/fuzz)"
