@@ -201,6 +201,11 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
           dets[0] += line;
         }
     }
+    // A DontCare region in the last frame, as KITTI's label files have: the reader takes the last
+    // labelled frame as the sequence's end, and clutter may fall into frames after the last track.
+    std::snprintf(line, sizeof line, "%d -1 DontCare -1 -1 -10 0 0 100 100 -1 -1 -1 -1000 -1000 -1000 -10\n",
+                  o.frames - 1);
+    labels += line;
     write_file_atomically(dir / "label_02" / (name + ".txt"), labels);
     const char* cls_names[3] = {"Car", "Pedestrian", "Cyclist"};
     for (int k = 0; k < 3; ++k)
