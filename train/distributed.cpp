@@ -47,10 +47,12 @@ constexpr int kMessageBytes = 1024;
 }  // namespace
 
 Distributed::Session::Session(int* argc, char*** argv) {
-  if (!launched_by_mpi() || mpi_running()) return;
-  int provided = 0;
-  // OpenMP threads compute; MPI is called from the main thread only.
-  MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided);
+  if (!mpi_running()) {  // else a caller (bench_mpi) started MPI itself
+    if (!launched_by_mpi()) return;
+    int provided = 0;
+    // OpenMP threads compute; MPI is called from the main thread only.
+    MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided);
+  }
   Distributed& d = world();
   MPI_Comm_rank(MPI_COMM_WORLD, &d.rank_);
   MPI_Comm_size(MPI_COMM_WORLD, &d.size_);
