@@ -7,7 +7,8 @@
 
 namespace lidarsim::nn {
 
-LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred) {
+LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred,
+                     long denominator) {
   if (!(pred.shape() == target.shape()))
     throw Error("masked_mse: target: expected shape " + pred.shape().str() + ", got " + target.shape().str());
   if (!(pred.shape() == mask.shape()))
@@ -31,7 +32,7 @@ LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mas
     sum += m[i] * d * d;
     ++valid;
   }
-  const double denom = valid > 0 ? static_cast<double>(valid) : 1.0;
+  const double denom = denominator > 0 ? static_cast<double>(denominator) : valid > 0 ? static_cast<double>(valid) : 1.0;
   if (d_pred) {
     if (!(d_pred->shape() == pred.shape())) d_pred->resize(pred.shape());
     float* g = d_pred->data();

@@ -14,8 +14,11 @@ struct LossParts {
   long valid = 0;    // cells with mask != 0
 };
 
-// pred, target, mask: [N, 1, H, W]; mask holds 0 or 1 as float.
-LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred);
+// pred, target, mask: [N, 1, H, W]; mask holds 0 or 1 as float. `denominator` > 0 divides by
+// that count of cells instead of this batch's own: data-parallel training passes the count over
+// every process's part of the batch, so the parts' losses and gradients add up to the whole's.
+LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred,
+                     long denominator = 0);
 // Adds lambda * sum(w^2) and, when grads is true, 2 lambda w to the arena's gradients.
 double l2_penalty(ParamArena& params, float lambda, bool grads);
 

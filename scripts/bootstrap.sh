@@ -4,8 +4,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# openmpi-bin, libopenmpi-dev: optional, they turn on `mpirun -np N lidar-train` (LIDARSIM_MPI).
 packages=(cmake g++ make libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev libgmock-dev
-          nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev)
+          nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev
+          openmpi-bin libopenmpi-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

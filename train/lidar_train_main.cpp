@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include <cxxopts.hpp>
@@ -11,6 +12,7 @@
 #include "common/error.h"
 #include "common/file_lock.h"
 #include "nn/receptive_field.h"
+#include "train/distributed.h"
 #include "train/trainer.h"
 
 namespace {
@@ -32,11 +34,16 @@ std::vector<std::string> split_list(const std::string& text) {
 
 int main(int argc, char** argv) {
   using namespace lidarsim;
+  // Under mpirun -np N: N ranks train one model, --batch is split between them (README).
+  const train::Distributed::Session mpi(&argc, &argv);
+  train::Distributed& dist = train::Distributed::world();
   cxxopts::Options options("lidar-train",
                            "Train the intensity UNet (masked MSE + L2 on the weights) on Polar Grid Map datasets.\n"
                            "Without --val, validation holds out the cells of --split (data/split.h): by default\n"
                            "azimuth regions with guard bands of twice the model's receptive-field half-width.\n"
-                           "Ctrl-C saves a checkpoint and exits; --resume continues it to the same result.");
+                           "Ctrl-C saves a checkpoint and exits; --resume continues it to the same result.\n"
+                           "mpirun -np N lidar-train ... trains on N processes (--batch: the global batch, a\n"
+                           "multiple of N; --threads: per process); rank 0 writes the checkpoint and the log.");
   // clang-format off
   options.add_options()
     ("data", "training dataset(s), HDF5 from lidar-data import (comma-separated)", cxxopts::value<std::string>())
@@ -45,7 +52,7 @@ int main(int argc, char** argv) {
     ("channels", "input channels of the PGM, comma-separated", cxxopts::value<std::string>()->default_value("range,class,material"))
     ("epochs", "epochs", cxxopts::value<int>()->default_value("100"))
     ("steps-per-epoch", "steps per epoch (0: one pass over the frames)", cxxopts::value<int>()->default_value("0"))
-    ("batch", "frames per step", cxxopts::value<int>()->default_value("1"))
+    ("batch", "frames per step (under mpirun: over all ranks)", cxxopts::value<int>()->default_value("1"))
     ("crop", "train on random azimuth crops this many columns wide (0: whole scans)", cxxopts::value<int>()->default_value("0"))
     ("lr", "Adam learning rate (cosine decay to 5% over the run)", cxxopts::value<float>()->default_value("0.002"))
     ("lambda", "L2 weight on the sum of squared weights", cxxopts::value<float>()->default_value("1e-6"))
@@ -66,7 +73,7 @@ int main(int argc, char** argv) {
   try {
     const auto args = options.parse(argc, argv);
     if (args.count("help") || !args.count("data")) {
-      std::cout << options.help() << "\n";
+      if (dist.root()) std::cout << options.help() << "\n";
       return args.count("help") ? 0 : 2;
     }
     train::TrainConfig config;
@@ -92,14 +99,26 @@ int main(int argc, char** argv) {
     config.split = args["split"].as<std::string>();
     const int half_width = nn::receptive_field_half_width({1, 1, config.base, config.depth});
 
-    // One trainer per output: a second one is refused instead of silently overwriting it.
-    const OutputLock lock(config.out);
-    for (const auto& path : {config.out, config.export_weights.value_or(""),
-                             std::filesystem::path(args.count("log") ? args["log"].as<std::string>() : "")})
-      if (!path.empty()) remove_stale_temp_files(path);  // left by a run that was killed while writing
+    // One trainer per output: a second one is refused instead of silently overwriting it. Under
+    // MPI rank 0 alone writes, so it alone holds the lock.
+    std::optional<OutputLock> lock;
+    std::string lock_error;
+    try {
+      if (dist.root()) {
+        lock.emplace(config.out);
+        for (const auto& path : {config.out, config.export_weights.value_or(""),
+                                 std::filesystem::path(args.count("log") ? args["log"].as<std::string>() : "")})
+          if (!path.empty()) remove_stale_temp_files(path);  // left by a run that was killed while writing
+      }
+    } catch (const std::exception& e) {
+      if (!dist.active()) throw;
+      lock_error = e.what();
+    }
+    dist.agree(lock_error);
 
     std::string csv = "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
     std::signal(SIGINT, on_sigint);
+    if (dist.active()) std::signal(SIGUSR1, on_sigint);  // mpirun forwards SIGUSR1, not SIGINT, to the ranks
     const auto result = train::train(config, [&](const train::EpochReport& r) {
       std::fprintf(stderr, "epoch %d/%d  loss %.5f  val MAE %.4f  RMSE %.4f  (%ld cells)  -> %s\n", r.epoch,
                    config.epochs, r.train_loss, r.validation.mae, r.validation.rmse, r.validation.cells,
@@ -110,6 +129,7 @@ int main(int argc, char** argv) {
       csv += line;
       if (args.count("log")) write_file_atomically(args["log"].as<std::string>(), csv);
     });
+    if (!dist.root()) return result.interrupted ? 130 : 0;  // rank 0 reports
     if (result.interrupted) {
       std::fprintf(stderr, "interrupted at step %lld: checkpoint saved to %s (continue with --resume)\n",
                    static_cast<long long>(result.steps), config.out.c_str());
@@ -124,9 +144,13 @@ int main(int argc, char** argv) {
     }
     return 0;
   } catch (const cxxopts::exceptions::exception& e) {
-    std::fprintf(stderr, "error: %s (see --help)\n", e.what());
+    if (dist.root()) std::fprintf(stderr, "error: %s (see --help)\n", e.what());
     return 2;
+  } catch (const train::FailedElsewhere&) {
+    return 1;  // rank 0 prints the error
   } catch (const std::exception& e) {
+    // An error the ranks did not agree on: the others may wait for this one, so end them all.
+    if (dist.active() && !dynamic_cast<const train::AgreedError*>(&e)) dist.abort(e.what());
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;
   }

@@ -16,6 +16,7 @@
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/receptive_field.h"
+#include "train/distributed.h"
 
 namespace lidarsim::train {
 namespace {
@@ -120,6 +121,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   j["augment_roll"] = c.augment_roll;
   j["augment_mirror"] = c.augment_mirror;
   j["threads"] = c.threads;  // results are bit-identical only with the same thread count
+  j["ranks"] = Distributed::world().size();  // ... and the same number of MPI ranks
   return j;
 }
 
@@ -142,7 +144,8 @@ void check_resume_settings(const TrainConfig& c, const nn::Checkpoint& meta) {
     if (!stored.contains(key) || stored[key] == value) continue;
     const bool overridden = std::find(c.resume_overrides.begin(), c.resume_overrides.end(), key) != c.resume_overrides.end();
     if (overridden) {
-      std::fprintf(stderr, "lidar-train: resuming with %s %s (the checkpoint has %s), as overridden\n", key.c_str(),
+      if (Distributed::world().root())
+        std::fprintf(stderr, "lidar-train: resuming with %s %s (the checkpoint has %s), as overridden\n", key.c_str(),
                    value.dump().c_str(), stored[key].dump().c_str());
       continue;
     }
@@ -165,6 +168,9 @@ void validate_settings(const TrainConfig& c) {
   if (c.steps_per_epoch < 0 || c.steps_per_epoch > 100000000)
     refuse("steps-per-epoch", "must be in [0, 100000000] (0: one pass over the frames)", std::to_string(c.steps_per_epoch));
   if (c.batch < 1 || c.batch > 256) refuse("batch", "must be in [1, 256]", std::to_string(c.batch));
+  const int ranks = Distributed::world().size();
+  if (c.batch % ranks != 0)
+    refuse("batch", "the global batch must be a multiple of the " + std::to_string(ranks) + " MPI ranks", std::to_string(c.batch));
   if (c.threads < 1 || c.threads > 1024) refuse("threads", "must be in [1, 1024]", std::to_string(c.threads));
   if (c.base < 1 || c.base > 1024) refuse("base", "must be in [1, 1024]", std::to_string(c.base));
   if (c.depth < 1 || c.depth > 10) refuse("depth", "must be in [1, 10]", std::to_string(c.depth));
@@ -178,6 +184,33 @@ void validate_settings(const TrainConfig& c) {
     refuse("final-lr-fraction", "must be in [0, 1]", std::to_string(c.final_lr_fraction));
 }
 
+// One step's gradients over every rank's part of the batch (x, y, m hold this rank's part):
+// the loss is normalised by the cells of the whole global batch, the parameter gradients are
+// summed in rank order, failures and stop requests are agreed on before anything changes.
+// Returns the data loss of the whole batch; `stop` is set when any rank was asked to stop.
+double data_parallel_gradients(nn::UNet& model, const nn::Tensor& x, const nn::Tensor& y, const nn::Tensor& m,
+                               nn::Tensor& pred, nn::Tensor& d_pred, bool& stop) {
+  Distributed& dist = Distributed::world();
+  std::int64_t valid = 0;
+  for (const float v : m) valid += v != 0.f;
+  dist.sum(&valid, 1);
+  std::string error;
+  double status[3] = {0, 0, stop_requested().load() ? 1.0 : 0.0};  // data loss, failed ranks, stop requests
+  try {
+    model.forward(x, pred);
+    status[0] = nn::masked_mse(pred, y, m, &d_pred, static_cast<long>(valid)).data;
+    model.backward(d_pred);
+  } catch (const std::exception& e) {
+    error = *e.what() ? e.what() : "unknown error";
+    status[1] = 1;
+  }
+  dist.sum_in_rank_order(status, 3);
+  if (status[1] > 0) dist.agree(error);  // throws on every rank
+  dist.sum_in_rank_order(model.params().grads(), model.params().size());
+  stop = status[2] > 0;
+  return status[0];
+}
+
 }  // namespace
 
 std::atomic<bool>& stop_requested() {
@@ -185,16 +218,53 @@ std::atomic<bool>& stop_requested() {
   return flag;
 }
 
-nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
+namespace {
+
+// Predicts frames rank, rank + ranks, ...; the others stay 0.
+nn::Tensor predict_frames(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset, int rank,
+                          int ranks) {
   const int rows = dataset.rows(), cols = dataset.cols();
   nn::Tensor out(dataset.size(), 1, rows, cols);
   nn::Tensor input(1, encoder.input_channels(), rows, cols), pred;
-  for (int n = 0; n < dataset.size(); ++n) {
+  for (int n = rank; n < dataset.size(); n += ranks) {
     pgm::encode_input(dataset.view(n), encoder, input, 0);
     model.predict(input, pred);
     std::copy(pred.begin(), pred.end(), out.image(n));
   }
   return out;
+}
+
+// Every rank predicts its share of the frames; adding the shares (x + 0 = x) gives every rank the
+// same predictions, bit for bit, as one process would make.
+nn::Tensor predict_shared(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
+  Distributed& dist = Distributed::world();
+  nn::Tensor out = predict_frames(model, encoder, dataset, dist.rank(), dist.size());
+  dist.sum_in_rank_order(out.data(), out.numel());
+  return out;
+}
+
+// Runs `f` (no collective calls inside) and agrees with the other ranks on whether it failed.
+template <class F>
+void agreed(F&& f) {
+  Distributed& dist = Distributed::world();
+  if (!dist.active()) return f();
+  std::string error;
+  try {
+    f();
+  } catch (const std::exception& e) {
+    error = *e.what() ? e.what() : "unknown error";
+  }
+  dist.agree(error);
+}
+
+TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
+                           const std::vector<std::string>& names, const data::Dataset* val_set,
+                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up);
+
+}  // namespace
+
+nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
+  return predict_frames(model, encoder, dataset, 0, 1);
 }
 
 pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoint) {
@@ -206,13 +276,16 @@ pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoi
 }
 
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
-  if (config.data.empty()) throw Error("lidar-train: no training data given");
-  validate_settings(config);  // before reading gigabytes of data
-  const auto channels = required_channels(config.encoder);
   std::vector<data::Dataset> sets;
-  for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
   std::optional<data::Dataset> val_set;
-  if (config.validation) val_set = data::read_dataset(*config.validation, channels);
+  // Every rank reads the data; a rank that cannot is reported by rank 0 (distributed.h).
+  agreed([&] {
+    if (config.data.empty()) throw Error("lidar-train: no training data given");
+    validate_settings(config);  // before reading gigabytes of data
+    const auto channels = required_channels(config.encoder);
+    for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
+    if (config.validation) val_set = data::read_dataset(*config.validation, channels);
+  });
   std::vector<const data::Dataset*> views;
   std::vector<std::string> names;
   for (std::size_t i = 0; i < sets.size(); ++i) views.push_back(&sets[i]), names.push_back(config.data[i].string());
@@ -222,6 +295,27 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
 TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
                      const std::vector<std::string>& names, const data::Dataset* val_set,
                      const std::function<void(const EpochReport&)>& on_epoch) {
+  Distributed& dist = Distributed::world();
+  bool set_up = false;
+  if (!dist.active()) return train_on_ranks(config, train_sets, names, val_set, on_epoch, set_up);
+  try {
+    return train_on_ranks(config, train_sets, names, val_set, on_epoch, set_up);
+  } catch (const AgreedError&) {
+    throw;
+  } catch (const std::exception& e) {
+    // Set-up makes no collective call before its end, where every rank agrees: a failing rank
+    // joins that agreement here. Later, the other ranks may be waiting in another collective.
+    if (!set_up) dist.agree(e.what());
+    dist.abort(e.what());
+  }
+}
+
+namespace {
+
+TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
+                           const std::vector<std::string>& names, const data::Dataset* val_set,
+                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up) {
+  Distributed& dist = Distributed::world();
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);
   omp_set_num_threads(config.threads);
@@ -242,7 +336,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     throw Error("lidar-train: --split " + config.split + ": guard bands of " + std::to_string(split.guard_columns) +
                 " columns are narrower than twice the model's receptive-field half-width (" +
                 std::to_string(half_width) + " columns): validation would leak");
-  if (sector_split && config.progress)
+  if (sector_split && config.progress && dist.root())
     std::fprintf(stderr, "lidar-train: receptive field half-width %d columns; split: %s\n", half_width,
                  split.describe(cols).c_str());
 
@@ -271,7 +365,8 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   bool roll = config.augment_roll, mirror = config.augment_mirror;
   for (const auto& c : config.encoder.channels)
     if ((c == "azimuth" || c == "x" || c == "y") && (roll || mirror)) {
-      std::fprintf(stderr, "lidar-train: channel '%s' encodes direction: azimuth roll and mirror are off\n", c.c_str());
+      if (dist.root())
+        std::fprintf(stderr, "lidar-train: channel '%s' encodes direction: azimuth roll and mirror are off\n", c.c_str());
       roll = mirror = false;
     }
   const int width = config.crop_columns > 0 ? std::min(config.crop_columns, cols) : cols;
@@ -300,7 +395,8 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     check_resume_settings(config, meta);
     nn::load_checkpoint(config.out, model, &optimizer);
     step = meta.state.step;
-    std::fprintf(stderr, "lidar-train: resuming %s at step %lld (epoch %lld)\n", config.out.c_str(),
+    if (dist.root())
+      std::fprintf(stderr, "lidar-train: resuming %s at step %lld (epoch %lld)\n", config.out.c_str(),
                  static_cast<long long>(step), static_cast<long long>(step / steps_per_epoch));
   }
 
@@ -318,26 +414,32 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     meta.state.step = at_step;
     meta.state.epoch = at_step / steps_per_epoch;
     meta.state.rng = "counter-based: seed " + std::to_string(config.seed) + ", step " + std::to_string(at_step);
-    if (checkpoints) nn::save_checkpoint(config.out, model, &optimizer, meta);
+    if (checkpoints && dist.root()) nn::save_checkpoint(config.out, model, &optimizer, meta);  // rank 0 alone writes
   };
 
   auto validate = [&]() {
     std::vector<data::Metrics> parts;
     if (val_set) {
-      parts.push_back(data::evaluate_prediction(*val_set, predict_dataset(model, config.encoder, *val_set), true,
+      parts.push_back(data::evaluate_prediction(*val_set, predict_shared(model, config.encoder, *val_set), true,
                                                 all_validation()));
     } else {
       for (const data::Dataset* set : train_sets)
-        parts.push_back(data::evaluate_prediction(*set, predict_dataset(model, config.encoder, *set), true, split));
+        parts.push_back(data::evaluate_prediction(*set, predict_shared(model, config.encoder, *set), true, split));
     }
     return merge(parts);
   };
 
+  // Every rank is set up (data read, model built, checkpoint loaded) before the first step.
+  dist.agree("");
+  set_up = true;
+
   // --- the loop -------------------------------------------------------------------------------
-  nn::Tensor x(config.batch, in_channels, rows, width), y(config.batch, 1, rows, width),
-      m(config.batch, 1, rows, width), pred, d_pred;
+  // This rank's part of the global batch: all of it in one process.
+  const BatchShare share = batch_share(config.batch, dist.rank(), dist.size());
+  nn::Tensor x(share.count, in_channels, rows, width), y(share.count, 1, rows, width), m(share.count, 1, rows, width),
+      pred, d_pred;
   TrainResult result;
-  ProgressBar bar("train", total_steps, config.progress);
+  ProgressBar bar("train", total_steps, config.progress && dist.root());
   double epoch_loss = 0;
   int epoch_steps = 0;
   while (step < total_steps) {
@@ -352,22 +454,30 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
                                              : (width < cols ? static_cast<int>(rng % (cols - width + 1)) : 0);
       rng = splitmix64(rng);
       const bool flip = mirror && (rng & 1);
-      place(frames[f].input, x, b, offset, flip);
-      place(frames[f].target, y, b, offset, flip);
-      place(frames[f].train_mask, m, b, offset, flip);
+      if (b < share.begin || b >= share.begin + share.count) continue;  // another rank's sample
+      place(frames[f].input, x, b - share.begin, offset, flip);
+      place(frames[f].target, y, b - share.begin, offset, flip);
+      place(frames[f].train_mask, m, b - share.begin, offset, flip);
     }
     model.params().zero_grads();
-    model.forward(x, pred);
-    const nn::LossParts loss = nn::masked_mse(pred, y, m, &d_pred);
-    const double l2 = nn::l2_penalty(model.params(), config.lambda, true);
-    model.backward(d_pred);
+    double data_loss = 0, l2 = 0;
+    bool stop = false;
+    if (!dist.active()) {
+      model.forward(x, pred);
+      data_loss = nn::masked_mse(pred, y, m, &d_pred).data;
+      l2 = nn::l2_penalty(model.params(), config.lambda, true);
+      model.backward(d_pred);
+    } else {
+      data_loss = data_parallel_gradients(model, x, y, m, pred, d_pred, stop);
+      l2 = nn::l2_penalty(model.params(), config.lambda, true);  // once, on the summed gradients
+    }
     optimizer.set_lr(learning_rate(config, step, total_steps));
     optimizer.step(model.params());
     ++step;
-    epoch_loss += loss.data + l2;
+    epoch_loss += data_loss + l2;
     ++epoch_steps;
     char status[96];
-    std::snprintf(status, sizeof status, "epoch %lld loss %.5f", static_cast<long long>(epoch + 1), loss.data + l2);
+    std::snprintf(status, sizeof status, "epoch %lld loss %.5f", static_cast<long long>(epoch + 1), data_loss + l2);
     bar.update(step, status);
 
     const bool epoch_done = step % steps_per_epoch == 0;
@@ -379,12 +489,16 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
       report.validation = validate();
       epoch_loss = 0;
       epoch_steps = 0;
-      save(step);
       result.epochs.push_back(report);
-      if (on_epoch) on_epoch(report);
+      // Rank 0 writes the checkpoint and the caller's log; a failure there stops every rank.
+      agreed([&] {
+        save(step);
+        if (on_epoch && dist.root()) on_epoch(report);
+      });
     }
-    if (stop_requested().load()) {
-      if (!epoch_done) save(step);
+    // Several ranks stop together, at the step where any of them was asked to.
+    if (dist.active() ? stop : stop_requested().load()) {
+      if (!epoch_done) agreed([&] { save(step); });
       result.interrupted = true;
       break;
     }
@@ -394,7 +508,9 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     if (config.export_weights) {
       meta.state.step = step;
       meta.state.epoch = step / steps_per_epoch;
-      nn::save_checkpoint(*config.export_weights, model, nullptr, meta);
+      agreed([&] {
+        if (dist.root()) nn::save_checkpoint(*config.export_weights, model, nullptr, meta);
+      });
     }
   }
   result.steps = step;
@@ -404,5 +520,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   result.meta = meta;
   return result;
 }
+
+}  // namespace
 
 }  // namespace lidarsim::train
