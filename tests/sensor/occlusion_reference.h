@@ -30,17 +30,21 @@ class ReferenceOcclusion {
       el_cos_.push_back(std::cos(el));
       el_sin_.push_back(std::sin(el));
     }
+    depth_.assign(static_cast<std::size_t>(rows_) * cols_, std::numeric_limits<float>::infinity());
+    owner_.assign(depth_.size(), -1);
   }
 
   void apply(std::vector<Object>& objects) {
-    depth_.assign(static_cast<std::size_t>(rows_) * cols_, std::numeric_limits<float>::infinity());
-    owner_.assign(depth_.size(), -1);
+    for (int cell : touched_) {  // as it was: only the cells the previous frame wrote
+      depth_[cell] = std::numeric_limits<float>::infinity();
+      owner_[cell] = -1;
+    }
+    touched_.clear();
     const int n = static_cast<int>(objects.size());
     footprint_.assign(n, 0);
     visible_.assign(n, 0);
     for (int i = 0; i < n; ++i) rasterise(objects[i], i);
-    for (int o : owner_)
-      if (o >= 0) ++visible_[o];
+    for (int cell : touched_) ++visible_[owner_[cell]];
     for (int i = 0; i < n; ++i) {
       Object& obj = objects[i];
       if (footprint_[i] > 0) {
@@ -109,6 +113,7 @@ class ReferenceOcclusion {
         if (!ray_box(box, Eigen::Vector3d::Zero(), d, std::numeric_limits<double>::infinity(), t)) continue;
         ++footprint;
         const std::size_t cell = static_cast<std::size_t>(r) * cols_ + c;
+        if (owner_[cell] < 0) touched_.push_back(static_cast<int>(cell));
         if (t < depth_[cell]) {
           depth_[cell] = static_cast<float>(t);
           owner_[cell] = index;
@@ -122,7 +127,7 @@ class ReferenceOcclusion {
   int rows_ = 0, cols_ = 0;
   std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_;
   std::vector<float> depth_;
-  std::vector<int> owner_, footprint_, visible_;
+  std::vector<int> owner_, touched_, footprint_, visible_;
 };
 
 }  // namespace lidarsim::sensor::reference
