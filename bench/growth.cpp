@@ -113,7 +113,7 @@ std::string verdict(const Series& s) {
 // 1. Object-level model: ms per frame against objects.
 Series object_model(const std::vector<int>& counts, int frames, int reps, const sensor::Scenario& base,
                     const sensor::KpiModel& kpi) {
-  Series s{"object-level model (frames, FoV, occlusion, tracking, KPI)", "objects", "CPU ms per frame", "linear", 1};
+  Series s{"object-level model (sample, FoV, occlusion, tracking, KPI)", "objects", "CPU ms per frame", "linear", 1};
   for (int n : counts) {
     const sensor::Scenario sc = bench::synthetic_scenario(n, frames / 10.0 + 1, base);
     infer::SimOptions opt;
@@ -150,8 +150,7 @@ Series object_model(const std::vector<int>& counts, int frames, int reps, const 
 
 // 2. Inference of the bundled model's architecture against columns (64 rows).
 Series inference(const std::vector<int>& columns, int reps, const nn::UNetConfig& config) {
-  Series s{"UNet inference, batch 1, 64 rows (base " + std::to_string(config.base) + ", depth " +
-               std::to_string(config.depth) + ")",
+  Series s{"UNet inference, 64 rows, base " + std::to_string(config.base) + ", depth " + std::to_string(config.depth),
            "columns", "CPU s per scan", "linear", 1};
   nn::UNet model(config);
   model.init(1);
@@ -205,7 +204,7 @@ data::Dataset synthetic_set(int frames, int cols) {
 
 // 3. Training: seconds per epoch (median over the epochs after the first) against scans.
 Series training(const std::vector<int>& scans, int cols, int epochs, int threads) {
-  Series s{"training, seconds per epoch (64 x " + std::to_string(cols) + " scans, base 8, depth 3, batch 1)", "scans",
+  Series s{"training epoch, 64 x " + std::to_string(cols) + " scans, base 8, depth 3", "scans",
            "CPU s per epoch", "linear", 1};
   for (int n : scans) {
     const data::Dataset set = synthetic_set(n, cols);

@@ -9,13 +9,14 @@
 # Installs the peer's Debian packages when missing (python3-torch, python3-h5py, and
 # libopenblas0-openmp, which becomes the system libblas.so.3 that Debian's torch links, instead of
 # the slow reference BLAS). Options: --reps N (engine rows, default 7), --runs N (pipeline runs,
-# default 5), --growth, --write-readme, --out DIR (JSON results, default build/bench-results);
+# default 5), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
+# --no-build (use the benches already built, e.g. while another build runs in the same tree);
 # anything after -- goes to bench_unet_vs_torch (e.g. -- --threads 2).
 # Run on an otherwise idle machine: the numbers are medians, but a busy CPU still skews them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-reps=7 runs=5 growth=0 write_readme=0 out=""
+reps=7 runs=5 growth=0 write_readme=0 build=1 out=""
 extra=()
 while (($#)); do
   case "$1" in
@@ -23,6 +24,7 @@ while (($#)); do
     --runs) runs=$2; shift 2 ;;
     --growth) growth=1; shift ;;
     --write-readme) write_readme=1; shift ;;
+    --no-build) build=0; shift ;;
     --out) out=$2; shift 2 ;;
     --) shift; extra=("$@"); break ;;
     *) echo "bench.sh: unknown option $1 (see the comment at the top)" >&2; exit 2 ;;
@@ -51,10 +53,12 @@ build_dir=${LIDARSIM_BUILD_DIR:-build}
 out=${out:-$build_dir/bench-results}
 mkdir -p "$out"
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-passive}
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
-targets=(bench_unet_vs_torch bench_pipeline)
-((growth)) && targets+=(bench_growth)
-cmake --build "$build_dir" --target "${targets[@]}" -j"$(nproc)"
+if ((build)); then
+  cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
+  targets=(bench_unet_vs_torch bench_pipeline)
+  ((growth)) && targets+=(bench_growth)
+  cmake --build "$build_dir" --target "${targets[@]}" -j"$(nproc)"
+fi
 
 load_before=$(cut -d' ' -f1-3 /proc/loadavg)
 "$build_dir/bench/bench_unet_vs_torch" --python /usr/bin/python3 --reps "$reps" --json "$out/unet_vs_torch.json" "${extra[@]}"
