@@ -26,11 +26,13 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/atomic_file.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
 #include "nn/checkpoint.h"
 #include "sensor/kpi_model.h"
 #include "sensor/scenario.h"
+#include "bench/synthetic_scenario.h"
 
 using namespace lidarsim;
 namespace fs = std::filesystem;
@@ -41,63 +43,6 @@ double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   const std::size_t n = v.size();
   return n == 0 ? 0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
-// --objects (100) around an ego driving at 10 m/s: each object circles the ego at its own radius
-// (6 to 60 m, uniform density over that ring) and angular speed while travelling with it, so all stay in view for any duration,
-// overtake each other and hide each other. Keyframes every second carry the exact position,
-// velocity and acceleration of that motion (the reader's quintic Hermite follows it closely).
-sensor::Scenario synthetic_scenario(int n, double duration, const sensor::Scenario& base) {
-  sensor::Scenario s;
-  s.name = "synthetic_" + std::to_string(n);
-  s.source = "bench/pipeline.cpp (in memory)";
-  s.duration = duration;
-  s.rate_hz = 10;
-  s.sensor = base.sensor;
-  s.sensor.fov.range_max = 120;
-  const double v_ego = 10;
-  auto state = [](double t, Eigen::Vector3d p, Eigen::Vector3d v, Eigen::Vector3d a) {
-    sensor::KinematicState k;
-    k.t = t;
-    k.position = p;
-    k.velocity = v;
-    k.acceleration = a;
-    k.heading = std::atan2(v.y(), v.x());
-    return k;
-  };
-  s.ego = {state(0, {0, 0, 0}, {v_ego, 0, 0}, {0, 0, 0}),
-           state(duration, {v_ego * duration, 0, 0}, {v_ego, 0, 0}, {0, 0, 0})};
-  std::mt19937 rng(42);
-  std::uniform_real_distribution<double> u(0, 1);
-  const int keyframes = static_cast<int>(std::ceil(duration)) + 1;
-  for (int i = 0; i < n; ++i) {
-    sensor::ScenarioObject o;
-    o.id = i + 1;
-    const int kind = i % 10;
-    o.cls = kind < 6 ? sensor::ObjectClass::Car
-            : kind == 6 ? sensor::ObjectClass::Truck
-            : kind < 9 ? sensor::ObjectClass::Pedestrian
-                       : sensor::ObjectClass::Cyclist;
-    o.size = o.cls == sensor::ObjectClass::Car     ? Eigen::Vector3d(4.5, 1.8, 1.5)
-             : o.cls == sensor::ObjectClass::Truck ? Eigen::Vector3d(10, 2.5, 3.5)
-             : o.cls == sensor::ObjectClass::Pedestrian ? Eigen::Vector3d(0.6, 0.6, 1.8)
-                                                         : Eigen::Vector3d(1.8, 0.6, 1.7);
-    o.material = sensor::default_material(o.cls);
-    // Uniform density over the ring 6..60 m (a crowd, not a cluster at the sensor).
-    const double r = std::sqrt(36 + (3600 - 36) * u(rng)), phase = 2 * std::numbers::pi * u(rng);
-    const double w = (u(rng) < 0.5 ? -1 : 1) * (0.02 + 0.1 * u(rng));  // rad/s
-    const double z = o.size.z() / 2;
-    for (int k = 0; k < keyframes; ++k) {
-      const double t = std::min<double>(k, duration), a = phase + w * t;
-      const Eigen::Vector3d p(v_ego * t + r * std::cos(a), r * std::sin(a), z);
-      const Eigen::Vector3d v(v_ego - r * w * std::sin(a), r * w * std::cos(a), 0);
-      const Eigen::Vector3d acc(-r * w * w * std::cos(a), -r * w * w * std::sin(a), 0);
-      o.states.push_back(state(t, p, v, acc));
-      if (t >= duration) break;
-    }
-    s.objects.push_back(o);
-  }
-  return s;
 }
 
 struct RunResult {
@@ -163,6 +108,7 @@ int main(int argc, char** argv) {
     ("frames", "frames per run of the whole pipeline (0 = the whole scenario)", cxxopts::value<int>()->default_value("0"))
     ("objects", "objects in the object-level scenario", cxxopts::value<int>()->default_value("100"))
     ("object-frames", "frames per run of the object-level model", cxxopts::value<int>()->default_value("2000"))
+    ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
     ("h,help", "help");
   // clang-format on
   try {
@@ -228,7 +174,7 @@ int main(int argc, char** argv) {
     // 2. Object-level model alone.
     const int n = args["objects"].as<int>(), object_frames = args["object-frames"].as<int>();
     const sensor::Scenario base = sensor::read_scenario(args["scenario"].as<std::string>());
-    const sensor::Scenario synthetic = synthetic_scenario(n, object_frames / 10.0 + 1, base);
+    const sensor::Scenario synthetic = bench::synthetic_scenario(n, object_frames / 10.0 + 1, base);
     const sensor::KpiModel kpi = sensor::load_kpi_model(args["kpi"].as<std::string>());
     infer::SimOptions object_only;
     object_only.point_cloud = false;
@@ -262,6 +208,27 @@ int main(int argc, char** argv) {
     std::printf("| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |\n", n, obj_median, 1000 / obj_cpu,
                 obj_median >= 1000 ? "yes" : "NO");
     std::printf("load average %.2f (1 min) on %ld online CPUs\n", load[0], sysconf(_SC_NPROCESSORS_ONLN));
+    if (args.count("json")) {
+      auto stages = [](const std::vector<RunResult>& runs) {
+        nlohmann::json j;
+        for (int s = 0; s < infer::kNumSimStages; ++s) {
+          std::vector<double> v;
+          for (const auto& r : runs) v.push_back(r.stage_ms[s]);
+          j[infer::to_string(static_cast<infer::SimStage>(s))] = median(v);
+        }
+        return j;
+      };
+      const nlohmann::json j{
+          {"threads", threads},
+          {"runs", runs},
+          {"whole", {{"frames", frames_used}, {"fps", whole_median}, {"fps_best", whole_best}, {"cpu_ms_per_frame", whole_cpu},
+                     {"unet_base", meta.unet.base}, {"unet_depth", meta.unet.depth}, {"model", model_note},
+                     {"stage_ms", stages(whole)}}},
+          {"objects", {{"count", n}, {"frames", object_frames}, {"fps", obj_median}, {"fps_best", obj_best},
+                       {"cpu_ms_per_frame", obj_cpu}, {"fps_cpu_bound", 1000 / obj_cpu}, {"stage_ms", stages(objects)}}},
+          {"loadavg_end", load[0]}};
+      write_file_atomically(args["json"].as<std::string>(), j.dump(2) + "\n");
+    }
     if (!temp.empty()) fs::remove(temp);
     return 0;
   } catch (const std::exception& e) {

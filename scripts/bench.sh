@@ -1,11 +1,35 @@
 #!/usr/bin/env bash
-# Engine vs PyTorch on unet-ref, in one run: installs the peer's Debian packages when missing
-# (python3-torch, python3-h5py, and libopenblas0-openmp, which becomes the system libblas.so.3
-# that Debian's torch links, instead of the slow reference BLAS), builds bench_unet_vs_torch and
-# runs it. Extra arguments go to the benchmark (e.g. --reps 9 --threads 2 --json bench.json).
+# The README's performance table in one command: the engine against PyTorch on unet-ref (both in
+# this run: bench_unet_vs_torch starts the PyTorch peer itself), the simulation pipeline and the
+# object-level model (bench_pipeline; no peer), optionally the growth bench (--growth: bench_growth,
+# which also redraws docs/growth.png). Prints a Markdown table with ours, the peer's and the
+# ratio side by side, the machine, the date and the load; --write-readme puts it into README.md
+# between the "bench.sh table" markers.
+#
+# Installs the peer's Debian packages when missing (python3-torch, python3-h5py, and
+# libopenblas0-openmp, which becomes the system libblas.so.3 that Debian's torch links, instead of
+# the slow reference BLAS). Options: --reps N (engine rows, default 7), --runs N (pipeline runs,
+# default 5), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
+# --no-build (use the benches already built, e.g. while another build runs in the same tree);
+# anything after -- goes to bench_unet_vs_torch (e.g. -- --threads 2).
 # Run on an otherwise idle machine: the numbers are medians, but a busy CPU still skews them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+reps=7 runs=5 growth=0 write_readme=0 build=1 out=""
+extra=()
+while (($#)); do
+  case "$1" in
+    --reps) reps=$2; shift 2 ;;
+    --runs) runs=$2; shift 2 ;;
+    --growth) growth=1; shift ;;
+    --write-readme) write_readme=1; shift ;;
+    --no-build) build=0; shift ;;
+    --out) out=$2; shift 2 ;;
+    --) shift; extra=("$@"); break ;;
+    *) echo "bench.sh: unknown option $1 (see the comment at the top)" >&2; exit 2 ;;
+  esac
+done
 
 packages=(python3-torch python3-h5py libopenblas0-openmp)
 missing=()
@@ -19,12 +43,75 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 # Say which BLAS torch will get (the alternative libopenblas0-openmp registers at priority 95).
+blas=unknown
 if command -v update-alternatives >/dev/null; then
   blas=$(update-alternatives --query libblas.so.3-x86_64-linux-gnu 2>/dev/null | sed -n 's/^Value: //p')
   echo "bench: libblas.so.3 -> ${blas:-unknown}" >&2
 fi
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
-cmake --build "$build_dir" --target bench_unet_vs_torch -j"$(nproc)"
-"$build_dir/bench/bench_unet_vs_torch" --python /usr/bin/python3 "$@"
+out=${out:-$build_dir/bench-results}
+mkdir -p "$out"
+export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-passive}
+if ((build)); then
+  cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
+  targets=(bench_unet_vs_torch bench_pipeline)
+  ((growth)) && targets+=(bench_growth)
+  cmake --build "$build_dir" --target "${targets[@]}" -j"$(nproc)"
+fi
+
+load_before=$(cut -d' ' -f1-3 /proc/loadavg)
+"$build_dir/bench/bench_unet_vs_torch" --python /usr/bin/python3 --reps "$reps" --json "$out/unet_vs_torch.json" "${extra[@]}"
+"$build_dir/bench/bench_pipeline" --runs "$runs" --json "$out/pipeline.json"
+if ((growth)); then
+  "$build_dir/bench/bench_growth" --png docs/growth.png --json "$out/growth.json"
+fi
+load_after=$(cut -d' ' -f1-3 /proc/loadavg)
+
+cpu=$(lscpu 2>/dev/null | sed -n 's/^Model name: *//p' | head -1)
+python3 - "$out" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" <<'PY'
+import json, os, sys, datetime
+out, growth, write_readme, cpu, ncpu, load_before, load_after, blas = sys.argv[1:]
+u = json.load(open(os.path.join(out, "unet_vs_torch.json")))
+p = json.load(open(os.path.join(out, "pipeline.json")))
+names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4", "infer_b1": "inference, batch 1"}
+torch = u.get("torch") or {}
+lines = []
+lines.append(f"Measured by `scripts/bench.sh` on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC: "
+             f"{cpu or 'unknown CPU'}, {ncpu} online CPUs, {u['threads']} threads, load average {load_before} before and "
+             f"{load_after} after. Peer: PyTorch {torch.get('torch_version', '?')} in the same run (fastest of its "
+             f"settings per row; libblas.so.3 -> {blas}). Medians of {u['reps']} repetitions (engine) and "
+             f"{p['runs']} runs (pipeline).")
+lines.append("")
+lines.append(f"| row ({u['rows']} x {u['cols']}) | ours | PyTorch | ours / PyTorch | our GFLOP/s |")
+lines.append("|---|---:|---:|---:|---:|")
+for r in u["table"]:
+    ratio = f"**{r['ratio']:.2f}**" if r.get("torch_s") else "–"
+    peer = f"{r['torch_s']:.3f} s" if r.get("torch_s") else "–"
+    lines.append(f"| unet-ref {names.get(r['row'], r['row'])} | {r['ours_s']:.3f} s | {peer} | {ratio} | {r['ours_gflops']:.0f} |")
+w, o = p["whole"], p["objects"]
+lines.append(f"| whole pipeline, 64 x 1024, UNet base {w['unet_base']} depth {w['unet_depth']} ({w['model']}) | "
+             f"{w['fps']:.1f} frames/s ({w['stage_ms']['unet']:.1f} ms UNet, {w['stage_ms']['pcl_generator']:.1f} ms PCL generator) | – | – | |")
+lines.append(f"| object-level model, {o['count']} objects | {o['fps']:.0f} frames/s wall ({o['fps_cpu_bound']:.0f} from CPU time; "
+             f"occlusion {1000 * o['stage_ms']['occlusion']:.0f} µs, tracking {1000 * o['stage_ms']['tracking']:.0f} µs, "
+             f"KPI {1000 * o['stage_ms']['kpi']:.0f} µs) | – | – | |")
+if growth == "1":
+    g = json.load(open(os.path.join(out, "growth.json")))
+    for s in g["series"]:
+        lines.append(f"| growth: {s['name']} against {s['size']} ({', '.join(str(int(x)) for x in s['sizes'])}) | "
+                     f"exponent {s['exponent']:.2f} | – | – | {s['verdict']} |")
+table = "\n".join(lines)
+print()
+print(table)
+if write_readme == "1":
+    begin, end = "<!-- bench.sh table: begin -->", "<!-- bench.sh table: end -->"
+    text = open("README.md").read()
+    if begin not in text or end not in text:
+        sys.exit("bench.sh: README.md has no bench.sh table markers")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    tmp = "README.md.bench-tmp"
+    open(tmp, "w").write(head + begin + "\n" + table + "\n" + end + tail)
+    os.replace(tmp, "README.md")
+    print("bench.sh: README.md table updated", file=sys.stderr)
+PY

@@ -2,6 +2,7 @@
 #include "sensor/frames.h"
 
 #include <algorithm>
+#include <limits>
 
 namespace lidarsim::sensor {
 
@@ -11,6 +12,20 @@ constexpr double kPi = std::numbers::pi;
 
 
 bool full_circle(const FieldOfView& fov) { return fov.azimuth_max - fov.azimuth_min >= 2 * kPi - 1e-12; }
+
+// Lowest and highest elevation atan2(z, hypot(x, y)) over points: atan2 is monotone in
+// z / hypot(x, y), so the extremes are found on that ratio and only they pay for atan2.
+void elevation_extremes(const Eigen::Vector3d* pts, int n, double& el_lo, double& el_hi) {
+  int i_lo = 0, i_hi = 0;
+  double k_lo = std::numeric_limits<double>::infinity(), k_hi = -k_lo;
+  for (int i = 0; i < n; ++i) {
+    const double k = pts[i].z() / std::sqrt(pts[i].x() * pts[i].x() + pts[i].y() * pts[i].y());
+    if (k < k_lo) k_lo = k, i_lo = i;
+    if (k > k_hi) k_hi = k, i_hi = i;
+  }
+  el_lo = std::atan2(pts[i_lo].z(), std::hypot(pts[i_lo].x(), pts[i_lo].y()));
+  el_hi = std::atan2(pts[i_hi].z(), std::hypot(pts[i_hi].x(), pts[i_hi].y()));
+}
 
 }  // namespace
 
@@ -62,20 +77,20 @@ bool object_in_fov(const Object& o, const FieldOfView& fov) {
   if (r_far < fov.range_min) return false;
   if (r_near == 0) return true;  // the sensor is inside the box: every direction sees it
 
+  // Elevation interval first (a full-circle field of view needs no azimuths).
+  double el_lo = 0, el_hi = 0;
+  elevation_extremes(pts, 10, el_lo, el_hi);
+  if (el_hi < fov.elevation_min || el_lo > fov.elevation_max) return false;
+  if (full_circle(fov)) return true;
   // Angular interval of the sample points, azimuths taken relative to the centre direction so
   // that a box across the +-pi seam stays one interval.
   const double az_ref = std::atan2(nearest.y(), nearest.x());
-  double az_lo = 1e9, az_hi = -1e9, el_lo = 1e9, el_hi = -1e9;
+  double az_lo = 1e9, az_hi = -1e9;
   for (const auto& p : pts) {
     const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
     az_lo = std::min(az_lo, rel);
     az_hi = std::max(az_hi, rel);
-    const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
-    el_lo = std::min(el_lo, el);
-    el_hi = std::max(el_hi, el);
   }
-  if (el_hi < fov.elevation_min || el_lo > fov.elevation_max) return false;
-  if (full_circle(fov)) return true;
   // Sensor straight above or below the box: it spans every azimuth.
   const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
   if (std::hypot(below.x(), below.y()) == 0) return true;
@@ -93,11 +108,7 @@ double fov_truncation(const Object& o, const FieldOfView& fov) {
   Eigen::Vector3d corners[8];
   box_corners(o, corners);
   double el_lo = kPi, el_hi = -kPi;
-  for (const auto& p : corners) {
-    const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
-    el_lo = std::min(el_lo, el);
-    el_hi = std::max(el_hi, el);
-  }
+  elevation_extremes(corners, 8, el_lo, el_hi);
   const double width = std::min(fov.azimuth_max - fov.azimuth_min, 2 * kPi);
   double az_span = 0, az_in = 0;
   const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
@@ -110,17 +121,17 @@ double fov_truncation(const Object& o, const FieldOfView& fov) {
   } else {
     // Azimuths relative to the centre direction, so that a box across the +-pi seam stays one
     // interval (as object_in_fov); the FoV interval tested on the circle (three windings).
-    const double az_ref = std::atan2(o.position.y(), o.position.x());
-    double lo = 1e9, hi = -1e9;
-    for (const auto& p : corners) {
-      const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
-      lo = std::min(lo, rel);
-      hi = std::max(hi, rel);
-    }
-    az_span = hi - lo;
     if (full_circle(fov)) {
-      az_in = az_span;
+      az_span = az_in = 1;  // the whole azimuth extent is inside, whatever it is
     } else {
+      const double az_ref = std::atan2(o.position.y(), o.position.x());
+      double lo = 1e9, hi = -1e9;
+      for (const auto& p : corners) {
+        const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
+        lo = std::min(lo, rel);
+        hi = std::max(hi, rel);
+      }
+      az_span = hi - lo;
       const double f_lo = wrap_pi(fov.azimuth_min - az_ref);
       for (int k = -1; k <= 1; ++k) {
         const double a = f_lo + 2 * kPi * k, b = a + width;

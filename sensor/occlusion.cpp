@@ -2,6 +2,10 @@
 #include "sensor/frames.h"
 
 #include <algorithm>
+#include <utility>
+#ifdef __AVX512F__
+#include <immintrin.h>
+#endif
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -75,12 +79,20 @@ Occlusion::Occlusion(const OcclusionConfig& config) : cfg_(config) {
     az_cos_[c] = std::cos(az);
     az_sin_[c] = std::sin(az);
   }
+  az_cos_f_.resize(2 * cols_);
+  az_sin_f_.resize(2 * cols_);
+  for (int c = 0; c < 2 * cols_; ++c) {
+    az_cos_f_[c] = static_cast<float>(az_cos_[c % cols_]);
+    az_sin_f_[c] = static_cast<float>(az_sin_[c % cols_]);
+  }
   el_cos_.resize(rows_);
   el_sin_.resize(rows_);
+  el_inv_cos_.resize(rows_);
   for (int r = 0; r < rows_; ++r) {  // row 0 at the top
     const double el = cfg_.elevation_max - (r + 0.5) * cfg_.elevation_resolution;
     el_cos_[r] = std::cos(el);
     el_sin_[r] = std::sin(el);
+    el_inv_cos_[r] = 1 / el_cos_[r];
   }
   depth_.assign(static_cast<std::size_t>(rows_) * cols_, std::numeric_limits<float>::infinity());
   owner_.assign(depth_.size(), -1);
@@ -97,74 +109,179 @@ bool Occlusion::cell_of(const Eigen::Vector3d& p, int& row, int& col) const {
   return true;
 }
 
+namespace {
+
+// One row's run of candidate cells of box `index`: t_in / t_out per column are the box's 2-D slab
+// interval (horizontal distance), scaled by the row's 1 / cos(elevation) into distance along the
+// ray and cut by the row's height slab [t_lo, t_hi]. A cell is in the footprint when the interval
+// is not empty and the box wins it when it enters nearer than the cell's depth. Returns the
+// footprint cells; `visible` gains the wins and loses what this box takes from others.
+int raster_span(const float* s_in, const float* s_out, int n, float inv_ce, float t_lo, float t_hi, float* depth,
+                int* owner, int index, int* visible, bool& wrote) {
+  int footprint = 0;
+  int i = 0;
+#ifdef __AVX512F__
+  const __m512 v_ice = _mm512_set1_ps(inv_ce), v_lo = _mm512_set1_ps(t_lo), v_hi = _mm512_set1_ps(t_hi);
+  const __m512i v_index = _mm512_set1_epi32(index);
+  for (; i < n; i += 16) {
+    const __mmask16 live = n - i >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (n - i)) - 1);
+    const __m512 t0 = _mm512_max_ps(v_lo, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_in + i), v_ice));
+    const __m512 t1 = _mm512_min_ps(v_hi, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_out + i), v_ice));
+    const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, t0, t1, _CMP_LE_OQ);
+    if (!hit) continue;
+    footprint += __builtin_popcount(hit);
+    const __mmask16 win = _mm512_mask_cmp_ps_mask(hit, t0, _mm512_maskz_loadu_ps(hit, depth + i), _CMP_LT_OQ);
+    if (!win) continue;
+    const __m512i prev = _mm512_maskz_loadu_epi32(win, owner + i);
+    unsigned taken = _mm512_mask_cmpge_epi32_mask(win, prev, _mm512_setzero_si512());
+    while (taken) {  // rare when boxes come front to back: cells taken from a farther box
+      const int j = __builtin_ctz(taken);
+      --visible[owner[i + j]];
+      taken &= taken - 1;
+    }
+    visible[index] += __builtin_popcount(win);
+    _mm512_mask_storeu_ps(depth + i, win, t0);
+    _mm512_mask_storeu_epi32(owner + i, win, v_index);
+    wrote = true;
+  }
+#endif
+  for (; i < n; ++i) {
+    const float t0 = std::max(t_lo, s_in[i] * inv_ce), t1 = std::min(t_hi, s_out[i] * inv_ce);
+    if (!(t0 <= t1)) continue;
+    ++footprint;
+    if (!(t0 < depth[i])) continue;
+    if (owner[i] >= 0) --visible[owner[i]];
+    ++visible[index];
+    depth[i] = t0;
+    owner[i] = index;
+    wrote = true;
+  }
+  return footprint;
+}
+
+}  // namespace
+
 void Occlusion::rasterise(const Object& o, int index) {
-  const RayBox box = RayBox::of(o);
-  Eigen::Vector3d corners[8];
-  box_corners(o, corners);
-  // Azimuth span from the vertical edges, relative to the centre's azimuth (one interval
-  // across the seam); the full circle when the sensor is above/below the box's footprint.
-  const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
-  const double dist_xy = std::hypot(below.x(), below.y());
-  const double az_c = std::atan2(o.position.y(), o.position.x());
-  double a_lo = 0, a_hi = 0;
-  if (dist_xy < 1e-9) {
-    a_lo = -kPi;
-    a_hi = kPi;
-  } else {
-    for (const auto& p : corners) {
-      const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_c);
-      a_lo = std::min(a_lo, rel);
-      a_hi = std::max(a_hi, rel);
+  // The box is a vertical prism, so a ray at azimuth a and elevation e runs through it while its
+  // horizontal distance s = t cos e is inside the footprint rectangle's 2-D slab interval
+  // [s_in(a), s_out(a)] and its height t sin e is inside [z_bot, z_top]. The 2-D interval is
+  // worked out once per column, the height slab once per row: a cell then costs two products
+  // and a depth test (the same slab test as ray_box, split by axis), 16 cells at a time.
+  const double cx = o.position.x(), cy = o.position.y();
+  const double hx = 0.5 * o.size.x(), hy = 0.5 * o.size.y();
+  const double ch = std::cos(o.heading), sh = std::sin(o.heading);
+  const double lox = -(ch * cx + sh * cy), loy = -(-sh * cx + ch * cy);  // sensor origin in box coordinates
+  const double z_top = o.position.z() + 0.5 * o.size.z(), z_bot = o.position.z() - 0.5 * o.size.z();
+
+  // Columns: the footprint rectangle's bounding circle bounds its azimuth span (or the full
+  // circle when the sensor is within it); the per-column slab test then trims the span exactly.
+  const double d_c = std::hypot(cx, cy), radius = std::hypot(hx, hy);
+  int c_first = 0, n_cols = cols_;
+  if (d_c > radius * (1 + 1e-9) + 1e-9) {
+    double az_c = std::atan2(cy, cx);
+    if (az_c < 0) az_c += 2 * kPi;
+    const double half = std::asin(radius / d_c);
+    c_first = static_cast<int>(std::floor((az_c - half) / cfg_.azimuth_resolution)) - 1;
+    n_cols = std::min(cols_, static_cast<int>(std::ceil(2 * half / cfg_.azimuth_resolution)) + 3);
+  }
+  c_first = ((c_first % cols_) + cols_) % cols_;
+  col_in_.resize(n_cols + 16);
+  col_out_.resize(n_cols + 16);
+  {
+    // Branch-free 2-D slab test (a direction along a slab gets a huge finite inverse: its
+    // interval is everything or nothing, as ray_box's parallel case).
+    const float fch = static_cast<float>(ch), fsh = static_cast<float>(sh);
+    const float ax0 = static_cast<float>(-hx - lox), ax1 = static_cast<float>(hx - lox);
+    const float ay0 = static_cast<float>(-hy - loy), ay1 = static_cast<float>(hy - loy);
+    const float* ac = az_cos_f_.data() + c_first;  // tables run over two turns: no wrap here
+    const float* as = az_sin_f_.data() + c_first;
+    float* in = col_in_.data();
+    float* out = col_out_.data();
+    for (int k = 0; k < n_cols; ++k) {
+      float dx = fch * ac[k] + fsh * as[k], dy = -fsh * ac[k] + fch * as[k];
+      dx = std::abs(dx) < 1e-20f ? 1e-20f : dx;
+      dy = std::abs(dy) < 1e-20f ? 1e-20f : dy;
+      const float ix = 1.f / dx, iy = 1.f / dy;
+      const float xa = ax0 * ix, xb = ax1 * ix, ya = ay0 * iy, yb = ay1 * iy;
+      in[k] = std::max(0.f, std::max(std::min(xa, xb), std::min(ya, yb)));
+      out[k] = std::min(std::max(xa, xb), std::max(ya, yb));
     }
   }
-  // Elevation span: corners, plus top and bottom at the horizontally nearest point.
-  const double z_top = o.position.z() + 0.5 * o.size.z(), z_bot = o.position.z() - 0.5 * o.size.z();
-  double e_lo = std::atan2(z_bot, std::max(dist_xy, 1e-9)), e_hi = std::atan2(z_top, std::max(dist_xy, 1e-9));
-  for (const auto& p : corners) {
-    const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
-    e_lo = std::min(e_lo, el);
-    e_hi = std::max(e_hi, el);
-  }
-  const double res_a = cfg_.azimuth_resolution, res_e = cfg_.elevation_resolution;
-  const int r0 = std::max(0, static_cast<int>(std::floor((cfg_.elevation_max - e_hi) / res_e)));
-  const int r1 = std::min(rows_ - 1, static_cast<int>(std::floor((cfg_.elevation_max - e_lo) / res_e)));
-  double az_lo = az_c + a_lo;
-  if (az_lo < 0) az_lo += 2 * kPi;
-  const int c0 = static_cast<int>(std::floor(az_lo / res_a));
-  const int n_cols = std::min(cols_, static_cast<int>(std::ceil((a_hi - a_lo) / res_a)) + 2);
-
-  const Eigen::Vector3d origin = Eigen::Vector3d::Zero();
-  int footprint = 0;
+  int k_lo = n_cols, k_hi = -1;
+  float s_min = std::numeric_limits<float>::infinity(), s_max = 0;
   for (int k = 0; k < n_cols; ++k) {
-    const int c = ((c0 + k) % cols_ + cols_) % cols_;
-    for (int r = r0; r <= r1; ++r) {
-      const Eigen::Vector3d d(el_cos_[r] * az_cos_[c], el_cos_[r] * az_sin_[c], el_sin_[r]);
-      double t = 0;
-      if (!ray_box(box, origin, d, std::numeric_limits<double>::infinity(), t)) continue;
-      ++footprint;
-      const std::size_t cell = static_cast<std::size_t>(r) * cols_ + c;
-      if (owner_[cell] < 0) touched_.push_back(static_cast<int>(cell));
-      if (t < depth_[cell]) {
-        depth_[cell] = static_cast<float>(t);
-        owner_[cell] = index;
-      }
+    if (!(col_in_[k] <= col_out_[k])) continue;
+    k_lo = std::min(k_lo, k);
+    k_hi = k;
+    s_min = std::min(s_min, col_in_[k]);
+    s_max = std::max(s_max, col_out_[k]);
+  }
+  footprint_[index] = 0;
+  if (k_hi < 0) return;
+
+  // Rows: elevations between the lowest and highest a point of the box can be seen at (heights
+  // over the nearest and farthest horizontal distance), one row of margin each side.
+  const double s_near = std::max<double>(s_min, 1e-9), s_far = std::max<double>(s_max, 1e-9);
+  const double tan_hi = z_top > 0 ? z_top / s_near : z_top / s_far;
+  const double tan_lo = z_bot < 0 ? z_bot / s_near : z_bot / s_far;
+  const double res_e = cfg_.elevation_resolution;
+  const int r0 = std::max(0, static_cast<int>(std::floor((cfg_.elevation_max - std::atan(tan_hi)) / res_e)) - 1);
+  const int r1 = std::min(rows_ - 1, static_cast<int>(std::floor((cfg_.elevation_max - std::atan(tan_lo)) / res_e)) + 1);
+
+  // The run of columns may cross the azimuth seam: two pieces then.
+  const int c_lo = c_first + k_lo, n_run = k_hi - k_lo + 1;
+  const int first_piece = std::min(n_run, cols_ - (c_lo % cols_));
+  int footprint = 0;
+  for (int r = r0; r <= r1; ++r) {
+    // Height slab for this row's elevation (t along the unit ray).
+    double t_lo = 0, t_hi = std::numeric_limits<double>::infinity();
+    const double se = el_sin_[r];
+    if (std::abs(se) < 1e-15) {
+      if (z_bot > 0 || z_top < 0) continue;
+    } else {
+      double ta = z_bot / se, tb = z_top / se;
+      if (ta > tb) std::swap(ta, tb);
+      t_lo = std::max(t_lo, ta);
+      t_hi = tb;
+    }
+    if (t_hi < t_lo) continue;
+    const float ice = static_cast<float>(el_inv_cos_[r]), flo = static_cast<float>(t_lo),
+                fhi = static_cast<float>(std::min(t_hi, 1e30));
+    const std::size_t row = static_cast<std::size_t>(r) * cols_;
+    int done = 0;
+    for (int piece = 0; piece < 2 && done < n_run; ++piece) {
+      const int len = piece == 0 ? first_piece : n_run - first_piece;
+      const int c = (c_lo + done) % cols_;
+      bool wrote = false;
+      footprint += raster_span(col_in_.data() + k_lo + done, col_out_.data() + k_lo + done, len, ice, flo, fhi,
+                               depth_.data() + row + c, owner_.data() + row + c, index, visible_.data(), wrote);
+      if (wrote) written_.push_back({static_cast<int>(row) + c, len});
+      done += len;
     }
   }
   footprint_[index] = footprint;
 }
 
 void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes) {
-  // Reset only the cells the previous frame wrote (a full clear costs more than a frame of boxes).
-  for (int cell : touched_) {
-    depth_[cell] = std::numeric_limits<float>::infinity();
-    owner_[cell] = -1;
+  // Reset only the runs of cells the previous frame wrote (a full clear costs more than a frame of boxes).
+  for (const auto& [start, len] : written_) {
+    std::fill_n(depth_.begin() + start, len, std::numeric_limits<float>::infinity());
+    std::fill_n(owner_.begin() + start, len, -1);
   }
-  touched_.clear();
+  written_.clear();
   const int n = static_cast<int>(objects.size());
   footprint_.assign(n, 0);
   visible_.assign(n, 0);
-  for (int i = 0; i < n; ++i) rasterise(objects[i], i);
-  for (int cell : touched_) ++visible_[owner_[cell]];
+  // Nearest first: a nearer box then rarely has to take cells from one drawn before it (the
+  // result does not depend on the order; the work does).
+  order_.resize(n);
+  key_.resize(n);
+  for (int i = 0; i < n; ++i) {
+    order_[i] = i;
+    key_[i] = std::hypot(objects[i].position.x(), objects[i].position.y()) - 0.5 * objects[i].size.head<2>().norm();
+  }
+  std::sort(order_.begin(), order_.end(), [&](int a, int b) { return key_[a] < key_[b]; });
+  for (int i : order_) rasterise(objects[i], i);
   for (int i = 0; i < n; ++i) {
     Object& obj = objects[i];
     if (footprint_[i] > 0) {

@@ -2,13 +2,21 @@
 // Occlusion in the sensor's angular (canonical) grid with a depth test.
 //
 // The grid is uniform in azimuth (full circle) and elevation (the field of view's vertical
-// limits), 0.25 deg by default. Each box is rasterised exactly: for every cell inside its
-// conservative angular footprint (azimuth from its vertical edges, elevation from its corners and
-// the top/bottom points nearest the sensor), the ray through the cell centre is cast against the
-// box (slab test); a hit makes the cell part of the box's footprint and enters the per-cell
-// nearest-depth test. Visible fraction = cells the box wins / cells of its footprint. A box too
-// small to cover any cell centre is judged by the cell of its centre direction (fraction 0 or 1).
-// Lane points whose cell holds a box nearer than the point are dropped.
+// limits), 0.25 deg by default. Each box is rasterised exactly: the ray through a cell centre is
+// cast against the box (slab test); a hit makes the cell part of the box's footprint and enters
+// the per-cell nearest-depth test. Visible fraction = cells the box wins / cells of its
+// footprint. A box too small to cover any cell centre is judged by the cell of its centre
+// direction (fraction 0 or 1). Lane points whose cell holds a box nearer than the point are
+// dropped.
+// Cost: boxes are yaw-only prisms, so the slab test splits into a horizontal part done once per
+// column (the footprint rectangle's distance interval along that azimuth) and a height part done
+// once per row; a cell costs two products and the depth test (16 cells per AVX-512 step, float),
+// and only the columns whose azimuth meets the footprint and the rows between its lowest and
+// highest elevation are visited. Boxes are drawn nearest first and wins are counted as they
+// happen (a cell taken from a farther box is given back), so nothing walks the grid afterwards
+// and the next frame clears only the runs of cells that were written. tests/sensor/occlusion_reference.h keeps the per-cell 3-D
+// raster this replaced (issue 16); tests/sensor/test_occlusion_reference.cpp holds them equal.
+#include <utility>
 #include <vector>
 
 #include "sensor/fov.h"
@@ -61,10 +69,14 @@ class Occlusion {
 
   OcclusionConfig cfg_;
   int rows_ = 0, cols_ = 0;
-  std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_;
+  std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_, el_inv_cos_;
+  std::vector<float> az_cos_f_, az_sin_f_;  // column directions over two turns (a box's run of columns never wraps)
+  std::vector<float> col_in_, col_out_;     // per column of the box being rasterised: 2-D slab interval
+  std::vector<std::pair<int, int>> written_;  // runs of cells (start, length) written this frame
+  std::vector<int> order_;
+  std::vector<double> key_;
   std::vector<float> depth_;
   std::vector<int> owner_;
-  std::vector<int> touched_;  // cells written this frame
   std::vector<int> footprint_, visible_;
 };
 

@@ -1,6 +1,7 @@
 #include "sensor/tracking.h"
 
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -86,6 +87,98 @@ Track Tracker::make_track(const Object& det, int index) {
   return t;
 }
 
+namespace {
+int find_root(std::vector<int>& parent, int i) {
+  while (parent[i] != i) i = parent[i] = parent[parent[i]];
+  return i;
+}
+}  // namespace
+
+void Tracker::associate(const std::vector<Object>& detections) {
+  const int nt = static_cast<int>(tracks_.size()), nd = static_cast<int>(detections.size());
+  const double r = config_.measurement_std * config_.measurement_std;
+  by_x_.resize(nd);
+  for (int j = 0; j < nd; ++j) by_x_[j] = j;
+  std::sort(by_x_.begin(), by_x_.end(),
+            [&](int a, int b) { return detections[a].position.x() < detections[b].position.x(); });
+  xs_.resize(nd);
+  for (int k = 0; k < nd; ++k) xs_[k] = detections[by_x_[k]].position.x();
+
+  // Gated pairs; tracks are nodes 0..nt-1, detections nt..nt+nd-1 of a union-find forest.
+  edges_.clear();
+  parent_.resize(nt + nd);
+  for (int i = 0; i < nt + nd; ++i) parent_[i] = i;
+  for (int i = 0; i < nt; ++i) {
+    const Track& t = tracks_[i];
+    const Eigen::Matrix2d S = t.P.topLeftCorner<2, 2>() + r * Eigen::Matrix2d::Identity();
+    const Eigen::Matrix2d S_inv = S.inverse();
+    const double reach = std::sqrt(config_.gate_chi2 * S(0, 0)) * (1 + 1e-9) + 1e-9;
+    const auto first = std::lower_bound(xs_.begin(), xs_.end(), t.x(0) - reach);
+    for (auto it = first; it != xs_.end() && *it <= t.x(0) + reach; ++it) {
+      const int j = by_x_[it - xs_.begin()];
+      const Object& d = detections[j];
+      if (config_.same_class_only && d.cls != t.object.cls) continue;
+      const Eigen::Vector2d y = d.position.head<2>() - t.x.head<2>();
+      const double m2 = y.dot(S_inv * y);
+      if (!(m2 <= config_.gate_chi2)) continue;
+      edges_.push_back({i, j, m2});
+      const int a = find_root(parent_, i), b = find_root(parent_, nt + j);
+      if (a != b) parent_[a] = b;
+    }
+  }
+  if (edges_.empty()) return;
+
+  // Groups in the order of their first edge; each solved on its own.
+  group_of_root_.assign(nt + nd, -1);
+  int n_groups = 0;  // groups_ keeps its inner vectors' capacity from frame to frame
+  for (int e = 0; e < static_cast<int>(edges_.size()); ++e) {
+    const int root = find_root(parent_, edges_[e].track);
+    if (group_of_root_[root] < 0) {
+      group_of_root_[root] = n_groups;
+      if (n_groups == static_cast<int>(groups_.size())) groups_.emplace_back();
+      groups_[n_groups++].clear();
+    }
+    groups_[group_of_root_[root]].push_back(e);
+  }
+  const double outside = config_.gate_chi2 * 10 + 1e3;  // finite, so the solver stays simple
+  local_of_.assign(nt + nd, -1);
+  for (int gi = 0; gi < n_groups; ++gi) {
+    const std::vector<int>& group = groups_[gi];
+    if (group.size() == 1) {  // one track, one detection
+      const Edge& e = edges_[group[0]];
+      tracks_[e.track].detection_index = e.detection;
+      det_assigned_[e.detection] = e.track;
+      continue;
+    }
+    group_tracks_.clear();
+    group_dets_.clear();
+    for (int e : group) {
+      const Edge& g = edges_[e];
+      if (local_of_[g.track] < 0) {
+        local_of_[g.track] = static_cast<int>(group_tracks_.size());
+        group_tracks_.push_back(g.track);
+      }
+      if (local_of_[nt + g.detection] < 0) {
+        local_of_[nt + g.detection] = static_cast<int>(group_dets_.size());
+        group_dets_.push_back(g.detection);
+      }
+    }
+    cost_.setConstant(static_cast<int>(group_tracks_.size()), static_cast<int>(group_dets_.size()), outside);
+    for (int e : group) {
+      const Edge& g = edges_[e];
+      cost_(local_of_[g.track], local_of_[nt + g.detection]) = g.m2;
+    }
+    const std::vector<int>& assign = solver_.solve(cost_);
+    for (int li = 0; li < static_cast<int>(group_tracks_.size()); ++li) {
+      const int lj = assign[li];
+      if (lj < 0 || cost_(li, lj) > config_.gate_chi2) continue;
+      const int i = group_tracks_[li], j = group_dets_[lj];
+      tracks_[i].detection_index = j;
+      det_assigned_[j] = i;
+    }
+  }
+}
+
 const std::vector<Track>& Tracker::update(const std::vector<Object>& detections, double time) {
   const double dt = started_ ? time - last_time_ : 0.0;
   if (!std::isfinite(time) || (started_ && dt <= 0))
@@ -101,36 +194,17 @@ const std::vector<Track>& Tracker::update(const std::vector<Object>& detections,
     t.detection_index = -1;
   }
 
-  // Association: Mahalanobis distance of each detection to each predicted track.
+  // Association: Mahalanobis distance of each detection to each predicted track, inside the gate.
+  // Only gated pairs can be associated, and the minimum-cost assignment over the full matrix
+  // (gated pairs at their distance, every other pair at one large constant) is the union of the
+  // minimum-cost assignments of the connected groups of gated pairs: the constant makes it
+  // maximise the gated pairs used per group, then minimise their distance, independently per
+  // group. So the candidates come from detections sorted by x (a track's gate ellipse spans
+  // +-sqrt(gate S_xx) in x), and the Hungarian solver sees each group alone: nearly always one
+  // track and one detection, where it has nothing to do.
   const int nt = static_cast<int>(tracks_.size()), nd = static_cast<int>(detections.size());
   det_assigned_.assign(nd, -1);
-  if (nt > 0 && nd > 0) {
-    const double r = config_.measurement_std * config_.measurement_std;
-    const double outside = config_.gate_chi2 * 10 + 1e3;  // finite, so the solver stays simple
-    cost_.resize(nt, nd);
-    for (int i = 0; i < nt; ++i) {
-      const Track& t = tracks_[i];
-      const Eigen::Matrix2d S_inv =
-          (t.P.topLeftCorner<2, 2>() + r * Eigen::Matrix2d::Identity()).inverse();
-      for (int j = 0; j < nd; ++j) {
-        const Object& d = detections[j];
-        if (config_.same_class_only && d.cls != t.object.cls) {
-          cost_(i, j) = outside;
-          continue;
-        }
-        const Eigen::Vector2d y = d.position.head<2>() - t.x.head<2>();
-        const double m2 = y.dot(S_inv * y);
-        cost_(i, j) = m2 <= config_.gate_chi2 ? m2 : outside;
-      }
-    }
-    const std::vector<int>& assign = solver_.solve(cost_);
-    for (int i = 0; i < nt; ++i) {
-      const int j = assign[i];
-      if (j < 0 || cost_(i, j) > config_.gate_chi2) continue;
-      tracks_[i].detection_index = j;
-      det_assigned_[j] = i;
-    }
-  }
+  if (nt > 0 && nd > 0) associate(detections);
 
   // Update and manage states; deleted tracks are dropped, ids never come back.
   scratch_.clear();

@@ -64,12 +64,22 @@ class Tracker {
   void predict(Track& t, double dt) const;
   void correct(Track& t, const Object& det) const;
   Track make_track(const Object& det, int index);
+  void associate(const std::vector<Object>& detections);  // sets detection_index / det_assigned_
 
   TrackerConfig config_;
   std::vector<Track> tracks_;
   std::vector<Track> scratch_;
   Eigen::MatrixXd cost_;
   std::vector<int> det_assigned_;
+  // Association scratch (reused, so a frame allocates nothing once warm).
+  struct Edge {
+    int track, detection;
+    double m2;
+  };
+  std::vector<Edge> edges_;
+  std::vector<int> by_x_, parent_, group_of_root_, local_of_, group_tracks_, group_dets_;
+  std::vector<double> xs_;
+  std::vector<std::vector<int>> groups_;
   HungarianSolver solver_;
   double last_time_ = 0;
   bool started_ = false;
