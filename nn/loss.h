@@ -16,7 +16,8 @@ struct LossParts {
 
 // pred, target, mask: [N, 1, H, W]; mask holds 0 or 1 as float.
 LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred);
-// Adds lambda * sum(w^2) and, when grads is true, 2 lambda w to the arena's gradients.
+// Adds lambda * sum((w - c)^2) over decaying parameters (c = their decay_center: 0 for weights,
+// 1 for the row-affine gain) and, when grads is true, 2 lambda (w - c) to the arena's gradients.
 double l2_penalty(ParamArena& params, float lambda, bool grads);
 
 }  // namespace lidarsim::nn
