@@ -76,6 +76,7 @@ void check_loop_options(const IntensityLoopOptions& o) {
     throw Error("loop intensity: --base \"" + o.base_model + "\": unknown (expected unet or lookup)");
   if (o.unet.seeds < 1 || o.unet.steps < 1 || o.unet.threads < 1)
     throw Error("loop intensity: --seeds, --steps and --threads must be at least 1");
+  if (o.rounds < 1 || o.rounds > 9) throw Error("loop intensity: --rounds: expected 1..9, got " + std::to_string(o.rounds));
   if (!(o.min_relative_gain >= 0 && o.min_relative_gain < 1))
     throw Error("loop intensity: --min-gain: expected a share in [0, 1), got " + std::to_string(o.min_relative_gain));
 }
@@ -358,8 +359,14 @@ std::array<double, 2> change_interval(const IntensityCells& c, const std::vector
 
 }  // namespace
 
-nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options) {
-  check_loop_options(options);
+namespace {
+
+// One round of the loop. Later rounds of the lookup loop (IntensityLoopOptions::rounds) start from
+// the previous round's prediction (`prior`) with the features already added set aside; `after_out`
+// receives this round's prediction per cell.
+nlohmann::json loop_round(const data::Dataset& ds, const IntensityLoopOptions& options,
+                          const std::vector<std::string>& added_before, const std::vector<double>* prior,
+                          std::vector<double>* after_out) {
   const bool unet = options.base_model == "unet";
   const data::SectorSplit split = intensity_split(ds, options.split, options.unet.depth);
   const int half_width = nn::receptive_field_half_width({1, 1, options.unet.base, options.unet.depth});
@@ -377,7 +384,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   const int total_trainings = 2 * options.unet.seeds;
   UnetFits base_fits;
   if (unet) base_fits = fit_unets(ds, c, kIntensityFeaturesUsedByModel, options, "base", trained, total_trainings);
-  const std::vector<double>& base = unet ? base_fits.ensemble : lookup_base;
+  const std::vector<double>& base = unet ? base_fits.ensemble : prior ? *prior : lookup_base;
 
   std::vector<double> resid(c.size());
   for (size_t i = 0; i < c.size(); ++i) resid[i] = c.measured[i] - base[i];
@@ -406,7 +413,8 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
     const auto edges = per_row ? category_edges(ds.rows()) : equal_count_edges(xf_all, options.bins);
     const auto fine = per_row ? category_edges(ds.rows()) : equal_count_edges(xf_all, 32);
     const bool is_used = std::find(kIntensityFeaturesUsedByModel.begin(), kIntensityFeaturesUsedByModel.end(),
-                                   kIntensityFeatures[f]) != kIntensityFeaturesUsedByModel.end();
+                                   kIntensityFeatures[f]) != kIntensityFeaturesUsedByModel.end() ||
+                         std::find(added_before.begin(), added_before.end(), kIntensityFeatures[f]) != added_before.end();
     FeatureScore best{kIntensityFeatures[f], -1e300, "intensity"};
     std::string form_of_best;
     for (const std::string form : {per_row ? "per-beam table" : "binned table", "window"}) {
@@ -508,6 +516,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
         {top_form + ": lookup refitted with the bin as a key", &pr}};
     double best = before.mae;
     for (const auto& [name, p] : cand) {
+      if (prior && p == &pr) continue;  // a refitted lookup would drop the effects added before
       const Errors e = errors(*p, c.measured, held_i);
       candidates[name] = e.mae;
       if (e.mae < best) best = e.mae, method = name, after = *p;
@@ -595,6 +604,37 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   if (add) j["effect"] = {{"feature", top.feature}, {"form", top_form}, {"edges", shown.edges}, {"residual_table", shown.value}};
   if (add && !options.plots_dir.empty()) j["plot"] = "residual_intensity_vs_" + top.feature + ".png";
   if (unet && !options.out_model.empty()) j["model"] = options.out_model.string();
+  if (after_out) *after_out = after;
+  return j;
+}
+
+}  // namespace
+
+nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options) {
+  check_loop_options(options);
+  std::vector<double> after;
+  nlohmann::json j = loop_round(ds, options, {}, nullptr, &after);
+  if (options.rounds <= 1 || options.base_model != "lookup") return j;
+  // Further rounds on the lookup: the next effect against the prediction with the ones added so far.
+  std::vector<std::string> added;
+  nlohmann::json rounds = nlohmann::json::array();
+  auto summary = [](const nlohmann::json& r) {
+    return nlohmann::json{{"added_effect", r["added_effect"]}, {"method", r["method"]},
+                          {"top", r["ranking"].empty() ? nlohmann::json(nullptr) : r["ranking"][0]},
+                          {"before", r["before"]}, {"after", r["after"]},
+                          {"change_interval95", r["change_interval95"]},
+                          {"rejected_effect", r.contains("rejected_effect") ? r["rejected_effect"] : nlohmann::json(nullptr)}};
+  };
+  rounds.push_back(summary(j));
+  for (nlohmann::json r = j; r["added_effect"].is_string() && static_cast<int>(rounds.size()) < options.rounds;) {
+    added.push_back(r["added_effect"].get<std::string>());
+    std::vector<double> next;
+    r = loop_round(ds, options, added, &after, &next);
+    rounds.push_back(summary(r));
+    after = next;
+  }
+  j["rounds"] = rounds;
+  j["after_all_rounds"] = rounds.back()["after"];
   return j;
 }
 

@@ -93,6 +93,10 @@ struct IntensityLoopOptions {
   // corrects under-training, not a sensor effect. Effects found so far cut 10 % (measured scans,
   // per-beam table) to 70 % (reference sensor).
   double min_relative_gain = 0.05;
+  // Lookup base only: up to this many rounds, each adding the next effect on top of the previous
+  // round's prediction (features added before are set aside; additive or gain forms only, since
+  // refitting the lookup would drop them). Reported as "rounds" and "after_all_rounds".
+  int rounds = 1;
   int bins = 16;
   std::filesystem::path plots_dir;
   std::string base_model = "unet";  // or "lookup"

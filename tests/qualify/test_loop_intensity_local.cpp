@@ -19,7 +19,7 @@ using namespace lidarsim;
 
 namespace {
 
-nlohmann::json lookup_loop(data::IntensityEffect effect) {
+nlohmann::json lookup_loop(data::IntensityEffect effect, int rounds = 1) {
   const fs::path dir = fs::temp_directory_path() /
                        ("lidarsim_loop_local_" + data::to_string(effect) + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
@@ -29,6 +29,7 @@ nlohmann::json lookup_loop(data::IntensityEffect effect) {
   data::write_reference_semantickitti(dir, o);
   qualify::IntensityLoopOptions lo;
   lo.base_model = "lookup";
+  lo.rounds = rounds;
   const auto j = qualify::loop_intensity(dir, lo);
   fs::remove_all(dir);
   std::cout << "  " << data::to_string(effect) << ": top " << j["ranking"][0].dump() << " form " << j["top_form"]
@@ -51,6 +52,18 @@ TEST(LoopIntensityLocal, NamesPerLaserGainAsBeamRowAndCutsHeldOutErrorBelow70Per
   const auto j = lookup_loop(data::IntensityEffect::BeamGain);
   expect_found(j, "beam_row");
   EXPECT_EQ(j["top_form"], "per-beam table");
+}
+
+// Rounds: the second round starts from the first one's prediction; with the only hidden effect
+// already added it must add nothing (a control inside the loop).
+TEST(LoopIntensityLocal, SecondRoundAfterThePerLaserGainAddsNothing) {
+  const auto j = lookup_loop(data::IntensityEffect::BeamGain, 3);
+  ASSERT_EQ(j["rounds"].size(), 2u) << j["rounds"].dump();
+  EXPECT_EQ(j["rounds"][0]["added_effect"], "beam_row");
+  EXPECT_TRUE(j["rounds"][1]["added_effect"].is_null()) << j["rounds"][1].dump();
+  EXPECT_NE(j["rounds"][1]["top"]["feature"], "beam_row");  // set aside once added
+  EXPECT_EQ(j["rounds"][1]["before"], j["after"]);
+  EXPECT_EQ(j["after_all_rounds"], j["after"]);
 }
 
 TEST(LoopIntensityLocal, NamesAzimuthWindowOnTheSplitVariableAndCutsHeldOutErrorBelow70Percent) {
