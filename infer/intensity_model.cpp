@@ -42,6 +42,11 @@ std::vector<std::string> IntensityModel::extra_channels() const {
 
 void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out) {
   const int rows = pgm.rows(), cols = pgm.cols();
+  const int model_rows = model_.config().row_affine_rows;
+  if (model_rows > 0 && rows != model_rows)
+    throw input_error(path_.string(), "/config/unet.row_affine_rows",
+                      "the model has a gain per laser for " + std::to_string(model_rows) + " rows, the grid has " +
+                          std::to_string(rows));
   if (input_.shape() != nn::Shape{1, encoder_.input_channels(), rows, cols})
     input_.resize({1, encoder_.input_channels(), rows, cols});
   pgm::encode_input(pgm::view_of(pgm), encoder_, input_, 0);

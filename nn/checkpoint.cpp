@@ -386,6 +386,11 @@ int positive_int_attr(const Reader& r, const std::string& name) {
   return static_cast<int>(v);
 }
 
+// Checkpoints from before the per-row affine layer have no attribute: no layer.
+int row_affine_rows(const Reader& r) {
+  return r.has_attr("config", "unet.row_affine_rows") ? positive_int_attr(r, "unet.row_affine_rows") : 0;
+}
+
 }  // namespace
 
 void save_checkpoint(const std::filesystem::path& path, const UNet& model, const Optimizer* optimizer,
@@ -408,6 +413,9 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
+      // Only when present, so a model without the layer is saved exactly as before it existed.
+      if (model.config().row_affine_rows > 0)
+        w.attr(config.get(), "config", "unet.row_affine_rows", std::int64_t{model.config().row_affine_rows});
       if (optimizer) {
         const OptimizerConfig& oc = optimizer->config();
         w.attr(config.get(), "config", "optimizer.kind", oc.kind);
@@ -450,6 +458,7 @@ Checkpoint read_checkpoint_meta(const std::filesystem::path& path) {
   meta.unet.out_channels = positive_int_attr(r, "unet.out_channels");
   meta.unet.base = positive_int_attr(r, "unet.base");
   meta.unet.depth = positive_int_attr(r, "unet.depth");
+  meta.unet.row_affine_rows = row_affine_rows(r);
   for (const std::string& name : r.attr_names("config"))
     if (!reserved_attribute(name)) meta.attributes[name] = r.string_attr("config", name);
   if (r.has_attr("config", "optimizer.kind")) {
@@ -483,6 +492,9 @@ void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* 
       r.fail(std::string("config/") + name,
              "checkpoint has " + std::to_string(have) + ", the model expects " + std::to_string(value));
   }
+  if (const int have = row_affine_rows(r); have != want.row_affine_rows)
+    r.fail("config/unet.row_affine_rows", "checkpoint has " + std::to_string(have) + " (0: no per-row affine layer), the model expects " +
+                                              std::to_string(want.row_affine_rows));
 
   // Validate and read everything first; copy into the model only when all of it is good.
   ParamArena& params = model.params();

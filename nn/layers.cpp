@@ -573,4 +573,47 @@ void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out) {
   concat_backward(d_a, d_b, d_out, d_a.shape().c, false);
 }
 
+void row_affine_forward(Tensor& out, const Tensor& in, const float* gain, const float* offset) {
+  check_finite_shape(in, "row_affine_forward", "in");
+  const Shape s = in.shape();
+  ensure(out, s);
+  const int rows = s.n * s.c * s.h;
+#pragma omp parallel for schedule(static)
+  for (int r = 0; r < rows; ++r) {
+    const int ch = r % (s.c * s.h);  // channel * H + row
+    const float a = gain[ch], b = offset[ch];
+    const float* x = in.data() + static_cast<std::size_t>(r) * s.w;
+    float* y = out.data() + static_cast<std::size_t>(r) * s.w;
+    for (int w = 0; w < s.w; ++w) y[w] = a * x[w] + b;
+  }
+}
+
+void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Tensor& d_out, const Tensor& in,
+                         const float* gain) {
+  const Shape s = in.shape();
+  if (!(d_out.shape() == s))
+    throw Error("row_affine_backward: d_out: shape " + d_out.shape().str() + " does not match input " + s.str());
+  ensure(d_in, s);
+  const int per_image = s.c * s.h;
+  // One (channel, row) per iteration, summed over the batch and the columns in a fixed order.
+#pragma omp parallel for schedule(static)
+  for (int ch = 0; ch < per_image; ++ch) {
+    double sg = 0, so = 0;
+    for (int n = 0; n < s.n; ++n) {
+      const std::size_t base = (static_cast<std::size_t>(n) * per_image + ch) * s.w;
+      const float* x = in.data() + base;
+      const float* g = d_out.data() + base;
+      float* dx = d_in.data() + base;
+      for (int w = 0; w < s.w; ++w) {
+        sg += static_cast<double>(g[w]) * x[w];
+        so += g[w];
+        dx[w] = gain[ch] * g[w];
+      }
+    }
+    d_gain[ch] += static_cast<float>(sg);
+    d_offset[ch] += static_cast<float>(so);
+  }
+  if (fault(testhook::Fault::row_affine) && per_image > 1) d_gain[1] = d_gain[0];
+}
+
 }  // namespace lidarsim::nn

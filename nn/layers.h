@@ -61,6 +61,14 @@ void concat_forward(Tensor& out, const Tensor& a, const Tensor& b);
 void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool accumulate_a = false);
 void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out);  // ca from d_a's shape
 
+// Per-row affine: out[n, c, h, w] = gain[c, h] * in[n, c, h, w] + offset[c, h], one gain and
+// offset per output channel and row (the UNet's per-laser effect: a PGM row is one laser).
+//   in [N, C, H, W], gain and offset [C * H] (row-major: channel, then row).
+void row_affine_forward(Tensor& out, const Tensor& in, const float* gain, const float* offset);
+// Writes d_in (=), accumulates d_gain and d_offset (+=).
+void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Tensor& d_out, const Tensor& in,
+                         const float* gain);
+
 // Test-only fault injection: when set, the named backward pass puts one value at a wrong index,
 // so the gradient-check tests can prove that they catch such a bug. Never set outside tests.
 namespace testhook {
@@ -74,6 +82,7 @@ enum class Fault {
   max_pool,
   relu,
   concat,
+  row_affine,
 };
 extern Fault fault;
 }  // namespace testhook

@@ -58,12 +58,13 @@ double l2_penalty(ParamArena& params, float lambda, bool grads) {
     const float* w = params.values() + infos[i].offset;
     float* g = params.grads() + infos[i].offset;
     const std::size_t n = infos[i].shape.numel();
+    const float c = infos[i].decay_center;
     double s = 0;
-    for (std::size_t j = 0; j < n; ++j) s += static_cast<double>(w[j]) * w[j];
+    for (std::size_t j = 0; j < n; ++j) s += static_cast<double>(w[j] - c) * (w[j] - c);
     partial[i] = s;
     if (grads) {
       const float two_lambda = 2.f * lambda;
-      for (std::size_t j = 0; j < n; ++j) g[j] += two_lambda * w[j];
+      for (std::size_t j = 0; j < n; ++j) g[j] += two_lambda * (w[j] - c);
     }
   }
   double total = 0;

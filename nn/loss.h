@@ -19,7 +19,8 @@ struct LossParts {
 // every process's part of the batch, so the parts' losses and gradients add up to the whole's.
 LossParts masked_mse(const Tensor& pred, const Tensor& target, const Tensor& mask, Tensor* d_pred,
                      long denominator = 0);
-// Adds lambda * sum(w^2) and, when grads is true, 2 lambda w to the arena's gradients.
+// Adds lambda * sum((w - c)^2) over decaying parameters (c = their decay_center: 0 for weights,
+// 1 for the row-affine gain) and, when grads is true, 2 lambda (w - c) to the arena's gradients.
 double l2_penalty(ParamArena& params, float lambda, bool grads);
 
 }  // namespace lidarsim::nn

@@ -46,6 +46,12 @@ void Optimizer::step(ParamArena& params) {
     }
   }
 
+  // Per-element step factor: 1 except for parameters registered with an lr_scale (few values).
+  scale_.assign(n, 1.f);
+  for (const ParamInfo& info : params.infos())
+    if (info.lr_scale != 1.f) std::fill_n(scale_.begin() + static_cast<std::ptrdiff_t>(info.offset), info.shape.numel(), info.lr_scale);
+  const float* sc = scale_.data();
+
   float* m = m_.data();
   if (config_.kind == "sgd") {
     // torch.optim.SGD, dampening 0, no Nesterov: buf = momentum buf + g (buf = g at step 1).
@@ -53,7 +59,7 @@ void Optimizer::step(ParamArena& params) {
 #pragma omp parallel for simd schedule(static) if (n > (1u << 15))
     for (std::size_t i = 0; i < n; ++i) {
       m[i] = mu * m[i] + g[i];
-      p[i] -= lr * m[i];
+      p[i] -= sc[i] * lr * m[i];
     }
     return;
   }
@@ -71,7 +77,7 @@ void Optimizer::step(ParamArena& params) {
     m[i] = b1 * m[i] + one_b1 * g[i];
     v[i] = b2 * v[i] + one_b2 * g[i] * g[i];
     const float denom = std::sqrt(v[i]) / bc2_sqrt + eps;
-    p[i] -= step_size * (m[i] / denom);
+    p[i] -= sc[i] * step_size * (m[i] / denom);
   }
 }
 

@@ -1,18 +1,20 @@
 #include "nn/params.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "common/error.h"
 
 namespace lidarsim::nn {
 
-int ParamArena::add(const std::string& name, Shape shape, bool decays) {
+int ParamArena::add(const std::string& name, Shape shape, bool decays, float decay_center, float lr_scale) {
   if (finalized_) throw Error("ParamArena: " + name + ": cannot add a parameter after finalize()");
   if (find(name) >= 0) throw Error("ParamArena: " + name + ": parameter registered twice");
   if (shape.numel() == 0) throw Error("ParamArena: " + name + ": empty shape " + shape.str());
   // Contiguous, no padding: offsets are the running sum of sizes, so the arena is exactly the
   // concatenation of all parameters in registration order.
-  infos_.push_back(ParamInfo{name, shape, decays, total_});
+  if (!(lr_scale > 0) || !std::isfinite(lr_scale)) throw Error("ParamArena: " + name + ": lr_scale must be > 0");
+  infos_.push_back(ParamInfo{name, shape, decays, total_, decay_center, lr_scale});
   total_ += shape.numel();
   return static_cast<int>(infos_.size()) - 1;
 }

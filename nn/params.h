@@ -14,12 +14,15 @@ struct ParamInfo {
   Shape shape;         // conv: [out, in, kh, kw]; transposed conv: [in, out, 2, 2]; bias: [out, 1, 1, 1]
   bool decays;         // true for weights (in the L2 term), false for biases
   std::size_t offset;  // into values()/grads()
+  float decay_center = 0.f;  // the L2 term pulls toward this (1 for a gain, 0 otherwise)
+  float lr_scale = 1.f;      // the optimizer's step for this parameter is lr x this
 };
 
 class ParamArena {
  public:
-  // Register a parameter before finalize(); returns its index.
-  int add(const std::string& name, Shape shape, bool decays);
+  // Register a parameter before finalize(); returns its index. A decaying parameter is pulled
+  // toward decay_center by the L2 term; the optimizer steps it with lr x lr_scale.
+  int add(const std::string& name, Shape shape, bool decays, float decay_center = 0.f, float lr_scale = 1.f);
   // Allocate values and grads (zeroed) once all parameters are registered.
   void finalize();
 

@@ -41,6 +41,8 @@ struct UNet::Workspace {
   std::vector<Level> levels;
   Tensor x;  // [N, in, H, W] copy of the last forward's input (enc0.conv1's weight gradient)
   Tensor y;  // [N, out, H, W] the last forward's output
+  Tensor head_out, g_head_out;  // the head's output before the row affine, and its gradient
+  int gain = -1, offset = -1;  // row-affine parameters (-1: none)
   bool have_forward = false;
   std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
   ConvIds head;
@@ -82,6 +84,8 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
   if (config.out_channels < 1) throw bad("out_channels", config.out_channels, ">= 1");
   if (config.base < 1) throw bad("base", config.base, ">= 1");
   if (config.depth < 0 || config.depth > 10) throw bad("depth", config.depth, "0..10");
+  if (config.row_affine_rows < 0 || config.row_affine_rows > 1 << 16)
+    throw bad("row_affine_rows", config.row_affine_rows, "0 (none) .. 65536");
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
     ConvIds ids;
@@ -110,6 +114,14 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
     ws.dec2[l] = conv(p + ".conv2", c, c, 3);
   }
   ws.head = conv("head", config.out_channels, channels(config, 0), 1);
+  if (config.row_affine_rows > 0) {
+    // Steps 10x the learning rate: Adam moves each parameter by about lr per step, and a laser's
+    // gain may sit 0.4 from 1 (0.6..1.4 on the reference sensor), beyond what a short run at
+    // lr 2e-3 can travel; the network's weights need no such distance.
+    const Shape s{1, config.out_channels, config.row_affine_rows, 1};
+    ws.gain = params_.add("row_affine/gain", s, true, 1.f, 10.f);
+    ws.offset = params_.add("row_affine/offset", s, true, 0.f, 10.f);
+  }
   params_.finalize();
 }
 
@@ -125,6 +137,10 @@ void UNet::init(std::uint64_t seed) {
   for (const ParamInfo& p : params_.infos()) {
     float* v = params_.values() + p.offset;
     const std::size_t n = p.shape.numel();
+    if (p.name.rfind("row_affine/", 0) == 0) {  // identity: gain 1, offset 0
+      std::fill(v, v + n, p.decay_center);
+      continue;
+    }
     if (!p.decays) {
       std::fill(v, v + n, 0.f);
       continue;
@@ -152,6 +168,9 @@ void UNet::forward(const Tensor& x, Tensor& y) {
   if (s.n < 1 || s.h < min_size || s.w < min_size)
     throw Error("UNet forward: input: expected N >= 1 and H, W >= " + std::to_string(min_size) + " (2^depth), got " +
                 s.str());
+  if (config_.row_affine_rows > 0 && s.h != config_.row_affine_rows)
+    throw Error("UNet forward: input: the row-affine layer has " + std::to_string(config_.row_affine_rows) +
+                " rows (one per laser), got shape " + s.str());
   for (std::size_t i = 0; i < x.numel(); ++i)
     if (!std::isfinite(x.data()[i]))
       throw Error("UNet forward: input: non-finite value at flat index " + std::to_string(i));
@@ -198,8 +217,16 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     below = &L.d2;
   }
   ws.tic();
-  conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
-  ws.toc("fwd head");
+  if (ws.gain >= 0) {
+    conv2d_forward(ws.head_out, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    ws.toc("fwd head");
+    ws.tic();
+    row_affine_forward(y, ws.head_out, W(ws.gain), W(ws.offset));
+    ws.toc("fwd row_affine");
+  } else {
+    conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    ws.toc("fwd head");
+  }
   ws.have_forward = true;
 }
 
@@ -220,12 +247,19 @@ void UNet::backward(const Tensor& dy) {
   const auto W = [&](int id) { return pv + params_.info(id).offset; };
   const auto G = [&](int id) { return pg + params_.info(id).offset; };
 
-  // Head (1x1, no activation): its "out" is unused without ReLU.
+  // Row affine, then the head (1x1, no activation): its "out" is unused without ReLU.
+  const Tensor* g_head = &dy;
+  if (ws.gain >= 0) {
+    ws.tic();
+    row_affine_backward(ws.g_head_out, G(ws.gain), G(ws.offset), dy, ws.head_out, W(ws.gain));
+    ws.toc("bwd row_affine");
+    g_head = &ws.g_head_out;
+  }
   {
     const Tensor& top = depth > 0 ? ws.levels[0].d2 : ws.levels[0].a2;
     Tensor& g_top = depth > 0 ? ws.levels[0].g_d2 : ws.levels[0].g_a2;
     ws.tic();
-    conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), dy, dy, top, W(ws.head.w), 1, 0, false);
+    conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), *g_head, *g_head, top, W(ws.head.w), 1, 0, false);
     ws.toc("bwd head");
   }
   for (int l = 0; l < depth; ++l) {
@@ -281,6 +315,7 @@ double UNet::forward_flops(int n, int h, int w) const {
     macs += (2 * c * c + c * c) * 9 * hw[l];  // conv1, conv2
   }
   macs += double(channels(config_, 0)) * config_.out_channels * hw[0];
+  if (config_.row_affine_rows > 0) macs += double(config_.out_channels) * hw[0];
   return 2.0 * macs * n;
 }
 

@@ -12,6 +12,11 @@
 //     concat([skip_l, up], channels) -> 2 c_l
 //     dec{l}.conv1 (2 c_l -> c_l), dec{l}.conv2 (c_l -> c_l): conv 3x3, padding 1, ReLU
 //   head: conv 1x1, c_0 -> out_channels, no activation
+//   row_affine (only when row_affine_rows > 0): y[n, o, h, w] = gain[o, h] * head[n, o, h, w] +
+//     offset[o, h], one gain and offset per output channel and row ("row_affine/gain" and
+//     "row_affine/offset", shape [1, out_channels, rows, 1], initialised to 1 and 0 and pulled
+//     toward them by the L2 term; stepped at 10x the learning rate). A PGM row is one laser, so this is a learned per-laser
+//     gain/offset; inputs must then have exactly row_affine_rows rows.
 // Default: depth 4, base 16 ("unet-ref" with 3 input channels: 6.07 GFLOP forward at 64 x 1024).
 #include <cstdint>
 #include <memory>
@@ -27,6 +32,7 @@ struct UNetConfig {
   int out_channels = 1;
   int base = 16;
   int depth = 4;
+  int row_affine_rows = 0;  // 0: no per-row affine layer
   bool operator==(const UNetConfig&) const = default;
 };
 

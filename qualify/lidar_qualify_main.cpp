@@ -47,6 +47,11 @@ void print_loop(const nlohmann::json& j) {
               << j["rejected_effect"]["why"].get<std::string>() << "\n";
   if (j.contains("seeds_before"))
     std::cout << "per seed: before " << j["seeds_before"].dump() << "  after " << j["seeds_after"].dump() << "\n";
+  if (j.contains("rounds"))
+    for (const auto& r : j["rounds"])
+      std::cout << "round: added " << (r["added_effect"].is_null() ? "nothing" : r["added_effect"].get<std::string>())
+                << " (top " << r["top"]["feature"].get<std::string>() << ")  before " << r["before"].get<double>()
+                << "  after " << r["after"].get<double>() << "\n";
   if (j.contains("held_out_tracks"))
     std::cout << "held-out tracks better with it: " << j["held_out_tracks_better"].get<int>() << " of "
               << j["held_out_tracks"].get<int>() << "; 95% interval of the change "
@@ -95,7 +100,7 @@ int run(int argc, char** argv) {
     ("out", "report folder (report.json, report.md, PNGs)", cxxopts::value<std::string>())
     ("report", "loop report JSON", cxxopts::value<std::string>())
     ("max-effects", "loop objects: bias forms added per run, at most one per target, best first (0: no limit)", cxxopts::value<int>()->default_value("0"))
-    ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel)", cxxopts::value<std::string>())
+    ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel or per-row affine layer)", cxxopts::value<std::string>())
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
@@ -103,6 +108,8 @@ int run(int argc, char** argv) {
     ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (old, leaks) | guarded:<half-width> | frames:<id>,... (whole frames held out)", cxxopts::value<std::string>()->default_value("guarded"))
     ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
+    ("rounds", "loop intensity --base lookup: add effects one after another, up to this many rounds", cxxopts::value<int>()->default_value("1"))
+    ("min-gain", "loop intensity: smallest held-out MAE cut (share of before) for which an effect is added", cxxopts::value<double>()->default_value("0.05"))
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("h,help", "this help");
   const auto a = opts.parse(argc - shift, argv + shift);
@@ -150,6 +157,8 @@ int run(int argc, char** argv) {
     } else if (sub == "intensity") {
       qualify::IntensityLoopOptions io;
       if (a.count("threshold")) io.threshold = a["threshold"].as<double>();
+      io.min_relative_gain = a["min-gain"].as<double>();
+      io.rounds = a["rounds"].as<int>();
       io.plots_dir = lo.plots_dir;
       io.base_model = a["base"].as<std::string>();
       io.unet.steps = a["steps"].as<int>();

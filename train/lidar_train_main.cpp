@@ -58,6 +58,7 @@ int main(int argc, char** argv) {
     ("lambda", "L2 weight on the sum of squared weights", cxxopts::value<float>()->default_value("1e-6"))
     ("base", "UNet base width", cxxopts::value<int>()->default_value("16"))
     ("depth", "UNet depth (number of poolings)", cxxopts::value<int>()->default_value("4"))
+    ("row-affine", "learn a gain and an offset per PGM row (per laser) on the output, pulled toward 1 and 0 by the L2 term")
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-augment", "no azimuth roll or mirror")
@@ -88,6 +89,7 @@ int main(int argc, char** argv) {
     config.lambda = args["lambda"].as<float>();
     config.base = args["base"].as<int>();
     config.depth = args["depth"].as<int>();
+    config.row_affine = args.count("row-affine") > 0;
     config.seed = args["seed"].as<std::uint64_t>();
     config.threads = args["threads"].as<int>();
     config.augment_roll = config.augment_mirror = !args.count("no-augment");

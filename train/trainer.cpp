@@ -110,6 +110,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   j["channels"] = c.encoder.channels;
   j["base"] = c.base;
   j["depth"] = c.depth;
+  if (c.row_affine) j["row_affine"] = true;  // absent when off: older checkpoints compare equal
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -329,7 +330,7 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
                                                   std::to_string(rows) + " x " + std::to_string(cols));
   const bool sector_split = val_set == nullptr;
   const int in_channels = config.encoder.input_channels();
-  const nn::UNetConfig arch{in_channels, 1, config.base, config.depth};
+  const nn::UNetConfig arch{in_channels, 1, config.base, config.depth, config.row_affine ? rows : 0};
   const int half_width = nn::receptive_field_half_width(arch);
   const data::SectorSplit split = data::parse_split(config.split, half_width, cols);
   if (sector_split && split.validation_frames.empty() && !split.regions.empty() && split.guard_columns < 2 * half_width)
@@ -406,7 +407,8 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   meta.attributes["beam_layout"] = train_sets[0]->layout.to_json();
   meta.attributes["lambda"] = std::to_string(config.lambda);
   meta.attributes["seed"] = std::to_string(config.seed);
-  meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
+  meta.attributes["loss"] = config.row_affine ? "masked_mse + lambda * (sum(w^2) + sum((row gain - 1)^2) + sum(row offset^2))"
+                                             : "masked_mse + lambda * sum(w^2), weights only";
   meta.attributes["train_config"] = describe_config(config);
   meta.attributes["receptive_field_half_width"] = std::to_string(half_width);
   meta.attributes["split"] = sector_split ? split.describe(cols) : "separate validation dataset";

@@ -33,6 +33,9 @@ struct TrainConfig {
   std::string split = "guarded";
   pgm::EncoderConfig encoder;
   int base = 16, depth = 4;
+  // A learned gain and offset per PGM row (= laser) on the output (nn/unet.h, row_affine), one
+  // per row of the training grid; the row is known at inference, so nothing else is needed.
+  bool row_affine = false;
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
   int batch = 1;

@@ -142,7 +142,18 @@ inline DT unet(const UNet& model, const std::vector<double>& p, const DT& x) {
     DT up = conv_transpose2x2(cur, get(d + ".up/weight"), get(d + ".up/bias"), c, skip.s.h, skip.s.w);
     cur = conv(conv(concat(skip, up), d + ".conv1", 3, 1, true), d + ".conv2", 3, 1, true);
   }
-  return conv(cur, "head", 1, 0, false);
+  DT y = conv(cur, "head", 1, 0, false);
+  if (cfg.row_affine_rows > 0) {
+    const std::vector<double> gain = get("row_affine/gain"), offset = get("row_affine/offset");
+    for (int n = 0; n < y.s.n; ++n)
+      for (int c = 0; c < y.s.c; ++c)
+        for (int h = 0; h < y.s.h; ++h)
+          for (int w = 0; w < y.s.w; ++w) {
+            double& v = y.v[((std::size_t(n) * y.s.c + c) * y.s.h + h) * y.s.w + w];
+            v = gain[std::size_t(c) * y.s.h + h] * v + offset[std::size_t(c) * y.s.h + h];
+          }
+  }
+  return y;
 }
 
 inline double dot(const DT& a, const std::vector<double>& r) {

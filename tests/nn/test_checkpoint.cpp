@@ -376,3 +376,54 @@ TEST_F(CheckpointTest, HdfFileThatIsNotACheckpointNamesTheMissingAttribute) {
     EXPECT_NE(msg.find("config/unet.in_channels"), std::string::npos) << msg;
   }
 }
+
+// The per-row affine layer (nn/unet.h) travels with its row count; a model without it is saved
+// with no such attribute, exactly as before the layer existed, so older files still load.
+TEST_F(CheckpointTest, RowAffineLayerRoundTripsWithItsRowCountAndPredictions) {
+  const UNetConfig with_rows{3, 1, 4, 2, 12};
+  UNet model(with_rows);
+  model.init(7);
+  Optimizer opt(OptimizerConfig{}, model.params().size());
+  train_one_step(model, opt);  // 12-row inputs: moves the gains off 1 and the offsets off 0
+  const ParamArena& a = model.params();
+  EXPECT_NE(a.value(a.find("row_affine/gain"))[3], 1.f);
+  const fs::path p = dir_ / "rows.h5";
+  Checkpoint m = meta();
+  m.unet = with_rows;
+  save_checkpoint(p, model, &opt, m);
+  EXPECT_EQ(read_checkpoint_meta(p).unet, with_rows);
+
+  UNet loaded(with_rows);
+  loaded.init(99);
+  Optimizer loaded_opt(OptimizerConfig{}, loaded.params().size());
+  load_checkpoint(p, loaded, &loaded_opt);
+  EXPECT_EQ(arena_values(loaded), arena_values(model));
+  const Tensor x = random_tensor({1, 3, 12, 21}, 11, -1.f, 1.f);
+  Tensor y_model, y_loaded;
+  model.predict(x, y_model);
+  loaded.predict(x, y_loaded);
+  EXPECT_TRUE(std::equal(y_model.begin(), y_model.end(), y_loaded.begin()));
+
+  // A model without the layer refuses the file, naming the field.
+  UNet plain(kSmall);
+  try {
+    load_checkpoint(p, plain, nullptr);
+    FAIL() << "a row-affine checkpoint loaded into a model without the layer";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("unet.row_affine_rows"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(CheckpointTest, ModelWithoutRowAffineIsSavedWithoutTheAttributeAndLoadsAsBefore) {
+  const fs::path p = save_trained("plain.h5");
+  hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  EXPECT_EQ(H5Aexists_by_name(f, "config", "unet.row_affine_rows", H5P_DEFAULT), 0);
+  EXPECT_EQ(H5Aexists_by_name(f, "config", "unet.depth", H5P_DEFAULT), 1);
+  H5Fclose(f);
+  EXPECT_EQ(read_checkpoint_meta(p).unet.row_affine_rows, 0);
+  UNet model(kSmall);
+  EXPECT_NO_THROW(load_checkpoint(p, model, nullptr));
+  UNet with_rows(UNetConfig{3, 1, 4, 2, 12});
+  EXPECT_THROW(load_checkpoint(p, with_rows, nullptr), Error);
+}

@@ -187,6 +187,48 @@ double check_concat() {
 
 TEST(ConcatGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_concat(), kTol); }
 
+// Reference: y = gain[c, h] * x + offset[c, h], written out in double.
+DT row_affine(const DT& x, const std::vector<double>& gain, const std::vector<double>& offset) {
+  DT y = x;
+  for (int n = 0; n < x.s.n; ++n)
+    for (int c = 0; c < x.s.c; ++c)
+      for (int h = 0; h < x.s.h; ++h)
+        for (int w = 0; w < x.s.w; ++w) {
+          const std::size_t k = std::size_t(c) * x.s.h + h;
+          y.at(n, c, h, w) = gain[k] * x.at(n, c, h, w) + offset[k];
+        }
+  return y;
+}
+
+Errors check_row_affine() {
+  const Tensor x = random_tensor(Shape{2, 3, 5, 7}, 51);
+  std::vector<float> gain = random_vector(15, 52, 0.5f), offset = random_vector(15, 53, 0.3f);
+  for (float& g : gain) g += 1.f;
+  Tensor y, d_in;
+  row_affine_forward(y, x, gain.data(), offset.data());
+  const Tensor r = random_tensor(y.shape(), 54);
+  std::vector<float> dg(gain.size(), 0.f), db(offset.size(), 0.f);
+  row_affine_backward(d_in, dg.data(), db.data(), r, x, gain.data());
+  DT xd = from(x);
+  std::vector<double> gd = to_double(gain), od = to_double(offset);
+  const std::vector<double> rd = to_double(r);
+  auto f = [&] { return dot(row_affine(xd, gd, od), rd); };
+  Errors e;
+  e.forward = max_rel_error(y.data(), row_affine(xd, gd, od).v);
+  e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
+  e.d_weight = max_rel_error(dg.data(), numeric_gradient(gd, f));
+  e.d_bias = max_rel_error(db.data(), numeric_gradient(od, f));
+  std::printf("[ measured ] row affine: forward %.1e, d_in %.1e, d_gain %.1e, d_offset %.1e\n", e.forward, e.d_in,
+              e.d_weight, e.d_bias);
+  return e;
+}
+
+TEST(RowAffineGradCheck, InputGainAndOffsetGradientsMatchFiniteDifferences) {
+  const Errors e = check_row_affine();
+  EXPECT_LT(e.forward, 1e-6);
+  EXPECT_LT(e.worst_backward(), kTol);
+}
+
 // --- The checks can fail: each fault puts one value at a wrong index. ---
 
 TEST(GradCheckCatchesFaults, WrongIndexInConv2dInputGradient) {
@@ -216,6 +258,10 @@ TEST(GradCheckCatchesFaults, WrongIndexInMaxPoolGradient) {
 TEST(GradCheckCatchesFaults, WrongIndexInReluGradient) {
   FaultGuard g(testhook::Fault::relu);
   EXPECT_GT(check_relu(), kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInRowAffineGainGradient) {
+  FaultGuard g(testhook::Fault::row_affine);
+  EXPECT_GT(check_row_affine().d_weight, kFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConcatGradient) {
   FaultGuard g(testhook::Fault::concat);

@@ -37,6 +37,11 @@ Result check_unet(const Case& c) {
   for (const ParamInfo& p : arena.infos())
     if (!p.decays)
       for (std::size_t i = 0; i < p.shape.numel(); ++i) arena.values()[p.offset + i] = bias_noise[p.offset + i];
+  // Row-affine gains and offsets away from 1 and 0, so every term of their gradient shows.
+  for (const ParamInfo& p : arena.infos())
+    if (p.name.rfind("row_affine/", 0) == 0)
+      for (std::size_t i = 0; i < p.shape.numel(); ++i)
+        arena.values()[p.offset + i] = p.decay_center + 3 * bias_noise[p.offset + i];
 
   const Tensor x = random_tensor(c.x, 9);
   const Shape ys{c.x.n, c.cfg.out_channels, c.x.h, c.x.w};
@@ -66,7 +71,10 @@ Result check_unet(const Case& c) {
     double l2 = 0;
     for (const ParamInfo& info : arena.infos())
       if (info.decays)
-        for (std::size_t i = 0; i < info.shape.numel(); ++i) l2 += p[info.offset + i] * p[info.offset + i];
+        for (std::size_t i = 0; i < info.shape.numel(); ++i) {
+          const double d = p[info.offset + i] - info.decay_center;
+          l2 += d * d;
+        }
     return data / valid + c.lambda * l2;
   };
   Result r;
@@ -79,6 +87,7 @@ Result check_unet(const Case& c) {
 
 const Case kOdd7x9{{3, 1, 2, 2}, {2, 3, 7, 9}, 1e-2f};
 const Case kOdd5x11{{2, 2, 3, 2}, {2, 2, 5, 11}, 1e-2f};
+const Case kRowAffine7x9{{3, 2, 2, 2, 7}, {2, 3, 7, 9}, 1e-2f};  // two outputs, a gain and offset each per row
 
 TEST(UNetGradCheck, OddSize7x9Batch2AllParametersMatchFiniteDifferences) {
   const Result r = check_unet(kOdd7x9);
@@ -90,6 +99,30 @@ TEST(UNetGradCheck, OddSize5x11TwoOutputsAllParametersMatchFiniteDifferences) {
   const Result r = check_unet(kOdd5x11);
   EXPECT_LT(r.forward, 1e-5);
   EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNetGradCheck, RowAffineLayerAndEveryParameterBelowItMatchFiniteDifferences) {
+  const Result r = check_unet(kRowAffine7x9);
+  EXPECT_LT(r.forward, 1e-5);
+  EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNet, RowAffineStartsAsTheIdentityAndNeedsItsRowCount) {
+  UNet plain(UNetConfig{3, 1, 4, 2}), rows(UNetConfig{3, 1, 4, 2, 8});
+  plain.init(5);
+  rows.init(5);
+  const ParamArena& a = rows.params();
+  const ParamInfo& g = a.info(a.find("row_affine/gain"));
+  EXPECT_EQ(g.shape, (Shape{1, 1, 8, 1}));
+  EXPECT_EQ(g.decay_center, 1.f);
+  // The same seed gives the same network below the layer, and the layer starts as the identity.
+  EXPECT_EQ(std::memcmp(plain.params().values(), a.values(), plain.params().size() * sizeof(float)), 0);
+  const Tensor x = random_tensor(Shape{1, 3, 8, 12}, 3);
+  Tensor y0, y1;
+  plain.forward(x, y0);
+  rows.forward(x, y1);
+  EXPECT_EQ(std::memcmp(y0.data(), y1.data(), y0.numel() * sizeof(float)), 0);
+  EXPECT_THROW(rows.forward(random_tensor(Shape{1, 3, 12, 12}, 3), y1), Error);
 }
 
 TEST(UNetGradCheck, DetectsAWrongIndexInsideTheNetwork) {
