@@ -60,6 +60,9 @@ int main(int argc, char** argv) {
      cxxopts::value<std::string>())
     ("export-weights", "at the end, also write the weights alone (for inference) here", cxxopts::value<std::string>())
     ("log", "write per-epoch metrics as CSV here", cxxopts::value<std::string>())
+    ("cache-mb", "keep frames read from each file in memory up to this many MB (frames are read per step)",
+     cxxopts::value<int>()->default_value("256"))
+    ("no-prefetch", "read a step's frames when it starts, not on a background thread during the step before")
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
@@ -89,6 +92,8 @@ int main(int argc, char** argv) {
     if (args.count("override")) config.resume_overrides = split_list(args["override"].as<std::string>());
     if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
     config.progress = !args.count("quiet");
+    config.cache_mb = args["cache-mb"].as<int>();
+    config.prefetch = !args.count("no-prefetch");
     config.split = args["split"].as<std::string>();
     const int half_width = nn::receptive_field_half_width({1, 1, config.base, config.depth});
 

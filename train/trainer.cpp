@@ -16,56 +16,16 @@
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/receptive_field.h"
+#include "train/frame_batches.h"
+#include "train/prefetcher.h"
 
 namespace lidarsim::train {
 namespace {
-
-// One frame, encoded once: network input, target, and the masks of the cells that train and
-// the cells that validate.
-struct EncodedFrame {
-  nn::Tensor input;       // [1, Cin, H, W]
-  nn::Tensor target;      // [1, 1, H, W]
-  nn::Tensor train_mask;  // [1, 1, H, W]
-};
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-
-// Frame order of an epoch: a Fisher-Yates shuffle driven by (seed, epoch) alone.
-std::vector<int> epoch_order(int frames, std::uint64_t seed, std::int64_t epoch) {
-  std::vector<int> order(static_cast<std::size_t>(frames));
-  std::iota(order.begin(), order.end(), 0);
-  std::uint64_t state = splitmix64(seed ^ splitmix64(static_cast<std::uint64_t>(epoch) + 0x51ed));
-  for (int i = frames - 1; i > 0; --i) {
-    state = splitmix64(state);
-    std::swap(order[static_cast<std::size_t>(i)], order[state % static_cast<std::uint64_t>(i + 1)]);
-  }
-  return order;
-}
 
 float learning_rate(const TrainConfig& c, std::int64_t step, std::int64_t total_steps) {
   const double progress = total_steps > 1 ? static_cast<double>(step) / (total_steps - 1) : 0.0;
   const double floor = c.final_lr_fraction;
   return static_cast<float>(c.lr * (floor + (1 - floor) * 0.5 * (1 + std::cos(M_PI * progress))));
-}
-
-// Copies columns of frame `f` into batch slot `b`: output column j takes source column
-// (offset + j) mod W, or (offset + width - 1 - j) mod W when mirrored.
-void place(const nn::Tensor& src, nn::Tensor& dst, int b, int offset, bool mirror) {
-  const int channels = src.shape().c, rows = src.shape().h, src_w = src.shape().w, dst_w = dst.shape().w;
-  for (int c = 0; c < channels; ++c)
-    for (int r = 0; r < rows; ++r) {
-      const float* in = src.channel(0, c) + static_cast<std::size_t>(r) * src_w;
-      float* out = dst.channel(b, c) + static_cast<std::size_t>(r) * dst_w;
-      for (int j = 0; j < dst_w; ++j) {
-        const int k = mirror ? offset + dst_w - 1 - j : offset + j;
-        out[j] = in[((k % src_w) + src_w) % src_w];
-      }
-    }
 }
 
 data::SectorSplit all_validation() {
@@ -166,6 +126,7 @@ void validate_settings(const TrainConfig& c) {
     refuse("steps-per-epoch", "must be in [0, 100000000] (0: one pass over the frames)", std::to_string(c.steps_per_epoch));
   if (c.batch < 1 || c.batch > 256) refuse("batch", "must be in [1, 256]", std::to_string(c.batch));
   if (c.threads < 1 || c.threads > 1024) refuse("threads", "must be in [1, 1024]", std::to_string(c.threads));
+  if (c.cache_mb < 0 || c.cache_mb > 1048576) refuse("cache-mb", "must be in [0, 1048576]", std::to_string(c.cache_mb));
   if (c.base < 1 || c.base > 1024) refuse("base", "must be in [1, 1024]", std::to_string(c.base));
   if (c.depth < 1 || c.depth > 10) refuse("depth", "must be in [1, 10]", std::to_string(c.depth));
   const int multiple = 1 << c.depth;
@@ -208,20 +169,34 @@ pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoi
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
   if (config.data.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);  // before reading gigabytes of data
+  // Headers only: frames are read when a step or the validation needs them.
   const auto channels = required_channels(config.encoder);
-  std::vector<data::Dataset> sets;
-  for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
-  std::optional<data::Dataset> val_set;
-  if (config.validation) val_set = data::read_dataset(*config.validation, channels);
-  std::vector<const data::Dataset*> views;
-  std::vector<std::string> names;
-  for (std::size_t i = 0; i < sets.size(); ++i) views.push_back(&sets[i]), names.push_back(config.data[i].string());
-  return train_on(config, views, names, val_set ? &*val_set : nullptr, on_epoch);
+  const std::size_t cache = static_cast<std::size_t>(config.cache_mb) << 20;
+  std::vector<std::unique_ptr<data::FrameSource>> sets;
+  for (const auto& path : config.data) sets.push_back(data::open_frame_source(path, channels, cache));
+  std::unique_ptr<data::FrameSource> val_set;
+  if (config.validation) val_set = data::open_frame_source(*config.validation, channels, cache);
+  std::vector<const data::FrameSource*> views;
+  for (const auto& set : sets) views.push_back(set.get());
+  return train_frames(config, views, val_set.get(), on_epoch);
 }
 
-TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
-                     const std::vector<std::string>& names, const data::Dataset* val_set,
+TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& sets,
+                     const std::vector<std::string>& names, const data::Dataset* validation,
                      const std::function<void(const EpochReport&)>& on_epoch) {
+  std::vector<std::unique_ptr<data::FrameSource>> sources;
+  std::vector<const data::FrameSource*> views;
+  for (std::size_t i = 0; i < sets.size(); ++i) {
+    sources.push_back(data::memory_frame_source(*sets[i], names.at(i)));
+    views.push_back(sources.back().get());
+  }
+  std::unique_ptr<data::FrameSource> val_set;
+  if (validation) val_set = data::memory_frame_source(*validation, "validation dataset");
+  return train_frames(config, views, val_set.get(), on_epoch);
+}
+
+TrainResult train_frames(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
+                         const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch) {
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);
   omp_set_num_threads(config.threads);
@@ -230,7 +205,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   const int rows = train_sets[0]->rows(), cols = train_sets[0]->cols();
   for (std::size_t i = 0; i < train_sets.size(); ++i)
     if (train_sets[i]->rows() != rows || train_sets[i]->cols() != cols)
-      throw input_error(names.at(i), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
+      throw input_error(train_sets[i]->name(), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
                                                   std::to_string(train_sets[i]->cols()) + " differs from " +
                                                   std::to_string(rows) + " x " + std::to_string(cols));
   const bool sector_split = val_set == nullptr;
@@ -246,27 +221,9 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
     std::fprintf(stderr, "lidar-train: receptive field half-width %d columns; split: %s\n", half_width,
                  split.describe(cols).c_str());
 
-  std::vector<EncodedFrame> frames;
-  for (const data::Dataset* set_ptr : train_sets) {
-    const data::Dataset& set = *set_ptr;
-    for (int n = 0; n < set.size(); ++n) {
-      const auto roles = split.roles(cols, n < static_cast<int>(set.frames.size()) ? set.frames[n] : "");
-      EncodedFrame f;
-      f.input.resize({1, in_channels, rows, cols});
-      pgm::encode_input(set.view(n), config.encoder, f.input, 0);
-      f.target.resize({1, 1, rows, cols});
-      f.train_mask.resize({1, 1, rows, cols});
-      const float* target = set.target.image(n);
-      const float* mask = set.mask.image(n);
-      for (std::size_t i = 0; i < static_cast<std::size_t>(rows) * cols; ++i) {
-        f.target.data()[i] = target[i];
-        const bool held_out = sector_split && roles[i % cols] != data::kTrain;  // validation or guard
-        f.train_mask.data()[i] = (mask[i] > 0 && !held_out) ? 1.f : 0.f;
-      }
-      frames.push_back(std::move(f));
-    }
-  }
-  const int num_frames = static_cast<int>(frames.size());
+  // Frames are read per step (frame_batches.h); the cells a frame trains on follow the split.
+  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt);
+  const int num_frames = frames.size();
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   bool roll = config.augment_roll, mirror = config.augment_mirror;
   for (const auto& c : config.encoder.channels)
@@ -307,7 +264,7 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   nn::Checkpoint meta;
   meta.unet = arch;
   meta.attributes["encoder"] = config.encoder.to_json();
-  meta.attributes["beam_layout"] = train_sets[0]->layout.to_json();
+  meta.attributes["beam_layout"] = train_sets[0]->header().layout.to_json();
   meta.attributes["lambda"] = std::to_string(config.lambda);
   meta.attributes["seed"] = std::to_string(config.seed);
   meta.attributes["loss"] = "masked_mse + lambda * sum(w^2), weights only";
@@ -323,39 +280,37 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
 
   auto validate = [&]() {
     std::vector<data::Metrics> parts;
-    if (val_set) {
-      parts.push_back(data::evaluate_prediction(*val_set, predict_dataset(model, config.encoder, *val_set), true,
-                                                all_validation()));
-    } else {
-      for (const data::Dataset* set : train_sets)
-        parts.push_back(data::evaluate_prediction(*set, predict_dataset(model, config.encoder, *set), true, split));
-    }
+    // Frame by frame, the next one read while the model predicts this one.
+    if (val_set) parts = validate_frames(model, config.encoder, {val_set}, all_validation(), config.prefetch);
+    else parts = validate_frames(model, config.encoder, train_sets, split, config.prefetch);
     return merge(parts);
   };
 
   // --- the loop -------------------------------------------------------------------------------
-  nn::Tensor x(config.batch, in_channels, rows, width), y(config.batch, 1, rows, width),
-      m(config.batch, 1, rows, width), pred, d_pred;
+  nn::Tensor pred, d_pred;
   TrainResult result;
   ProgressBar bar("train", total_steps, config.progress);
   double epoch_loss = 0;
   int epoch_steps = 0;
+  // Each step's batch is read and assembled on a background thread while the previous step
+  // computes; which frames, crops and mirrors is a pure function of (seed, epoch, step).
+  const SamplePlan plan{num_frames, steps_per_epoch, config.batch, cols, width, roll, mirror, config.seed};
+  struct Batch {
+    nn::Tensor x, y, m;
+  };
+  Prefetcher<Batch> batches(
+      [&](std::int64_t k, Batch& out) {
+        out.x.resize({config.batch, in_channels, rows, width});
+        out.y.resize({config.batch, 1, rows, width});
+        out.m.resize({config.batch, 1, rows, width});
+        const std::vector<Sample> samples = step_samples(plan, k);
+        for (int b = 0; b < config.batch; ++b) frames.fill(samples[static_cast<std::size_t>(b)], out.x, out.y, out.m, b);
+      },
+      step, total_steps, config.prefetch);
   while (step < total_steps) {
     const std::int64_t epoch = step / steps_per_epoch;
-    const std::vector<int> order = epoch_order(num_frames, config.seed, epoch);
-    const std::int64_t in_epoch = step % steps_per_epoch;
-    std::uint64_t rng = splitmix64(config.seed * 0x9e3779b97f4a7c15ULL ^ static_cast<std::uint64_t>(step));
-    for (int b = 0; b < config.batch; ++b) {
-      const int f = order[static_cast<std::size_t>((in_epoch * config.batch + b) % num_frames)];
-      rng = splitmix64(rng);
-      const int offset = roll ? static_cast<int>(rng % static_cast<std::uint64_t>(cols))
-                                             : (width < cols ? static_cast<int>(rng % (cols - width + 1)) : 0);
-      rng = splitmix64(rng);
-      const bool flip = mirror && (rng & 1);
-      place(frames[f].input, x, b, offset, flip);
-      place(frames[f].target, y, b, offset, flip);
-      place(frames[f].train_mask, m, b, offset, flip);
-    }
+    const Batch& batch = batches.next();
+    const nn::Tensor &x = batch.x, &y = batch.y, &m = batch.m;
     model.params().zero_grads();
     model.forward(x, pred);
     const nn::LossParts loss = nn::masked_mse(pred, y, m, &d_pred);

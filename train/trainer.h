@@ -17,6 +17,7 @@
 
 #include "data/baselines.h"
 #include "data/dataset.h"
+#include "data/frame_source.h"
 #include "data/split.h"
 #include "nn/checkpoint.h"
 #include "nn/unet.h"
@@ -54,6 +55,11 @@ struct TrainConfig {
   // shipping a model for inference.
   std::optional<std::filesystem::path> export_weights;
   bool progress = true;
+  // How frames are read (results are the same bit for bit either way, so neither is in
+  // train_config): the next step's frames on a background thread; frames read from files kept in
+  // memory up to this many MB per file (a set that fits is read once).
+  bool prefetch = true;
+  int cache_mb = 0;
 };
 
 struct EpochReport {
@@ -76,6 +82,12 @@ std::atomic<bool>& stop_requested();
 
 // Runs training as configured; `on_epoch` is called after each epoch's validation.
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch = {});
+
+// The same on frame sources (data/frame_source.h: files read lazily, or sets in memory); the
+// sources name themselves in errors. train() and train_on() come here.
+TrainResult train_frames(const TrainConfig& config, const std::vector<const data::FrameSource*>& sets,
+                         const data::FrameSource* validation = nullptr,
+                         const std::function<void(const EpochReport&)>& on_epoch = {});
 
 // The same on datasets already in memory (config.data and config.validation are not read):
 // `names` name the sets in errors; without `validation`, the sector split of the training sets

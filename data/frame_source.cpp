@@ -1,0 +1,106 @@
+#include "data/frame_source.h"
+
+#include <mutex>
+
+#include "common/error.h"
+#include "data/dataset_reader.h"
+
+namespace lidarsim::data {
+namespace {
+
+struct FrameArrays {
+  std::vector<float> pgm, target, mask;
+};
+
+class FileFrameSource : public FrameSource {
+ public:
+  FileFrameSource(const std::filesystem::path& path, const std::vector<std::string>& required, std::size_t cache_bytes)
+      : reader_(path, required), cache_bytes_(cache_bytes), cache_(static_cast<std::size_t>(reader_.size())) {}
+  const Dataset& header() const override { return reader_.header(); }
+  int size() const override { return reader_.size(); }
+  int rows() const override { return reader_.rows(); }
+  int cols() const override { return reader_.cols(); }
+  const std::string& name() const override { return reader_.path(); }
+
+  FrameRef frame(int n) const override {
+    // One reader at a time: DatasetReader keeps a scratch buffer, and HDF5 serialises calls anyway.
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::shared_ptr<const FrameArrays> arrays;
+    if (n >= 0 && n < size() && cache_[static_cast<std::size_t>(n)]) {
+      arrays = cache_[static_cast<std::size_t>(n)];
+    } else {
+      auto fresh = std::make_shared<FrameArrays>();
+      const std::size_t plane = static_cast<std::size_t>(rows()) * cols();
+      fresh->pgm.resize(plane * header().channels.size());
+      fresh->target.resize(plane);
+      fresh->mask.resize(plane);
+      reader_.read_frame(n, fresh->pgm.data(), fresh->target.data(), fresh->mask.data());
+      const std::size_t bytes = (fresh->pgm.size() + 2 * plane) * sizeof(float);
+      if (cached_ + bytes <= cache_bytes_) {
+        cache_[static_cast<std::size_t>(n)] = fresh;
+        cached_ += bytes;
+      }
+      arrays = std::move(fresh);
+    }
+    return {arrays->pgm.data(), arrays->target.data(), arrays->mask.data(), arrays};
+  }
+
+ private:
+  DatasetReader reader_;
+  std::size_t cache_bytes_;
+  mutable std::mutex mutex_;
+  mutable std::vector<std::shared_ptr<const FrameArrays>> cache_;
+  mutable std::size_t cached_ = 0;
+};
+
+class MemoryFrameSource : public FrameSource {
+ public:
+  MemoryFrameSource(const Dataset& d, std::string name) : d_(d), name_(std::move(name)) {
+    header_.channels = d.channels;
+    header_.layout = d.layout;
+    header_.source_format = d.source_format;
+    header_.frames = d.frames;
+    header_.row_modes = d.row_modes;
+    header_.sources = d.sources;
+    header_.places = d.places;
+  }
+  const Dataset& header() const override { return header_; }
+  int size() const override { return d_.size(); }
+  int rows() const override { return d_.rows(); }
+  int cols() const override { return d_.cols(); }
+  const std::string& name() const override { return name_; }
+  FrameRef frame(int n) const override {
+    if (n < 0 || n >= size())
+      throw input_error(name_, "frame " + std::to_string(n), "out of range (" + std::to_string(size()) + " frames)");
+    return {d_.pgm.image(n), d_.target.image(n), d_.mask.image(n), nullptr};
+  }
+
+ private:
+  const Dataset& d_;
+  Dataset header_;
+  std::string name_;
+};
+
+}  // namespace
+
+pgm::ChannelView FrameSource::view(const FrameRef& f) const {
+  pgm::ChannelView v;
+  v.names = &header().channels;
+  v.data = f.pgm;
+  v.rows = rows();
+  v.cols = cols();
+  v.mask = f.mask;
+  return v;
+}
+
+std::unique_ptr<FrameSource> open_frame_source(const std::filesystem::path& path,
+                                               const std::vector<std::string>& required_channels,
+                                               std::size_t cache_bytes) {
+  return std::make_unique<FileFrameSource>(path, required_channels, cache_bytes);
+}
+
+std::unique_ptr<FrameSource> memory_frame_source(const Dataset& dataset, const std::string& name) {
+  return std::make_unique<MemoryFrameSource>(dataset, name);
+}
+
+}  // namespace lidarsim::data
