@@ -1,5 +1,7 @@
 #include "data/frame_source.h"
 
+#include <algorithm>
+#include <atomic>
 #include <mutex>
 
 #include "common/error.h"
@@ -29,14 +31,15 @@ class FileFrameSource : public FrameSource {
     if (n >= 0 && n < size() && cache_[static_cast<std::size_t>(n)]) {
       arrays = cache_[static_cast<std::size_t>(n)];
     } else {
-      auto fresh = std::make_shared<FrameArrays>();
+      std::shared_ptr<FrameArrays> fresh = recycled();
       const std::size_t plane = static_cast<std::size_t>(rows()) * cols();
       fresh->pgm.resize(plane * header().channels.size());
       fresh->target.resize(plane);
       fresh->mask.resize(plane);
       reader_.read_frame(n, fresh->pgm.data(), fresh->target.data(), fresh->mask.data());
       const std::size_t bytes = (fresh->pgm.size() + 2 * plane) * sizeof(float);
-      if (cached_ + bytes <= cache_bytes_) {
+      if (cached_ + bytes <= cache_bytes_) {  // kept for good: out of the pool
+        pool_.erase(std::remove(pool_.begin(), pool_.end(), fresh), pool_.end());
         cache_[static_cast<std::size_t>(n)] = fresh;
         cached_ += bytes;
       }
@@ -46,11 +49,26 @@ class FileFrameSource : public FrameSource {
   }
 
  private:
+  // Arrays of a frame that nobody holds any more, to be overwritten: reading into fresh ones
+  // costs as much in page faults as the decompression.
+  std::shared_ptr<FrameArrays> recycled() const {
+    for (const auto& arrays : pool_)
+      if (arrays.use_count() == 1) {  // only the pool holds it; nobody else can take it (mutex_)
+        std::atomic_thread_fence(std::memory_order_acquire);  // the last holder's reads come first
+        return arrays;
+      }
+    auto fresh = std::make_shared<FrameArrays>();
+    if (pool_.size() < kPool) pool_.push_back(fresh);
+    return fresh;
+  }
+  static constexpr std::size_t kPool = 8;  // a batch in use, the next one being read, validation
+
   DatasetReader reader_;
   std::size_t cache_bytes_;
   mutable std::mutex mutex_;
   mutable std::vector<std::shared_ptr<const FrameArrays>> cache_;
   mutable std::size_t cached_ = 0;
+  mutable std::vector<std::shared_ptr<FrameArrays>> pool_;
 };
 
 class MemoryFrameSource : public FrameSource {
