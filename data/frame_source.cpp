@@ -17,7 +17,13 @@ struct FrameArrays {
 class FileFrameSource : public FrameSource {
  public:
   FileFrameSource(const std::filesystem::path& path, const std::vector<std::string>& required, std::size_t cache_bytes)
-      : reader_(path, required), cache_bytes_(cache_bytes), cache_(static_cast<std::size_t>(reader_.size())) {}
+      : reader_(path, required), cache_bytes_(cache_bytes), cache_(static_cast<std::size_t>(reader_.size())) {
+    // All or nothing: a shuffled pass over a set larger than the cache would find a cached frame
+    // rarely, and the cache would only add its size to the process's memory.
+    const std::size_t plane = static_cast<std::size_t>(rows()) * cols();
+    if ((header().channels.size() + 2) * plane * sizeof(float) * static_cast<std::size_t>(size()) > cache_bytes_)
+      cache_bytes_ = 0;
+  }
   const Dataset& header() const override { return reader_.header(); }
   int size() const override { return reader_.size(); }
   int rows() const override { return reader_.rows(); }

@@ -39,8 +39,8 @@ class FrameSource {
   pgm::ChannelView view(const FrameRef& f) const;
 };
 
-// Reads frames from the file on demand. Frames read are kept while they fit in `cache_bytes`
-// (first come, never evicted): a set that fits is read once, a larger one costs that much at most.
+// Reads frames from the file on demand. A file whose frames all fit in `cache_bytes` keeps each
+// frame once read (read once, then from memory); a larger one keeps none.
 std::unique_ptr<FrameSource> open_frame_source(const std::filesystem::path& path,
                                                const std::vector<std::string>& required_channels = {},
                                                std::size_t cache_bytes = 0);

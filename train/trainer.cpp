@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <numeric>
@@ -292,6 +293,7 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
   ProgressBar bar("train", total_steps, config.progress);
   double epoch_loss = 0;
   int epoch_steps = 0;
+  auto epoch_start = std::chrono::steady_clock::now();
   // Each step's batch is read and assembled on a background thread while the previous step
   // computes; which frames, crops and mirrors is a pure function of (seed, epoch, step).
   const SamplePlan plan{num_frames, steps_per_epoch, config.batch, cols, width, roll, mirror, config.seed};
@@ -331,12 +333,18 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
       report.epoch = static_cast<int>(step / steps_per_epoch);
       report.step = step;
       report.train_loss = epoch_loss / std::max(1, epoch_steps);
+      report.samples = epoch_steps * config.batch;
+      const auto validation_start = std::chrono::steady_clock::now();
+      report.train_seconds = std::chrono::duration<double>(validation_start - epoch_start).count();
       report.validation = validate();
+      report.validation_seconds =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - validation_start).count();
       epoch_loss = 0;
       epoch_steps = 0;
       save(step);
       result.epochs.push_back(report);
       if (on_epoch) on_epoch(report);
+      epoch_start = std::chrono::steady_clock::now();
     }
     if (stop_requested().load()) {
       if (!epoch_done) save(step);

@@ -56,10 +56,10 @@ struct TrainConfig {
   std::optional<std::filesystem::path> export_weights;
   bool progress = true;
   // How frames are read (results are the same bit for bit either way, so neither is in
-  // train_config): the next step's frames on a background thread; frames read from files kept in
-  // memory up to this many MB per file (a set that fits is read once).
+  // train_config): the next step's frames on a background thread; a file whose frames fit in
+  // this many MB is kept in memory once read (larger files are read per step).
   bool prefetch = true;
-  int cache_mb = 0;
+  int cache_mb = 256;
 };
 
 struct EpochReport {
@@ -67,6 +67,9 @@ struct EpochReport {
   std::int64_t step = 0;
   double train_loss = 0;  // mean total loss over the epoch's steps
   data::Metrics validation;
+  // Wall time of the epoch's steps (since the epoch or the run started) and of its validation.
+  double train_seconds = 0, validation_seconds = 0;
+  int samples = 0;  // frames (crops) the epoch's steps trained on
 };
 
 struct TrainResult {
