@@ -202,7 +202,7 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
   validate_settings(config);
   omp_set_num_threads(config.threads);
 
-  // --- data: every frame encoded once ---------------------------------------------------------
+  // --- data: headers now, frames when a step needs them ----------------------------------------
   const int rows = train_sets[0]->rows(), cols = train_sets[0]->cols();
   for (std::size_t i = 0; i < train_sets.size(); ++i)
     if (train_sets[i]->rows() != rows || train_sets[i]->cols() != cols)

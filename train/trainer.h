@@ -6,6 +6,10 @@
 // (seed, epoch), each step's augmentation from (seed, step). A checkpoint therefore only needs
 // the step count to resume, and a resumed run ends with the same weights, bit for bit, as an
 // uninterrupted one (same thread count).
+//
+// Frames are read from the files when a step needs them (data::FrameSource, on a prefetching
+// thread one step ahead: train/frame_batches.h, train/prefetcher.h) and validated one at a time,
+// so memory holds a few frames whatever the dataset's length.
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
