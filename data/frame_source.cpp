@@ -1,5 +1,7 @@
 #include "data/frame_source.h"
 
+#include <hdf5.h>
+
 #include <algorithm>
 #include <atomic>
 #include <mutex>
@@ -29,6 +31,10 @@ class FileFrameSource : public FrameSource {
   int rows() const override { return reader_.rows(); }
   int cols() const override { return reader_.cols(); }
   const std::string& name() const override { return reader_.path(); }
+  bool reads_overlap_other_hdf5() const override {
+    hbool_t safe = 0;
+    return H5is_library_threadsafe(&safe) >= 0 && safe;
+  }
 
   FrameRef frame(int n) const override {
     // One reader at a time: DatasetReader keeps a scratch buffer, and HDF5 serialises calls anyway.

@@ -35,6 +35,9 @@ class FrameSource {
   virtual const std::string& name() const = 0;
   // Frame n; safe to call from several threads. Errors name the file, the array and the frame.
   virtual FrameRef frame(int n) const = 0;
+  // Whether frame() may run on one thread while another thread uses HDF5 (e.g. writes a
+  // checkpoint): false for files when the HDF5 library is not built thread-safe.
+  virtual bool reads_overlap_other_hdf5() const { return true; }
   // Raw channels of a frame of this source, ready for pgm::encode_input.
   pgm::ChannelView view(const FrameRef& f) const;
 };

@@ -201,6 +201,10 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);
   omp_set_num_threads(config.threads);
+  // Reading on a background thread needs an HDF5 built thread-safe (checkpoints are written meanwhile).
+  bool prefetch = config.prefetch;
+  for (const data::FrameSource* set : train_sets) prefetch = prefetch && set->reads_overlap_other_hdf5();
+  if (val_set) prefetch = prefetch && val_set->reads_overlap_other_hdf5();
 
   // --- data: headers now, frames when a step needs them ----------------------------------------
   const int rows = train_sets[0]->rows(), cols = train_sets[0]->cols();
@@ -282,8 +286,8 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
   auto validate = [&]() {
     std::vector<data::Metrics> parts;
     // Frame by frame, the next one read while the model predicts this one.
-    if (val_set) parts = validate_frames(model, config.encoder, {val_set}, all_validation(), config.prefetch);
-    else parts = validate_frames(model, config.encoder, train_sets, split, config.prefetch);
+    if (val_set) parts = validate_frames(model, config.encoder, {val_set}, all_validation(), prefetch);
+    else parts = validate_frames(model, config.encoder, train_sets, split, prefetch);
     return merge(parts);
   };
 
@@ -308,7 +312,7 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
         const std::vector<Sample> samples = step_samples(plan, k);
         for (int b = 0; b < config.batch; ++b) frames.fill(samples[static_cast<std::size_t>(b)], out.x, out.y, out.m, b);
       },
-      step, total_steps, config.prefetch);
+      step, total_steps, prefetch);
   while (step < total_steps) {
     const std::int64_t epoch = step / steps_per_epoch;
     const Batch& batch = batches.next();
