@@ -30,14 +30,22 @@ struct Mean {
   double get(double fallback) const { return n ? sum / n : fallback; }
 };
 
-struct Accum {
-  double abs = 0, sq = 0;
-  long n = 0;
-  void add(double e) { abs += std::abs(e), sq += e * e, ++n; }
-  Metrics get() const { return {n ? abs / n : 0, n ? std::sqrt(sq / n) : 0, n}; }
-};
+using Accum = ErrorSums;
 
 }  // namespace
+
+void ErrorSums::add(double e) { abs += std::abs(e), sq += e * e, ++n; }
+Metrics ErrorSums::get() const { return {n ? abs / n : 0, n ? std::sqrt(sq / n) : 0, n}; }
+
+void add_frame_errors(ErrorSums& sums, const float* prediction, const float* target, const float* mask,
+                      const std::vector<std::uint8_t>& roles, int rows, int cols, bool validation) {
+  const std::size_t plane = static_cast<std::size_t>(rows) * cols;
+  const std::uint8_t want_role = validation ? kValidation : kTrain;
+  for (std::size_t i = 0; i < plane; ++i) {
+    if (mask[i] <= 0 || roles[i % cols] != want_role) continue;
+    sums.add(static_cast<double>(prediction[i]) - target[i]);
+  }
+}
 
 std::vector<BaselineResult> evaluate_baselines(const Dataset& d, const SectorSplit& split) {
   const int ci = d.channel_index("class"), ri = d.channel_index("range");
@@ -94,15 +102,10 @@ Metrics evaluate_prediction(const Dataset& d, const nn::Tensor& prediction, bool
   const nn::Shape want{d.size(), 1, d.rows(), d.cols()};
   if (!(prediction.shape() == want))
     throw Error("evaluate_prediction: prediction shape " + prediction.shape().str() + ", expected " + want.str());
-  Accum acc;
-  const std::size_t plane = static_cast<std::size_t>(d.rows()) * d.cols();
-  const std::uint8_t want_role = validation ? kValidation : kTrain;
+  ErrorSums acc;
   for (int n = 0; n < d.size(); ++n) {
     const auto roles = split.roles(d.cols(), n < static_cast<int>(d.frames.size()) ? d.frames[n] : "");
-    for (std::size_t i = 0; i < plane; ++i) {
-      if (d.mask.image(n)[i] <= 0 || roles[i % d.cols()] != want_role) continue;
-      acc.add(static_cast<double>(prediction.image(n)[i]) - d.target.image(n)[i]);
-    }
+    add_frame_errors(acc, prediction.image(n), d.target.image(n), d.mask.image(n), roles, d.rows(), d.cols(), validation);
   }
   return acc.get();
 }

@@ -7,6 +7,7 @@
 //   class x beam row     mean per class and PGM row
 // A key never seen in training falls back to its class mean, then to the global mean. Only
 // cells with a return (mask 1) count.
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -37,6 +38,19 @@ std::vector<BaselineResult> evaluate_baselines(const Dataset& dataset, const Sec
 // (or training) cells; for comparing a network with the baselines on the same cells.
 Metrics evaluate_prediction(const Dataset& dataset, const nn::Tensor& prediction, bool validation,
                             const SectorSplit& split = reference_split());
+
+// Running MAE/RMSE, for scoring frame by frame (streaming validation): frames added in the
+// order evaluate_prediction takes them give its numbers exactly.
+struct ErrorSums {
+  double abs = 0, sq = 0;
+  long n = 0;
+  void add(double error);
+  Metrics get() const;
+};
+// Adds one frame's cells that have a return and whose column has the validation (or training)
+// role; prediction, target and mask are [rows * cols], roles from SectorSplit::roles.
+void add_frame_errors(ErrorSums& sums, const float* prediction, const float* target, const float* mask,
+                      const std::vector<std::uint8_t>& roles, int rows, int cols, bool validation);
 
 // A Markdown table of the results.
 std::string baseline_table(const std::vector<BaselineResult>& results);

@@ -34,7 +34,8 @@ void read_slab(hid_t ds, const std::string& fname, const char* name, hid_t type,
   H5Sselect_hyperslab(space, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr);
   h5::Id mem(H5Screate_simple(rank, count.data(), nullptr), H5Sclose);
   if (H5Dread(ds, type, mem, space, H5P_DEFAULT, out) < 0)
-    throw input_error(fname, std::string("dataset ") + name, "frame " + std::to_string(n) + " cannot be read (wrong type?)");
+    throw input_error(fname, std::string("dataset ") + name,
+                      "frame " + std::to_string(n) + " cannot be read (damaged chunk, checksum mismatch or wrong type)");
 }
 
 }  // namespace
@@ -103,6 +104,7 @@ DatasetReader::~DatasetReader() {
 }
 
 void DatasetReader::read_frame(int n, float* pgm, float* target, float* mask, std::int32_t* point_index) const {
+  h5::quiet();  // per thread: a prefetching thread would otherwise print HDF5's own error stack
   if (n < 0 || n >= n_) throw input_error(fname_, "frame " + std::to_string(n), "out of range (" + std::to_string(n_) + " frames)");
   const std::size_t plane = static_cast<std::size_t>(h_) * w_;
   read_slab(pgm_, fname_, "/pgm", H5T_NATIVE_FLOAT, n, pgm);

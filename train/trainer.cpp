@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <numeric>
@@ -17,56 +18,16 @@
 #include "nn/optim.h"
 #include "nn/receptive_field.h"
 #include "train/distributed.h"
+#include "train/frame_batches.h"
+#include "train/prefetcher.h"
 
 namespace lidarsim::train {
 namespace {
-
-// One frame, encoded once: network input, target, and the masks of the cells that train and
-// the cells that validate.
-struct EncodedFrame {
-  nn::Tensor input;       // [1, Cin, H, W]
-  nn::Tensor target;      // [1, 1, H, W]
-  nn::Tensor train_mask;  // [1, 1, H, W]
-};
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-
-// Frame order of an epoch: a Fisher-Yates shuffle driven by (seed, epoch) alone.
-std::vector<int> epoch_order(int frames, std::uint64_t seed, std::int64_t epoch) {
-  std::vector<int> order(static_cast<std::size_t>(frames));
-  std::iota(order.begin(), order.end(), 0);
-  std::uint64_t state = splitmix64(seed ^ splitmix64(static_cast<std::uint64_t>(epoch) + 0x51ed));
-  for (int i = frames - 1; i > 0; --i) {
-    state = splitmix64(state);
-    std::swap(order[static_cast<std::size_t>(i)], order[state % static_cast<std::uint64_t>(i + 1)]);
-  }
-  return order;
-}
 
 float learning_rate(const TrainConfig& c, std::int64_t step, std::int64_t total_steps) {
   const double progress = total_steps > 1 ? static_cast<double>(step) / (total_steps - 1) : 0.0;
   const double floor = c.final_lr_fraction;
   return static_cast<float>(c.lr * (floor + (1 - floor) * 0.5 * (1 + std::cos(M_PI * progress))));
-}
-
-// Copies columns of frame `f` into batch slot `b`: output column j takes source column
-// (offset + j) mod W, or (offset + width - 1 - j) mod W when mirrored.
-void place(const nn::Tensor& src, nn::Tensor& dst, int b, int offset, bool mirror) {
-  const int channels = src.shape().c, rows = src.shape().h, src_w = src.shape().w, dst_w = dst.shape().w;
-  for (int c = 0; c < channels; ++c)
-    for (int r = 0; r < rows; ++r) {
-      const float* in = src.channel(0, c) + static_cast<std::size_t>(r) * src_w;
-      float* out = dst.channel(b, c) + static_cast<std::size_t>(r) * dst_w;
-      for (int j = 0; j < dst_w; ++j) {
-        const int k = mirror ? offset + dst_w - 1 - j : offset + j;
-        out[j] = in[((k % src_w) + src_w) % src_w];
-      }
-    }
 }
 
 data::SectorSplit all_validation() {
@@ -173,6 +134,7 @@ void validate_settings(const TrainConfig& c) {
   if (c.batch % ranks != 0)
     refuse("batch", "the global batch must be a multiple of the " + std::to_string(ranks) + " MPI ranks", std::to_string(c.batch));
   if (c.threads < 1 || c.threads > 1024) refuse("threads", "must be in [1, 1024]", std::to_string(c.threads));
+  if (c.cache_mb < 0 || c.cache_mb > 1048576) refuse("cache-mb", "must be in [0, 1048576]", std::to_string(c.cache_mb));
   if (c.base < 1 || c.base > 1024) refuse("base", "must be in [1, 1024]", std::to_string(c.base));
   if (c.depth < 1 || c.depth > 10) refuse("depth", "must be in [1, 10]", std::to_string(c.depth));
   const int multiple = 1 << c.depth;
@@ -187,23 +149,27 @@ void validate_settings(const TrainConfig& c) {
 
 // One step's gradients over every rank's part of the batch (x, y, m hold this rank's part):
 // the loss is normalised by the cells of the whole global batch, the parameter gradients are
-// summed in rank order, failures and stop requests are agreed on before anything changes.
-// Returns the data loss of the whole batch; `stop` is set when any rank was asked to stop.
+// summed in rank order, failures (a frame this rank could not read: `read_error`) and stop
+// requests are agreed on before anything changes. Returns the data loss of the whole batch;
+// `stop` is set when any rank was asked to stop.
 double data_parallel_gradients(nn::UNet& model, const nn::Tensor& x, const nn::Tensor& y, const nn::Tensor& m,
-                               nn::Tensor& pred, nn::Tensor& d_pred, bool& stop) {
+                               const std::string& read_error, nn::Tensor& pred, nn::Tensor& d_pred, bool& stop) {
   Distributed& dist = Distributed::world();
   std::int64_t valid = 0;
-  for (const float v : m) valid += v != 0.f;
+  if (read_error.empty())
+    for (const float v : m) valid += v != 0.f;
   dist.sum(&valid, 1);
-  std::string error;
-  double status[3] = {0, 0, stop_requested().load() ? 1.0 : 0.0};  // data loss, failed ranks, stop requests
-  try {
-    model.forward(x, pred);
-    status[0] = nn::masked_mse(pred, y, m, &d_pred, static_cast<long>(valid)).data;
-    model.backward(d_pred);
-  } catch (const std::exception& e) {
-    error = *e.what() ? e.what() : "unknown error";
-    status[1] = 1;
+  std::string error = read_error;
+  double status[3] = {0, error.empty() ? 0.0 : 1.0, stop_requested().load() ? 1.0 : 0.0};  // loss, failed ranks, stops
+  if (error.empty()) {
+    try {
+      model.forward(x, pred);
+      status[0] = nn::masked_mse(pred, y, m, &d_pred, static_cast<long>(valid)).data;
+      model.backward(d_pred);
+    } catch (const std::exception& e) {
+      error = *e.what() ? e.what() : "unknown error";
+      status[1] = 1;
+    }
   }
   dist.sum_in_rank_order(status, 3);
   if (status[1] > 0) dist.agree(error);  // throws on every rank
@@ -221,29 +187,6 @@ std::atomic<bool>& stop_requested() {
 
 namespace {
 
-// Predicts frames rank, rank + ranks, ...; the others stay 0.
-nn::Tensor predict_frames(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset, int rank,
-                          int ranks) {
-  const int rows = dataset.rows(), cols = dataset.cols();
-  nn::Tensor out(dataset.size(), 1, rows, cols);
-  nn::Tensor input(1, encoder.input_channels(), rows, cols), pred;
-  for (int n = rank; n < dataset.size(); n += ranks) {
-    pgm::encode_input(dataset.view(n), encoder, input, 0);
-    model.predict(input, pred);
-    std::copy(pred.begin(), pred.end(), out.image(n));
-  }
-  return out;
-}
-
-// Every rank predicts its share of the frames; adding the shares (x + 0 = x) gives every rank the
-// same predictions, bit for bit, as one process would make.
-nn::Tensor predict_shared(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
-  Distributed& dist = Distributed::world();
-  nn::Tensor out = predict_frames(model, encoder, dataset, dist.rank(), dist.size());
-  dist.sum_in_rank_order(out.data(), out.numel());
-  return out;
-}
-
 // Runs `f` (no collective calls inside) and agrees with the other ranks on whether it failed.
 template <class F>
 void agreed(F&& f) {
@@ -258,14 +201,22 @@ void agreed(F&& f) {
   dist.agree(error);
 }
 
-TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
-                           const std::vector<std::string>& names, const data::Dataset* val_set,
-                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up);
+TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
+                           const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
+                           bool& set_up);
 
 }  // namespace
 
 nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, const data::Dataset& dataset) {
-  return predict_frames(model, encoder, dataset, 0, 1);
+  const int rows = dataset.rows(), cols = dataset.cols();
+  nn::Tensor out(dataset.size(), 1, rows, cols);
+  nn::Tensor input(1, encoder.input_channels(), rows, cols), pred;
+  for (int n = 0; n < dataset.size(); ++n) {
+    pgm::encode_input(dataset.view(n), encoder, input, 0);
+    model.predict(input, pred);
+    std::copy(pred.begin(), pred.end(), out.image(n));
+  }
+  return out;
 }
 
 pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoint) {
@@ -277,30 +228,44 @@ pgm::EncoderConfig encoder_from_checkpoint(const std::filesystem::path& checkpoi
 }
 
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch) {
-  std::vector<data::Dataset> sets;
-  std::optional<data::Dataset> val_set;
-  // Every rank reads the data; a rank that cannot is reported by rank 0 (distributed.h).
+  std::vector<std::unique_ptr<data::FrameSource>> sets;
+  std::unique_ptr<data::FrameSource> val_set;
+  // Headers only: frames are read when a step or the validation needs them. A rank that cannot
+  // open a file is reported by rank 0 (distributed.h).
   agreed([&] {
     if (config.data.empty()) throw Error("lidar-train: no training data given");
     validate_settings(config);  // before reading gigabytes of data
     const auto channels = required_channels(config.encoder);
-    for (const auto& path : config.data) sets.push_back(data::read_dataset(path, channels));
-    if (config.validation) val_set = data::read_dataset(*config.validation, channels);
+    const std::size_t cache = static_cast<std::size_t>(config.cache_mb) << 20;
+    for (const auto& path : config.data) sets.push_back(data::open_frame_source(path, channels, cache));
+    if (config.validation) val_set = data::open_frame_source(*config.validation, channels, cache);
   });
-  std::vector<const data::Dataset*> views;
-  std::vector<std::string> names;
-  for (std::size_t i = 0; i < sets.size(); ++i) views.push_back(&sets[i]), names.push_back(config.data[i].string());
-  return train_on(config, views, names, val_set ? &*val_set : nullptr, on_epoch);
+  std::vector<const data::FrameSource*> views;
+  for (const auto& set : sets) views.push_back(set.get());
+  return train_frames(config, views, val_set.get(), on_epoch);
 }
 
-TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
-                     const std::vector<std::string>& names, const data::Dataset* val_set,
+TrainResult train_on(const TrainConfig& config, const std::vector<const data::Dataset*>& sets,
+                     const std::vector<std::string>& names, const data::Dataset* validation,
                      const std::function<void(const EpochReport&)>& on_epoch) {
+  std::vector<std::unique_ptr<data::FrameSource>> sources;
+  std::vector<const data::FrameSource*> views;
+  for (std::size_t i = 0; i < sets.size(); ++i) {
+    sources.push_back(data::memory_frame_source(*sets[i], names.at(i)));
+    views.push_back(sources.back().get());
+  }
+  std::unique_ptr<data::FrameSource> val_set;
+  if (validation) val_set = data::memory_frame_source(*validation, "validation dataset");
+  return train_frames(config, views, val_set.get(), on_epoch);
+}
+
+TrainResult train_frames(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
+                         const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch) {
   Distributed& dist = Distributed::world();
   bool set_up = false;
-  if (!dist.active()) return train_on_ranks(config, train_sets, names, val_set, on_epoch, set_up);
+  if (!dist.active()) return train_on_ranks(config, train_sets, val_set, on_epoch, set_up);
   try {
-    return train_on_ranks(config, train_sets, names, val_set, on_epoch, set_up);
+    return train_on_ranks(config, train_sets, val_set, on_epoch, set_up);
   } catch (const AgreedError&) {
     throw;
   } catch (const std::exception& e) {
@@ -313,19 +278,23 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
 
 namespace {
 
-TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::Dataset*>& train_sets,
-                           const std::vector<std::string>& names, const data::Dataset* val_set,
-                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up) {
+TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
+                           const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
+                           bool& set_up) {
   Distributed& dist = Distributed::world();
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);
   omp_set_num_threads(config.threads);
+  // Reading on a background thread needs an HDF5 built thread-safe (checkpoints are written meanwhile).
+  bool prefetch = config.prefetch;
+  for (const data::FrameSource* set : train_sets) prefetch = prefetch && set->reads_overlap_other_hdf5();
+  if (val_set) prefetch = prefetch && val_set->reads_overlap_other_hdf5();
 
-  // --- data: every frame encoded once ---------------------------------------------------------
+  // --- data: headers now, frames when a step needs them ----------------------------------------
   const int rows = train_sets[0]->rows(), cols = train_sets[0]->cols();
   for (std::size_t i = 0; i < train_sets.size(); ++i)
     if (train_sets[i]->rows() != rows || train_sets[i]->cols() != cols)
-      throw input_error(names.at(i), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
+      throw input_error(train_sets[i]->name(), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
                                                   std::to_string(train_sets[i]->cols()) + " differs from " +
                                                   std::to_string(rows) + " x " + std::to_string(cols));
   const bool sector_split = val_set == nullptr;
@@ -341,27 +310,9 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
     std::fprintf(stderr, "lidar-train: receptive field half-width %d columns; split: %s\n", half_width,
                  split.describe(cols).c_str());
 
-  std::vector<EncodedFrame> frames;
-  for (const data::Dataset* set_ptr : train_sets) {
-    const data::Dataset& set = *set_ptr;
-    for (int n = 0; n < set.size(); ++n) {
-      const auto roles = split.roles(cols, n < static_cast<int>(set.frames.size()) ? set.frames[n] : "");
-      EncodedFrame f;
-      f.input.resize({1, in_channels, rows, cols});
-      pgm::encode_input(set.view(n), config.encoder, f.input, 0);
-      f.target.resize({1, 1, rows, cols});
-      f.train_mask.resize({1, 1, rows, cols});
-      const float* target = set.target.image(n);
-      const float* mask = set.mask.image(n);
-      for (std::size_t i = 0; i < static_cast<std::size_t>(rows) * cols; ++i) {
-        f.target.data()[i] = target[i];
-        const bool held_out = sector_split && roles[i % cols] != data::kTrain;  // validation or guard
-        f.train_mask.data()[i] = (mask[i] > 0 && !held_out) ? 1.f : 0.f;
-      }
-      frames.push_back(std::move(f));
-    }
-  }
-  const int num_frames = static_cast<int>(frames.size());
+  // Frames are read per step (frame_batches.h); the cells a frame trains on follow the split.
+  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt);
+  const int num_frames = frames.size();
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   bool roll = config.augment_roll, mirror = config.augment_mirror;
   for (const auto& c : config.encoder.channels)
@@ -404,7 +355,7 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   nn::Checkpoint meta;
   meta.unet = arch;
   meta.attributes["encoder"] = config.encoder.to_json();
-  meta.attributes["beam_layout"] = train_sets[0]->layout.to_json();
+  meta.attributes["beam_layout"] = train_sets[0]->header().layout.to_json();
   meta.attributes["lambda"] = std::to_string(config.lambda);
   meta.attributes["seed"] = std::to_string(config.seed);
   meta.attributes["loss"] = config.row_affine ? "masked_mse + lambda * (sum(w^2) + sum((row gain - 1)^2) + sum(row offset^2))"
@@ -421,13 +372,10 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
 
   auto validate = [&]() {
     std::vector<data::Metrics> parts;
-    if (val_set) {
-      parts.push_back(data::evaluate_prediction(*val_set, predict_shared(model, config.encoder, *val_set), true,
-                                                all_validation()));
-    } else {
-      for (const data::Dataset* set : train_sets)
-        parts.push_back(data::evaluate_prediction(*set, predict_shared(model, config.encoder, *set), true, split));
-    }
+    // Frame by frame, the next one read while the model predicts this one. Under MPI every rank
+    // scores every frame: the same weights give the same figures on each, with no reduction.
+    if (val_set) parts = validate_frames(model, config.encoder, {val_set}, all_validation(), prefetch);
+    else parts = validate_frames(model, config.encoder, train_sets, split, prefetch);
     return merge(parts);
   };
 
@@ -438,39 +386,51 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   // --- the loop -------------------------------------------------------------------------------
   // This rank's part of the global batch: all of it in one process.
   const BatchShare share = batch_share(config.batch, dist.rank(), dist.size());
-  nn::Tensor x(share.count, in_channels, rows, width), y(share.count, 1, rows, width), m(share.count, 1, rows, width),
-      pred, d_pred;
+  nn::Tensor pred, d_pred;
   TrainResult result;
   ProgressBar bar("train", total_steps, config.progress && dist.root());
   double epoch_loss = 0;
   int epoch_steps = 0;
+  auto epoch_start = std::chrono::steady_clock::now();
+  // Each step's batch is read and assembled on a background thread while the previous step
+  // computes; which frames, crops and mirrors is a pure function of (seed, epoch, step).
+  const SamplePlan plan{num_frames, steps_per_epoch, config.batch, cols, width, roll, mirror, config.seed};
+  struct Batch {
+    nn::Tensor x, y, m;
+  };
+  Prefetcher<Batch> batches(
+      [&](std::int64_t k, Batch& out) {
+        // Only this rank's samples are read: the others' frames never leave their files.
+        out.x.resize({share.count, in_channels, rows, width});
+        out.y.resize({share.count, 1, rows, width});
+        out.m.resize({share.count, 1, rows, width});
+        const std::vector<Sample> samples = step_samples(plan, k);
+        for (int b = share.begin; b < share.begin + share.count; ++b)
+          frames.fill(samples[static_cast<std::size_t>(b)], out.x, out.y, out.m, b - share.begin);
+      },
+      step, total_steps, prefetch);
   while (step < total_steps) {
     const std::int64_t epoch = step / steps_per_epoch;
-    const std::vector<int> order = epoch_order(num_frames, config.seed, epoch);
-    const std::int64_t in_epoch = step % steps_per_epoch;
-    std::uint64_t rng = splitmix64(config.seed * 0x9e3779b97f4a7c15ULL ^ static_cast<std::uint64_t>(step));
-    for (int b = 0; b < config.batch; ++b) {
-      const int f = order[static_cast<std::size_t>((in_epoch * config.batch + b) % num_frames)];
-      rng = splitmix64(rng);
-      const int offset = roll ? static_cast<int>(rng % static_cast<std::uint64_t>(cols))
-                                             : (width < cols ? static_cast<int>(rng % (cols - width + 1)) : 0);
-      rng = splitmix64(rng);
-      const bool flip = mirror && (rng & 1);
-      if (b < share.begin || b >= share.begin + share.count) continue;  // another rank's sample
-      place(frames[f].input, x, b - share.begin, offset, flip);
-      place(frames[f].target, y, b - share.begin, offset, flip);
-      place(frames[f].train_mask, m, b - share.begin, offset, flip);
+    const Batch* batch = nullptr;
+    std::string read_error;  // under MPI a rank's bad frame is agreed on, not an abort
+    try {
+      batch = &batches.next();
+    } catch (const std::exception& e) {
+      if (!dist.active()) throw;
+      read_error = *e.what() ? e.what() : "unknown error";
     }
     model.params().zero_grads();
     double data_loss = 0, l2 = 0;
     bool stop = false;
     if (!dist.active()) {
-      model.forward(x, pred);
-      data_loss = nn::masked_mse(pred, y, m, &d_pred).data;
+      model.forward(batch->x, pred);
+      data_loss = nn::masked_mse(pred, batch->y, batch->m, &d_pred).data;
       l2 = nn::l2_penalty(model.params(), config.lambda, true);
       model.backward(d_pred);
     } else {
-      data_loss = data_parallel_gradients(model, x, y, m, pred, d_pred, stop);
+      static const nn::Tensor none;
+      data_loss = data_parallel_gradients(model, batch ? batch->x : none, batch ? batch->y : none,
+                                          batch ? batch->m : none, read_error, pred, d_pred, stop);
       l2 = nn::l2_penalty(model.params(), config.lambda, true);  // once, on the summed gradients
     }
     optimizer.set_lr(learning_rate(config, step, total_steps));
@@ -488,7 +448,12 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
       report.epoch = static_cast<int>(step / steps_per_epoch);
       report.step = step;
       report.train_loss = epoch_loss / std::max(1, epoch_steps);
+      report.samples = epoch_steps * config.batch;
+      const auto validation_start = std::chrono::steady_clock::now();
+      report.train_seconds = std::chrono::duration<double>(validation_start - epoch_start).count();
       report.validation = validate();
+      report.validation_seconds =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - validation_start).count();
       epoch_loss = 0;
       epoch_steps = 0;
       result.epochs.push_back(report);
@@ -497,6 +462,7 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
         save(step);
         if (on_epoch && dist.root()) on_epoch(report);
       });
+      epoch_start = std::chrono::steady_clock::now();
     }
     // Several ranks stop together, at the step where any of them was asked to.
     if (dist.active() ? stop : stop_requested().load()) {

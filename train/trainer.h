@@ -6,6 +6,10 @@
 // (seed, epoch), each step's augmentation from (seed, step). A checkpoint therefore only needs
 // the step count to resume, and a resumed run ends with the same weights, bit for bit, as an
 // uninterrupted one (same thread count).
+//
+// Frames are read from the files when a step needs them (data::FrameSource, on a prefetching
+// thread one step ahead: train/frame_batches.h, train/prefetcher.h) and validated one at a time,
+// so memory holds a few frames whatever the dataset's length.
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
@@ -17,6 +21,7 @@
 
 #include "data/baselines.h"
 #include "data/dataset.h"
+#include "data/frame_source.h"
 #include "data/split.h"
 #include "nn/checkpoint.h"
 #include "nn/unet.h"
@@ -57,6 +62,11 @@ struct TrainConfig {
   // shipping a model for inference.
   std::optional<std::filesystem::path> export_weights;
   bool progress = true;
+  // How frames are read (results are the same bit for bit either way, so neither is in
+  // train_config): the next step's frames on a background thread; a file whose frames fit in
+  // this many MB is kept in memory once read (larger files are read per step).
+  bool prefetch = true;
+  int cache_mb = 256;
 };
 
 struct EpochReport {
@@ -64,6 +74,9 @@ struct EpochReport {
   std::int64_t step = 0;
   double train_loss = 0;  // mean total loss over the epoch's steps
   data::Metrics validation;
+  // Wall time of the epoch's steps (since the epoch or the run started) and of its validation.
+  double train_seconds = 0, validation_seconds = 0;
+  int samples = 0;  // frames (crops) the epoch's steps trained on
 };
 
 struct TrainResult {
@@ -79,6 +92,12 @@ std::atomic<bool>& stop_requested();
 
 // Runs training as configured; `on_epoch` is called after each epoch's validation.
 TrainResult train(const TrainConfig& config, const std::function<void(const EpochReport&)>& on_epoch = {});
+
+// The same on frame sources (data/frame_source.h: files read lazily, or sets in memory); the
+// sources name themselves in errors. train() and train_on() come here.
+TrainResult train_frames(const TrainConfig& config, const std::vector<const data::FrameSource*>& sets,
+                         const data::FrameSource* validation = nullptr,
+                         const std::function<void(const EpochReport&)>& on_epoch = {});
 
 // The same on datasets already in memory (config.data and config.validation are not read):
 // `names` name the sets in errors; without `validation`, the sector split of the training sets
