@@ -311,23 +311,28 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
   make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
   const int nvis = fold.base.visibility_bins();
   sensor::KpiModel m = fold.base;
-  const auto car = recipe.classes.find("Car");
-  if (car == recipe.classes.end()) return m;
   for (int t = 0; t < kObjectTargetCount; ++t) {
-    const sensor::ConditionalTerm& ct =
-        t == kDetectionTarget ? car->second.detection_conditional : car->second.errors[int(kTargetParam[t])].conditional;
-    if (!ct.present()) continue;
-    const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct.feature);
+    // The term on t and the classes that carry it (a term may be kept for some classes only).
+    const sensor::ConditionalTerm* ct = nullptr;
+    std::array<bool, 3> classes{false, false, false};
+    for (int c = 0; c < 3; ++c) {
+      const auto cm = recipe.classes.find(kObjectClasses[c]);
+      if (cm == recipe.classes.end()) continue;
+      const sensor::ConditionalTerm& ctc =
+          t == kDetectionTarget ? cm->second.detection_conditional : cm->second.errors[int(kTargetParam[t])].conditional;
+      if (!ctc.present()) continue;
+      classes[c] = true;
+      if (!ct) ct = &ctc;
+    }
+    if (!ct) continue;
+    const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct->feature);
     if (it == kObjectFeatures.end()) continue;
     const int f = static_cast<int>(it - kObjectFeatures.begin());
-    const Kind kind = t == kDetectionTarget ? Kind::RateTable : ct.scale.empty() ? Kind::MeanTable : Kind::SpreadTable;
+    const Kind kind = t == kDetectionTarget ? Kind::RateTable : ct->scale.empty() ? Kind::MeanTable : Kind::SpreadTable;
     const Effect e = fit_effect(fold, t, f, kind, nvis, bins);
-    if (is_spread(kind)) {
-      m = with_spread_term(m, e, ct.feature);
-    } else {
-      m = with_term(m, e.bias, t, ct.feature, nvis);
-      shrink_noise_for_term(m, e.bias, t, ct.feature, fold.fit_r[t], fold.win[t], nvis);
-    }
+    if (is_spread(kind)) m = with_spread_term(m, e, ct->feature);
+    else if (t == kDetectionTarget) m = with_term(m, e.bias, t, ct->feature, nvis, classes);
+    else m = with_term_and_noise(m, e.bias, t, ct->feature, nvis, fold.fit_r[t], fold.win[t], classes);
   }
   return m;
 }

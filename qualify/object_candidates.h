@@ -80,7 +80,8 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 // The model `recipe` describes, refitted on the sequences fit_idx only: sensor::fit_kpi_model on
 // them plus every conditional term the recipe carries (on an error: a spread table when it has a
 // scale, else a mean table; on detection: a rate table), each refitted on the same sequences with
-// the loop's forms (object_candidates.h). For held-out checks of a model that carries terms.
+// the loop's forms (object_candidates.h), for the classes that carry it (a mean table with the
+// noise shrunk, object_terms.h with_term_and_noise). For held-out checks of a model that carries terms.
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
                               int bins = 10);
 

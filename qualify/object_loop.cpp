@@ -6,6 +6,7 @@
 
 #include "common/error.h"
 #include "qualify/object_candidates.h"
+#include "qualify/object_distribution.h"
 #include "qualify/object_folds.h"
 #include "qualify/object_simulated.h"
 #include "qualify/object_terms.h"
@@ -102,8 +103,23 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     int tracks = 0, tracks_better = 0;
     bool candidate = false, add = false;
     double candidate_after = kNaN;
+    // Error targets: the re-simulated held-out distribution per class before / after the term
+    // (-1: too few samples) and the classes that keep it.
+    std::array<double, 3> dist_before{-1, -1, -1}, dist_after{-1, -1, -1};
+    std::array<bool, 3> classes{true, true, true};
+    std::array<std::pair<double, double>, 3> class_rms{};  // winsorised held-out RMS before, after
+    bool distribution_rejected = false;
   };
-  auto judge_add = [&](const Candidate& c) {
+  auto in_manager = [](const std::string& feature) {
+    return std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), feature) !=
+           sensor::kConditionalFeatures.end();
+  };
+  // Each fold's model with the terms added so far, for the distribution check. Its seeds:
+  // seed + 100, + 101, ... (the qualification's held-out table uses seed + 1000 q).
+  const auto motion = sensor::with_truth_motion(data.calib);
+  std::array<sensor::KpiModel, 2> current = {folds[0].base, folds[1].base};
+  const std::uint64_t dist_seed = options.seed + 100;
+  auto judge_add = [&](const Candidate& c, bool distribution_decides) {
     Judged J;
     const int t = c.target, f = c.feature;
     J.candidate = c.score >= options.threshold;
@@ -112,6 +128,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     // Held-out residuals before and after (each fold's own refit), and per track the winsorised
     // sums the acceptance test uses.
     BlockSums change_sums(nblocks, {0, 0, 0});  // per track: (sum after^2, sum before^2, n), winsorised
+    std::array<std::array<double, 3>, 3> class_sums{};  // the same per class
     for (int k = 0; k < 2; ++k) {
       const Split& h = folds[k].held_r[t];
       const auto xh = h.column(f);
@@ -132,6 +149,10 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
         } else {
           const double before_w = folds[k].win[t](h.r[i]), after_w = before_w - fitted;
           s[0] += after_w * after_w, s[1] += before_w * before_w, s[2] += 1;
+          if (ch[i] >= 0 && ch[i] < 3) {
+            auto& cs = class_sums[ch[i]];
+            cs[0] += after_w * after_w, cs[1] += before_w * before_w, cs[2] += 1;
+          }
         }
       }
       J.fold_rms[k] = {rms(h.r), rms(a)};
@@ -156,19 +177,42 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                        });
     }
     J.add = J.candidate && J.change[1] < 0;
+    // Error targets: the term stays only for the classes whose re-simulated held-out distribution
+    // of the KPI does not get worse (the noise shrunk for the term, with_term_and_noise); none: rejected.
+    // For the top effect it is reported only: where a term explains most of an error's spread (a
+    // planted effect on the reference sensor), the shrunk noise misfits the class's shape and the
+    // check would veto the very effect the loop is for (a noise refit with the term is the missing piece).
+    if (J.add && t != kDetectionTarget && in_manager(kObjectFeatures[f])) {
+      std::array<sensor::KpiModel, 2> after_models;
+      for (int k = 0; k < 2; ++k)
+        after_models[k] = with_term_and_noise(current[k], J.refs[k], t, kObjectFeatures[f], nvis, folds[k].fit_r[t],
+                                              folds[k].win[t]);
+      const auto before_i = held_out_intersections_all(data, folds, current, dist_seed);
+      const auto after_i = held_out_intersections_all(data, folds, after_models, dist_seed);
+      J.dist_before = before_i[t], J.dist_after = after_i[t];
+      // Pooled over both folds: on one fold alone a small class holds too few tracks to judge. The
+      // class's own held-out residual must go down too: the re-simulated distribution carries
+      // Monte Carlo noise of the size of the changes judged, the residual none.
+      bool any = false;
+      for (int c = 0; c < 3; ++c) {
+        J.class_rms[c] = {class_sums[c][2] > 0 ? std::sqrt(class_sums[c][1] / class_sums[c][2]) : kNaN,
+                          class_sums[c][2] > 0 ? std::sqrt(class_sums[c][0] / class_sums[c][2]) : kNaN};
+        J.classes[c] = J.dist_after[c] >= 0 && J.dist_after[c] >= J.dist_before[c] &&
+                       class_sums[c][0] < class_sums[c][1];
+        any |= J.classes[c];
+      }
+      if (!distribution_decides) J.classes = {true, true, true};
+      else if (!any) J.add = false, J.distribution_rejected = true;
+    }
     J.candidate_after = rms(J.after_r);
     if (!J.add) J.after_r = J.before_r;
     return J;
-  };
-  auto in_manager = [](const std::string& feature) {
-    return std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), feature) !=
-           sensor::kConditionalFeatures.end();
   };
 
   const Candidate& top = *ranking.front();
   const int t = top.target, f = top.feature;
   const std::string top_feature = kObjectFeatures[f], top_target = kObjectTargets[t];
-  Judged top_j = judge_add(top);
+  Judged top_j = judge_add(top, false);
   const bool candidate = top_j.candidate, add = top_j.add;
   const std::array<Refit, 2>& refs = top_j.refs;
   const std::vector<double>& before_r = top_j.before_r;
@@ -185,6 +229,14 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
            sensor::kConditionalFeatures.end())
     not_in_model = "the KPI manager cannot compute \"" + top_feature + "\" from a truth object";
   const bool term = not_in_model.empty();
+  // An added term goes into each fold's current model (the noise refitted with it for an error).
+  auto add_to_current = [&](const Judged& J, int te, const std::string& fe) {
+    for (int k = 0; k < 2; ++k)
+      current[k] = te == kDetectionTarget ? with_term(current[k], J.refs[k], te, fe, nvis)
+                                          : with_term_and_noise(current[k], J.refs[k], te, fe, nvis, folds[k].fit_r[te],
+                                                                folds[k].win[te], J.classes);
+  };
+  if (term) add_to_current(top_j, t, top_feature);
 
   // Greedy over targets: with the top bias form added as a term, the best bias form of every other
   // target (of the features the KPI manager can compute) is judged the same way, in order of
@@ -197,6 +249,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   };
   std::vector<Extra> extras;
   std::vector<const Candidate*> extra_rejected;
+  std::vector<bool> extra_rejected_by_distribution;
   if (term) {
     std::array<const Candidate*, kObjectTargetCount> best_t{};
     for (const Candidate& c : cands)
@@ -209,17 +262,11 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     std::sort(order.begin(), order.end(), [](const Candidate* a, const Candidate* b) { return a->score > b->score; });
     for (const Candidate* c : order) {
       if (options.max_effects > 0 && 1 + static_cast<int>(extras.size()) >= options.max_effects) break;
-      Judged J = judge_add(*c);
-      if (J.add) extras.push_back({c, std::move(J)});
-      else extra_rejected.push_back(c);
+      Judged J = judge_add(*c, true);
+      if (J.add) add_to_current(J, c->target, kObjectFeatures[c->feature]), extras.push_back({c, std::move(J)});
+      else extra_rejected.push_back(c), extra_rejected_by_distribution.push_back(J.distribution_rejected);
     }
   }
-  // Fold k's model with every added term (each fitted on that fold's fit sequences).
-  auto with_added_terms = [&](const sensor::KpiModel& base, int k) {
-    sensor::KpiModel m = term ? with_term(base, refs[k], t, top_feature, nvis) : base;
-    for (const Extra& e : extras) m = with_term(m, e.j.refs[k], e.c->target, kObjectFeatures[e.c->feature], nvis);
-    return m;
-  };
 
   // No bias form added: the best spread form is, if it clears the threshold, its score's block-bootstrap
   // interval lies above 0 and the KPI manager can compute its feature.
@@ -234,7 +281,6 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     // Re-simulated: per held-out object one draw of the error with each fold's base and refitted
     // model, centred on the base's conditional mean; measured errors centred the same way; both
     // winsorised at the fold's fit limits. Spread error of the draws against the measured errors.
-    const auto motion = sensor::with_truth_motion(data.calib);
     const int st = sp->target, sf = sp->feature;
     std::vector<double> sx, sm, sb, sa;
     for (int k = 0; k < 2; ++k) {
@@ -268,11 +314,10 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   for (const Extra& e : extras) sim_targets.push_back(e.c->target);
   std::vector<double> sim_before(sim_targets.size(), kNaN), sim_after(sim_targets.size(), kNaN);
   {
-    const auto motion = sensor::with_truth_motion(data.calib);
     std::vector<std::vector<double>> rb(sim_targets.size()), ra(sim_targets.size());
     for (int k = 0; k < 2; ++k) {
       const Fold& fd = folds[k];
-      const sensor::KpiModel refitted = with_added_terms(fd.base, k);
+      const sensor::KpiModel& refitted = current[k];  // every added term
       for (size_t q = 0; q < sim_targets.size(); ++q) {
         const int tq = sim_targets[q];
         std::map<std::array<int, 3>, double> mb, ma;
@@ -304,15 +349,17 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   if (add_spread) final_spread = fit_effect(whole, sp->target, sp->feature, sp->kind, nvis, options.bins);
   sensor::KpiModel final_term_model;
   if (term) {
-    final_term_model = with_term(whole.base, final_ref, t, top_feature, nvis);
-    shrink_noise_for_term(final_term_model, final_ref, t, top_feature, whole.fit_r[t], whole.win[t], nvis);
-    for (const Extra& e : extras) {
-      const int te = e.c->target;
-      const std::string& fe = kObjectFeatures[e.c->feature];
-      const Refit r = fit_effect(whole, te, e.c->feature, e.c->kind, nvis, options.bins).bias;
-      final_term_model = with_term(final_term_model, r, te, fe, nvis);
-      shrink_noise_for_term(final_term_model, r, te, fe, whole.fit_r[te], whole.win[te], nvis);
-    }
+    // Each term with the noise shrunk for it, for the classes that kept it.
+    auto add_final = [&](const Refit& r, int te, const std::string& fe, const std::array<bool, 3>& classes) {
+      final_term_model = te == kDetectionTarget ? with_term(final_term_model, r, te, fe, nvis)
+                                                : with_term_and_noise(final_term_model, r, te, fe, nvis, whole.fit_r[te],
+                                                                      whole.win[te], classes);
+    };
+    final_term_model = whole.base;
+    add_final(final_ref, t, top_feature, top_j.classes);
+    for (const Extra& e : extras)
+      add_final(fit_effect(whole, e.c->target, e.c->feature, e.c->kind, nvis, options.bins).bias, e.c->target,
+                kObjectFeatures[e.c->feature], e.j.classes);
   }
   if (!options.out_model.empty())
     sensor::save_kpi_model(term           ? final_term_model
@@ -364,11 +411,14 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     j["held_out_tracks_better"] = tracks_better;
   }
   if (candidate && !add)
-    j["rejected_effect"] = {{"feature", top_feature},
-                            {"target", top_target},
-                            {"held_out_after", candidate_after},
-                            {"change_interval95", change},
-                            {"why", "the refit did not lower the held-out RMS beyond the track-to-track noise"}};
+    j["rejected_effect"] = {
+        {"feature", top_feature},
+        {"target", top_target},
+        {"held_out_after", candidate_after},
+        {"change_interval95", change},
+        {"why", top_j.distribution_rejected
+                    ? "the re-simulated held-out distribution of the KPI got worse for every class"
+                    : "the refit did not lower the held-out RMS beyond the track-to-track noise"}};
   j["threshold"] = options.threshold;
   j["score_definition"] =
       "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "
@@ -383,7 +433,11 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "
       "interval95 = basic block bootstrap over held-out tracks (a track and its sequence are never on both sides). "
       "The top bias form is added when its score is at least the threshold and the refit lowers the held-out loss "
-      "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; if none is, "
+      "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; each "
+      "further bias form (the best of every other target) passes the same test and, on an error, is kept only for "
+      "the classes whose re-simulated held-out distribution (histogram intersection of the KPI manager's errors, "
+      "32 seeds, against the measured held-out errors, both folds pooled) does not get worse and whose own held-out "
+      "residual falls (rejected when no class keeps it); if no bias form is added, "
       "the top spread form is added when its score is at least the threshold and its interval lies above 0";
   j["scores"] = matrix;
   j["spread_scores"] = spread_matrix;
@@ -393,9 +447,14 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     std::string decision;
     const bool extra_added =
         std::any_of(extras.begin(), extras.end(), [&](const Extra& e) { return e.c == &c; });
-    const bool extra_tried = std::find(extra_rejected.begin(), extra_rejected.end(), &c) != extra_rejected.end();
+    const auto tried = std::find(extra_rejected.begin(), extra_rejected.end(), &c);
+    const bool extra_tried = tried != extra_rejected.end();
+    const std::string by_distribution =
+        "rejected: the re-simulated held-out distribution of the KPI got worse for every class";
     if ((&c == &top && add) || extra_added) decision = "added";
+    else if (extra_tried && extra_rejected_by_distribution[tried - extra_rejected.begin()]) decision = by_distribution;
     else if (extra_tried) decision = "rejected: the refit did not beat the track-to-track noise";
+    else if (&c == &top && top_j.distribution_rejected) decision = by_distribution;
     else if (add_spread && &c == sp) decision = "added";
     else if (&c == &top && candidate) decision = "rejected: the refit did not beat the track-to-track noise";
     else if (c.score < options.threshold) decision = "ruled out: held-out score below the threshold";
@@ -464,6 +523,18 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   }
   // Every bias form added (the top one first), each with its own before -> after; the simulated
   // "after" is with the model that carries all of them.
+  // Per class: re-simulated held-out histogram intersection before / after and whether it kept the term.
+  auto distribution_entry = [&](const Judged& J) {
+    nlohmann::json d = nlohmann::json::object();
+    for (int c = 0; c < 3; ++c)
+      if (J.dist_before[c] >= 0 || J.dist_after[c] >= 0)
+        d[kObjectClasses[c]] = {{"before", J.dist_before[c]},
+                                {"after", J.dist_after[c]},
+                                {"rms_before", J.class_rms[c].first},
+                                {"rms_after", J.class_rms[c].second},
+                                {"kept", J.classes[c]}};
+    return d;
+  };
   nlohmann::json aj = nlohmann::json::array();
   auto added_entry = [&](const Candidate& c, const Judged& J, double sb, double sa) {
     return nlohmann::json{{"feature", kObjectFeatures[c.feature]},
@@ -478,7 +549,9 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                           {"after_simulated", std::isnan(sa) ? nlohmann::json(nullptr) : nlohmann::json(sa)},
                           {"change_interval95", J.change},
                           {"held_out_tracks", J.tracks},
-                          {"held_out_tracks_better", J.tracks_better}};
+                          {"held_out_tracks_better", J.tracks_better},
+                          {"distribution", distribution_entry(J)},
+                          {"distribution_decides", &c != &top}};  // the top effect's is reported only
   };
   if (add) aj.push_back(added_entry(top, top_j, before_sim, after_sim));
   for (size_t q = 0; q < extras.size(); ++q)

@@ -101,7 +101,7 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
 }
 
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
-                           const Winsor& w, int nvis) {
+                           const Winsor& w, int nvis, std::array<bool, 3> classes) {
   if (t == kDetectionTarget) return;
   const bool track_constant =
       feature == "size" || feature == "box_width" || feature == "box_height" || feature == "class";
@@ -111,7 +111,7 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
   const auto r = fit.clipped(w);
   for (int c = 0; c < 3; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
-    if (it == m.classes.end()) continue;
+    if (it == m.classes.end() || !classes[c]) continue;
     std::vector<double> vals, res;
     for (size_t i = 0; i < x.size(); ++i)
       if (cls[i] == c) vals.push_back(ref(c, cells[i], x[i])), res.push_back(r[i]);
@@ -148,11 +148,11 @@ Refit refit_on(const Fold& k, int t, int f, int nvis, int bins) {
 }
 
 sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
-                           int nvis) {
+                           int nvis, std::array<bool, 3> classes) {
   sensor::KpiModel m = base;
   for (int c = 0; c < 3; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
-    if (it == m.classes.end()) continue;
+    if (it == m.classes.end() || !classes[c]) continue;
     sensor::ClassModel& cm = it->second;
     const BinnedTable& bt = ref.table.own[c] ? ref.table.per_class[c] : ref.table.pooled;
     // BinnedTable cut points -> the term's lower edges (bin 0 takes everything below edges[1]).
@@ -181,6 +181,13 @@ sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t
   }
   m.source = base.source + "; plus the object loop's conditional term on " + feature + " (" +
              (t == kDetectionTarget ? std::string("detection probability") : kObjectTargets[t]) + ")";
+  return m;
+}
+
+sensor::KpiModel with_term_and_noise(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
+                                     int nvis, const Split& fit, const Winsor& w, std::array<bool, 3> classes) {
+  sensor::KpiModel m = with_term(base, ref, t, feature, nvis, classes);
+  shrink_noise_for_term(m, ref, t, feature, fit, w, nvis, classes);
   return m;
 }
 

@@ -60,7 +60,7 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
 // constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
 // (sigma x sqrt(1 - v_rest / V), at least 0.2 of it).
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
-                           const Winsor& w, int nvis);
+                           const Winsor& w, int nvis, std::array<bool, 3> classes = {true, true, true});
 
 // The detection probability the KPI manager uses with a rate term (with_term): the cell's
 // probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
@@ -72,7 +72,14 @@ Refit refit_on(const Fold& k, int t, int f, int nvis, int bins);
 // The base model with the loop's range-bin offsets added to target t's means (detection: to the
 // detection probabilities of the range x visibility cell, clamped to [0, 1]) and the feature
 // table as its conditional term (on that error, or on detection probability).
+// `classes`: the classes that get the term (the others keep the base's model of t).
 sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
-                           int nvis);
+                           int nvis, std::array<bool, 3> classes = {true, true, true});
+
+// with_term, and for an error target the noise shrunk for the classes that get the term
+// (shrink_noise_for_term on the fit split and its winsor limits).
+sensor::KpiModel with_term_and_noise(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
+                                     int nvis, const Split& fit, const Winsor& w,
+                                     std::array<bool, 3> classes = {true, true, true});
 
 }  // namespace lidarsim::qualify::obj

@@ -121,7 +121,10 @@ struct LoopOptions {
 // detection probability — and "before_simulated" with each fold's base.
 // Greedy over targets: once the top one is added as a term, the best bias form of each other
 // target (features the KPI manager computes) is judged the same way, in order of score, and added
-// when it passes, at most one per target and max_effects in all; "added_effects" lists each with
+// when it passes, at most one per target and max_effects in all. Such a further error term is kept only for
+// the classes whose re-simulated held-out distribution of the KPI (object_distribution.h) does not
+// get worse and whose own held-out residual falls, rejected when no class keeps it (the noise is
+// shrunk for it, object_terms.h). "added_effects" lists each with
 // its own before -> after, "after_simulated" with the model carrying all of them. The single-effect
 // fields ("added_effect", "before", "after", ...) describe the top one.
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});

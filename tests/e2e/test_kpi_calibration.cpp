@@ -119,55 +119,59 @@ TEST(KpiCalibration, HistogramIntersectionOnHandWorkedSamples) {
   EXPECT_NEAR(sensor::histogram_intersection(a, b, 9), 0.5, 1e-12);
 }
 
-TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWrites) {
+TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPerClass) {
   LIDARSIM_REQUIRE_SHARED_DATA(root, "kitti-tracking-gt-pointrcnn");
   const fs::path shipped = testing::source_dir() / "data/models/kpi_pointrcnn.json";
   const sensor::KpiModel m = sensor::load_kpi_model(shipped);
   EXPECT_EQ(m.classes.size(), 3u);
-  // The loop's first term (data/models/README.md): width error by the true box width. The shipped
-  // model holds that one term only: the greedy run's further terms (height by box_height, length by
-  // size) lower their held-out residuals but not the held-out similarity of `lidar-qualify objects`
-  // (0.908 with all three against 0.910 with one), so it is what `--max-effects 1` writes.
-  EXPECT_EQ(m.classes.at("Car").errors[int(sensor::KpiParam::Width)].conditional.feature, "box_width");
+  // The loop's terms (data/models/README.md), kept per class where the re-simulated held-out
+  // distribution did not get worse: width by the true box width for every class, length by the
+  // box length for Pedestrian and Cyclist, no height term.
+  for (const char* c : {"Car", "Pedestrian", "Cyclist"})
+    EXPECT_EQ(m.classes.at(c).errors[int(sensor::KpiParam::Width)].conditional.feature, "box_width") << c;
+  EXPECT_FALSE(m.classes.at("Car").errors[int(sensor::KpiParam::Length)].conditional.present());
+  EXPECT_EQ(m.classes.at("Cyclist").errors[int(sensor::KpiParam::Length)].conditional.feature, "size");
+  for (const char* c : {"Car", "Pedestrian", "Cyclist"})
+    EXPECT_FALSE(m.classes.at(c).errors[int(sensor::KpiParam::Height)].conditional.present()) << c;
   const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
   ASSERT_TRUE(fs::exists(exe)) << "build lidar-qualify first: " << exe;
   const fs::path out = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_model.json";
   const fs::path report = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_loop" / "loop.json";
   fs::create_directories(report.parent_path());
   const std::string cmd = exe.string() + " loop objects --kitti-tracking " + root.string() + " --report " +
-                          report.string() + " --max-effects 1 --out-model " + out.string() + " >/dev/null 2>&1";
+                          report.string() + " --out-model " + out.string() + " >/dev/null 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   std::ifstream a(shipped), b(out);
   std::stringstream sa, sb;
   sa << a.rdbuf();
   sb << b.rdbuf();
   EXPECT_EQ(sa.str(), sb.str()) << "regenerate with: lidar-qualify loop objects --kitti-tracking " << root
-                                << " --report loop.json --max-effects 1 --out-model data/models/kpi_pointrcnn.json";
-  fs::remove_all(report.parent_path());
-}
-
-// Without a limit the loop adds the best accepted bias form of each target: on KITTI width by
-// box_width, height by box_height, length by size, each lowering its own held-out residual.
-TEST(KpiCalibration, GreedyObjectLoopAddsOneAcceptedEffectPerTarget) {
-  LIDARSIM_REQUIRE_SHARED_DATA(root, "kitti-tracking-gt-pointrcnn");
-  const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
-  ASSERT_TRUE(fs::exists(exe)) << "build lidar-qualify first: " << exe;
-  const fs::path report = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_greedy" / "loop.json";
-  fs::create_directories(report.parent_path());
-  const std::string cmd = exe.string() + " loop objects --kitti-tracking " + root.string() + " --report " +
-                          report.string() + " >/dev/null 2>&1";
-  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+                                << " --report loop.json --out-model data/models/kpi_pointrcnn.json";
+  // The same run's report: the best accepted bias form of each target (width by box_width, length by
+  // size, each lowering its own held-out residual), each kept for the classes whose re-simulated
+  // held-out distribution did not get worse; height by box_height lowers the residual too but makes
+  // the simulated height distribution worse for every class, so it is rejected.
   std::ifstream in(report);
   const nlohmann::json j = nlohmann::json::parse(in);
   std::map<std::string, std::string> added;
+  int dropped = 0;
   for (const auto& e : j["added_effects"]) {
     added[e["target"].get<std::string>()] = e["feature"].get<std::string>();
     EXPECT_LT(e["after_simulated"].get<double>(), e["before_simulated"].get<double>()) << e.dump();
     EXPECT_LT(e["change_interval95"][1].get<double>(), 0.0) << e.dump();
+    for (const auto& [cls, d] : e["distribution"].items()) {
+      if (d["kept"].get<bool>()) EXPECT_GE(d["after"].get<double>(), d["before"].get<double>()) << cls << e.dump();
+      else ++dropped;
+    }
   }
-  EXPECT_EQ(added, (std::map<std::string, std::string>{{"width", "box_width"}, {"height", "box_height"},
-                                                       {"length", "size"}}))
+  EXPECT_EQ(added, (std::map<std::string, std::string>{{"width", "box_width"}, {"length", "size"}}))
       << j["added_effects"].dump();
+  EXPECT_EQ(dropped, 1) << "length by size is dropped for Car";
+  bool height_rejected = false;
+  for (const auto& c : j["candidates"])
+    if (c["target"] == "height" && c["feature"] == "box_height")
+      height_rejected |= c["decision"].get<std::string>().find("distribution") != std::string::npos;
+  EXPECT_TRUE(height_rejected) << "box_height on height: rejected by the held-out distribution";
   fs::remove_all(report.parent_path());
 }
 

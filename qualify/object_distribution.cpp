@@ -1,0 +1,41 @@
+#include "qualify/object_distribution.h"
+
+#include "qualify/similarity.h"
+
+namespace lidarsim::qualify::obj {
+
+std::vector<std::array<double, 3>> held_out_intersections_all(const TrackingData& data, const std::array<Fold, 2>& folds,
+                                                              const std::array<sensor::KpiModel, 2>& models,
+                                                              std::uint64_t seed) {
+  constexpr int nt = kDetectionTarget;  // the error targets
+  std::vector<double> sim[2][nt][3], meas[2][nt][3];
+  sensor::FitOptions opt;
+  for (int k = 0; k < 2; ++k) {
+    for (const ObjectRecord& r : folds[k].held_set.records)
+      if (r.detected && r.cls >= 0 && r.cls < 3)
+        for (int t = 0; t < nt; ++t) meas[k][t][r.cls].push_back(r.value[t]);
+    opt.range_bin_edges = models[k].range_bin_edges;
+    opt.visibility_bin_edges = models[k].visibility_bin_edges;
+    for (int q = 0; q < kDistributionSeeds; ++q) {
+      const auto simulated = sensor::resimulate(data.calib, models[k], seed + q);
+      const ObjectSet s = collect_objects(data, folds[k].held_idx, &simulated, opt);
+      for (const ObjectRecord& r : s.records)
+        if (r.detected && r.cls >= 0 && r.cls < 3)
+          for (int t = 0; t < nt; ++t) sim[k][t][r.cls].push_back(r.value[t]);
+    }
+  }
+  std::vector<std::array<double, 3>> out(nt, {-1, -1, -1});
+  for (int t = 0; t < nt; ++t)
+    for (int c = 0; c < 3; ++c) {
+      if (long(meas[0][t][c].size()) < kDistributionMinSamples || long(meas[1][t][c].size()) < kDistributionMinSamples ||
+          sim[0][t][c].empty() || sim[1][t][c].empty())
+        continue;
+      std::vector<double> m = meas[0][t][c], s = sim[0][t][c];
+      m.insert(m.end(), meas[1][t][c].begin(), meas[1][t][c].end());
+      s.insert(s.end(), sim[1][t][c].begin(), sim[1][t][c].end());
+      out[t][c] = histogram_intersection(s, m);
+    }
+  return out;
+}
+
+}  // namespace lidarsim::qualify::obj
