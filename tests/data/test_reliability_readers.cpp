@@ -14,6 +14,7 @@
 #include "data/import.h"
 #include "data/kitti_object.h"
 #include "data/kitti_tracking.h"
+#include "data/ply_reader.h"
 #include "data/velodyne.h"
 #include "tests/data/temp_dir.h"
 #include "tests/support/file_limit.h"
@@ -206,4 +207,22 @@ TEST(DatasetReliability, NoBitFlipInTheNumericDataLoadsChangedValues) {
   }
   std::printf("%zu bytes, every %zu-th flipped: %d accepted, %d with changed values\n", bytes.size(), stride, accepted, changed);
   EXPECT_EQ(changed, 0);
+}
+
+// Found by fuzzing (fuzz/regressions/ply/): the header's vertex count was trusted before the
+// data was measured, so "element vertex 100000000000000" allocated columns for 1e14 vertices
+// (std::bad_alloc, no file, no field) and a count whose size overflowed passed the check.
+TEST(ReaderReliability, PlyVertexCountBeyondTheFileIsAnErrorBeforeAnyAllocation) {
+  const TempDir dir;
+  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex %s\nproperty float x\nend_header\n";
+  for (const std::string count : {"100000000000000", "4611686018427387905", "18446744073709551615"}) {
+    std::string text = header;
+    text.replace(text.find("%s"), 2, count);
+    const fs::path p = write_text(dir / "cloud.ply", text + "abcdefgh");
+    const std::string e = error_of([&] { data::read_ply(p); });
+    EXPECT_NE(e.find("cloud.ply"), std::string::npos) << count << ": " << e;
+    EXPECT_NE(e.find("vertex"), std::string::npos) << count << ": " << e;
+  }
+  const fs::path ascii = write_text(dir / "ascii.ply", "ply\nformat ascii 1.0\nelement vertex 100000000000000\nproperty float x\nend_header\n1\n");
+  EXPECT_NE(error_of([&] { data::read_ply(ascii); }).find("ascii.ply"), std::string::npos);
 }
