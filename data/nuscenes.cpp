@@ -29,8 +29,8 @@ std::vector<pgm::Point> read_nuscenes_pcd_bin(const fs::path& path) {
         throw input_error(path.string(), "point " + std::to_string(i) + " " + names[k], "not a finite number (NaN or Inf)");
       }
     }
-    const int ring = static_cast<int>(v[4]);
-    if (ring != v[4] || ring < 0 || ring >= kNuscenesRings)
+    // Range first: casting a float beyond int's range is undefined (found by fuzz/ nuscenes).
+    if (!(v[4] >= 0.f && v[4] < static_cast<float>(kNuscenesRings)) || v[4] != std::floor(v[4]))
       throw input_error(path.string(), "point " + std::to_string(i) + " ring",
                         "expected an integer 0-31 (HDL-32E), got " + std::to_string(v[4]));
     if (v[3] < 0.f || v[3] > 255.f)
@@ -41,7 +41,7 @@ std::vector<pgm::Point> read_nuscenes_pcd_bin(const fs::path& path) {
     p.y = -v[0];  // nuScenes x (right) -> our -y (left)
     p.z = v[2];
     p.intensity = v[3] / 255.f;
-    p.ring = kNuscenesRings - 1 - ring;
+    p.ring = kNuscenesRings - 1 - static_cast<int>(v[4]);
   }
   return points;
 }

@@ -78,11 +78,19 @@ OusterMetadata read_ouster_metadata(const fs::path& path) {
   } catch (const nlohmann::json::exception& e) {
     throw input_error(fname, "file", std::string("not valid JSON: ") + e.what());
   }
+  if (!j.is_object()) throw input_error(fname, "file", "not a JSON object");
+  // Optional strings: absent is the default, another type an error naming the field (json's
+  // value() would throw its own type_error, found by fuzz/ ouster_metadata).
+  auto text = [&](const nlohmann::json& parent, const char* key, const std::string& field, std::string fallback) {
+    if (!parent.contains(key)) return fallback;
+    if (!parent[key].is_string()) throw input_error(fname, field, "not a string");
+    return parent[key].get<std::string>();
+  };
   OusterMetadata m;
   m.path = fname;
-  m.prod_line = j.value("prod_line", std::string());
-  m.firmware = j.value("build_rev", std::string());
-  m.lidar_mode = j.value("lidar_mode", std::string());
+  m.prod_line = text(j, "prod_line", "prod_line", "");
+  m.firmware = text(j, "build_rev", "build_rev", "");
+  m.lidar_mode = text(j, "lidar_mode", "lidar_mode", "");
   if (!j.contains("data_format") || !j["data_format"].is_object()) throw input_error(fname, "data_format", "missing");
   const auto& f = j["data_format"];
   auto get_int = [&](const char* key) {
@@ -94,7 +102,7 @@ OusterMetadata read_ouster_metadata(const fs::path& path) {
   m.columns_per_frame = get_int("columns_per_frame");
   m.columns_per_packet = get_int("columns_per_packet");
   m.pixels_per_column = get_int("pixels_per_column");
-  m.udp_profile_lidar = f.value("udp_profile_lidar", std::string("LEGACY"));
+  m.udp_profile_lidar = text(f, "udp_profile_lidar", "data_format.udp_profile_lidar", "LEGACY");
   profile_of(m);  // refuses a profile we do not parse, naming the field
   if (j.contains("udp_port_lidar") && j["udp_port_lidar"].is_number_integer() && j["udp_port_lidar"].get<int>() > 0)
     m.udp_port_lidar = j["udp_port_lidar"].get<int>();

@@ -88,19 +88,24 @@ PlyCloud read_ply(const std::filesystem::path& path) {
     }
   }
   if (!seen_vertex || props.empty()) throw input_error(fname, "element vertex", "missing");
+  // The count is the header's word: measure it against the data before allocating for it (a
+  // binary vertex takes its stride, an ASCII value at least a digit and a separator, none after the last).
+  const std::size_t data_start = end + std::strlen("end_header\n");
+  const std::size_t available = bytes.size() - data_start + (format == "ascii" ? 1 : 0);
+  std::size_t stride = 0;
+  for (const auto& p : props) stride += p.bytes;
+  const std::size_t per_vertex = format == "ascii" ? 2 * props.size() : stride;
+  if (vertices > available / per_vertex)
+    throw input_error(fname, "element vertex", "says " + std::to_string(vertices) + " vertices, the file holds " +
+                                                   std::to_string(bytes.size() - data_start) + " bytes of data (" +
+                                                   std::to_string(per_vertex) + " at least per vertex)");
   PlyCloud cloud;
   cloud.path = fname;
   for (const auto& p : props) {
     cloud.properties.push_back(p.name);
     cloud.column[p.name].resize(vertices);
   }
-  const std::size_t data_start = end + std::strlen("end_header\n");
   if (format == "binary_little_endian") {
-    std::size_t stride = 0;
-    for (const auto& p : props) stride += p.bytes;
-    if (bytes.size() < data_start + stride * vertices)
-      throw input_error(fname, "vertex data", "file ends before " + std::to_string(vertices) + " vertices of " +
-                                                  std::to_string(stride) + " bytes");
     for (std::size_t v = 0; v < vertices; ++v) {
       const char* row = bytes.data() + data_start + v * stride;
       for (const auto& p : props) {

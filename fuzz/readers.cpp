@@ -4,14 +4,22 @@
 
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "common/error.h"
+#include "data/class_table.h"
 #include "data/dataset.h"
 #include "data/kitti_object.h"
 #include "data/kitti_tracking.h"
+#include "data/nuscenes.h"
+#include "data/ouster.h"
+#include "data/ply_reader.h"
+#include "data/rellis3d.h"
 #include "data/velodyne.h"
 #include "nn/checkpoint.h"
 #include "nn/unet.h"
+#include "osi/sensor_view.h"
+#include "osi/trace.h"
 #include "pgm/projection.h"
 #include "sensor/kpi_model.h"
 #include "sensor/scenario.h"
@@ -134,6 +142,110 @@ void dataset(const std::uint8_t* data, std::size_t size) {
   });
 }
 
+
+// Ouster metadata JSON: parsed, then the layout and packet size the pcap reader derives from it.
+void ouster_metadata(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] {
+    const data::OusterMetadata m = data::read_ouster_metadata(to_file(data, size, ".json"));
+    m.layout();
+    m.packet_bytes();
+  });
+}
+
+// An Ouster metadata of each parsed packet profile, beams as on the sample sensors (OS-1-32
+// legacy, OS-1-128 RNG15, OS-2-128 RNG19), so the sample pcaps seed every profile.
+std::vector<data::OusterMetadata> ouster_profiles() {
+  std::vector<data::OusterMetadata> all;
+  for (const auto& [profile, rows] : {std::pair<const char*, int>{"LEGACY", 32}, {"RNG15_RFL8_NIR8", 128},
+                                      {"RNG19_RFL8_SIG16_NIR16", 128}}) {
+    data::OusterMetadata m;
+    m.path = std::string("fuzz-") + profile + ".json";
+    m.udp_profile_lidar = profile;
+    m.columns_per_frame = 1024;
+    m.columns_per_packet = 16;
+    m.pixels_per_column = rows;
+    m.lidar_origin_to_beam_origin_mm = 15.8;
+    for (int r = 0; r < rows; ++r) {
+      m.beam_altitude_deg.push_back(22.5 - 45.0 * r / (rows - 1));
+      m.beam_azimuth_deg.push_back(r % 4 == 0 ? 4.2 : -1.3);
+    }
+    all.push_back(m);
+  }
+  return all;
+}
+
+// A pcap, read with the metadata of every profile, and each frame's points.
+void ouster_pcap(const std::uint8_t* data, std::size_t size) {
+  static const std::vector<data::OusterMetadata> profiles = ouster_profiles();
+  const fs::path p = to_file(data, size, ".pcap");
+  for (const auto& meta : profiles)
+    expect_error_or_success([&] {
+      for (const auto& frame : data::read_ouster_pcap(p, meta)) data::ouster_points(frame, meta);
+    });
+}
+
+// A nuScenes .pcd.bin sweep, then the projection onto a 32-beam grid as import does.
+void nuscenes(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] {
+    const auto points = data::read_nuscenes_pcd_bin(to_file(data, size, ".pcd.bin"));
+    pgm::ProjectOptions options;
+    options.extra_channels = {"elevation", "incidence"};
+    pgm::project(points, pgm::BeamLayout::uniform(32, 10.67, -30.67, 64), options);
+  });
+}
+
+// A RELLIS-3D scan: the input's first 16/20 are the organized .bin (16 bytes a point), the
+// rest its .label (4 bytes a point), mapped through the bundled RELLIS class table.
+void rellis3d(const std::uint8_t* data, std::size_t size) {
+  static const data::ClassTable table =
+      data::read_class_table(fs::path(LIDARSIM_SOURCE_DIR) / "data/ontologies/rellis3d.csv");
+  const std::size_t bin = size / 20 * 16;
+  data::Rellis3dFiles files;
+  files.bin = to_file(data, bin, ".bin");
+  files.label = to_file(data + bin, size - bin, ".label");
+  expect_error_or_success([&] { data::read_rellis3d_scan(files, table); });
+}
+
+// A PLY cloud (RELLIS-3D's reflectivity comes from one), binary or ASCII.
+void ply(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] { data::read_ply(to_file(data, size, ".ply")); });
+}
+
+// A class table CSV (data/ontologies/), and a lookup of every id in it.
+void class_table(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] {
+    const data::ClassTable t = data::read_class_table(to_file(data, size, ".csv"));
+    for (const auto& [id, e] : t.entries) t.map(id), t.name_of(id);
+    t.name_of(-1);
+  });
+}
+
+// A sensor's beam layout JSON (data/sensors/*.json, scenarios, checkpoints), then a few
+// directions binned on it.
+void sensor_layout(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] {
+    const pgm::BeamLayout l = pgm::BeamLayout::from_file(to_file(data, size, ".json").string());
+    l.validate();
+    for (double e : {0.5, 0.0, -0.5}) l.nearest_row(e);
+    l.column_of(1.0, -0.3);
+    l.azimuth_of_column(l.columns - 1);
+    pgm::BeamLayout::from_json(l.to_json());
+  });
+}
+
+// A binary OSI trace as `lidar-infer osi` reads it: each message parsed as osi3.SensorView and
+// turned into the scene (at most 16 messages per input).
+void osi_trace(const std::uint8_t* data, std::size_t size) {
+  expect_error_or_success([&] {
+    std::istringstream in(to_text(data, size));
+    osi::TraceReader reader(in, "trace.osi");
+    osi3::SensorView view;
+    osi::IdMap ids;
+    osi::SceneFrame frame;
+    for (int n = 0; n < 16 && reader.next(view); ++n) osi::scene_from_sensor_view(view, reader.index(), "trace.osi", ids, frame);
+  });
+}
+
 }  // namespace
 
 const std::vector<Target>& targets() {
@@ -148,6 +260,14 @@ const std::vector<Target>& targets() {
       {"kpi_model", kpi_model},
       {"checkpoint", checkpoint},
       {"dataset", dataset},
+      {"ouster_metadata", ouster_metadata},
+      {"ouster_pcap", ouster_pcap},
+      {"nuscenes", nuscenes},
+      {"rellis3d", rellis3d},
+      {"ply", ply},
+      {"class_table", class_table},
+      {"sensor_layout", sensor_layout},
+      {"osi_trace", osi_trace},
   };
   return all;
 }

@@ -1,5 +1,6 @@
 #include "osi/trace.h"
 
+#include <algorithm>
 #include <istream>
 #include <ostream>
 
@@ -28,10 +29,19 @@ bool TraceReader::next(std::string& bytes) {
   if (length > kMaxMessageBytes)
     throw fail("length field says " + std::to_string(length) + " bytes, more than the " +
                std::to_string(kMaxMessageBytes >> 20) + " MiB limit (not a binary OSI trace?)");
-  bytes.resize(length);
-  if (length > 0) in_.read(bytes.data(), length);
-  const std::streamsize body = length > 0 ? in_.gcount() : 0;
-  if (body < static_cast<std::streamsize>(length))
+  // The body is read in chunks as it arrives: a corrupt length field on a short trace costs what
+  // the trace holds, not the 1 GiB it may claim (seen while writing the osi_trace fuzz target).
+  constexpr std::size_t kChunk = 1u << 20;
+  std::size_t body = 0;
+  bytes.clear();
+  while (body < length) {
+    const std::size_t want = std::min<std::size_t>(kChunk, length - body);
+    bytes.resize(body + want);
+    in_.read(bytes.data() + body, static_cast<std::streamsize>(want));
+    body += static_cast<std::size_t>(in_.gcount());
+    if (static_cast<std::size_t>(in_.gcount()) < want) break;
+  }
+  if (body < length)
     throw fail("torn: the length field says " + std::to_string(length) + " bytes, the trace ends after " +
                std::to_string(body));
   index_ = index;

@@ -141,8 +141,17 @@ BeamLayout BeamLayout::from_json(const std::string& text, const std::string& whe
     if (!std::isfinite(v)) throw input_error(where, key, "must be finite");
     return v;
   };
+  // Counts are checked as numbers before the cast: a double beyond int's range cast to int is
+  // undefined (found by fuzz/ sensor_layout: "columns": 1e29).
+  auto get_count = [&](const char* key, int max) {
+    const double v = get_number(key);
+    if (v < 1 || v > max || v != std::floor(v))
+      throw input_error(where, key, "must be a whole number from 1 to " + std::to_string(max));
+    return static_cast<int>(v);
+  };
+  if (j.contains("name") && !j["name"].is_string()) throw input_error(where, "name", "expected a string");
   const std::string name = j.value("name", std::string("custom"));
-  const int columns = static_cast<int>(get_number("columns"));
+  const int columns = get_count("columns", kMaxColumns);
   if (j.contains("elevations_deg")) {
     if (!j["elevations_deg"].is_array()) throw input_error(where, "elevations_deg", "expected an array of degrees");
     std::vector<double> deg;
@@ -173,7 +182,7 @@ BeamLayout BeamLayout::from_json(const std::string& text, const std::string& whe
     return layout;
   }
   if (name == "hdl64e" && !j.contains("rows")) return hdl64e(columns);
-  const int rows = static_cast<int>(get_number("rows"));
+  const int rows = get_count("rows", kMaxRows);
   BeamLayout layout = uniform(rows, get_number("top_deg"), get_number("bottom_deg"), columns);
   layout.name = name;
   layout.validate(where);

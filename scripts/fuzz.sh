@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # Fuzz every reader with libFuzzer (clang, ASan + UBSan): scripts/fuzz.sh [seconds per target] [target...]
+# LIDARSIM_FUZZ_RUNS=N stops a target after N executions (fast targets need not use all their time).
 # Builds build-fuzz/ with clang (installed here if missing; the normal build never needs it),
 # seeds each target from data/, ../shared/data and fuzz/regressions/, runs the targets one after
 # the other at nice 19 and prints executions, crashes, hangs (timeouts), leaks and out-of-memory
@@ -56,8 +57,41 @@ if [ -x build/data/lidar-data ]; then
   build/data/lidar-data import --quiet --semantickitti data/samples/semantickitti --columns 16 \
     --channels incidence --out "$build/seed_dataset.h5" >/dev/null 2>&1 && seed dataset "$build/seed_dataset.h5" 10000000
 fi
+for f in "$shared"/ouster-sample-pcaps/*.json; do seed ouster_metadata "$f"; done
+for f in "$shared"/ouster-sample-pcaps/*.pcap; do seed ouster_pcap "$f"; done  # header + 2-9 packets
+for f in "$shared"/nuscenes-sample-frame/*.pcd.bin; do seed nuscenes "$f" 4000; done
+# RELLIS-3D: 32 columns of 64 points of the .bin, then their labels (the target splits at 16/20).
+for f in "$shared"/rellis3d-os1-sample/*.bin; do
+  mkdir -p "$seeds/rellis3d"
+  { head -c 32768 "$f"; head -c 8192 "${f%.bin}.label"; } > "$seeds/rellis3d/$(basename "$f")"
+done
+# PLY: the sample's header with its vertex count cut to what fits in 64 KB, and a small ASCII cloud.
+for f in "$shared"/rellis3d-os1-sample/*.ply; do
+  mkdir -p "$seeds/ply"
+  python3 - "$f" "$seeds/ply/$(basename "$f")" <<'PY'
+import re, sys
+data = open(sys.argv[1], 'rb').read()
+end = data.index(b'end_header\n') + len(b'end_header\n')
+header = data[:end].decode()
+n = int(re.search(r'element vertex (\d+)', header).group(1))
+stride = (len(data) - end) // n
+keep = (65536 - end - 16) // stride
+open(sys.argv[2], 'wb').write(re.sub(r'element vertex \d+', 'element vertex %d' % keep, header).encode() + data[end:end + keep * stride])
+PY
+done
+mkdir -p "$seeds/ply"
+printf 'ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty ushort reflectivity\nend_header\n1 2 3 40\n-1.5 0 2e1 65535\n' > "$seeds/ply/ascii"
+for f in data/ontologies/*.csv; do seed class_table "$f"; done
+for f in data/sensors/*.json; do seed sensor_layout "$f"; done
+# OSI: the first frames of each bundled scenario as a SensorView trace (lidar-infer osi-trace).
+if [ -x build/infer/lidar-infer ]; then
+  mkdir -p "$seeds/osi_trace"
+  for f in data/scenarios/*.json; do
+    build/infer/lidar-infer osi-trace --scenario "$f" --frames 2 --out "$seeds/osi_trace/$(basename "$f" .json).osi" >/dev/null 2>&1 || true
+  done
+fi
 
-printf "%-20s %12s %8s %8s %6s %6s\n" target execs crashes hangs leaks ooms
+printf "%-20s %12s %8s %8s %8s %6s %6s\n" target execs exec/s crashes hangs leaks ooms
 for t in $targets; do
   corpus=$build/corpus/$t
   regressions=fuzz/regressions/$t
@@ -67,10 +101,13 @@ for t in $targets; do
   before=$(ls "$regressions" | wc -l)
   # -fork-less run; leaks are checked at exit of each input by LeakSanitizer (detect_leaks=1).
   ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
-    nice -n 19 "$build/fuzz/fuzz_$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len=65536 \
+  LSAN_OPTIONS=suppressions=$root/scripts/lsan.supp \
+    nice -n 19 "$build/fuzz/fuzz_$t" -max_total_time="$seconds" -runs="${LIDARSIM_FUZZ_RUNS:--1}" -timeout=10 \
+      -rss_limit_mb=2048 -max_len=65536 \
       -print_final_stats=1 -artifact_prefix="$regressions/" "$corpus" "$seeds/$t" "$regressions" >"$log" 2>&1 || true
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+  rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
   count() { ls "$regressions" | grep -c "^$1-" || true; }
-  printf "%-20s %12s %8s %8s %6s %6s\n" "$t" "${execs:-?}" "$(count crash)" "$(count timeout)" "$(count leak)" "$(count oom)"
+  printf "%-20s %12s %8s %8s %8s %6s %6s\n" "$t" "${execs:-?}" "${rate:-?}" "$(count crash)" "$(count timeout)" "$(count leak)" "$(count oom)"
 done
 echo "logs: $build/logs/; findings (if any): fuzz/regressions/<target>/ (replayed by tests/fuzz)"

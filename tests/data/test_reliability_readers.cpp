@@ -14,6 +14,9 @@
 #include "data/import.h"
 #include "data/kitti_object.h"
 #include "data/kitti_tracking.h"
+#include "data/nuscenes.h"
+#include "data/ouster.h"
+#include "data/ply_reader.h"
 #include "data/velodyne.h"
 #include "tests/data/temp_dir.h"
 #include "tests/support/file_limit.h"
@@ -206,4 +209,45 @@ TEST(DatasetReliability, NoBitFlipInTheNumericDataLoadsChangedValues) {
   }
   std::printf("%zu bytes, every %zu-th flipped: %d accepted, %d with changed values\n", bytes.size(), stride, accepted, changed);
   EXPECT_EQ(changed, 0);
+}
+
+// Found by fuzzing (fuzz/regressions/ply/): the header's vertex count was trusted before the
+// data was measured, so "element vertex 100000000000000" allocated columns for 1e14 vertices
+// (std::bad_alloc, no file, no field) and a count whose size overflowed passed the check.
+TEST(ReaderReliability, PlyVertexCountBeyondTheFileIsAnErrorBeforeAnyAllocation) {
+  const TempDir dir;
+  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex %s\nproperty float x\nend_header\n";
+  for (const std::string count : {"100000000000000", "4611686018427387905", "18446744073709551615"}) {
+    std::string text = header;
+    text.replace(text.find("%s"), 2, count);
+    const fs::path p = write_text(dir / "cloud.ply", text + "abcdefgh");
+    const std::string e = error_of([&] { data::read_ply(p); });
+    EXPECT_NE(e.find("cloud.ply"), std::string::npos) << count << ": " << e;
+    EXPECT_NE(e.find("vertex"), std::string::npos) << count << ": " << e;
+  }
+  const fs::path ascii = write_text(dir / "ascii.ply", "ply\nformat ascii 1.0\nelement vertex 100000000000000\nproperty float x\nend_header\n1\n");
+  EXPECT_NE(error_of([&] { data::read_ply(ascii); }).find("ascii.ply"), std::string::npos);
+}
+
+// Found by fuzzing (fuzz/regressions/nuscenes/, UBSan): a ring of 1.4e33 was cast to int before
+// its range was checked (undefined behaviour); now the range check comes first.
+TEST(ReaderReliability, NuscenesRingFarBeyondIntIsAnErrorNamingTheField) {
+  const TempDir dir;
+  const fs::path p = dir / "sweep.pcd.bin";
+  lidarsim::testing::write_binary(p, std::vector<float>{1.f, 2.f, 0.5f, 10.f, 1.43e33f});
+  const std::string e = error_of([&] { data::read_nuscenes_pcd_bin(p); });
+  EXPECT_NE(e.find("point 0 ring"), std::string::npos) << e;
+}
+
+// Found by fuzzing (fuzz/regressions/ouster_metadata/): a metadata file that is a bare number,
+// or whose prod_line is not a string, threw nlohmann's type_error (no file, no field).
+TEST(ReaderReliability, OusterMetadataOfTheWrongJsonTypesNamesTheFileAndField) {
+  const TempDir dir;
+  EXPECT_NE(error_of([&] { data::read_ouster_metadata(write_text(dir / "meta.json", "8")); }).find("meta.json: file"),
+            std::string::npos);
+  const std::string e = error_of([&] {
+    data::read_ouster_metadata(write_text(dir / "meta2.json", R"({"prod_line": 5, "data_format": {}})"));
+  });
+  EXPECT_NE(e.find("meta2.json"), std::string::npos) << e;
+  EXPECT_NE(e.find("prod_line"), std::string::npos) << e;
 }

@@ -84,6 +84,15 @@ TEST(OsiTrace, TornBodyNamesTheMessageAndTheMissingBytes) {
   EXPECT_NE(e.find("t.osi: message 2: torn"), std::string::npos) << e;
 }
 
+TEST(OsiTrace, TornBodyClaimingAGigabyteCostsOnlyWhatTheTraceHolds) {
+  // 16 bytes of trace whose length field says 1 GiB - 1: an error, without a 1 GiB buffer.
+  std::istringstream in(std::string("\xff\xff\xff\x3f", 4) + std::string(12, 'x'));
+  TraceReader r(in, "t.osi");
+  std::string bytes;
+  EXPECT_THROW(r.next(bytes), lidarsim::Error);
+  EXPECT_LT(bytes.capacity(), std::size_t{4} << 20);
+}
+
 TEST(OsiTrace, MessageThatDoesNotParseNamesItsIndexAndType) {
   // A well-formed length followed by bytes that are no protobuf (field number 0 is invalid).
   const std::string bad = std::string("\x03\x00\x00\x00", 4) + std::string("\x00\x00\x00", 3);

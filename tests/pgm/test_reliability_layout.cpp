@@ -34,3 +34,19 @@ TEST(LayoutReliability, DifferenceNamesWhatDiffers) {
   const auto c = pgm::BeamLayout::uniform(32, 2, -24, 1024);
   EXPECT_NE(a.difference(c).find("rows 64 vs 32"), std::string::npos) << a.difference(c);
 }
+
+// Found by fuzzing (fuzz/regressions/sensor_layout/, UBSan): "columns": 1e29 was cast to int
+// before it was checked (undefined behaviour); counts are now checked as numbers first.
+TEST(LayoutReliability, CountsBeyondIntOrFractionalAreAnErrorNamingTheKey) {
+  const std::string huge = error_of([] {
+    pgm::BeamLayout::from_json(R"({"columns": 1e29, "elevations_deg": [2, 1]})", "layout.json");
+  });
+  EXPECT_NE(huge.find("layout.json: columns"), std::string::npos) << huge;
+  const std::string rows = error_of([] {
+    pgm::BeamLayout::from_json(R"({"columns": 64, "rows": 31.5, "top_deg": 2, "bottom_deg": -20})", "layout.json");
+  });
+  EXPECT_NE(rows.find("layout.json: rows"), std::string::npos) << rows;
+  EXPECT_NE(error_of([] { pgm::BeamLayout::from_json(R"({"name": 3, "columns": 64, "rows": 2, "top_deg": 2, "bottom_deg": -2})"); })
+                .find("name"),
+            std::string::npos);
+}
