@@ -2,29 +2,15 @@
 
 #include <cmath>
 #include <cstring>
-#include <fstream>
 
 #include "common/error.h"
+#include "data/binary_file.h"
 #include "data/plausibility.h"
 
 namespace lidarsim::data {
-namespace {
-
-std::vector<char> read_all(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) throw input_error(path.string(), "file", "not found or not a file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw input_error(path.string(), "file", "cannot be opened");
-  std::vector<char> bytes(std::filesystem::file_size(path));
-  if (!bytes.empty() && !in.read(bytes.data(), static_cast<std::streamsize>(bytes.size())))
-    throw input_error(path.string(), "file", "read failed");
-  return bytes;
-}
-
-}  // namespace
 
 std::vector<pgm::Point> read_velodyne_bin(const std::filesystem::path& path) {
-  const std::vector<char> bytes = read_all(path);
+  const std::vector<char> bytes = read_binary_file(path);
   if (bytes.size() % 16 != 0)
     throw input_error(path.string(), "size",
                       std::to_string(bytes.size()) + " bytes is not a multiple of 16 (float32 x, y, z, reflectance "
@@ -61,7 +47,7 @@ std::vector<pgm::Point> read_velodyne_bin(const std::filesystem::path& path) {
 }
 
 std::vector<std::uint32_t> read_label_file(const std::filesystem::path& path, std::size_t expected_count) {
-  const std::vector<char> bytes = read_all(path);
+  const std::vector<char> bytes = read_binary_file(path);
   if (bytes.size() % 4 != 0)
     throw input_error(path.string(), "size", std::to_string(bytes.size()) + " bytes is not a multiple of 4 (uint32 per point)");
   const std::size_t n = bytes.size() / 4;

@@ -35,10 +35,11 @@ int BinnedTable::bin(double x) const {
   return static_cast<int>(std::upper_bound(edges.begin(), edges.end(), x) - edges.begin());
 }
 
-BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins, double shrink) {
+BinnedTable fit_table(const std::vector<double>& edges, const std::vector<double>& x, const std::vector<double>& r,
+                      double shrink) {
   BinnedTable t;
-  t.edges = quantile_edges(x, bins);
-  std::vector<double> sum(t.edges.size() + 1, 0.0);
+  t.edges = edges;
+  std::vector<double> sum(edges.size() + 1, 0.0);
   t.count.assign(sum.size(), 0);
   for (size_t i = 0; i < x.size(); ++i) {
     const int b = t.bin(x[i]);
@@ -49,6 +50,10 @@ BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<doub
   for (size_t b = 0; b < sum.size(); ++b)
     if (t.count[b] > 0) t.value[b] = sum[b] / (t.count[b] + shrink);
   return t;
+}
+
+BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins, double shrink) {
+  return fit_table(quantile_edges(x, bins), x, r, shrink);
 }
 
 BinnedTable fit_binned_gain(const std::vector<double>& x, const std::vector<double>& measured,

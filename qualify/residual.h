@@ -23,6 +23,9 @@ struct BinnedTable {
   double operator()(double x) const { return value[bin(x)]; }
 };
 
+// Mean of r per bin of the given edges, shrunk by n / (n + shrink).
+BinnedTable fit_table(const std::vector<double>& edges, const std::vector<double>& x, const std::vector<double>& r,
+                      double shrink = 5);
 // Up to `bins` equal-count bins of x (ties kept together), mean of r per bin shrunk by n / (n + shrink).
 BinnedTable fit_binned_mean(const std::vector<double>& x, const std::vector<double>& r, int bins = 10,
                             double shrink = 5);

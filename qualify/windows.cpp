@@ -15,23 +15,6 @@ std::vector<double> equal_count_edges(const std::vector<double>& x, int bins) {
   return fit_binned_mean(x, std::vector<double>(x.size(), 0.0), bins).edges;
 }
 
-BinnedTable fit_table(const std::vector<double>& edges, const std::vector<double>& x, const std::vector<double>& r,
-                      double shrink) {
-  BinnedTable t;
-  t.edges = edges;
-  std::vector<double> sum(edges.size() + 1, 0.0);
-  t.count.assign(sum.size(), 0);
-  for (size_t i = 0; i < x.size(); ++i) {
-    const int b = t.bin(x[i]);
-    sum[b] += r[i];
-    ++t.count[b];
-  }
-  t.value.assign(sum.size(), 0.0);
-  for (size_t b = 0; b < sum.size(); ++b)
-    if (t.count[b] > 0) t.value[b] = sum[b] / (t.count[b] + shrink);
-  return t;
-}
-
 BinnedTable fit_gain_table(const std::vector<double>& edges, const std::vector<double>& x,
                            const std::vector<double>& measured, const std::vector<double>& base, double shrink) {
   BinnedTable t;

@@ -17,9 +17,6 @@ namespace lidarsim::qualify {
 // Edges k + 0.5 between integer categories 0..n-1: one bin per value (beam rows).
 std::vector<double> category_edges(int n);
 
-// Mean of r per bin of the given edges, shrunk by n / (n + shrink).
-BinnedTable fit_table(const std::vector<double>& edges, const std::vector<double>& x, const std::vector<double>& r,
-                      double shrink = 5);
 // Least-squares gain per bin with measured ~ gain * base, shrunk towards 1.
 BinnedTable fit_gain_table(const std::vector<double>& edges, const std::vector<double>& x,
                            const std::vector<double>& measured, const std::vector<double>& base, double shrink = 5);
