@@ -3,7 +3,11 @@
 //      PCL generator into a 64 x 1024 PGM, UNet intensity inference, point cloud), writing
 //      outputs excluded, on --threads (2) over the bundled demo scenario: frames/s, target >= 10;
 //   2. the object-level model alone (frames, FoV, occlusion, tracking, KPI manager) on a synthetic
-//      in-memory scenario with 100 objects: frames/s, target >= 1000.
+//      in-memory scenario with 100 objects: frames/s, target >= 1000;
+//   3. (--only outputs) the loop of `lidar-infer sim --every N`: the whole pipeline with the outputs
+//      of every N-th frame written by the writer thread into a temporary folder, wall and CPU time;
+//   4. (--digest) FNV-1a digests of everything the runs compute (object lists, visible fractions,
+//      PGM channels, point cloud), to show that a faster build computes the same numbers.
 // The intensity model is data/models/intensity_unet.h5 when present, else an untrained unet-ref
 // (base 16, depth 4, the default encoder's input channels): the cost does not depend on weights.
 // Each measurement is repeated --runs times; the median run is reported (and the fastest).
@@ -13,12 +17,17 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <cxxopts.hpp>
 #include <filesystem>
+#include <memory>
 #include <numbers>
 #include <random>
+#include <set>
+#include <sstream>
 #include <string>
 #include <time.h>
 #include <unistd.h>
@@ -27,6 +36,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
+#include "infer/frame_writer.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
 #include "nn/checkpoint.h"
@@ -51,24 +61,19 @@ struct RunResult {
   double ms_per_frame = 0;
   double objects_in_view = 0, reported = 0, points = 0;
   double cpu_ms_per_frame = 0;  // process CPU time (all threads): what the run cost without waiting for a core
+  double thread_cpu_ms_per_frame = 0;  // CPU time of the calling thread alone (without OpenMP workers, writer)
+  double loop_fps = 0;                 // frames over the wall time of the whole loop (outputs run)
 };
 
-double process_cpu_seconds() {
+double clock_seconds(clockid_t id) {
   timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  clock_gettime(id, &ts);
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
+double process_cpu_seconds() { return clock_seconds(CLOCK_PROCESS_CPUTIME_ID); }
+double thread_cpu_seconds() { return clock_seconds(CLOCK_THREAD_CPUTIME_ID); }
 
-RunResult run_once(infer::SimPipeline& pipeline, int frames) {
-  infer::SimFrame frame;
-  infer::SimStats stats;
-  const double cpu0 = process_cpu_seconds();
-  for (int k = 0; k < frames; ++k) {
-    pipeline.run_frame(k, frame);
-    stats.add(frame);
-  }
-  RunResult r;
-  r.cpu_ms_per_frame = 1000 * (process_cpu_seconds() - cpu0) / frames;
+void finish_result(RunResult& r, const infer::SimStats& stats) {
   r.ms_per_frame = stats.mean_total_ms();
   r.fps = 1000.0 / r.ms_per_frame;
   for (int s = 0; s < infer::kNumSimStages; ++s) r.stage_ms[s] = stats.mean_ms(s);
@@ -76,7 +81,114 @@ RunResult run_once(infer::SimPipeline& pipeline, int frames) {
   r.objects_in_view = j["per_frame_mean"]["objects_in_view"];
   r.reported = j["per_frame_mean"]["objects_reported"];
   r.points = j["per_frame_mean"]["points"];
+}
+
+RunResult run_once(infer::SimPipeline& pipeline, int frames) {
+  infer::SimFrame frame;
+  infer::SimStats stats;
+  const double cpu0 = process_cpu_seconds(), th0 = thread_cpu_seconds();
+  for (int k = 0; k < frames; ++k) {
+    pipeline.run_frame(k, frame);
+    stats.add(frame);
+  }
+  RunResult r;
+  r.cpu_ms_per_frame = 1000 * (process_cpu_seconds() - cpu0) / frames;
+  r.thread_cpu_ms_per_frame = 1000 * (thread_cpu_seconds() - th0) / frames;
+  finish_result(r, stats);
   return r;
+}
+
+// The loop of `lidar-infer sim --every N` (infer/lidar_infer_main.cpp): outputs of every N-th
+// frame go to the writer thread; the UNet runs only on those frames unless intensity_every_frame.
+RunResult run_outputs(infer::SimPipeline& pipeline, int frames, int every, const fs::path& dir, bool intensity_every_frame) {
+  infer::SimOutputOptions out;
+  out.out = dir;
+  fs::create_directories(dir);
+  infer::SimFrame frame;
+  infer::SimStats stats;
+  const auto wall0 = std::chrono::steady_clock::now();
+  const double cpu0 = process_cpu_seconds(), th0 = thread_cpu_seconds();
+  {
+    infer::FrameWriter writer(out);
+    for (int k = 0; k < frames; ++k) {
+      const bool written = k % every == 0;
+      pipeline.run_frame(k, frame, intensity_every_frame || written);
+      if (written) writer.push(frame);
+      stats.add(frame);
+    }
+    writer.finish();
+  }
+  RunResult r;
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  r.cpu_ms_per_frame = 1000 * (process_cpu_seconds() - cpu0) / frames;
+  r.thread_cpu_ms_per_frame = 1000 * (thread_cpu_seconds() - th0) / frames;
+  r.loop_fps = frames / std::max(wall, 1e-9);
+  finish_result(r, stats);
+  return r;
+}
+
+// FNV-1a over the bytes of everything a frame carries that outputs are made of.
+struct Digest {
+  std::uint64_t h = 1469598103934665603ull;
+  void bytes(const void* p, std::size_t n) {
+    const auto* c = static_cast<const unsigned char*>(p);
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ c[i]) * 1099511628211ull;
+  }
+  template <class T>
+  void value(const T& v) { bytes(&v, sizeof v); }
+  template <class T>
+  void vec(const std::vector<T>& v) { value(v.size()); if (!v.empty()) bytes(v.data(), v.size() * sizeof(T)); }
+  void object(const sensor::Object& o) {
+    value(o.id);
+    value(o.cls);
+    bytes(o.material.data(), o.material.size());
+    for (const Eigen::Vector3d* v : {&o.position, &o.velocity, &o.acceleration, &o.size}) bytes(v->data(), 3 * sizeof(double));
+    for (double d : {o.heading, o.visible_fraction, o.truncation, o.score}) value(d);
+  }
+  void frame(const infer::SimFrame& f) {
+    value(f.index);
+    value(f.time);
+    for (const auto* fr : {&f.ego, &f.sensor}) {
+      value(fr->objects.size());
+      for (const auto& o : fr->objects) object(o);
+      value(fr->lanes.size());
+      for (const auto& l : fr->lanes) {
+        value(l.id);
+        value(l.type);
+        value(l.points.size());
+        for (const auto& p : l.points) bytes(p.data(), 3 * sizeof(double));
+      }
+    }
+    value(f.reported.size());
+    for (const auto& r : f.reported) {
+      object(r.object);
+      value(r.truth_id);
+      value(r.coasting);
+    }
+    value(f.lanes.size());
+    for (const auto& l : f.lanes)
+      for (double d : {l.c0, l.c1, l.c2, l.c3, l.x_min, l.x_max}) value(d);
+    for (int n : {f.objects_existing, f.objects_in_view, f.objects_occluded, f.objects_partly_occluded, f.returns}) value(n);
+    if (f.pgm.cells() > 0) {
+      for (const auto& name : f.pgm.channel_names()) bytes(name.data(), name.size());
+      vec(f.pgm.data());
+      vec(f.pgm.point_index());
+    }
+    for (const auto* v : {&f.cloud.x, &f.cloud.y, &f.cloud.z, &f.cloud.intensity, &f.cloud.cls, &f.cloud.material,
+                          &f.cloud.object_id, &f.cloud.range})
+      vec(*v);
+    vec(f.cloud.cell);
+  }
+};
+
+std::uint64_t digest_run(infer::SimPipeline& pipeline, int frames) {
+  infer::SimFrame frame;
+  Digest d;
+  for (int k = 0; k < frames; ++k) {
+    pipeline.run_frame(k, frame);
+    d.frame(frame);
+  }
+  return d.h;
 }
 
 void print_stages(const std::vector<RunResult>& runs, bool point_cloud) {
@@ -91,6 +203,20 @@ void print_stages(const std::vector<RunResult>& runs, bool point_cloud) {
     std::printf(" %s %.3f", infer::to_string(st), median(v));
   }
   std::printf("\n");
+}
+
+template <class F>
+double median_of(const std::vector<RunResult>& runs, F f) {
+  std::vector<double> v;
+  for (const auto& r : runs) v.push_back(f(r));
+  return median(v);
+}
+
+nlohmann::json stages_json(const std::vector<RunResult>& runs) {
+  nlohmann::json j;
+  for (int s = 0; s < infer::kNumSimStages; ++s)
+    j[infer::to_string(static_cast<infer::SimStage>(s))] = median_of(runs, [&](const RunResult& r) { return r.stage_ms[s]; });
+  return j;
 }
 
 }  // namespace
@@ -108,6 +234,11 @@ int main(int argc, char** argv) {
     ("frames", "frames per run of the whole pipeline (0 = the whole scenario)", cxxopts::value<int>()->default_value("0"))
     ("objects", "objects in the object-level scenario", cxxopts::value<int>()->default_value("100"))
     ("object-frames", "frames per run of the object-level model", cxxopts::value<int>()->default_value("2000"))
+    ("only", "parts to run, comma-separated: whole, objects, outputs (the lidar-infer sim --every loop)",
+     cxxopts::value<std::string>()->default_value("whole,objects"))
+    ("every", "outputs part: write the outputs of every N-th frame", cxxopts::value<int>()->default_value("10"))
+    ("intensity-every-frame", "outputs part: run the UNet on every frame, also those not written (as before issue 16)")
+    ("digest", "print digests of what the runs compute (same numbers <=> same digests), no timing")
     ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
     ("h,help", "help");
   // clang-format on
@@ -120,6 +251,17 @@ int main(int argc, char** argv) {
     const int threads = std::max(1, args["threads"].as<int>());
     const int runs = std::max(1, args["runs"].as<int>());
     omp_set_num_threads(threads);
+    std::set<std::string> parts;
+    {
+      std::stringstream ss(args["only"].as<std::string>());
+      for (std::string p; std::getline(ss, p, ',');) {
+        if (p != "whole" && p != "objects" && p != "outputs")
+          throw std::runtime_error("--only: unknown part '" + p + "' (whole, objects, outputs)");
+        parts.insert(p);
+      }
+    }
+    const int every = args["every"].as<int>();
+    if (every < 1) throw std::runtime_error("--every must be >= 1");
 
     // The intensity model: bundled, given, or an untrained unet-ref in a temporary file.
     fs::path model;
@@ -138,97 +280,134 @@ int main(int argc, char** argv) {
       model_note = "untrained unet-ref (no bundled model yet)";
     }
     const auto meta = nn::read_checkpoint_meta(model);
-
-    // 1. Whole pipeline.
     auto pipeline_factory = [&] {
       return infer::SimPipeline::from_files(args["scenario"].as<std::string>(), args["kpi"].as<std::string>(), model);
     };
-    int frames = args["frames"].as<int>();
-    std::vector<RunResult> whole;
+    const int frames = args["frames"].as<int>();
+    const int n = args["objects"].as<int>(), object_frames = args["object-frames"].as<int>();
+    const sensor::KpiModel kpi = sensor::load_kpi_model(args["kpi"].as<std::string>());
+    auto object_pipeline = [&] {
+      const sensor::Scenario base = sensor::read_scenario(args["scenario"].as<std::string>());
+      infer::SimOptions object_only;
+      object_only.point_cloud = false;
+      return infer::SimPipeline(bench::synthetic_scenario(n, object_frames / 10.0 + 1, base), kpi, nullptr, object_only);
+    };
+
+    if (args.count("digest")) {
+      auto p = pipeline_factory();
+      const int f = frames > 0 ? std::min(frames, p.frame_count()) : p.frame_count();
+      std::printf("digest whole pipeline (%d frames): %016llx\n", f, static_cast<unsigned long long>(digest_run(p, f)));
+      auto o = object_pipeline();
+      std::printf("digest object-level model (%d objects, %d frames): %016llx\n", n, object_frames,
+                  static_cast<unsigned long long>(digest_run(o, object_frames)));
+      if (!temp.empty()) fs::remove(temp);
+      return 0;
+    }
+
+    nlohmann::json j{{"threads", threads}, {"runs", runs}};
+    std::vector<std::string> table;
     int frames_used = 0;
-    {
+    if (parts.count("whole") || parts.count("outputs")) {
       auto warm = pipeline_factory();  // first-touch of buffers and weights, not measured
       infer::SimFrame f;
       for (int k = 0; k < 3; ++k) warm.run_frame(k, f);
+      frames_used = frames > 0 ? std::min(frames, warm.frame_count()) : warm.frame_count();
     }
-    for (int r = 0; r < runs; ++r) {
-      auto p = pipeline_factory();  // fresh tracker/KPI state: every run simulates the same frames
-      frames_used = frames > 0 ? std::min(frames, p.frame_count()) : p.frame_count();
-      whole.push_back(run_once(p, frames_used));
+
+    // 1. Whole pipeline.
+    if (parts.count("whole")) {
+      std::vector<RunResult> whole;
+      for (int r = 0; r < runs; ++r) {
+        auto p = pipeline_factory();  // fresh tracker/KPI state: every run simulates the same frames
+        whole.push_back(run_once(p, frames_used));
+      }
+      std::vector<double> fps_whole;
+      for (const auto& r : whole) fps_whole.push_back(r.fps);
+      const double whole_median = median(fps_whole), whole_best = *std::max_element(fps_whole.begin(), fps_whole.end());
+      std::printf("whole pipeline: %d frames x %d runs, %d thread(s), PGM 64 x 1024, UNet base %d depth %d in %d (%s)\n",
+                  frames_used, runs, threads, meta.unet.base, meta.unet.depth, meta.unet.in_channels, model_note.c_str());
+      std::printf("  %.1f frames/s median (best %.1f), %.1f ms/frame; %.1f objects in view, %.1f reported, %.0f points per frame\n",
+                  whole_median, whole_best, 1000 / whole_median, whole.front().objects_in_view, whole.front().reported,
+                  whole.front().points);
+      print_stages(whole, true);
+      const double whole_cpu = median_of(whole, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+      std::printf("  process CPU time %.1f ms/frame over all threads (>= %.1f ms/frame of wall time on %d free cores)\n",
+                  whole_cpu, whole_cpu / threads, threads);
+      char row[256];
+      std::snprintf(row, sizeof row, "| whole pipeline, %d threads, UNet base %d depth %d, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |",
+                    threads, meta.unet.base, meta.unet.depth, whole_median, 1000 * threads / whole_cpu,
+                    whole_median >= 10 ? "yes" : "NO");
+      table.push_back(row);
+      j["whole"] = {{"frames", frames_used}, {"fps", whole_median}, {"fps_best", whole_best}, {"cpu_ms_per_frame", whole_cpu},
+                    {"unet_base", meta.unet.base}, {"unet_depth", meta.unet.depth}, {"model", model_note},
+                    {"stage_ms", stages_json(whole)}};
     }
-    std::vector<double> fps_whole;
-    for (const auto& r : whole) fps_whole.push_back(r.fps);
-    const double whole_median = median(fps_whole), whole_best = *std::max_element(fps_whole.begin(), fps_whole.end());
-    std::printf("whole pipeline: %d frames x %d runs, %d thread(s), PGM 64 x 1024, UNet base %d depth %d in %d (%s)\n",
-                frames_used, runs, threads, meta.unet.base, meta.unet.depth, meta.unet.in_channels, model_note.c_str());
-    std::printf("  %.1f frames/s median (best %.1f), %.1f ms/frame; %.1f objects in view, %.1f reported, %.0f points per frame\n",
-                whole_median, whole_best, 1000 / whole_median, whole.front().objects_in_view, whole.front().reported,
-                whole.front().points);
-    print_stages(whole, true);
-    std::vector<double> cpu_whole;
-    for (const auto& r : whole) cpu_whole.push_back(r.cpu_ms_per_frame);
-    const double whole_cpu = median(cpu_whole);
-    std::printf("  process CPU time %.1f ms/frame over all threads (>= %.1f ms/frame of wall time on %d free cores)\n",
-                whole_cpu, whole_cpu / threads, threads);
 
     // 2. Object-level model alone.
-    const int n = args["objects"].as<int>(), object_frames = args["object-frames"].as<int>();
-    const sensor::Scenario base = sensor::read_scenario(args["scenario"].as<std::string>());
-    const sensor::Scenario synthetic = bench::synthetic_scenario(n, object_frames / 10.0 + 1, base);
-    const sensor::KpiModel kpi = sensor::load_kpi_model(args["kpi"].as<std::string>());
-    infer::SimOptions object_only;
-    object_only.point_cloud = false;
-    std::vector<RunResult> objects;
-    for (int r = 0; r < runs; ++r) {
-      infer::SimPipeline p(synthetic, kpi, nullptr, object_only);
-      objects.push_back(run_once(p, object_frames));
+    if (parts.count("objects")) {
+      std::vector<RunResult> objects;
+      for (int r = 0; r < runs; ++r) {
+        auto p = object_pipeline();
+        objects.push_back(run_once(p, object_frames));
+      }
+      std::vector<double> fps_objects;
+      for (const auto& r : objects) fps_objects.push_back(r.fps);
+      const double obj_median = median(fps_objects), obj_best = *std::max_element(fps_objects.begin(), fps_objects.end());
+      std::printf("object-level model: %d objects, %d frames x %d runs (sampling, frames, FoV, occlusion, tracking, KPI)\n", n,
+                  object_frames, runs);
+      std::printf("  %.0f frames/s median (best %.0f), %.3f ms/frame; %.1f objects in view, %.1f reported per frame\n",
+                  obj_median, obj_best, 1000 / obj_median, objects.front().objects_in_view, objects.front().reported);
+      print_stages(objects, false);
+      const double obj_cpu = median_of(objects, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+      std::printf("  process CPU time %.3f ms/frame (the object-level model is serial: %.0f frames/s on a free core)\n", obj_cpu,
+                  1000 / obj_cpu);
+      char row[256];
+      std::snprintf(row, sizeof row, "| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |", n, obj_median,
+                    1000 / obj_cpu, obj_median >= 1000 ? "yes" : "NO");
+      table.push_back(row);
+      j["objects"] = {{"count", n}, {"frames", object_frames}, {"fps", obj_median}, {"fps_best", obj_best},
+                      {"cpu_ms_per_frame", obj_cpu}, {"fps_cpu_bound", 1000 / obj_cpu}, {"stage_ms", stages_json(objects)}};
     }
-    std::vector<double> fps_objects;
-    for (const auto& r : objects) fps_objects.push_back(r.fps);
-    const double obj_median = median(fps_objects), obj_best = *std::max_element(fps_objects.begin(), fps_objects.end());
-    std::printf("object-level model: %d objects, %d frames x %d runs (sampling, frames, FoV, occlusion, tracking, KPI)\n", n,
-                object_frames, runs);
-    std::printf("  %.0f frames/s median (best %.0f), %.3f ms/frame; %.1f objects in view, %.1f reported per frame\n",
-                obj_median, obj_best, 1000 / obj_median, objects.front().objects_in_view, objects.front().reported);
-    print_stages(objects, false);
-    std::vector<double> cpu_objects;
-    for (const auto& r : objects) cpu_objects.push_back(r.cpu_ms_per_frame);
-    const double obj_cpu = median(cpu_objects);
-    std::printf("  process CPU time %.3f ms/frame (the object-level model is serial: %.0f frames/s on a free core)\n", obj_cpu,
-                1000 / obj_cpu);
+
+    // 3. The lidar-infer sim loop with outputs on every N-th frame.
+    if (parts.count("outputs")) {
+      const bool all = args.count("intensity-every-frame") > 0;
+      const fs::path dir = fs::temp_directory_path() / ("bench_pipeline_outputs_" + std::to_string(::getpid()));
+      std::vector<RunResult> outs;
+      for (int r = 0; r < runs; ++r) {
+        auto p = pipeline_factory();
+        outs.push_back(run_outputs(p, frames_used, every, dir, all));
+        fs::remove_all(dir);
+      }
+      const double loop = median_of(outs, [](const RunResult& r) { return r.loop_fps; });
+      const double cpu = median_of(outs, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+      const double th = median_of(outs, [](const RunResult& r) { return r.thread_cpu_ms_per_frame; });
+      std::printf("outputs loop (lidar-infer sim --every %d): %d frames x %d runs, %d thread(s), UNet on %s\n", every,
+                  frames_used, runs, threads, all ? "every frame" : "the written frames only");
+      std::printf("  %.1f frames/s wall (median), pipeline stages %.2f ms/frame\n", loop,
+                  median_of(outs, [](const RunResult& r) { return r.ms_per_frame; }));
+      print_stages(outs, true);
+      std::printf("  process CPU time %.2f ms/frame (pipeline thread %.2f; OpenMP workers and writer the rest): "
+                  "<= %.0f frames/s on %d free cores\n", cpu, th, 1000 * threads / cpu, threads);
+      char row[256];
+      std::snprintf(row, sizeof row, "| lidar-infer sim loop, outputs every %d, UNet on %s | %.1f | <= %.0f | >= 150 | %s |", every,
+                    all ? "every frame" : "written frames", loop, 1000 * threads / cpu, loop >= 150 ? "yes" : "NO");
+      table.push_back(row);
+      j["outputs"] = {{"every", every}, {"unet_every_frame", all}, {"frames", frames_used}, {"loop_fps", loop},
+                      {"cpu_ms_per_frame", cpu}, {"thread_cpu_ms_per_frame", th}, {"fps_cpu_bound", 1000 * threads / cpu},
+                      {"stage_ms", stages_json(outs)}};
+    }
+
     double load[3] = {0, 0, 0};
     if (getloadavg(load, 3) < 0) load[0] = -1;
-
     // Wall-clock rates are what a rig sees; on a shared machine they include waiting for a core,
     // so the CPU-time bound is printed next to them (load average at the end of the run).
     std::printf("\n| measurement | frames/s (wall, median of %d) | frames/s bound from CPU time | target | met (wall) |\n"
                 "|---|---:|---:|---:|---|\n", runs);
-    std::printf("| whole pipeline, %d threads, UNet base %d depth %d, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |\n",
-                threads, meta.unet.base, meta.unet.depth, whole_median, 1000 * threads / whole_cpu, whole_median >= 10 ? "yes" : "NO");
-    std::printf("| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |\n", n, obj_median, 1000 / obj_cpu,
-                obj_median >= 1000 ? "yes" : "NO");
+    for (const auto& row : table) std::printf("%s\n", row.c_str());
     std::printf("load average %.2f (1 min) on %ld online CPUs\n", load[0], sysconf(_SC_NPROCESSORS_ONLN));
-    if (args.count("json")) {
-      auto stages = [](const std::vector<RunResult>& runs) {
-        nlohmann::json j;
-        for (int s = 0; s < infer::kNumSimStages; ++s) {
-          std::vector<double> v;
-          for (const auto& r : runs) v.push_back(r.stage_ms[s]);
-          j[infer::to_string(static_cast<infer::SimStage>(s))] = median(v);
-        }
-        return j;
-      };
-      const nlohmann::json j{
-          {"threads", threads},
-          {"runs", runs},
-          {"whole", {{"frames", frames_used}, {"fps", whole_median}, {"fps_best", whole_best}, {"cpu_ms_per_frame", whole_cpu},
-                     {"unet_base", meta.unet.base}, {"unet_depth", meta.unet.depth}, {"model", model_note},
-                     {"stage_ms", stages(whole)}}},
-          {"objects", {{"count", n}, {"frames", object_frames}, {"fps", obj_median}, {"fps_best", obj_best},
-                       {"cpu_ms_per_frame", obj_cpu}, {"fps_cpu_bound", 1000 / obj_cpu}, {"stage_ms", stages(objects)}}},
-          {"loadavg_end", load[0]}};
-      write_file_atomically(args["json"].as<std::string>(), j.dump(2) + "\n");
-    }
+    j["loadavg_end"] = load[0];
+    if (args.count("json")) write_file_atomically(args["json"].as<std::string>(), j.dump(2) + "\n");
     if (!temp.empty()) fs::remove(temp);
     return 0;
   } catch (const std::exception& e) {

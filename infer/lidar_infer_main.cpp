@@ -107,7 +107,7 @@ int run_sim(int argc, char** argv) {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("no-outputs", "only time the pipeline: write nothing but the summary")
-    ("every", "write the outputs of every N-th frame only", cxxopts::value<int>()->default_value("1"))
+    ("every", "write the outputs of every N-th frame only (the UNet then runs on those frames only)", cxxopts::value<int>()->default_value("1"))
     ("sync-outputs", "write outputs on the pipeline's thread (default: a writer thread)")
     ("sensor", "beam layout JSON of the sensor to simulate (data/sensors/*.json); replaces the scenario's beams",
      cxxopts::value<std::string>())
@@ -164,9 +164,12 @@ int run_sim(int argc, char** argv) {
   if (write && !args.count("sync-outputs")) writer = std::make_unique<infer::FrameWriter>(out);
   const auto loop0 = std::chrono::steady_clock::now();
   for (int k = 0; k < frames; ++k) {
-    pipeline.run_frame(k, frame);
+    // The predicted intensity is read only by the outputs: with --every N the UNet runs on the
+    // frames that are written (without outputs it runs on all, so the timing covers it).
+    const bool written = write && k % every == 0;
+    pipeline.run_frame(k, frame, written || !write);
     double output_ms = 0;
-    if (write && k % every == 0) {
+    if (written) {
       if (writer) writer->push(frame);
       else output_ms = infer::write_frame_outputs(out, frame);
     }

@@ -254,6 +254,8 @@ double percentile(std::vector<double> v, double p) {
 double write_frame_outputs(const SimOutputOptions& o, const SimFrame& f) {
   const auto t0 = std::chrono::steady_clock::now();
   if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer sim: --format must be pcd or ply, got " + o.format);
+  if (f.intensity_skipped)
+    throw Error("sim outputs: frame " + std::to_string(f.index) + " was run without its intensity (run_frame(k, frame, false))");
 
   // Objects: CSV and JSON.
   std::string csv = "source,id,truth_id,class,x,y,z,l,w,h,heading_deg,vx,vy,visible_fraction,score,coasting\n";
@@ -319,6 +321,7 @@ void SimStats::add(const SimFrame& f, double output_ms) {
   }
   points_ += static_cast<long>(f.cloud.size());
   lanes_ += static_cast<long>(f.lanes.size());
+  intensity_skipped_ += f.intensity_skipped;
 }
 
 double SimStats::mean_ms(int s) const {
@@ -356,6 +359,7 @@ std::string SimStats::to_json(const Info& info) const {
   j["ms_per_frame"] = {{"mean", mean_total_ms()}, {"p95", p95_total_ms()}, {"note", "all stages, output writing excluded"}};
   for (int s = 0; s < kNumSimStages; ++s)
     j["stages_ms"][to_string(static_cast<SimStage>(s))] = {{"mean", mean_ms(s)}, {"p95", p95_ms(s)}};
+  j["frames_without_intensity"] = intensity_skipped_;  // UNet skipped: outputs not written (--every)
   if (info.outputs) {
     double sum = 0;
     for (double x : output_ms_) sum += x;
@@ -397,6 +401,13 @@ std::string SimStats::to_markdown(const Info& info) const {
     double sum = 0;
     for (double x : output_ms_) sum += x;
     std::snprintf(line, sizeof line, "| (writing outputs, not in total) | %.3f | |\n", sum / n);
+    md += line;
+  }
+  if (intensity_skipped_ > 0) {
+    std::snprintf(line, sizeof line,
+                  "\nThe UNet ran on the %d frames whose outputs were written and was skipped on the other %d (its "
+                  "intensity is read by the outputs only): its mean above is over all frames.\n",
+                  frames() - intensity_skipped_, intensity_skipped_);
     md += line;
   }
   md += "\nPer frame (mean):\n\n| quantity | value |\n|---|---:|\n";

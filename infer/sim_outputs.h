@@ -32,7 +32,8 @@ struct SimOutputOptions {
   bool images = true;          // pgm_*.png and bev_*.png
 };
 
-// Writes one frame's files (atomically, each). Returns the milliseconds spent.
+// Writes one frame's files (atomically, each). Returns the milliseconds spent. Throws for a frame
+// whose intensity was skipped (SimFrame::intensity_skipped).
 double write_frame_outputs(const SimOutputOptions& options, const SimFrame& frame);
 
 // The two pictures of a frame. The map is 800 x 800 px covering [-range, range] m around the
@@ -74,6 +75,7 @@ class SimStats {
   std::vector<double> total_ms_, output_ms_;
   long in_view_ = 0, occluded_ = 0, partly_occluded_ = 0, reported_ = 0, false_positives_ = 0, points_ = 0,
        existing_ = 0, lanes_ = 0;
+  int intensity_skipped_ = 0;  // frames run without the UNet (nobody read their intensity)
 };
 
 double percentile(std::vector<double> values, double p);  // linear interpolation, p in [0, 1]

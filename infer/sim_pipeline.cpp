@@ -95,10 +95,10 @@ SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const
   return SimPipeline(std::move(s), std::move(k), std::move(m), options);
 }
 
-void SimPipeline::run_frame(int k, SimFrame& out) {
+void SimPipeline::run_frame(int k, SimFrame& out, bool intensity) {
   const auto start = std::chrono::steady_clock::now();
   sensor::sample_frame(scenario_, scenario_.frame_time(k), map_frame_);
-  run_stages(k, map_frame_, start, out);
+  run_stages(k, map_frame_, start, out, intensity);
 }
 
 void SimPipeline::run_ground_truth(int k, const sensor::Frame& map_frame, SimFrame& out) {
@@ -106,7 +106,7 @@ void SimPipeline::run_ground_truth(int k, const sensor::Frame& map_frame, SimFra
 }
 
 void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start,
-                             SimFrame& out) {
+                             SimFrame& out, bool intensity_wanted) {
   using clock = std::chrono::steady_clock;
   auto mark = start;
   auto lap = [&](SimStage s) {
@@ -115,6 +115,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
     mark = now;
   };
   out.stage_ms.fill(0);
+  out.intensity_skipped = false;
   out.index = k;
   out.time = map_frame.time;
   out.objects_existing = static_cast<int>(map_frame.objects.size());
@@ -192,8 +193,9 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm);
   lap(SimStage::PclGenerator);
 
-  float* intensity = out.pgm.channel("intensity");
-  if (options_.intensity) {
+  float* intensity = out.pgm.channel("intensity");  // 0 from the PCL generator
+  out.intensity_skipped = options_.intensity && !intensity_wanted;
+  if (options_.intensity && intensity_wanted) {
     intensity_->predict(out.pgm, predicted_);
     const float* mask = out.pgm.channel("mask");
     // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.

@@ -77,6 +77,9 @@ struct SimFrame {
   SimCloud cloud;
   int objects_existing = 0, objects_in_view = 0, objects_occluded = 0, objects_partly_occluded = 0;
   int returns = 0;
+  // True when run_frame was told no one reads this frame's intensity: the UNet did not run, the
+  // intensity channel and the cloud's intensity hold 0, and write_frame_outputs refuses the frame.
+  bool intensity_skipped = false;
   std::array<double, kNumSimStages> stage_ms{};
   double total_ms = 0;  // all stages (outputs excluded)
 };
@@ -96,14 +99,19 @@ class SimPipeline {
 
   // Runs frame k (time k / rate) into `out`, whose buffers are reused between calls. Frames must
   // be run in increasing order (tracking and the KPI noise carry state from frame to frame).
-  void run_frame(int k, SimFrame& out);
+  // intensity = false skips the UNet for this frame (out.intensity_skipped): its prediction is
+  // read only by the outputs (PGM image, point cloud file), carries no state to later frames and
+  // changes nothing else, so a caller that writes only every N-th frame's outputs
+  // (lidar-infer sim --every N) need not pay for it on the others.
+  void run_frame(int k, SimFrame& out, bool intensity = true);
   // The same stages on ground truth given from outside (the OSI interface, infer/osi_runner.h):
   // `map_frame` as sample_frame() would give it (map frame: time, ego pose, objects, lanes).
   // Same ordering rule as run_frame.
   void run_ground_truth(int k, const sensor::Frame& map_frame, SimFrame& out);
 
  private:
-  void run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start, SimFrame& out);
+  void run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start, SimFrame& out,
+                  bool intensity = true);
 
   sensor::Scenario scenario_;
   std::unique_ptr<IntensityModel> intensity_;

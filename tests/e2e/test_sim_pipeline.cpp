@@ -18,6 +18,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/error.h"
 #include "common/plot.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
@@ -356,7 +357,62 @@ TEST_F(SimPipelineTest, CliEveryWritesOnlyEveryNthFrameThroughTheWriterThread) {
     std::snprintf(name, sizeof name, "cloud_%04d.pcd", k);
     EXPECT_EQ(fs::exists(out / name), k % 2 == 0) << name;
   }
-  EXPECT_EQ(nlohmann::json::parse(read_text(out / "summary.json"))["frames"], 5);
+  const auto summary = nlohmann::json::parse(read_text(out / "summary.json"));
+  EXPECT_EQ(summary["frames"], 5);
+  EXPECT_EQ(summary["frames_without_intensity"], 2) << "the UNet runs on the written frames 0, 2, 4 only";
+}
+
+TEST_F(SimPipelineTest, SkippingTheIntensityOfAFrameChangesNothingElseNowOrLater) {
+  // Frames 1 and 3 without the UNet: every other number of every frame is the same as with it,
+  // and the frames that do run it predict the same intensity (the UNet carries no state).
+  auto a = make(3), b = make(3);
+  infer::SimFrame fa, fb;
+  for (int k = 0; k < 5; ++k) {
+    a.run_frame(k, fa);
+    const bool with = k % 2 == 0;
+    b.run_frame(k, fb, with);
+    ASSERT_FALSE(fa.intensity_skipped);
+    ASSERT_EQ(fb.intensity_skipped, !with) << k;
+    ASSERT_EQ(fa.reported.size(), fb.reported.size()) << k;
+    for (std::size_t i = 0; i < fa.reported.size(); ++i) {
+      EXPECT_EQ(fa.reported[i].object.id, fb.reported[i].object.id);
+      EXPECT_EQ(fa.reported[i].object.position, fb.reported[i].object.position);
+      EXPECT_EQ(fa.reported[i].object.score, fb.reported[i].object.score);
+    }
+    ASSERT_EQ(fa.pgm.channel_names(), fb.pgm.channel_names());
+    const std::size_t cells = fa.pgm.cells();
+    double intensity_sum = 0;
+    for (const auto& name : fa.pgm.channel_names()) {
+      const float* x = fa.pgm.channel(name);
+      const float* y = fb.pgm.channel(name);
+      const bool skipped_here = name == "intensity" && !with;
+      for (std::size_t i = 0; i < cells; ++i) {
+        if (skipped_here) {
+          ASSERT_EQ(y[i], 0.f) << "cell " << i << " of a frame without intensity";
+          intensity_sum += x[i];
+        } else {
+          ASSERT_EQ(x[i], y[i]) << name << " cell " << i << " frame " << k;
+        }
+      }
+    }
+    if (!with) EXPECT_GT(intensity_sum, 0) << "the UNet predicts something where it runs, so the test can fail";
+    ASSERT_EQ(fa.cloud.size(), fb.cloud.size());
+    EXPECT_EQ(fa.cloud.x, fb.cloud.x);
+    EXPECT_EQ(fa.cloud.range, fb.cloud.range);
+    EXPECT_EQ(fa.cloud.object_id, fb.cloud.object_id);
+    if (with) EXPECT_EQ(fa.cloud.intensity, fb.cloud.intensity);
+  }
+}
+
+TEST_F(SimPipelineTest, OutputsRefuseAFrameRunWithoutItsIntensity) {
+  auto pipeline = make();
+  infer::SimFrame frame;
+  pipeline.run_frame(0, frame, false);
+  infer::SimOutputOptions out;
+  out.out = dir_ / "refused";
+  fs::create_directories(out.out);
+  EXPECT_THROW(infer::write_frame_outputs(out, frame), Error);
+  EXPECT_TRUE(fs::is_empty(out.out)) << "nothing written for a frame without intensity";
 }
 
 TEST_F(SimPipelineTest, SensorLayoutFileSetsTheGridAndTheVerticalFieldOfView) {
