@@ -97,7 +97,7 @@ SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const
 
 void SimPipeline::run_frame(int k, SimFrame& out, bool intensity) {
   const auto start = std::chrono::steady_clock::now();
-  sensor::sample_frame(scenario_, scenario_.frame_time(k), map_frame_);
+  sensor::sample_frame(scenario_, scenario_.frame_time(k), map_frame_, &cursor_);
   run_stages(k, map_frame_, start, out, intensity);
 }
 
@@ -160,18 +160,25 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
 
   kpi_.apply(tracked_, kpi_out_);
   out.reported.resize(kpi_out_.size());
+  // The track of each reported object (ids are unique): the KPI manager keeps the tracks' order,
+  // so the search goes on from the last track found and wraps round only for a false positive.
   const auto& tracks = tracker_.tracks();
+  const std::size_t nt = tracks.size();
+  std::size_t next = 0;
   for (std::size_t i = 0; i < kpi_out_.size(); ++i) {
     ReportedObject& r = out.reported[i];
     r.object = kpi_out_[i];
     r.truth_id = -1;
     r.coasting = false;
-    for (const auto& t : tracks)
-      if (t.id == r.object.id) {
-        r.truth_id = t.source_id;
-        r.coasting = t.state == sensor::TrackState::Coasting;
+    for (std::size_t n = 0; n < nt; ++n) {
+      const std::size_t j = next + n < nt ? next + n : next + n - nt;
+      if (tracks[j].id == r.object.id) {
+        r.truth_id = tracks[j].source_id;
+        r.coasting = tracks[j].state == sensor::TrackState::Coasting;
+        next = j + 1 < nt ? j + 1 : 0;
         break;
       }
+    }
   }
   lap(SimStage::Kpi);
 
@@ -204,8 +211,8 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   }
   lap(SimStage::Unet);
 
+  // One point per cell with a return: sized once from the count, then filled by index.
   SimCloud& c = out.cloud;
-  c.clear();
   const auto& layout = pcl_.layout();
   const int H = layout.rows(), W = layout.columns;
   const float* range = out.pgm.channel("range");
@@ -213,23 +220,37 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   const float* cls = out.pgm.channel("class");
   const float* material = out.pgm.channel("material");
   const float* object_id = out.pgm.channel("object_id");
+  if (column_cos_.size() != static_cast<std::size_t>(W)) {  // cos / sin of each column's azimuth, once
+    column_cos_.resize(W);
+    column_sin_.resize(W);
+    for (int col = 0; col < W; ++col) {
+      const double az = layout.azimuth_of_column(col);
+      column_cos_[col] = std::cos(az);
+      column_sin_[col] = std::sin(az);
+    }
+  }
+  std::size_t points = 0;
+  for (std::size_t i = 0; i < out.pgm.cells(); ++i) points += mask[i] > 0;
+  for (auto* v : {&c.x, &c.y, &c.z, &c.intensity, &c.cls, &c.material, &c.object_id, &c.range}) v->resize(points);
+  c.cell.resize(points);
+  std::size_t n = 0;
   for (int r = 0; r < H; ++r) {
     const double el = layout.elevations_rad[r];
     const double ce = std::cos(el), se = std::sin(el);
     for (int col = 0; col < W; ++col) {
       const int i = r * W + col;
       if (mask[i] <= 0) continue;
-      const double az = layout.azimuth_of_column(col);
       const double rg = range[i];
-      c.x.push_back(static_cast<float>(rg * ce * std::cos(az)));
-      c.y.push_back(static_cast<float>(rg * ce * std::sin(az)));
-      c.z.push_back(static_cast<float>(rg * se));
-      c.intensity.push_back(intensity[i]);
-      c.cls.push_back(cls[i]);
-      c.material.push_back(material[i]);
-      c.object_id.push_back(object_id[i]);
-      c.range.push_back(range[i]);
-      c.cell.push_back(i);
+      c.x[n] = static_cast<float>(rg * ce * column_cos_[col]);
+      c.y[n] = static_cast<float>(rg * ce * column_sin_[col]);
+      c.z[n] = static_cast<float>(rg * se);
+      c.intensity[n] = intensity[i];
+      c.cls[n] = cls[i];
+      c.material[n] = material[i];
+      c.object_id[n] = object_id[i];
+      c.range[n] = range[i];
+      c.cell[n] = i;
+      ++n;
     }
   }
   lap(SimStage::PointCloud);

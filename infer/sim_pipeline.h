@@ -122,9 +122,11 @@ class SimPipeline {
   sensor::PclGenerator pcl_;
   std::vector<std::string> extra_channels_;
   // scratch
+  sensor::SampleCursor cursor_;  // keyframe intervals of the last frame (frames run in order)
   sensor::Frame map_frame_;
   std::vector<sensor::Object> detections_, tracked_map_, tracked_, kpi_out_, pcl_objects_;
   std::vector<float> predicted_;
+  std::vector<double> column_cos_, column_sin_;  // point cloud: direction of each PGM column
 };
 
 // A checkpoint with untrained (He-initialised) UNet weights and the default encoder and the given

@@ -397,7 +397,8 @@ Scenario read_scenario(const std::filesystem::path& path) {
   return parse_scenario(buf.str(), path.string());
 }
 
-bool sample_state(const std::vector<KinematicState>& states, double t, KinematicState& out, bool extrapolate_always) {
+bool sample_state(const std::vector<KinematicState>& states, double t, KinematicState& out, bool extrapolate_always,
+                  std::size_t* interval) {
   if (states.empty()) return false;
   if (states.size() == 1 || t <= states.front().t || t >= states.back().t) {
     const bool single = states.size() == 1;
@@ -409,14 +410,24 @@ bool sample_state(const std::vector<KinematicState>& states, double t, Kinematic
     extrapolate(s, t, out);
     return true;
   }
-  // Keyframe interval [k, k+1] containing t.
+  // Keyframe interval [k, k+1] containing t: the unique k with t_k <= t < t_k+1 (t is strictly
+  // inside the track here). The remembered interval or the next one when they hold it, else a
+  // binary search (which keeps t_lo <= t < t_hi until hi = lo + 1).
+  auto holds = [&](std::size_t k) { return k + 1 < states.size() && states[k].t <= t && t < states[k + 1].t; };
   std::size_t k = 0;
-  std::size_t lo = 0, hi = states.size() - 1;
-  while (hi - lo > 1) {
-    const std::size_t mid = (lo + hi) / 2;
-    (states[mid].t <= t ? lo : hi) = mid;
+  if (interval && holds(*interval)) {
+    k = *interval;
+  } else if (interval && holds(*interval + 1)) {
+    k = *interval + 1;
+  } else {
+    std::size_t lo = 0, hi = states.size() - 1;
+    while (hi - lo > 1) {
+      const std::size_t mid = (lo + hi) / 2;
+      (states[mid].t <= t ? lo : hi) = mid;
+    }
+    k = lo;
   }
-  k = lo;
+  if (interval) *interval = k;
   const KinematicState& a = states[k];
   const KinematicState& b = states[k + 1];
   const double h = b.t - a.t, s = (t - a.t) / h;
@@ -436,15 +447,17 @@ bool sample_state(const std::vector<KinematicState>& states, double t, Kinematic
   return true;
 }
 
-void sample_frame(const Scenario& sc, double t, Frame& out) {
+void sample_frame(const Scenario& sc, double t, Frame& out, SampleCursor* cursor) {
   out.time = t;
+  if (cursor) cursor->object_interval.resize(sc.objects.size(), 0);
   KinematicState ego;
-  sample_state(sc.ego, t, ego, /*extrapolate=*/true);
+  sample_state(sc.ego, t, ego, /*extrapolate=*/true, cursor ? &cursor->ego_interval : nullptr);
   out.ego_in_map = make_pose(ego.position, 0, 0, ego.heading);
   std::size_t n = 0;
   KinematicState s;
-  for (const auto& o : sc.objects) {
-    if (!sample_state(o.states, t, s, false)) continue;
+  for (std::size_t i = 0; i < sc.objects.size(); ++i) {
+    const auto& o = sc.objects[i];
+    if (!sample_state(o.states, t, s, false, cursor ? &cursor->object_interval[i] : nullptr)) continue;
     if (out.objects.size() <= n) out.objects.emplace_back();
     Object& dst = out.objects[n++];
     dst.id = o.id;

@@ -33,6 +33,7 @@
 // The ego always exists: outside its keyframes it is extrapolated from the nearest one with
 // constant acceleration. Lane polylines are resampled on reading to at most 0.5 m between points
 // so occlusion and field of view can drop exactly the hidden part of a marking.
+#include <cstddef>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -98,10 +99,21 @@ Scenario parse_scenario(const std::string& text, const std::string& file);
 std::string default_material(ObjectClass cls);
 
 // State of a keyframe track at t; returns false when the object does not exist at t.
-bool sample_state(const std::vector<KinematicState>& states, double t, KinematicState& out, bool extrapolate);
+// `interval` (optional) remembers the keyframe interval of the last sample: when t falls in the
+// same or the next one it is taken without the binary search (frames sampled in time order), and
+// the sample is the same either way.
+bool sample_state(const std::vector<KinematicState>& states, double t, KinematicState& out, bool extrapolate,
+                  std::size_t* interval = nullptr);
+
+// Where the last samples of a scenario's tracks fell (sample_state's interval per object), for
+// sample_frame over frames in time order. Works for any order of t; it only saves searching.
+struct SampleCursor {
+  std::vector<std::size_t> object_interval;
+  std::size_t ego_interval = 0;
+};
 
 // The frame at time t in the map frame (ego pose, existing objects, lanes). `out`'s vectors
 // are reused, so a loop over frames does not allocate once they have grown.
-void sample_frame(const Scenario& scenario, double t, Frame& out);
+void sample_frame(const Scenario& scenario, double t, Frame& out, SampleCursor* cursor = nullptr);
 
 }  // namespace lidarsim::sensor

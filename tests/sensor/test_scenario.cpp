@@ -236,3 +236,37 @@ TEST(Scenario, BundledDemoExercisesEveryStage) {
   EXPECT_TRUE(hidden_for_a_while);
   EXPECT_TRUE(leaves_view);
 }
+
+// The sampling cursor only saves the search for the keyframe interval: forwards at the frame
+// times, on keyframe times exactly, backwards and in jumps it gives bit for bit the frames
+// sampled without it.
+TEST(Scenario, SampleFrameWithACursorEqualsSamplingWithoutOneInAnyOrder) {
+  const Scenario sc = read_scenario(lidarsim::testing::source_dir() / "data/scenarios/demo_urban.json");
+  std::vector<double> times;
+  for (int k = 0; k < sc.frame_count(); ++k) times.push_back(sc.frame_time(k));
+  for (const auto& o : sc.objects)
+    for (const auto& s : o.states) times.push_back(s.t);  // exactly on keyframes, out of order
+  for (int k = sc.frame_count() - 1; k >= 0; k -= 3) times.push_back(sc.frame_time(k) + 0.013);
+  times.push_back(-1.0);
+  times.push_back(sc.duration + 5);
+  SampleCursor cursor;
+  Frame with, without;
+  int objects_seen = 0;
+  for (double t : times) {
+    sample_frame(sc, t, with, &cursor);
+    sample_frame(sc, t, without);
+    ASSERT_EQ(with.objects.size(), without.objects.size()) << "t " << t;
+    EXPECT_EQ(with.ego_in_map.translation, without.ego_in_map.translation) << "t " << t;
+    EXPECT_EQ(with.ego_in_map.rotation, without.ego_in_map.rotation) << "t " << t;
+    for (std::size_t i = 0; i < with.objects.size(); ++i) {
+      const Object &a = with.objects[i], &b = without.objects[i];
+      ASSERT_EQ(a.id, b.id);
+      EXPECT_EQ(a.position, b.position) << "object " << a.id << " t " << t;
+      EXPECT_EQ(a.velocity, b.velocity) << "object " << a.id << " t " << t;
+      EXPECT_EQ(a.acceleration, b.acceleration) << "object " << a.id << " t " << t;
+      EXPECT_EQ(a.heading, b.heading) << "object " << a.id << " t " << t;
+      ++objects_seen;
+    }
+  }
+  EXPECT_GT(objects_seen, 100) << "the demo's objects were sampled";
+}
