@@ -13,24 +13,7 @@ constexpr double kPi = std::numbers::pi;
 
 bool full_circle(const FieldOfView& fov) { return fov.azimuth_max - fov.azimuth_min >= 2 * kPi - 1e-12; }
 
-// Lowest and highest elevation atan2(z, hypot(x, y)) over points: atan2 is monotone in
-// z / hypot(x, y), so the extremes are found on that ratio and only they pay for atan2.
-void elevation_extremes(const Eigen::Vector3d* pts, int n, double& el_lo, double& el_hi) {
-  int i_lo = 0, i_hi = 0;
-  double k_lo = std::numeric_limits<double>::infinity(), k_hi = -k_lo;
-  for (int i = 0; i < n; ++i) {
-    const double k = pts[i].z() / std::sqrt(pts[i].x() * pts[i].x() + pts[i].y() * pts[i].y());
-    if (k < k_lo) k_lo = k, i_lo = i;
-    if (k > k_hi) k_hi = k, i_hi = i;
-  }
-  el_lo = std::atan2(pts[i_lo].z(), std::hypot(pts[i_lo].x(), pts[i_lo].y()));
-  el_hi = std::atan2(pts[i_hi].z(), std::hypot(pts[i_hi].x(), pts[i_hi].y()));
-}
-
-}  // namespace
-
-void box_corners(const Object& o, Eigen::Vector3d corners[8]) {
-  const double c = std::cos(o.heading), s = std::sin(o.heading);
+void corners_of(const Object& o, double c, double s, Eigen::Vector3d corners[8]) {
   const Eigen::Vector3d half = 0.5 * o.size;
   int k = 0;
   for (int ix = -1; ix <= 1; ix += 2)
@@ -41,8 +24,7 @@ void box_corners(const Object& o, Eigen::Vector3d corners[8]) {
       }
 }
 
-Eigen::Vector3d closest_point_on_box(const Object& o, const Eigen::Vector3d& p) {
-  const double c = std::cos(o.heading), s = std::sin(o.heading);
+Eigen::Vector3d closest_point(const Object& o, double c, double s, const Eigen::Vector3d& p) {
   const Eigen::Vector3d d = p - o.position;
   Eigen::Vector3d local(c * d.x() + s * d.y(), -s * d.x() + c * d.y(), d.z());
   const Eigen::Vector3d half = 0.5 * o.size;
@@ -50,49 +32,81 @@ Eigen::Vector3d closest_point_on_box(const Object& o, const Eigen::Vector3d& p) 
   return o.position + Eigen::Vector3d(c * local.x() - s * local.y(), s * local.x() + c * local.y(), local.z());
 }
 
-bool point_in_fov(const Eigen::Vector3d& p, const FieldOfView& fov) {
-  const double r = p.norm();
-  if (r < fov.range_min || r > fov.range_max) return false;
-  const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
-  if (el < fov.elevation_min || el > fov.elevation_max) return false;
-  if (full_circle(fov)) return true;
-  const double az = std::atan2(p.y(), p.x());
-  // Limits may be given beyond +-pi (e.g. [90, 270] deg): compare on the circle.
-  const double width = fov.azimuth_max - fov.azimuth_min;
-  const double rel = wrap_pi(az - fov.azimuth_min);
-  return (rel >= 0 ? rel : rel + 2 * kPi) <= width;
-}
+// What the field-of-view test and the truncation share for one box, computed once (apply_fov
+// runs both): heading's cos / sin, the corners (and the centre and the point nearest the sensor
+// after them), each point's z / horizontal distance, and the elevations taken so far.
+// Elevation atan2(z, hypot(x, y)) is monotone in z / hypot(x, y), so extremes are found on that
+// ratio and only they pay for atan2.
+struct BoxGeometry {
+  const Object& o;
+  double c, s;
+  Eigen::Vector3d pts[10];  // 8 corners, centre, nearest point (the last two once with_near())
+  double k[10];
+  double el[10];
+  bool has_el[10] = {};
+  bool has_near = false;
+  explicit BoxGeometry(const Object& obj) : o(obj), c(std::cos(obj.heading)), s(std::sin(obj.heading)) {
+    corners_of(o, c, s, pts);
+    for (int i = 0; i < 8; ++i) k[i] = ratio(pts[i]);
+  }
+  static double ratio(const Eigen::Vector3d& p) { return p.z() / std::sqrt(p.x() * p.x() + p.y() * p.y()); }
+  const Eigen::Vector3d& with_near() {
+    if (!has_near) {
+      pts[8] = o.position;
+      pts[9] = closest_point(o, c, s, Eigen::Vector3d::Zero());
+      k[8] = ratio(pts[8]);
+      k[9] = ratio(pts[9]);
+      has_near = true;
+    }
+    return pts[9];
+  }
+  double elevation(int i) {
+    if (!has_el[i]) {
+      el[i] = std::atan2(pts[i].z(), std::hypot(pts[i].x(), pts[i].y()));
+      has_el[i] = true;
+    }
+    return el[i];
+  }
+  // Lowest and highest elevation over the first n points (first index on ties).
+  void elevation_extremes(int n, double& el_lo, double& el_hi) {
+    int i_lo = 0, i_hi = 0;
+    double k_lo = std::numeric_limits<double>::infinity(), k_hi = -k_lo;
+    for (int i = 0; i < n; ++i) {
+      if (k[i] < k_lo) k_lo = k[i], i_lo = i;
+      if (k[i] > k_hi) k_hi = k[i], i_hi = i;
+    }
+    el_lo = elevation(i_lo);
+    el_hi = elevation(i_hi);
+  }
+  // The box's point nearest the sensor's vertical axis at the box's height.
+  Eigen::Vector3d below() const { return closest_point(o, c, s, Eigen::Vector3d(0, 0, o.position.z())); }
+};
 
-bool object_in_fov(const Object& o, const FieldOfView& fov) {
-  const Eigen::Vector3d origin = Eigen::Vector3d::Zero();
-  const Eigen::Vector3d nearest = closest_point_on_box(o, origin);
+bool in_fov(BoxGeometry& g, const FieldOfView& fov) {
+  const Eigen::Vector3d nearest = g.with_near();
   const double r_near = nearest.norm();
   if (r_near > fov.range_max) return false;
-  Eigen::Vector3d pts[10];
-  box_corners(o, pts);
-  pts[8] = o.position;
-  pts[9] = nearest;
   double r_far = 0;
-  for (const auto& p : pts) r_far = std::max(r_far, p.norm());
+  for (const auto& p : g.pts) r_far = std::max(r_far, p.norm());
   if (r_far < fov.range_min) return false;
   if (r_near == 0) return true;  // the sensor is inside the box: every direction sees it
 
   // Elevation interval first (a full-circle field of view needs no azimuths).
   double el_lo = 0, el_hi = 0;
-  elevation_extremes(pts, 10, el_lo, el_hi);
+  g.elevation_extremes(10, el_lo, el_hi);
   if (el_hi < fov.elevation_min || el_lo > fov.elevation_max) return false;
   if (full_circle(fov)) return true;
   // Angular interval of the sample points, azimuths taken relative to the centre direction so
   // that a box across the +-pi seam stays one interval.
   const double az_ref = std::atan2(nearest.y(), nearest.x());
   double az_lo = 1e9, az_hi = -1e9;
-  for (const auto& p : pts) {
+  for (const auto& p : g.pts) {
     const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
     az_lo = std::min(az_lo, rel);
     az_hi = std::max(az_hi, rel);
   }
   // Sensor straight above or below the box: it spans every azimuth.
-  const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
+  const Eigen::Vector3d below = g.below();
   if (std::hypot(below.x(), below.y()) == 0) return true;
   // The FoV interval relative to the same reference, tested on the circle (three windings).
   const double f_lo = wrap_pi(fov.azimuth_min - az_ref);
@@ -104,14 +118,14 @@ bool object_in_fov(const Object& o, const FieldOfView& fov) {
   return false;
 }
 
-double fov_truncation(const Object& o, const FieldOfView& fov) {
-  Eigen::Vector3d corners[8];
-  box_corners(o, corners);
+double truncation(BoxGeometry& g, const FieldOfView& fov) {
+  const Object& o = g.o;
+  const Eigen::Vector3d* corners = g.pts;
   double el_lo = kPi, el_hi = -kPi;
-  elevation_extremes(corners, 8, el_lo, el_hi);
+  g.elevation_extremes(8, el_lo, el_hi);
   const double width = std::min(fov.azimuth_max - fov.azimuth_min, 2 * kPi);
   double az_span = 0, az_in = 0;
-  const Eigen::Vector3d below = closest_point_on_box(o, Eigen::Vector3d(0, 0, o.position.z()));
+  const Eigen::Vector3d below = g.below();
   if (std::hypot(below.x(), below.y()) == 0) {
     // The sensor's vertical axis passes through the box: every azimuth, and straight down / up.
     az_span = 2 * kPi;
@@ -126,7 +140,8 @@ double fov_truncation(const Object& o, const FieldOfView& fov) {
     } else {
       const double az_ref = std::atan2(o.position.y(), o.position.x());
       double lo = 1e9, hi = -1e9;
-      for (const auto& p : corners) {
+      for (int i = 0; i < 8; ++i) {
+        const Eigen::Vector3d& p = corners[i];
         const double rel = wrap_pi(std::atan2(p.y(), p.x()) - az_ref);
         lo = std::min(lo, rel);
         hi = std::max(hi, rel);
@@ -154,11 +169,50 @@ double fov_truncation(const Object& o, const FieldOfView& fov) {
   return std::clamp(1 - std::min(1.0, az_share) * std::min(1.0, el_share), 0.0, 1.0);
 }
 
+}  // namespace
+
+void box_corners(const Object& o, Eigen::Vector3d corners[8]) { corners_of(o, std::cos(o.heading), std::sin(o.heading), corners); }
+
+Eigen::Vector3d closest_point_on_box(const Object& o, const Eigen::Vector3d& p) {
+  return closest_point(o, std::cos(o.heading), std::sin(o.heading), p);
+}
+
+bool point_in_fov(const Eigen::Vector3d& p, const FieldOfView& fov) {
+  const double r = p.norm();
+  if (r < fov.range_min || r > fov.range_max) return false;
+  const double el = std::atan2(p.z(), std::hypot(p.x(), p.y()));
+  if (el < fov.elevation_min || el > fov.elevation_max) return false;
+  if (full_circle(fov)) return true;
+  const double az = std::atan2(p.y(), p.x());
+  // Limits may be given beyond +-pi (e.g. [90, 270] deg): compare on the circle.
+  const double width = fov.azimuth_max - fov.azimuth_min;
+  const double rel = wrap_pi(az - fov.azimuth_min);
+  return (rel >= 0 ? rel : rel + 2 * kPi) <= width;
+}
+
+bool object_in_fov(const Object& o, const FieldOfView& fov) {
+  BoxGeometry g(o);
+  return in_fov(g, fov);
+}
+
+double fov_truncation(const Object& o, const FieldOfView& fov) {
+  BoxGeometry g(o);
+  return truncation(g, fov);
+}
+
 int apply_fov(std::vector<Object>& objects, const FieldOfView& fov) {
-  const auto before = objects.size();
-  std::erase_if(objects, [&](const Object& o) { return !object_in_fov(o, fov); });
-  for (auto& o : objects) o.truncation = fov_truncation(o, fov);
-  return static_cast<int>(before - objects.size());
+  // One pass: both tests on one BoxGeometry (the kept objects move up, in order, as erase_if would).
+  const std::size_t before = objects.size();
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < before; ++i) {
+    BoxGeometry g(objects[i]);
+    if (!in_fov(g, fov)) continue;
+    const double t = truncation(g, fov);
+    if (kept != i) objects[kept] = std::move(objects[i]);
+    objects[kept++].truncation = t;
+  }
+  objects.resize(kept);
+  return static_cast<int>(before - kept);
 }
 
 void apply_fov_to_lanes(std::vector<LanePolyline>& lanes, const FieldOfView& fov) {

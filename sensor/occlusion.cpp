@@ -230,6 +230,15 @@ void Occlusion::rasterise(const Object& o, int index) {
 
   // The run of columns may cross the azimuth seam: two pieces then.
   const int c_lo = c_first + k_lo, n_run = k_hi - k_lo + 1;
+  // A row can have a footprint cell only if its height slab [t_lo, t_hi] meets [min s_in, max
+  // s_out] / cos(e) over the run: float products are monotone, so a row failing this test fails
+  // raster_span's test in every cell, and skipping it changes nothing (it saves the rows of
+  // margin and those the bounds above over-estimate).
+  float run_in_min = std::numeric_limits<float>::infinity(), run_out_max = -run_in_min;
+  for (int k = k_lo; k <= k_hi; ++k) {
+    run_in_min = std::min(run_in_min, col_in_[k]);
+    run_out_max = std::max(run_out_max, col_out_[k]);
+  }
   const int first_piece = std::min(n_run, cols_ - (c_lo % cols_));
   int footprint = 0;
   for (int r = r0; r <= r1; ++r) {
@@ -247,6 +256,7 @@ void Occlusion::rasterise(const Object& o, int index) {
     if (t_hi < t_lo) continue;
     const float ice = static_cast<float>(el_inv_cos_[r]), flo = static_cast<float>(t_lo),
                 fhi = static_cast<float>(std::min(t_hi, 1e30));
+    if (flo > run_out_max * ice || run_in_min * ice > fhi) continue;
     const std::size_t row = static_cast<std::size_t>(r) * cols_;
     int done = 0;
     for (int piece = 0; piece < 2 && done < n_run; ++piece) {
