@@ -197,12 +197,14 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
     out.pgm = pcl_.make_map(extra_channels_);
   sensor::select_visible(out.ego.objects, out.sensor.objects, pcl_objects_);
   // Paint exists whether or not the lane model reports it: the rays decide what is seen.
-  out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm);
+  // Without the UNet on this frame its neighbourhood input channels are not needed either.
+  const bool predict = options_.intensity && intensity_wanted;
+  out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm, predict || !options_.intensity);
   lap(SimStage::PclGenerator);
 
   float* intensity = out.pgm.channel("intensity");  // 0 from the PCL generator
   out.intensity_skipped = options_.intensity && !intensity_wanted;
-  if (options_.intensity && intensity_wanted) {
+  if (predict) {
     intensity_->predict(out.pgm, predicted_);
     const float* mask = out.pgm.channel("mask");
     // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.

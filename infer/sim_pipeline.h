@@ -78,7 +78,8 @@ struct SimFrame {
   int objects_existing = 0, objects_in_view = 0, objects_occluded = 0, objects_partly_occluded = 0;
   int returns = 0;
   // True when run_frame was told no one reads this frame's intensity: the UNet did not run, the
-  // intensity channel and the cloud's intensity hold 0, and write_frame_outputs refuses the frame.
+  // intensity channel and the cloud's intensity hold 0, so do the network's neighbourhood inputs
+  // (incidence, depth_discontinuity: PclGenerator::generate), and write_frame_outputs refuses it.
   bool intensity_skipped = false;
   std::array<double, kNumSimStages> stage_ms{};
   double total_ms = 0;  // all stages (outputs excluded)
@@ -99,10 +100,10 @@ class SimPipeline {
 
   // Runs frame k (time k / rate) into `out`, whose buffers are reused between calls. Frames must
   // be run in increasing order (tracking and the KPI noise carry state from frame to frame).
-  // intensity = false skips the UNet for this frame (out.intensity_skipped): its prediction is
-  // read only by the outputs (PGM image, point cloud file), carries no state to later frames and
-  // changes nothing else, so a caller that writes only every N-th frame's outputs
-  // (lidar-infer sim --every N) need not pay for it on the others.
+  // intensity = false skips the UNet for this frame (out.intensity_skipped) and the input channels
+  // only it reads: its prediction is read only by the outputs (PGM image, point cloud file),
+  // carries no state to later frames and changes nothing else, so a caller that writes only every
+  // N-th frame's outputs (lidar-infer sim --every N) need not pay for it on the others.
   void run_frame(int k, SimFrame& out, bool intensity = true);
   // The same stages on ground truth given from outside (the OSI interface, infer/osi_runner.h):
   // `map_frame` as sample_frame() would give it (map frame: time, ego pose, objects, lanes).

@@ -182,7 +182,7 @@ bool PclGenerator::painted(double x, double y) const {
 }
 
 int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
-                           pgm::PolarGridMap& out) {
+                           pgm::PolarGridMap& out, bool neighbourhood_channels) {
   if (!(out.layout() == layout_)) throw Error("pcl generator: the map's beam layout differs from the generator's");
   for (const auto& name : kPclChannels)
     if (!out.has_channel(name)) out.add_channel(name);
@@ -270,8 +270,12 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
       }
     }
   }
-  if (out.has_channel("incidence")) pgm::compute_incidence(out);
-  if (out.has_channel("depth_discontinuity")) pgm::compute_depth_discontinuity(out);
+  for (const char* name : {"incidence", "depth_discontinuity"}) {
+    if (!out.has_channel(name)) continue;
+    if (!neighbourhood_channels) std::fill_n(out.channel(name), out.cells(), 0.f);
+    else if (name[0] == 'i') pgm::compute_incidence(out);
+    else pgm::compute_depth_discontinuity(out);
+  }
   return returns;
 }
 

@@ -53,8 +53,11 @@ class PclGenerator {
 
   // Fills `out` (made by make_map, or any map of this layout: missing base channels are added).
   // Returns the number of cells with a return. Throws lidarsim::Error for an unknown material.
+  // neighbourhood_channels = false leaves "incidence" and "depth_discontinuity" at 0 instead of
+  // estimating them from neighbouring cells: they are only the network's inputs, so a frame whose
+  // intensity is not predicted need not pay for them (everything else is the same).
   int generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
-               pgm::PolarGridMap& out);
+               pgm::PolarGridMap& out, bool neighbourhood_channels = true);
 
   const pgm::BeamLayout& layout() const { return layout_; }
   const Pose& mount() const { return mount_; }

@@ -168,3 +168,44 @@ TEST(PclGenerator, BeamsOutsideTheFieldOfViewAndBelowMinRangeReturnNothing) {
   PclGenerator near_blind(one_degree_layout(), make_pose({0, 0, 5}, 0, 0, 0), cfg);
   EXPECT_EQ(near_blind.generate({o}, {}, map), 0);
 }
+
+// Without the neighbourhood channels (a frame whose intensity is not predicted) incidence and
+// depth discontinuity are 0 and every other channel is what a full generate gives; the next full
+// generate on the same map estimates them again.
+TEST(PclGenerator, SkippingTheNeighbourhoodChannelsChangesNoOtherChannel) {
+  const Pose mount = make_pose({0, 0, 1.7}, 0, 0, 0);
+  PclGenerator gen(one_degree_layout(), mount);
+  Object car;
+  car.id = 7;
+  car.position = {12, 2, 0.75};
+  car.size = {4.5, 1.8, 1.5};
+  car.heading = 0.4;
+  LanePolyline lane;
+  lane.points = {{-20, -1.8, 0}, {60, -1.8, 0}};
+  const std::vector<std::string> extra = {"incidence", "depth_discontinuity", "height"};
+  auto full = gen.make_map(extra), lean = gen.make_map(extra);
+  const int n_full = gen.generate({car}, {lane}, full);
+  const int n_lean = gen.generate({car}, {lane}, lean, false);
+  EXPECT_EQ(n_full, n_lean);
+  EXPECT_GT(n_full, 100);
+  double incidence = 0, discontinuity = 0;
+  for (const auto& name : full.channel_names()) {
+    const float* a = full.channel(name);
+    const float* b = lean.channel(name);
+    const bool skipped = name == "incidence" || name == "depth_discontinuity";
+    for (std::size_t i = 0; i < full.cells(); ++i) {
+      if (!skipped) {
+        ASSERT_EQ(a[i], b[i]) << name << " cell " << i;
+        continue;
+      }
+      ASSERT_EQ(b[i], 0.f) << name << " cell " << i;
+      (name == "incidence" ? incidence : discontinuity) += std::abs(a[i]);
+    }
+  }
+  EXPECT_GT(incidence, 0) << "a full generate estimates incidence (so the test can fail)";
+  EXPECT_GT(discontinuity, 0) << "and depth discontinuities (the box's edges)";
+  gen.generate({car}, {lane}, lean, false);
+  gen.generate({car}, {lane}, lean);  // the same map, full again
+  EXPECT_EQ(lean.data(), full.data());
+  EXPECT_EQ(lean.point_index(), full.point_index());
+}
