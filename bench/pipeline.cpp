@@ -63,6 +63,7 @@ struct RunResult {
   double cpu_ms_per_frame = 0;  // process CPU time (all threads): what the run cost without waiting for a core
   double thread_cpu_ms_per_frame = 0;  // CPU time of the calling thread alone (without OpenMP workers, writer)
   double loop_fps = 0;                 // frames over the wall time of the whole loop (outputs run)
+  double writer_cpu_ms = 0, writer_ms = 0;  // per written frame: writer thread CPU, wall
 };
 
 double clock_seconds(clockid_t id) {
@@ -108,6 +109,7 @@ RunResult run_outputs(infer::SimPipeline& pipeline, int frames, int every, const
   infer::SimStats stats;
   const auto wall0 = std::chrono::steady_clock::now();
   const double cpu0 = process_cpu_seconds(), th0 = thread_cpu_seconds();
+  RunResult r;
   {
     infer::FrameWriter writer(out);
     for (int k = 0; k < frames; ++k) {
@@ -117,8 +119,9 @@ RunResult run_outputs(infer::SimPipeline& pipeline, int frames, int every, const
       stats.add(frame);
     }
     writer.finish();
+    for (double ms : writer.frame_cpu_ms()) r.writer_cpu_ms += ms / writer.frame_cpu_ms().size();
+    for (double ms : writer.frame_ms()) r.writer_ms += ms / writer.frame_ms().size();
   }
-  RunResult r;
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   r.cpu_ms_per_frame = 1000 * (process_cpu_seconds() - cpu0) / frames;
   r.thread_cpu_ms_per_frame = 1000 * (thread_cpu_seconds() - th0) / frames;
@@ -387,14 +390,18 @@ int main(int argc, char** argv) {
       std::printf("  %.1f frames/s wall (median), pipeline stages %.2f ms/frame\n", loop,
                   median_of(outs, [](const RunResult& r) { return r.ms_per_frame; }));
       print_stages(outs, true);
+      const double wcpu = median_of(outs, [](const RunResult& r) { return r.writer_cpu_ms; });
       std::printf("  process CPU time %.2f ms/frame (pipeline thread %.2f; OpenMP workers and writer the rest): "
                   "<= %.0f frames/s on %d free cores\n", cpu, th, 1000 * threads / cpu, threads);
+      std::printf("  writer thread: %.1f ms CPU per written frame (%.1f ms wall), %.2f ms CPU per frame\n", wcpu,
+                  median_of(outs, [](const RunResult& r) { return r.writer_ms; }), wcpu / every);
       char row[256];
       std::snprintf(row, sizeof row, "| lidar-infer sim loop, outputs every %d, UNet on %s | %.1f | <= %.0f | >= 150 | %s |", every,
                     all ? "every frame" : "written frames", loop, 1000 * threads / cpu, loop >= 150 ? "yes" : "NO");
       table.push_back(row);
       j["outputs"] = {{"every", every}, {"unet_every_frame", all}, {"frames", frames_used}, {"loop_fps", loop},
                       {"cpu_ms_per_frame", cpu}, {"thread_cpu_ms_per_frame", th}, {"fps_cpu_bound", 1000 * threads / cpu},
+                      {"writer_cpu_ms_per_written_frame", wcpu},
                       {"stage_ms", stages_json(outs)}};
     }
 

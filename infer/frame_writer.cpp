@@ -1,5 +1,7 @@
 #include "infer/frame_writer.h"
 
+#include <time.h>
+
 #include <algorithm>
 
 namespace lidarsim::infer {
@@ -54,14 +56,22 @@ void FrameWriter::run() {
     changed_.notify_all();
     double ms = 0;
     std::exception_ptr error;
+    auto thread_cpu_ms = [] {
+      timespec ts{};
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+      return 1e3 * ts.tv_sec + 1e-6 * ts.tv_nsec;
+    };
+    const double cpu0 = thread_cpu_ms();
     try {
       ms = write_frame_outputs(options_, frame);
     } catch (...) {
       error = std::current_exception();
     }
+    const double cpu_ms = thread_cpu_ms() - cpu0;
     lock.lock();
     busy_ = false;
     frame_ms_.push_back(ms);
+    frame_cpu_ms_.push_back(cpu_ms);
     if (error && !error_) error_ = error;
     spare_.push_back(std::move(frame));
     changed_.notify_all();

@@ -25,8 +25,10 @@ class FrameWriter {
   // Waits until every queued frame is written; rethrows the first error. Returns the total
   // milliseconds the writer spent writing.
   double finish();
-  // Milliseconds the writer spent on each frame, in order of push().
+  // Milliseconds the writer spent on each frame, in order of push(): wall clock, and the writer
+  // thread's CPU time (what the outputs cost without waiting for a core). Read after finish().
   const std::vector<double>& frame_ms() const { return frame_ms_; }
+  const std::vector<double>& frame_cpu_ms() const { return frame_cpu_ms_; }
 
  private:
   void run();
@@ -38,7 +40,7 @@ class FrameWriter {
   std::condition_variable changed_;
   bool stop_ = false, busy_ = false;
   std::exception_ptr error_;
-  std::vector<double> frame_ms_;
+  std::vector<double> frame_ms_, frame_cpu_ms_;
   std::thread thread_;
 };
 
