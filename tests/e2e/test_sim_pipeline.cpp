@@ -395,12 +395,16 @@ TEST_F(SimPipelineTest, SkippingTheIntensityOfAFrameChangesNothingElseNowOrLater
         }
       }
     }
-    if (!with) EXPECT_GT(intensity_sum, 0) << "the UNet predicts something where it runs, so the test can fail";
+    if (!with) {
+      EXPECT_GT(intensity_sum, 0) << "the UNet predicts something where it runs, so the test can fail";
+    }
     ASSERT_EQ(fa.cloud.size(), fb.cloud.size());
     EXPECT_EQ(fa.cloud.x, fb.cloud.x);
     EXPECT_EQ(fa.cloud.range, fb.cloud.range);
     EXPECT_EQ(fa.cloud.object_id, fb.cloud.object_id);
-    if (with) EXPECT_EQ(fa.cloud.intensity, fb.cloud.intensity);
+    if (with) {
+      EXPECT_EQ(fa.cloud.intensity, fb.cloud.intensity);
+    }
   }
 }
 
