@@ -14,13 +14,41 @@
 #include <cstdlib>
 #include <cstring>
 #include <new>
+#include <string>
 #include <vector>
+
+#include "common/error.h"
+#include "nn/winograd.h"
 
 #ifdef __AVX512F__
 #include <immintrin.h>
 #endif
 
 namespace lidarsim::nn::detail {
+
+namespace {
+Conv3x3Path read_path_env() {
+  const char* env = std::getenv("LIDARSIM_CONV3X3");
+  const std::string v = env ? env : "auto";
+  if (v == "auto" || v.empty()) return Conv3x3Path::automatic;
+  if (v == "direct") return Conv3x3Path::direct;
+  if (v == "winograd") return Conv3x3Path::winograd;
+  throw Error("environment: LIDARSIM_CONV3X3: expected direct, winograd or auto, got \"" + v + "\"");
+}
+Conv3x3Path g_path = read_path_env();
+}  // namespace
+
+void set_conv3x3_path(Conv3x3Path path) { g_path = path; }
+Conv3x3Path conv3x3_path() { return g_path; }
+
+bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w) {
+  if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
+  if (g_path == Conv3x3Path::winograd) return true;
+  (void)n;
+  (void)h;
+  (void)w;
+  return ci >= 16 && co >= 16;
+}
 
 #ifndef __AVX512F__
 bool conv3x3_available() { return false; }
@@ -293,8 +321,12 @@ void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, c
 
 void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
                          const float* weight, const float* bias, int co, bool relu) {
-  const Geom g(h, w);
   const int ci = ca + cb;
+  if (conv3x3_takes_winograd(n, ci, co, h, w)) {
+    winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
+    return;
+  }
+  const Geom g(h, w);
   float* pin = g_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
   pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
@@ -357,7 +389,10 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_a) {
+  if (d_a && conv3x3_takes_winograd(n, co, ci, h, w)) {
+    winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
+                     nullptr, false);
+  } else if (d_a) {
     float* wp = g_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
     pack_weights(wp, weight, co, ci, true);
     conv_padded(Cat<float>{d_a, ca, d_b, cb}, gp, n, co, g, wp, nullptr, false);

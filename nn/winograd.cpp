@@ -1,0 +1,333 @@
+// See nn/winograd.h. GCC 12's AVX-512 headers trip -W(maybe-)uninitialized (as in conv3x3.cpp).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#include "nn/winograd.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdlib>
+#include <new>
+
+#ifdef __AVX512F__
+#include <immintrin.h>
+#endif
+
+namespace lidarsim::nn::detail {
+
+#ifndef __AVX512F__
+bool winograd_available() { return false; }
+void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
+                      const float*, bool) {}
+#else
+
+bool winograd_available() { return true; }
+
+namespace {
+
+constexpr int kCB = 8;  // output channels per GEMM register block
+
+// Grow-only, 64-byte aligned scratch.
+struct Buf {
+  float* p = nullptr;
+  std::size_t n = 0;
+  float* get(std::size_t want) {
+    if (want > n) {
+      std::free(p);
+      p = static_cast<float*>(std::aligned_alloc(64, ((want * sizeof(float) + 63) / 64) * 64));
+      if (!p) throw std::bad_alloc();
+      n = want;
+    }
+    return p;
+  }
+  ~Buf() { std::free(p); }
+};
+
+Buf g_phase, g_u;
+thread_local Buf tl_v, tl_m;
+
+// Tile geometry. The input is kept "by phase": for each padded row (yy = y + 1) and phase r in
+// 0..3, entry tx holds pixel x = 4 tx + r - 1 (zero outside the image). Input tile (ty, tx)
+// covers rows 4 ty - 1 .. 4 ty + 4 and columns 4 tx - 1 .. 4 tx + 4, i.e. phases 0..3 of tile
+// tx and phases 0, 1 of tile tx + 1: 16 adjacent tiles load as one unaligned vector each.
+struct Geom {
+  int h, w, th, tw;
+  int nv;         // 16-tile vectors per block (1..3)
+  int tb;         // tiles per block = 16 nv
+  int blocks;     // blocks per tile row
+  int len;        // floats per (row, phase) line: blocks * tb + 16
+  int rows;       // padded rows: 4 th + 2
+  std::size_t plane;  // floats per channel: rows * 4 * len
+  Geom(int h_, int w_) : h(h_), w(w_), th((h_ + 3) / 4), tw((w_ + 3) / 4) {
+    // Fewest junk tiles at the row end; ties go to the longer block (fewer weight reloads).
+    int best = 3, best_waste = 1 << 30;
+    for (int v = 3; v >= 1; --v) {
+      const int t = 16 * v, waste = (tw + t - 1) / t * t - tw;
+      if (waste < best_waste) best = v, best_waste = waste;
+    }
+    nv = best;
+    tb = 16 * nv;
+    blocks = (tw + tb - 1) / tb;
+    len = blocks * tb + 16;
+    rows = 4 * th + 2;
+    plane = static_cast<std::size_t>(rows) * 4 * len;
+  }
+};
+
+const float* plane_of(const PlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+float* plane_of(const OutPlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+
+// Fills the by-phase layout of every (image, channel) plane, masked when mask is given.
+void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
+  const int ci = in.ca + in.cb;
+  const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
+  const bool par = static_cast<std::size_t>(n) * ci * hw > (1u << 15);
+#pragma omp parallel for schedule(static) if (par)
+  for (int p = 0; p < n * ci; ++p) {
+    const int img = p / ci, ch = p % ci;
+    const float* src = plane_of(in, img, ch, hw);
+    const float* m = mask ? mask + static_cast<std::size_t>(p) * hw : nullptr;
+    float* d = dst + static_cast<std::size_t>(p) * g.plane;
+    for (int yy = 0; yy < g.rows; ++yy) {
+      float* line = d + static_cast<std::size_t>(yy) * 4 * g.len;
+      const int y = yy - 1;
+      if (y < 0 || y >= g.h) {
+        std::fill(line, line + 4 * g.len, 0.f);
+        continue;
+      }
+      const float* s = src + static_cast<std::size_t>(y) * g.w;
+      const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
+      for (int r = 0; r < 4; ++r) {
+        float* lr = line + r * g.len;
+        // x = 4 tx + r - 1 lies in [0, w) for tx in [tx0, tx1).
+        const int tx0 = r == 0 ? 1 : 0, tx1 = std::min(g.len, (g.w - r + 1 + 3) / 4);
+        std::fill(lr, lr + tx0, 0.f);
+        if (mr)
+          for (int tx = tx0; tx < tx1; ++tx) {
+            const int x = 4 * tx + r - 1;
+            lr[tx] = mr[x] > 0.f ? s[x] : 0.f;
+          }
+        else
+          for (int tx = tx0; tx < tx1; ++tx) lr[tx] = s[4 * tx + r - 1];
+        std::fill(lr + std::max(tx0, tx1), lr + g.len, 0.f);
+      }
+    }
+  }
+}
+
+// U = G k G^T for each 3x3 kernel k, packed [36][co blocks][ci][kCB] (zeros past the last output
+// channel). In double: the transform's fractions (1/6, 1/24) then round once.
+void transform_weights(float* u, const float* w, int co, int ci, bool transpose_flip) {
+  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
+                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
+                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
+                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
+                                     {0, 0, 1}};
+  const int blocks = (co + kCB - 1) / kCB;
+  const std::size_t per_e = static_cast<std::size_t>(blocks) * ci * kCB;
+  const bool par = static_cast<std::size_t>(co) * ci > 4096;
+#pragma omp parallel for schedule(static) if (par)
+  for (int o = 0; o < blocks * kCB; ++o) {
+    const int b = o / kCB, j = o % kCB;
+    for (int c = 0; c < ci; ++c) {
+      double k[3][3] = {};
+      if (o < co)
+        for (int kh = 0; kh < 3; ++kh)
+          for (int kw = 0; kw < 3; ++kw)
+            k[kh][kw] = transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (2 - kh) * 3 + (2 - kw)]
+                                       : w[(static_cast<std::size_t>(o) * ci + c) * 9 + kh * 3 + kw];
+      double gk[6][3];
+      for (int a = 0; a < 6; ++a)
+        for (int kw = 0; kw < 3; ++kw) gk[a][kw] = G[a][0] * k[0][kw] + G[a][1] * k[1][kw] + G[a][2] * k[2][kw];
+      for (int a = 0; a < 6; ++a)
+        for (int bb = 0; bb < 6; ++bb) {
+          const double v = gk[a][0] * G[bb][0] + gk[a][1] * G[bb][1] + gk[a][2] * G[bb][2];
+          u[(a * 6 + bb) * per_e + (static_cast<std::size_t>(b) * ci + c) * kCB + j] = static_cast<float>(v);
+        }
+    }
+  }
+}
+
+// B^T applied to 6 values: the input transform's 1-D step.
+inline void bt6(const __m512 x[6], __m512 r[6]) {
+  const __m512 four = _mm512_set1_ps(4.f), five = _mm512_set1_ps(5.f), two = _mm512_set1_ps(2.f);
+  r[0] = _mm512_fnmadd_ps(five, x[2], _mm512_fmadd_ps(four, x[0], x[4]));
+  const __m512 s12 = _mm512_add_ps(x[1], x[2]), d12 = _mm512_sub_ps(x[1], x[2]);
+  r[1] = _mm512_fnmadd_ps(four, s12, _mm512_add_ps(x[4], x[3]));
+  r[2] = _mm512_fmadd_ps(four, d12, _mm512_sub_ps(x[4], x[3]));
+  const __m512 d42 = _mm512_sub_ps(x[4], x[2]), d31 = _mm512_sub_ps(x[3], x[1]);
+  r[3] = _mm512_fmadd_ps(two, d31, d42);
+  r[4] = _mm512_fnmadd_ps(two, d31, d42);
+  r[5] = _mm512_fnmadd_ps(five, x[3], _mm512_fmadd_ps(four, x[1], x[5]));
+}
+
+// A^T applied to 6 values: the output transform's 1-D step.
+inline void at6(const __m512 m[6], __m512 y[4]) {
+  const __m512 s12 = _mm512_add_ps(m[1], m[2]), d12 = _mm512_sub_ps(m[1], m[2]);
+  const __m512 s34 = _mm512_add_ps(m[3], m[4]), d34 = _mm512_sub_ps(m[3], m[4]);
+  y[0] = _mm512_add_ps(_mm512_add_ps(m[0], s12), s34);
+  y[1] = _mm512_fmadd_ps(_mm512_set1_ps(2.f), d34, d12);
+  y[2] = _mm512_fmadd_ps(_mm512_set1_ps(4.f), s34, s12);
+  y[3] = _mm512_add_ps(_mm512_fmadd_ps(_mm512_set1_ps(8.f), d34, d12), m[5]);
+}
+
+// V[e][c][16 lanes] for one 16-tile vector of channel c: tile row ty, first tile tx.
+inline void input_tile(float* v, std::size_t e_stride, const float* plane, const Geom& g, int ty, int tx) {
+  __m512 t[6][6];
+  for (int i = 0; i < 6; ++i) {
+    const float* row = plane + static_cast<std::size_t>(4 * ty + i) * 4 * g.len + tx;
+    __m512 x[6];
+    for (int k = 0; k < 6; ++k) x[k] = _mm512_loadu_ps(row + (k & 3) * g.len + (k >> 2));
+    bt6(x, t[i]);
+  }
+  for (int bb = 0; bb < 6; ++bb) {
+    __m512 col[6], r[6];
+    for (int i = 0; i < 6; ++i) col[i] = t[i][bb];
+    bt6(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
+  }
+}
+
+// M[co block rows][tb] = U[block][ci][kCB]^T V[ci][tb] for one transform element.
+template <int NV>
+inline void gemm_block(float* m, int m_stride, const float* v, int tb, const float* u, int ci) {
+  __m512 acc[kCB][NV];
+  for (int b = 0; b < kCB; ++b)
+    for (int q = 0; q < NV; ++q) acc[b][q] = _mm512_setzero_ps();
+  for (int c = 0; c < ci; ++c) {
+    __m512 x[NV];
+    for (int q = 0; q < NV; ++q) x[q] = _mm512_load_ps(v + static_cast<std::size_t>(c) * tb + 16 * q);
+    const float* uc = u + static_cast<std::size_t>(c) * kCB;
+    for (int b = 0; b < kCB; ++b) {
+      const __m512 wv = _mm512_set1_ps(uc[b]);
+      for (int q = 0; q < NV; ++q) acc[b][q] = _mm512_fmadd_ps(wv, x[q], acc[b][q]);
+    }
+  }
+  for (int b = 0; b < kCB; ++b)
+    for (int q = 0; q < NV; ++q) _mm512_store_ps(m + static_cast<std::size_t>(b) * m_stride + 16 * q, acc[b][q]);
+}
+
+// Writes the four vectors y[0..3] (output column j of 16 tiles) as 64 consecutive pixels.
+inline void store_interleaved(float* dst, const __m512 y[4], int valid) {
+  const __m512i lo = _mm512_set_epi32(23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1, 16, 0);
+  const __m512i hi = _mm512_set_epi32(31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8);
+  const __m512i plo = _mm512_set_epi64(11, 3, 10, 2, 9, 1, 8, 0);
+  const __m512i phi = _mm512_set_epi64(15, 7, 14, 6, 13, 5, 12, 4);
+  const __m512d a01l = _mm512_castps_pd(_mm512_permutex2var_ps(y[0], lo, y[1]));
+  const __m512d a01h = _mm512_castps_pd(_mm512_permutex2var_ps(y[0], hi, y[1]));
+  const __m512d a23l = _mm512_castps_pd(_mm512_permutex2var_ps(y[2], lo, y[3]));
+  const __m512d a23h = _mm512_castps_pd(_mm512_permutex2var_ps(y[2], hi, y[3]));
+  const __m512 o[4] = {_mm512_castpd_ps(_mm512_permutex2var_pd(a01l, plo, a23l)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01l, phi, a23l)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01h, plo, a23h)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01h, phi, a23h))};
+  for (int q = 0; q < 4 && valid > 0; ++q, valid -= 16) {
+    if (valid >= 16)
+      _mm512_storeu_ps(dst + 16 * q, o[q]);
+    else
+      _mm512_mask_storeu_ps(dst + 16 * q, static_cast<__mmask16>((1u << valid) - 1), o[q]);
+  }
+}
+
+// Output tiles of one channel for one 16-tile vector: A^T M A, bias, ReLU, written to out.
+inline void output_tile(float* out_plane, const float* m, std::size_t e_stride, const Geom& g, int ty, int tx,
+                        float bias, bool relu) {
+  __m512 t[6][4];
+  for (int a = 0; a < 6; ++a) {
+    __m512 row[6];
+    for (int bb = 0; bb < 6; ++bb) row[bb] = _mm512_load_ps(m + (a * 6 + bb) * e_stride);
+    at6(row, t[a]);
+  }
+  const __m512 bv = _mm512_set1_ps(bias), zero = _mm512_setzero_ps();
+  const int x0 = 4 * tx, valid = std::min(64, g.w - x0);
+  if (valid <= 0) return;
+  __m512 y[4][4];
+  for (int j = 0; j < 4; ++j) {
+    __m512 col[6], r[4];
+    for (int a = 0; a < 6; ++a) col[a] = t[a][j];
+    at6(col, r);
+    for (int i = 0; i < 4; ++i) y[i][j] = relu ? _mm512_max_ps(_mm512_add_ps(r[i], bv), zero) : _mm512_add_ps(r[i], bv);
+  }
+  for (int i = 0; i < 4; ++i) {
+    const int yrow = 4 * ty + i;
+    if (yrow >= g.h) break;
+    store_interleaved(out_plane + static_cast<std::size_t>(yrow) * g.w + x0, y[i], valid);
+  }
+}
+
+template <int NV>
+void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom& g, const float* u, const float* bias,
+         bool relu) {
+  const int co = out.ca + out.cb;
+  const int co_blocks = (co + kCB - 1) / kCB;
+  const std::size_t u_e = static_cast<std::size_t>(co_blocks) * ci * kCB;
+  const int tiles_tasks = n * g.th * g.blocks;
+  const int threads = omp_get_max_threads();
+  // Few tile blocks (the deep layers): split the output channels too, each part repeating the
+  // (cheap) input transform, so every thread has work.
+  int parts = 1;
+  if (tiles_tasks < 4 * threads) parts = std::min(co_blocks, (4 * threads + tiles_tasks - 1) / tiles_tasks);
+  const int tasks = tiles_tasks * parts;
+  const double flops = 2.0 * tiles_tasks * g.tb * 36.0 * ci * co;
+  const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
+#pragma omp parallel if (flops > 2e6)
+  {
+    const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb;
+    float* v = tl_v.get(36 * v_e);
+#pragma omp for schedule(static)
+    for (int task = 0; task < tasks; ++task) {
+      const int part = task % parts, tt = task / parts;
+      const int img = tt / (g.th * g.blocks), ty = (tt / g.blocks) % g.th, blk = tt % g.blocks;
+      const int b0 = co_blocks * part / parts, b1 = co_blocks * (part + 1) / parts;
+      const std::size_t m_e = static_cast<std::size_t>(b1 - b0) * kCB * g.tb;
+      float* m = tl_m.get(36 * m_e);
+      for (int c = 0; c < ci; ++c) {
+        const float* plane = phases + (static_cast<std::size_t>(img) * ci + c) * g.plane;
+        for (int q = 0; q < NV; ++q)
+          input_tile(v + static_cast<std::size_t>(c) * g.tb + 16 * q, v_e, plane, g, ty, blk * g.tb + 16 * q);
+      }
+      for (int e = 0; e < 36; ++e)
+        for (int b = b0; b < b1; ++b)
+          gemm_block<NV>(m + e * m_e + static_cast<std::size_t>(b - b0) * kCB * g.tb, g.tb, v + e * v_e, g.tb,
+                         u + e * u_e + static_cast<std::size_t>(b) * ci * kCB, ci);
+      for (int o = b0 * kCB; o < std::min(co, b1 * kCB); ++o) {
+        float* op = plane_of(out, img, o, hw);
+        const float* mo = m + static_cast<std::size_t>(o - b0 * kCB) * g.tb;
+        for (int q = 0; q < NV; ++q)
+          output_tile(op, mo + 16 * q, m_e, g, ty, blk * g.tb + 16 * q, bias ? bias[o] : 0.f, relu);
+      }
+    }
+  }
+}
+
+}  // namespace
+
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb, co = out.ca + out.cb;
+  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(phases, in, mask, n, g);
+  float* u = g_u.get(36 * static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci);
+  transform_weights(u, weight, co, ci, transpose_flip);
+  if (g.nv == 3)
+    run<3>(out, phases, n, ci, g, u, bias, relu);
+  else if (g.nv == 2)
+    run<2>(out, phases, n, ci, g, u, bias, relu);
+  else
+    run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+#endif
+
+}  // namespace lidarsim::nn::detail
