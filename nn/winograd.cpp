@@ -86,11 +86,23 @@ float* plane_of(const OutPlaneSet& s, int img, int ch, std::size_t hw) {
                    : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
 }
 
-// Fills the by-phase layout of every (image, channel) plane, masked when mask is given.
+// Bits [lo, hi) of a 16-lane mask, clamped to 0..16.
+inline __mmask16 lane_range(int lo, int hi) {
+  lo = std::max(lo, 0);
+  hi = std::min(hi, 16);
+  if (hi <= lo) return 0;
+  return static_cast<__mmask16>(((1u << hi) - 1) & ~((1u << lo) - 1));
+}
+
+// Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
+// pixels (masked loads outside the row) are split into the 4 phases of 16 tiles by two permutes.
 void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
   const int ci = in.ca + in.cb;
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
   const bool par = static_cast<std::size_t>(n) * ci * hw > (1u << 15);
+  const __m512i even = _mm512_set_epi32(30, 26, 22, 18, 14, 10, 6, 2, 28, 24, 20, 16, 12, 8, 4, 0);
+  const __m512i odd = _mm512_set_epi32(31, 27, 23, 19, 15, 11, 7, 3, 29, 25, 21, 17, 13, 9, 5, 1);
+  const __m512 zero = _mm512_setzero_ps();
 #pragma omp parallel for schedule(static) if (par)
   for (int p = 0; p < n * ci; ++p) {
     const int img = p / ci, ch = p % ci;
@@ -106,26 +118,30 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
       }
       const float* s = src + static_cast<std::size_t>(y) * g.w;
       const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
-      for (int r = 0; r < 4; ++r) {
-        float* lr = line + r * g.len;
-        // x = 4 tx + r - 1 lies in [0, w) for tx in [tx0, tx1).
-        const int tx0 = r == 0 ? 1 : 0, tx1 = std::min(g.len, (g.w - r + 1 + 3) / 4);
-        std::fill(lr, lr + tx0, 0.f);
-        if (mr)
-          for (int tx = tx0; tx < tx1; ++tx) {
-            const int x = 4 * tx + r - 1;
-            lr[tx] = mr[x] > 0.f ? s[x] : 0.f;
-          }
-        else
-          for (int tx = tx0; tx < tx1; ++tx) lr[tx] = s[4 * tx + r - 1];
-        std::fill(lr + std::max(tx0, tx1), lr + g.len, 0.f);
+      for (int tx = 0; tx < g.len; tx += 16) {
+        __m512 a[4];
+        for (int q = 0; q < 4; ++q) {
+          const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
+          __mmask16 k = lane_range(-x, g.w - x);
+          if (mr && k) k &= _mm512_cmp_ps_mask(_mm512_maskz_loadu_ps(k, mr + x), zero, _CMP_GT_OQ);
+          a[q] = k ? _mm512_maskz_loadu_ps(k, s + x) : zero;
+        }
+        // Lanes 0..7 phase 0 (1), lanes 8..15 phase 2 (3), of pixels 0..31 and 32..63.
+        const __m512 e01 = _mm512_permutex2var_ps(a[0], even, a[1]), e23 = _mm512_permutex2var_ps(a[2], even, a[3]);
+        const __m512 o01 = _mm512_permutex2var_ps(a[0], odd, a[1]), o23 = _mm512_permutex2var_ps(a[2], odd, a[3]);
+        _mm512_storeu_ps(line + tx, _mm512_shuffle_f32x4(e01, e23, 0x44));
+        _mm512_storeu_ps(line + g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0x44));
+        _mm512_storeu_ps(line + 2 * g.len + tx, _mm512_shuffle_f32x4(e01, e23, 0xEE));
+        _mm512_storeu_ps(line + 3 * g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0xEE));
       }
     }
   }
 }
 
 // U = G k G^T for each 3x3 kernel k, packed [36][co blocks][ci][kCB] (zeros past the last output
-// channel). In double: the transform's fractions (1/6, 1/24) then round once.
+// channel). The kCB kernels of a block ride in the 8 lanes of a double vector: the transform's
+// fractions (1/6, 1/24) are applied in double and round once, and each of the 36 results is
+// stored as kCB consecutive floats.
 void transform_weights(float* u, const float* w, int co, int ci, bool transpose_flip) {
   static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
                                      {-1.0 / 6, -1.0 / 6, -1.0 / 6},
@@ -133,28 +149,39 @@ void transform_weights(float* u, const float* w, int co, int ci, bool transpose_
                                      {1.0 / 24, 1.0 / 12, 1.0 / 6},
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6},
                                      {0, 0, 1}};
+  static_assert(kCB == 8, "one double vector per block");
   const int blocks = (co + kCB - 1) / kCB;
   const std::size_t per_e = static_cast<std::size_t>(blocks) * ci * kCB;
   const bool par = static_cast<std::size_t>(co) * ci > 4096;
 #pragma omp parallel for schedule(static) if (par)
-  for (int o = 0; o < blocks * kCB; ++o) {
-    const int b = o / kCB, j = o % kCB;
-    for (int c = 0; c < ci; ++c) {
-      double k[3][3] = {};
-      if (o < co)
-        for (int kh = 0; kh < 3; ++kh)
-          for (int kw = 0; kw < 3; ++kw)
-            k[kh][kw] = transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (2 - kh) * 3 + (2 - kw)]
-                                       : w[(static_cast<std::size_t>(o) * ci + c) * 9 + kh * 3 + kw];
-      double gk[6][3];
-      for (int a = 0; a < 6; ++a)
-        for (int kw = 0; kw < 3; ++kw) gk[a][kw] = G[a][0] * k[0][kw] + G[a][1] * k[1][kw] + G[a][2] * k[2][kw];
-      for (int a = 0; a < 6; ++a)
-        for (int bb = 0; bb < 6; ++bb) {
-          const double v = gk[a][0] * G[bb][0] + gk[a][1] * G[bb][1] + gk[a][2] * G[bb][2];
-          u[(a * 6 + bb) * per_e + (static_cast<std::size_t>(b) * ci + c) * kCB + j] = static_cast<float>(v);
-        }
+  for (int bc = 0; bc < blocks * ci; ++bc) {
+    const int b = bc / ci, c = bc % ci;
+    alignas(64) double k[9][kCB];
+    for (int j = 0; j < kCB; ++j) {
+      const int o = b * kCB + j;
+      for (int t = 0; t < 9; ++t)
+        k[t][j] = o >= co ? 0.0
+                  : transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (8 - t)]
+                                   : w[(static_cast<std::size_t>(o) * ci + c) * 9 + t];
     }
+    __m512d kv[9];
+    for (int t = 0; t < 9; ++t) kv[t] = _mm512_load_pd(k[t]);
+    __m512d gk[6][3];  // G k: rows a, columns kw
+    for (int a = 0; a < 6; ++a)
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int kh = 0; kh < 3; ++kh)
+          if (G[a][kh] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[a][kh]), kv[kh * 3 + kw], acc);
+        gk[a][kw] = acc;
+      }
+    float* dst = u + static_cast<std::size_t>(bc) * kCB;
+    for (int a = 0; a < 6; ++a)
+      for (int bb = 0; bb < 6; ++bb) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int kw = 0; kw < 3; ++kw)
+          if (G[bb][kw] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[bb][kw]), gk[a][kw], acc);
+        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(acc));
+      }
   }
 }
 
@@ -282,14 +309,16 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
 #pragma omp parallel if (flops > 2e6)
   {
-    const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb;
+    // One cache line past each transform element's slice: power-of-two strides would put the 36
+    // slices of a tile in one L1 set.
+    const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb + 16;
     float* v = tl_v.get(36 * v_e);
 #pragma omp for schedule(static)
     for (int task = 0; task < tasks; ++task) {
       const int part = task % parts, tt = task / parts;
       const int img = tt / (g.th * g.blocks), ty = (tt / g.blocks) % g.th, blk = tt % g.blocks;
       const int b0 = co_blocks * part / parts, b1 = co_blocks * (part + 1) / parts;
-      const std::size_t m_e = static_cast<std::size_t>(b1 - b0) * kCB * g.tb;
+      const std::size_t m_e = static_cast<std::size_t>(b1 - b0) * kCB * g.tb + 16;
       float* m = tl_m.get(36 * m_e);
       for (int c = 0; c < ci; ++c) {
         const float* plane = phases + (static_cast<std::size_t>(img) * ci + c) * g.plane;
