@@ -1,6 +1,6 @@
 // Direct against Winograd F(4x4, 3x3) for each 3x3 conv shape of "unet-ref" (3 -> 1 channels,
-// base 16, depth 4, rows x cols): forward (bias + ReLU) and input gradient (ReLU-masked by the
-// direct forward's output), median process CPU time per call over --reps (--wall: wall time),
+// base 16, depth 4, rows x cols): forward (bias + ReLU), input gradient and weight gradient
+// (ReLU-masked by the direct forward's output), median process CPU time per call over --reps (--wall: wall time),
 // with the CPU time of the whole run and the load average, and the largest
 // difference between the two paths relative to the largest output. The automatic rule in
 // nn/conv3x3.cpp (conv3x3_takes_winograd) comes from this table.
@@ -93,8 +93,9 @@ int main(int argc, char** argv) {
     const double cpu0 = cpu_seconds();
     const bool wall = opt.count("wall") > 0;
     const int base = 16, depth = 4;
-    std::printf("%-5s %4s %4s %4s %9s %9s %9s %7s %9s %9s %7s %9s %9s\n", "batch", "ci", "co", "h", "w", "fwd dir",
-                "fwd win", "speedup", "dgr dir", "dgr win", "speedup", "fwd diff", "dgr diff");
+    std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s\n", "batch", "ci", "co", "h", "w",
+                "fwd dir", "fwd win", "speedup", "dgr dir", "dgr win", "speedup", "wgr dir", "wgr win", "speedup",
+                "fwd diff", "dgr diff", "wgr diff");
     std::mt19937 rng(1);
     std::normal_distribution<float> normal;
     for (int n : opt["batch"].as<std::vector<int>>()) {
@@ -110,16 +111,28 @@ int main(int argc, char** argv) {
           for (float& v : wt) v = normal(rng) * std::sqrt(2.f / (9.f * ci));
           Tensor y[2], d_in[2], g(n, co, h, w);
           for (float& v : g) v = normal(rng);
-          double t_fwd[2], t_dgr[2];
+          std::vector<float> d_w[2];
+          double t_fwd[2], t_dgr[2], t_wgr[2];
           for (int p = 0; p < 2; ++p) {
             detail::set_conv3x3_path(p ? detail::Conv3x3Path::winograd : detail::Conv3x3Path::direct);
             t_fwd[p] = median_seconds([&] { conv2d_forward(y[p], x, wt.data(), bias.data(), co, 3, 1, true); }, reps, wall);
             t_dgr[p] = median_seconds(
                 [&] { conv2d_backward(&d_in[p], nullptr, nullptr, g, y[0], x, wt.data(), 3, 1, true); }, reps, wall);
+            d_w[p].assign(wt.size(), 0.f);
+            t_wgr[p] = median_seconds(
+                [&] {
+                  std::fill(d_w[p].begin(), d_w[p].end(), 0.f);
+                  conv2d_backward(nullptr, d_w[p].data(), nullptr, g, y[0], x, wt.data(), 3, 1, true);
+                },
+                reps, wall);
           }
-          std::printf("%-5d %4d %4d %4d %9d %9.3f %9.3f %7.2f %9.3f %9.3f %7.2f %9.1e %9.1e\n", n, ci, co, h, w,
-                      1e3 * t_fwd[0], 1e3 * t_fwd[1], t_fwd[0] / t_fwd[1], 1e3 * t_dgr[0], 1e3 * t_dgr[1],
-                      t_dgr[0] / t_dgr[1], rel_diff(y[1], y[0]), rel_diff(d_in[1], d_in[0]));
+          Tensor dw0(1, 1, 1, static_cast<int>(wt.size())), dw1(1, 1, 1, static_cast<int>(wt.size()));
+          std::copy(d_w[0].begin(), d_w[0].end(), dw0.begin());
+          std::copy(d_w[1].begin(), d_w[1].end(), dw1.begin());
+          std::printf("%-5d %4d %4d %4d %5d %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.1e %8.1e %8.1e\n", n,
+                      ci, co, h, w, 1e3 * t_fwd[0], 1e3 * t_fwd[1], t_fwd[0] / t_fwd[1], 1e3 * t_dgr[0],
+                      1e3 * t_dgr[1], t_dgr[0] / t_dgr[1], 1e3 * t_wgr[0], 1e3 * t_wgr[1], t_wgr[0] / t_wgr[1],
+                      rel_diff(y[1], y[0]), rel_diff(d_in[1], d_in[0]), rel_diff(dw1, dw0));
           std::fflush(stdout);
         }
       }

@@ -41,14 +41,17 @@ Conv3x3Path g_path = read_path_env();
 void set_conv3x3_path(Conv3x3Path path) { g_path = path; }
 Conv3x3Path conv3x3_path() { return g_path; }
 
-bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w) {
+bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_grad) {
   if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
   if (g_path == Conv3x3Path::winograd) return true;
   // From bench_conv3x3 (unet-ref, batch 1 and 4, CPU time): with 16 channels or fewer on either
-  // side the transforms cost as much as the products they save (0.7-1.1x at 64 x 1024); with a
-  // few tiles the 36 transformed weight planes outweigh them (4 x 64, batch 1: 0.65x); elsewhere
-  // Winograd took 1.2-2.5x less time.
-  return std::min(ci, co) >= 32 && static_cast<long>(n) * h * w >= 1024;
+  // side the transforms cost as much as the products they save (0.5-1.1x at 64 x 1024); with few
+  // tiles the 36 transformed weight planes outweigh them (4 x 64, batch 1: 0.35-0.75x); elsewhere
+  // Winograd took 1.2-2.5x less time (forward, input gradient) and 1.1-1.9x (weight gradient,
+  // which keeps every tile's transforms in memory: at 65,536 pixels and more it broke even).
+  const long pixels = static_cast<long>(n) * h * w;
+  if (std::min(ci, co) < 32 || pixels < 1024) return false;
+  return !weight_grad || pixels < 65536;
 }
 
 #ifndef __AVX512F__
@@ -360,7 +363,9 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_weight) {
+  if (d_weight && conv3x3_takes_winograd(n, ci, co, h, w, true)) {
+    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
+  } else if (d_weight) {
     float* pin = g_pad_in.get(g.stride * ci * n);
     pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
     const int blocks = (co + kCB - 1) / kCB;

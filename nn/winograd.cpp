@@ -22,6 +22,7 @@ namespace lidarsim::nn::detail {
 bool winograd_available() { return false; }
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
+void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
 #else
 
 bool winograd_available() { return true; }
@@ -46,7 +47,7 @@ struct Buf {
   ~Buf() { std::free(p); }
 };
 
-Buf g_phase, g_u;
+Buf g_phase, g_phase_grad, g_u, g_v_all, g_m_all, g_du;
 thread_local Buf tl_v, tl_m;
 
 // Tile geometry. The input is kept "by phase": for each padded row (yy = y + 1) and phase r in
@@ -92,6 +93,16 @@ inline __mmask16 lane_range(int lo, int hi) {
   hi = std::min(hi, 16);
   if (hi <= lo) return 0;
   return static_cast<__mmask16>(((1u << hi) - 1) & ~((1u << lo) - 1));
+}
+
+// Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
+inline float hsum(__m512 v) {
+  const __m512 t = _mm512_add_ps(v, _mm512_shuffle_f32x4(v, v, 0x4E));
+  const __m256 a = _mm512_castps512_ps256(t);
+  __m128 b = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
+  b = _mm_add_ps(b, _mm_movehl_ps(b, b));
+  b = _mm_add_ss(b, _mm_movehdup_ps(b));
+  return _mm_cvtss_f32(b);
 }
 
 // Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
@@ -339,6 +350,56 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   }
 }
 
+// A applied to 4 values (the transpose of at6): the output gradient's 1-D step.
+inline void a4(const __m512 y[4], __m512 m[6]) {
+  const __m512 s02 = _mm512_add_ps(y[0], y[2]), s13 = _mm512_add_ps(y[1], y[3]);
+  const __m512 t02 = _mm512_fmadd_ps(_mm512_set1_ps(4.f), y[2], y[0]);
+  const __m512 t13 = _mm512_fmadd_ps(_mm512_set1_ps(8.f), y[3], _mm512_mul_ps(_mm512_set1_ps(2.f), y[1]));
+  m[0] = y[0];
+  m[1] = _mm512_add_ps(s02, s13);
+  m[2] = _mm512_sub_ps(s02, s13);
+  m[3] = _mm512_add_ps(t02, t13);
+  m[4] = _mm512_sub_ps(t02, t13);
+  m[5] = y[3];
+}
+
+// dM[e][16 lanes] = (A dY A^T)[e] for one 16-tile vector of one output-gradient channel, read
+// from its by-phase layout: output pixel (4 ty + i, 4 tx + j) is padded row 4 ty + 1 + i,
+// phase (j + 1) & 3 of tile tx + (j + 1) / 4.
+inline void grad_tile(float* m, std::size_t e_stride, const float* plane, const Geom& g, int ty, int tx) {
+  __m512 t[4][6];
+  for (int i = 0; i < 4; ++i) {
+    const float* row = plane + static_cast<std::size_t>(4 * ty + 1 + i) * 4 * g.len + tx;
+    __m512 y[4];
+    for (int j = 0; j < 4; ++j) y[j] = _mm512_loadu_ps(row + ((j + 1) & 3) * g.len + ((j + 1) >> 2));
+    a4(y, t[i]);
+  }
+  for (int b = 0; b < 6; ++b) {
+    __m512 col[4], r[6];
+    for (int i = 0; i < 4; ++i) col[i] = t[i][b];
+    a4(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(m + (a * 6 + b) * e_stride, r[a]);
+  }
+}
+
+// du[8][3] = sum over tiles of dM rows o0..o0+7 times V rows c0..c0+2 (lanes = tiles).
+inline void du_block(float* du, int du_stride, const float* dm, const float* v, std::size_t row, std::size_t tiles) {
+  __m512 acc[kCB][3];
+  for (int b = 0; b < kCB; ++b) acc[b][0] = acc[b][1] = acc[b][2] = _mm512_setzero_ps();
+  for (std::size_t t = 0; t < tiles; t += 16) {
+    const __m512 x0 = _mm512_load_ps(v + t), x1 = _mm512_load_ps(v + row + t), x2 = _mm512_load_ps(v + 2 * row + t);
+    for (int b = 0; b < kCB; ++b) {
+      __m512 gv = _mm512_load_ps(dm + b * row + t);
+      asm("" : "+v"(gv));  // one load, three FMAs (as in conv3x3.cpp's weight gradient)
+      acc[b][0] = _mm512_fmadd_ps(gv, x0, acc[b][0]);
+      acc[b][1] = _mm512_fmadd_ps(gv, x1, acc[b][1]);
+      acc[b][2] = _mm512_fmadd_ps(gv, x2, acc[b][2]);
+    }
+  }
+  for (int b = 0; b < kCB; ++b)
+    for (int k = 0; k < 3; ++k) du[b * du_stride + k] = hsum(acc[b][k]);
+}
+
 }  // namespace
 
 void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
@@ -355,6 +416,84 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
     run<2>(out, phases, n, ci, g, u, bias, relu);
   else
     run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(pin, in, nullptr, n, g);
+  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
+  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+
+  // Every tile of every image, transformed: V [36][ci3][tiles], dM [36][co8][tiles] (channels
+  // padded to the register block with zero rows; one cache line between elements).
+  const int co8 = (co + kCB - 1) / kCB * kCB, ci3 = (ci + 2) / 3 * 3;
+  const std::size_t tiles = static_cast<std::size_t>(n) * g.th * g.blocks * g.tb;
+  const std::size_t v_e = ci3 * tiles + 16, m_e = co8 * tiles + 16;
+  float* v = g_v_all.get(36 * v_e);
+  float* m = g_m_all.get(36 * m_e);
+  const int vectors = static_cast<int>(tiles / 16);
+  const double flops = 2.0 * 36 * tiles * ci * co;
+  const bool par = flops > 2e6;
+#pragma omp parallel if (par)
+  {
+#pragma omp for schedule(static) nowait
+    for (int e = 0; e < 36; ++e) {
+      for (int c = ci; c < ci3; ++c) std::fill(v + e * v_e + c * tiles, v + e * v_e + (c + 1) * tiles, 0.f);
+      for (int o = co; o < co8; ++o) std::fill(m + e * m_e + o * tiles, m + e * m_e + (o + 1) * tiles, 0.f);
+    }
+#pragma omp for schedule(static)
+    for (int q = 0; q < vectors; ++q) {
+      const int per_row = g.blocks * g.nv;  // vectors per tile row
+      const int img = q / (g.th * per_row), ty = (q / per_row) % g.th, tx = (q % per_row) * 16;
+      const std::size_t t0 = static_cast<std::size_t>(q) * 16;
+      for (int c = 0; c < ci; ++c)
+        input_tile(v + c * tiles + t0, v_e, pin + (static_cast<std::size_t>(img) * ci + c) * g.plane, g, ty, tx);
+      for (int o = 0; o < co; ++o)
+        grad_tile(m + o * tiles + t0, m_e, pg + (static_cast<std::size_t>(img) * co + o) * g.plane, g, ty, tx);
+    }
+  }
+
+  // dU [36][co8][ci3]: one task per (element, 8 outputs, 3 inputs), each summing all tiles.
+  const int ob = co8 / kCB, cg = ci3 / 3;
+  float* du = g_du.get(static_cast<std::size_t>(36) * co8 * ci3);
+#pragma omp parallel for schedule(static) if (par)
+  for (int task = 0; task < 36 * ob * cg; ++task) {
+    const int e = task / (ob * cg), b = (task / cg) % ob, c3 = task % cg;
+    du_block(du + (static_cast<std::size_t>(e) * co8 + b * kCB) * ci3 + 3 * c3, ci3,
+             m + e * m_e + static_cast<std::size_t>(b) * kCB * tiles, v + e * v_e + static_cast<std::size_t>(3 * c3) * tiles,
+             tiles, tiles);
+  }
+
+  // d_weight += G^T dU G per kernel, in double.
+  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
+                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
+                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
+                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
+                                     {0, 0, 1}};
+  const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
+#pragma omp parallel for schedule(static) if (par)
+  for (int o = 0; o < co; ++o)
+    for (int c = 0; c < ci; ++c) {
+      const float* d = du + static_cast<std::size_t>(o) * ci3 + c;
+      double t[6][3];  // dU G
+      for (int a = 0; a < 6; ++a)
+        for (int kw = 0; kw < 3; ++kw) {
+          double acc = 0;
+          for (int bb = 0; bb < 6; ++bb) acc += d[(a * 6 + bb) * du_e] * G[bb][kw];
+          t[a][kw] = acc;
+        }
+      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c) * 9;
+      for (int kh = 0; kh < 3; ++kh)
+        for (int kw = 0; kw < 3; ++kw) {
+          double acc = 0;
+          for (int a = 0; a < 6; ++a) acc += G[a][kh] * t[a][kw];
+          dw[kh * 3 + kw] += static_cast<float>(acc);
+        }
+    }
 }
 
 #endif

@@ -30,4 +30,12 @@ struct OutPlaneSet {
 void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
                       const float* weight, bool transpose_flip, const float* bias, bool relu);
 
+// Adds the weight gradient of that conv (no flip) to d_weight [co, ci, 3, 3]: d_out [n, co, h, w]
+// (masked where mask > 0 when mask is given) against in [n, ci, h, w], through the transposed
+// algorithm: the transformed output gradient (A dY A^T) times the transformed input tiles
+// (B^T d B), summed over all tiles per transform element, then G^T (.) G. The tile sums run in
+// a fixed order, so the result does not depend on the thread count.
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co);
+
 }  // namespace lidarsim::nn::detail

@@ -1,5 +1,5 @@
-// Winograd F(4x4, 3x3) against the direct 3x3 kernel on the same inputs: forward (bias, ReLU)
-// and input gradient (masked by the ReLU), plain and over a channel concat, on sizes that are not
+// Winograd F(4x4, 3x3) against the direct 3x3 kernel on the same inputs: forward (bias, ReLU),
+// input and weight gradients (masked by the ReLU), plain and over a channel concat, on sizes that are not
 // multiples of the 4 x 4 tile or of the 16-tile vectors. Inputs are ReLU-like activations (half
 // zeros) and He-scaled weights, as in the UNet. Error = max |winograd - direct| / max |direct|
 // over the whole output; F(4x4, 3x3) in float loses a few bits to its transforms (the 1/24 and
@@ -47,6 +47,16 @@ struct Diff {
   double rel() const { return max_abs / std::max(scale, 1e-30); }
 };
 
+Diff compare(const std::vector<float>& a, const std::vector<float>& ref) {
+  Diff d;
+  EXPECT_EQ(a.size(), ref.size());
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    d.max_abs = std::max(d.max_abs, static_cast<double>(std::abs(a[i] - ref[i])));
+    d.scale = std::max(d.scale, static_cast<double>(std::abs(ref[i])));
+  }
+  return d;
+}
+
 Diff compare(const Tensor& a, const Tensor& ref) {
   Diff d;
   EXPECT_EQ(a.shape(), ref.shape());
@@ -68,6 +78,7 @@ const Case kCases[] = {{2, 5, 11, 7, 9},   {1, 16, 24, 13, 37}, {1, 3, 8, 1, 1},
 
 struct Outputs {
   Tensor y, d_in;
+  std::vector<float> d_w;
 };
 
 Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
@@ -80,27 +91,32 @@ Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
   Outputs r;
   conv2d_forward(r.y, x, w.data(), b.data(), c.co, 3, 1, relu);
   const Tensor g = activations(r.y.shape(), 3);
-  conv2d_backward(&r.d_in, nullptr, nullptr, g, r.y, x, w.data(), 3, 1, relu);
+  r.d_w.assign(w.size(), 0.f);
+  conv2d_backward(&r.d_in, r.d_w.data(), nullptr, g, r.y, x, w.data(), 3, 1, relu);
   return r;
 }
 
-TEST(Winograd, ForwardAndInputGradientMatchDirectOnOddSizes) {
+TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
   if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
-  double worst_fwd = 0, worst_din = 0;
+  double worst_fwd = 0, worst_din = 0, worst_dw = 0;
   for (const Case& c : kCases)
     for (bool relu : {false, true}) {
       SCOPED_TRACE("n " + std::to_string(c.n) + " ci " + std::to_string(c.ci) + " co " + std::to_string(c.co) + " " +
                    std::to_string(c.h) + "x" + std::to_string(c.w) + " relu " + std::to_string(relu));
       const Outputs direct = run_plain(c, relu, Conv3x3Path::direct);
       const Outputs wino = run_plain(c, relu, Conv3x3Path::winograd);
-      const Diff f = compare(wino.y, direct.y), d = compare(wino.d_in, direct.d_in);
+      const Diff f = compare(wino.y, direct.y), d = compare(wino.d_in, direct.d_in), dw = compare(wino.d_w, direct.d_w);
       EXPECT_LT(f.rel(), kTol) << "forward: max abs " << f.max_abs << " of " << f.scale;
       EXPECT_LT(d.rel(), kTol) << "input gradient: max abs " << d.max_abs << " of " << d.scale;
+      EXPECT_LT(dw.rel(), kTol) << "weight gradient: max abs " << dw.max_abs << " of " << dw.scale;
       worst_fwd = std::max(worst_fwd, f.rel());
       worst_din = std::max(worst_din, d.rel());
+      worst_dw = std::max(worst_dw, dw.rel());
     }
-  std::printf("[ measured ] winograd vs direct, max |diff| / max |direct|: forward %.2e, input gradient %.2e\n",
-              worst_fwd, worst_din);
+  std::printf(
+      "[ measured ] winograd vs direct, max |diff| / max |direct|: forward %.2e, input gradient %.2e, weight "
+      "gradient %.2e\n",
+      worst_fwd, worst_din, worst_dw);
 }
 
 Outputs run_cat(const Case& c, int ca, Conv3x3Path path, Tensor* d_b) {
