@@ -350,10 +350,33 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   const Geom g(h, w);
   const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
-  // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing).
-  float* gp = g_pad_g.get(g.stride * co * n);
+  const bool wino_w = d_weight && conv3x3_takes_winograd(n, ci, co, h, w, true);
+  const bool wino_d = d_a && conv3x3_takes_winograd(n, co, ci, h, w);
+  // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
+  // for the direct kernels; with only Winograd ones the bias needs just its sums (same order).
+  float* gp = nullptr;
   float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
-  pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
+  if ((d_weight && !wino_w) || (d_a && !wino_d)) {
+    gp = g_pad_g.get(g.stride * co * n);
+    pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
+  } else if (d_bias) {
+    const float* mask = relu ? out : nullptr;
+#pragma omp parallel for schedule(static) if (par)
+    for (int ch = 0; ch < n * co; ++ch) {
+      const float* s = d_out + static_cast<std::size_t>(ch) * h * w;
+      const float* m = mask ? mask + static_cast<std::size_t>(ch) * h * w : nullptr;
+      float total = 0.f;
+      for (int y = 0; y < h; ++y) {
+        float rs = 0.f;
+        for (int x = 0; x < w; ++x) {
+          const std::size_t i = static_cast<std::size_t>(y) * w + x;
+          rs += !m || m[i] > 0.f ? s[i] : 0.f;
+        }
+        total += rs;
+      }
+      sums[ch] = total;
+    }
+  }
 
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
@@ -363,7 +386,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_weight && conv3x3_takes_winograd(n, ci, co, h, w, true)) {
+  if (wino_w) {
     winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
   } else if (d_weight) {
     float* pin = g_pad_in.get(g.stride * ci * n);
@@ -395,7 +418,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_a && conv3x3_takes_winograd(n, co, ci, h, w)) {
+  if (wino_d) {
     winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
                      nullptr, false);
   } else if (d_a) {
