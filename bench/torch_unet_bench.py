@@ -4,8 +4,9 @@ Run by bench_unet_vs_torch as a subprocess (OMP_NUM_THREADS set, OPENBLAS_CORETY
 OPENBLAS_L2_SIZE unset for this process only); by hand:
     OMP_NUM_THREADS=2 /usr/bin/python3 bench/torch_unet_bench.py --threads 2 --rows 64
 Prints human-readable notes on stderr and one JSON object on the last stdout line:
-    {"train_b1": s, "train_b4": s, "infer_b1": s, "blas": [...], "conv_ops": [...], ...}
-Each time is the median over --reps after --warmup untimed runs (and <row>_min the fastest).
+    {"train_b1": s, "train_b4": s, "infer_b1": s, "infer_b4": s, "blas": [...], "conv_ops": [...], ...}
+Each time is the median over --reps after --warmup untimed runs (and <row>_min the fastest);
+<row>_cpu is the median process CPU time of one run (all threads), the lowest over the settings.
 Every row is timed under each of --settings (default: all three) and the fastest is reported,
 so the peer is measured at its best:
   default        torch's defaults (oneDNN convolutions where torch picks them, NCHW)
@@ -28,12 +29,13 @@ import torch_unet  # noqa: E402
 def timed(fn, warmup, reps):
     for _ in range(warmup):
         fn()
-    times = []
+    times, cpu = [], []
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times), min(times)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(times), min(times), statistics.median(cpu)
 
 
 def make_batch(n, rows, cols, in_channels, seed):
@@ -59,15 +61,16 @@ def measure(args, model, opt, channels_last):
             loss.backward()
             opt.step()
 
-        out[f"train_b{n}"], out[f"train_b{n}_min"] = timed(train_step, args.warmup, args.reps)
-    x, _, _ = make_batch(1, args.rows, args.cols, args.in_channels, seed=1)
-    x = x.contiguous(memory_format=fmt)
+        out[f"train_b{n}"], out[f"train_b{n}_min"], out[f"train_b{n}_cpu"] = timed(train_step, args.warmup, args.reps)
+    for n in (1, 4):
+        x, _, _ = make_batch(n, args.rows, args.cols, args.in_channels, seed=n)
+        x = x.contiguous(memory_format=fmt)
 
-    def infer():
-        with torch.no_grad():
-            model(x)
+        def infer():
+            with torch.no_grad():
+                model(x)
 
-    out["infer_b1"], out["infer_b1_min"] = timed(infer, args.warmup, args.reps)
+        out[f"infer_b{n}"], out[f"infer_b{n}_min"], out[f"infer_b{n}_cpu"] = timed(infer, args.warmup, args.reps)
     return out
 
 
@@ -113,11 +116,12 @@ def main():
         print(f"torch {setting}: {per_setting[setting]}", file=sys.stderr)
     torch.backends.mkldnn.enabled = True
     best = {}
-    for row in ("train_b1", "train_b4", "infer_b1"):
+    for row in ("train_b1", "train_b4", "infer_b1", "infer_b4"):
         key = min(per_setting, key=lambda k: per_setting[k][row])
         best[row] = per_setting[key][row]
         best[row + "_min"] = per_setting[key][row + "_min"]
         best[row + "_setting"] = key
+        best[row + "_cpu"] = min(per_setting[k][row + "_cpu"] for k in per_setting)
 
     result = dict(best)
     result["all"] = per_setting

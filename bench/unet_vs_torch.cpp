@@ -1,6 +1,6 @@
 // Speed of the engine against PyTorch on "unet-ref" (3 -> 1 channels, base 16, depth 4,
 // rows x cols, masked MSE + L2, Adam), measured in the same run on the same machine:
-// a training step at batch 1 and 4 and inference at batch 1, median over --reps after
+// a training step and inference at batch 1 and 4, median over --reps after
 // --warmup untimed runs. PyTorch runs as a subprocess (bench/torch_unet_bench.py) with
 // OMP_NUM_THREADS set and OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE unset for it alone, so it gets
 // OpenBLAS's own choice of kernels. A 4096^3 fp32 GEMM through Eigen gives the machine's
@@ -39,21 +39,34 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 struct Timing {
-  double median = 0, min = 0;
+  double median = 0, min = 0, cpu = 0;
 };
 
-// Median (the reported number) and minimum (less sensitive to a busy machine) over reps.
+double cpu_now() {
+  timespec t;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
+double median_of(std::vector<double> t) {
+  std::sort(t.begin(), t.end());
+  return t.size() % 2 ? t[t.size() / 2] : 0.5 * (t[t.size() / 2 - 1] + t[t.size() / 2]);
+}
+
+// Median (the reported number) and minimum (less sensitive to a busy machine) of the wall time
+// over reps, and the median process CPU time (all threads: what a loaded machine cannot inflate
+// by descheduling us, though shared caches still cost).
 Timing time_it(const std::function<void()>& fn, int warmup, int reps) {
   for (int i = 0; i < warmup; ++i) fn();
-  std::vector<double> t;
+  std::vector<double> t, c;
   for (int i = 0; i < reps; ++i) {
     const auto t0 = Clock::now();
+    const double c0 = cpu_now();
     fn();
     t.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
+    c.push_back(cpu_now() - c0);
   }
-  std::sort(t.begin(), t.end());
-  const double median = t.size() % 2 ? t[t.size() / 2] : 0.5 * (t[t.size() / 2 - 1] + t[t.size() / 2]);
-  return {median, t.front()};
+  return {median_of(t), *std::min_element(t.begin(), t.end()), median_of(c)};
 }
 
 struct Batch {
@@ -175,7 +188,10 @@ int main(int argc, char** argv) {
       bool train;
       Timing ours, torch;
     };
-    std::vector<Row> table{{"train_b1", 1, true, {}, {}}, {"train_b4", 4, true, {}, {}}, {"infer_b1", 1, false, {}, {}}};
+    std::vector<Row> table{{"train_b1", 1, true, {}, {}},
+                           {"train_b4", 4, true, {}, {}},
+                           {"infer_b1", 1, false, {}, {}},
+                           {"infer_b4", 4, false, {}, {}}};
     for (Row& row : table) {
       const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
       Tensor y, dy;
@@ -204,7 +220,8 @@ int main(int argc, char** argv) {
       peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
                        reps, warmup, lambda, torch_settings);
       for (Row& row : table)
-        row.torch = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>()};
+        row.torch = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>(),
+                     peer.at(row.name + "_cpu").get<double>()};
     }
 
     // --- GEMM peak ------------------------------------------------------------------------
@@ -216,24 +233,26 @@ int main(int argc, char** argv) {
     // --- report ---------------------------------------------------------------------------
     std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", rows,
                 cols, threads, reps, warmup);
-    std::printf("%-10s %10s %10s %12s %12s %13s %12s\n", "row", "ours (s)", "torch (s)", "ours/torch", "ours GFLOP/s",
-                "torch GFLOP/s", "min ratio");
+    std::printf("%-10s %10s %10s %12s %12s %13s %12s %10s %10s %10s\n", "row", "ours (s)", "torch (s)", "ours/torch",
+                "ours GFLOP/s", "torch GFLOP/s", "min ratio", "ours CPU", "torch CPU", "CPU ratio");
     nlohmann::json out_rows = nlohmann::json::array();
     for (const Row& row : table) {
       // A training step counts as 3 forward passes (forward, backward to inputs, to weights).
       const double flops = (row.train ? 3.0 : 1.0) * model.forward_flops(row.batch, rows, cols);
       const double ratio = with_torch ? row.ours.median / row.torch.median : 0;
       const double min_ratio = with_torch ? row.ours.min / row.torch.min : 0;
+      const double cpu_ratio = with_torch ? row.ours.cpu / row.torch.cpu : 0;
       if (with_torch)
-        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f\n", row.name.c_str(), row.ours.median,
-                    row.torch.median, ratio, flops / row.ours.median * 1e-9, flops / row.torch.median * 1e-9,
-                    min_ratio);
+        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f %10.4f %10.4f %10.3f\n", row.name.c_str(),
+                    row.ours.median, row.torch.median, ratio, flops / row.ours.median * 1e-9,
+                    flops / row.torch.median * 1e-9, min_ratio, row.ours.cpu, row.torch.cpu, cpu_ratio);
       else
-        std::printf("%-10s %10.4f %10s %12s %12.1f %13s %12s\n", row.name.c_str(), row.ours.median, "-", "-",
-                    flops / row.ours.median * 1e-9, "-", "-");
+        std::printf("%-10s %10.4f %10s %12s %12.1f %13s %12s %10.4f %10s %10s\n", row.name.c_str(), row.ours.median,
+                    "-", "-", flops / row.ours.median * 1e-9, "-", "-", row.ours.cpu, "-", "-");
       out_rows.push_back({{"row", row.name}, {"ours_s", row.ours.median}, {"ours_min_s", row.ours.min},
                           {"torch_s", row.torch.median}, {"torch_min_s", row.torch.min}, {"ratio", ratio},
-                          {"min_ratio", min_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
+                          {"min_ratio", min_ratio}, {"ours_cpu_s", row.ours.cpu}, {"torch_cpu_s", row.torch.cpu},
+                          {"cpu_ratio", cpu_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
                           {"flops", flops}});
     }
     if (gemm_n > 0) {
@@ -243,11 +262,13 @@ int main(int argc, char** argv) {
     }
     std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, rows, cols) * 1e-9);
     if (with_torch) {
-      std::printf("torch %s, %d threads; fastest setting per row: train_b1 %s, train_b4 %s, infer_b1 %s\n",
-                  peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
-                  peer.value("train_b1_setting", std::string("?")).c_str(),
-                  peer.value("train_b4_setting", std::string("?")).c_str(),
-                  peer.value("infer_b1_setting", std::string("?")).c_str());
+      std::printf(
+          "torch %s, %d threads; fastest setting per row: train_b1 %s, train_b4 %s, infer_b1 %s, infer_b4 %s\n",
+          peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
+          peer.value("train_b1_setting", std::string("?")).c_str(),
+          peer.value("train_b4_setting", std::string("?")).c_str(),
+          peer.value("infer_b1_setting", std::string("?")).c_str(),
+          peer.value("infer_b4_setting", std::string("?")).c_str());
       std::string libs;
       for (const auto& l : peer["blas"]) libs += " " + l.get<std::string>();
       std::printf("torch BLAS libraries loaded:%s\n", libs.c_str());

@@ -14,13 +14,45 @@
 #include <cstdlib>
 #include <cstring>
 #include <new>
+#include <string>
 #include <vector>
+
+#include "common/error.h"
+#include "nn/winograd.h"
 
 #ifdef __AVX512F__
 #include <immintrin.h>
 #endif
 
 namespace lidarsim::nn::detail {
+
+namespace {
+Conv3x3Path read_path_env() {
+  const char* env = std::getenv("LIDARSIM_CONV3X3");
+  const std::string v = env ? env : "auto";
+  if (v == "auto" || v.empty()) return Conv3x3Path::automatic;
+  if (v == "direct") return Conv3x3Path::direct;
+  if (v == "winograd") return Conv3x3Path::winograd;
+  throw Error("environment: LIDARSIM_CONV3X3: expected direct, winograd or auto, got \"" + v + "\"");
+}
+Conv3x3Path g_path = read_path_env();
+}  // namespace
+
+void set_conv3x3_path(Conv3x3Path path) { g_path = path; }
+Conv3x3Path conv3x3_path() { return g_path; }
+
+bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_grad) {
+  if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
+  if (g_path == Conv3x3Path::winograd) return true;
+  // From bench_conv3x3 (unet-ref, batch 1 and 4, CPU time): with 16 channels or fewer on either
+  // side the transforms cost as much as the products they save (0.5-1.1x at 64 x 1024); with few
+  // tiles the 36 transformed weight planes outweigh them (4 x 64, batch 1: 0.35-0.75x); elsewhere
+  // Winograd took 1.2-2.5x less time (forward, input gradient) and 1.1-1.9x (weight gradient,
+  // which keeps every tile's transforms in memory: at 65,536 pixels and more it broke even).
+  const long pixels = static_cast<long>(n) * h * w;
+  if (std::min(ci, co) < 32 || pixels < 1024) return false;
+  return !weight_grad || pixels < 65536;
+}
 
 #ifndef __AVX512F__
 bool conv3x3_available() { return false; }
@@ -293,8 +325,12 @@ void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, c
 
 void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
                          const float* weight, const float* bias, int co, bool relu) {
-  const Geom g(h, w);
   const int ci = ca + cb;
+  if (conv3x3_takes_winograd(n, ci, co, h, w)) {
+    winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
+    return;
+  }
+  const Geom g(h, w);
   float* pin = g_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
   pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
@@ -314,10 +350,33 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   const Geom g(h, w);
   const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
-  // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing).
-  float* gp = g_pad_g.get(g.stride * co * n);
+  const bool wino_w = d_weight && conv3x3_takes_winograd(n, ci, co, h, w, true);
+  const bool wino_d = d_a && conv3x3_takes_winograd(n, co, ci, h, w);
+  // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
+  // for the direct kernels; with only Winograd ones the bias needs just its sums (same order).
+  float* gp = nullptr;
   float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
-  pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
+  if ((d_weight && !wino_w) || (d_a && !wino_d)) {
+    gp = g_pad_g.get(g.stride * co * n);
+    pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
+  } else if (d_bias) {
+    const float* mask = relu ? out : nullptr;
+#pragma omp parallel for schedule(static) if (par)
+    for (int ch = 0; ch < n * co; ++ch) {
+      const float* s = d_out + static_cast<std::size_t>(ch) * h * w;
+      const float* m = mask ? mask + static_cast<std::size_t>(ch) * h * w : nullptr;
+      float total = 0.f;
+      for (int y = 0; y < h; ++y) {
+        float rs = 0.f;
+        for (int x = 0; x < w; ++x) {
+          const std::size_t i = static_cast<std::size_t>(y) * w + x;
+          rs += !m || m[i] > 0.f ? s[i] : 0.f;
+        }
+        total += rs;
+      }
+      sums[ch] = total;
+    }
+  }
 
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
@@ -327,7 +386,9 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_weight) {
+  if (wino_w) {
+    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
+  } else if (d_weight) {
     float* pin = g_pad_in.get(g.stride * ci * n);
     pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
     const int blocks = (co + kCB - 1) / kCB;
@@ -357,7 +418,10 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (d_a) {
+  if (wino_d) {
+    winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
+                     nullptr, false);
+  } else if (d_a) {
     float* wp = g_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
     pack_weights(wp, weight, co, ci, true);
     conv_padded(Cat<float>{d_a, ca, d_b, cb}, gp, n, co, g, wp, nullptr, false);

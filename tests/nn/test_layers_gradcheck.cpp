@@ -8,7 +8,9 @@
 
 #include <cstdio>
 
+#include "conv_path.h"
 #include "nn/layers.h"
+#include "nn/winograd.h"
 #include "reference.h"
 
 namespace lidarsim::nn {
@@ -63,6 +65,7 @@ Errors check_conv2d(const ConvCase& c) {
 }
 
 TEST(Conv2dGradCheck, EveryKernelPaddingAndReluMatchesFiniteDifferences) {
+  conv_paths::Conv3x3PathGuard direct(detail::Conv3x3Path::direct);
   const ConvCase cases[] = {
       {2, 3, 7, 9, 4, 3, 1, true},   // the UNet's conv, odd sizes
       {2, 3, 5, 11, 5, 3, 1, false},
@@ -104,6 +107,22 @@ Errors check_conv_transpose(int out_h, int out_w) {
   e.d_weight = max_rel_error(dw.data(), numeric_gradient(wd, f));
   e.d_bias = max_rel_error(db.data(), numeric_gradient(bd, f));
   return e;
+}
+
+// The same checks with the 3x3 convolutions on Winograd F(4x4, 3x3) (forward and input
+// gradient; the weight gradient stays direct): odd sizes, partial tiles, with and without ReLU.
+TEST(Conv2dGradCheck, WinogradPathMatchesFiniteDifferences) {
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  conv_paths::Conv3x3PathGuard winograd(detail::Conv3x3Path::winograd);
+  const ConvCase cases[] = {{2, 3, 7, 9, 4, 3, 1, true}, {2, 3, 5, 11, 5, 3, 1, false}, {1, 9, 6, 13, 10, 3, 1, true}};
+  for (const ConvCase& c : cases) {
+    SCOPED_TRACE("relu " + std::to_string(c.relu) + " input " + std::to_string(c.h) + "x" + std::to_string(c.w));
+    const Errors e = check_conv2d(c);
+    EXPECT_LT(e.forward, 1e-5);
+    EXPECT_LT(e.d_in, kTol);
+    EXPECT_LT(e.d_weight, kTol);
+    EXPECT_LT(e.d_bias, kTol);
+  }
 }
 
 TEST(ConvTransposeGradCheck, ExactAndZeroPaddedOutputsMatchFiniteDifferences) {

@@ -10,9 +10,11 @@
 #include <string>
 #include <vector>
 
+#include "conv_path.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/unet.h"
+#include "nn/winograd.h"
 #include "tests/support/shared_data.h"
 
 using namespace lidarsim::nn;
@@ -106,7 +108,8 @@ void load_initial_weights(const Fixture& f, UNet& model) {
   }
 }
 
-void check_case(const std::string& name) {
+void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv3x3Path::direct) {
+  conv_paths::Conv3x3PathGuard guard(path);
   Fixture f;
   ASSERT_TRUE(f.ok()) << "cannot open " << f.path() << " (regenerate: /usr/bin/python3 tests/fixtures/make_torch_fixture.py)";
   const std::string c = "cases/" + name + "/";
@@ -191,8 +194,8 @@ void check_case(const std::string& name) {
   }
   const double step_err = std::sqrt(num / den);
   EXPECT_LT(step_err, 1e-2) << "the Adam update (after - before) vs PyTorch's";
-  std::printf("[ measured ] %s: forward %.2e, loss %.2e, worst gradient %.2e, worst after-step %.2e, update %.2e\n",
-              name.c_str(), fwd, std::abs(loss - ref_loss) / ref_loss, worst_grad, worst_after, step_err);
+  std::printf("[ measured ] %s (%s): forward %.2e, loss %.2e, worst gradient %.2e, worst after-step %.2e, update %.2e\n",
+              name.c_str(), conv_paths::path_name(path), fwd, std::abs(loss - ref_loss) / ref_loss, worst_grad, worst_after, step_err);
 }
 
 }  // namespace
@@ -216,3 +219,10 @@ TEST(TorchAgreement, ForwardLossGradientsAndOneAdamStepMatchPyTorchOnEvenSize) {
 
 // 13 x 21 does not divide by 2^depth: exercises the floor max-pool and the pad-to-skip.
 TEST(TorchAgreement, ForwardLossGradientsAndOneAdamStepMatchPyTorchOnOddSize) { check_case("odd"); }
+
+// The same fixture with the 3x3 convolutions on Winograd F(4x4, 3x3) (forward, input gradient).
+TEST(TorchAgreement, WinogradPathMatchesPyTorchOnEvenAndOddSize) {
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  check_case("even", detail::Conv3x3Path::winograd);
+  check_case("odd", detail::Conv3x3Path::winograd);
+}

@@ -8,9 +8,11 @@
 #include <cstring>
 
 #include "common/error.h"
+#include "conv_path.h"
 #include "nn/layers.h"
 #include "nn/loss.h"
 #include "nn/unet.h"
+#include "nn/winograd.h"
 #include "reference.h"
 
 namespace lidarsim::nn {
@@ -28,7 +30,8 @@ struct Result {
   double forward = 0, grad = 0;
 };
 
-Result check_unet(const Case& c) {
+Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path::direct) {
+  conv_paths::Conv3x3PathGuard guard(path);
   UNet model(c.cfg);
   model.init(7);
   // Non-zero biases so their gradients are exercised through every ReLU pattern.
@@ -105,6 +108,16 @@ TEST(UNetGradCheck, RowAffineLayerAndEveryParameterBelowItMatchFiniteDifferences
   const Result r = check_unet(kRowAffine7x9);
   EXPECT_LT(r.forward, 1e-5);
   EXPECT_LT(r.grad, 1e-4);
+}
+
+// Every parameter again with the 3x3 convolutions forced onto Winograd F(4x4, 3x3).
+TEST(UNetGradCheck, WinogradPathOddSizesAllParametersMatchFiniteDifferences) {
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  for (const Case& c : {kOdd7x9, kOdd5x11}) {
+    const Result r = check_unet(c, detail::Conv3x3Path::winograd);
+    EXPECT_LT(r.forward, 1e-5);
+    EXPECT_LT(r.grad, 1e-4);
+  }
 }
 
 TEST(UNet, RowAffineStartsAsTheIdentityAndNeedsItsRowCount) {

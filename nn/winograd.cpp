@@ -1,0 +1,501 @@
+// See nn/winograd.h. GCC 12's AVX-512 headers trip -W(maybe-)uninitialized (as in conv3x3.cpp).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#include "nn/winograd.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdlib>
+#include <new>
+
+#ifdef __AVX512F__
+#include <immintrin.h>
+#endif
+
+namespace lidarsim::nn::detail {
+
+#ifndef __AVX512F__
+bool winograd_available() { return false; }
+void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
+                      const float*, bool) {}
+void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
+#else
+
+bool winograd_available() { return true; }
+
+namespace {
+
+constexpr int kCB = 8;  // output channels per GEMM register block
+
+// Grow-only, 64-byte aligned scratch.
+struct Buf {
+  float* p = nullptr;
+  std::size_t n = 0;
+  float* get(std::size_t want) {
+    if (want > n) {
+      std::free(p);
+      p = static_cast<float*>(std::aligned_alloc(64, ((want * sizeof(float) + 63) / 64) * 64));
+      if (!p) throw std::bad_alloc();
+      n = want;
+    }
+    return p;
+  }
+  ~Buf() { std::free(p); }
+};
+
+Buf g_phase, g_phase_grad, g_u, g_v_all, g_m_all, g_du;
+thread_local Buf tl_v, tl_m;
+
+// Tile geometry. The input is kept "by phase": for each padded row (yy = y + 1) and phase r in
+// 0..3, entry tx holds pixel x = 4 tx + r - 1 (zero outside the image). Input tile (ty, tx)
+// covers rows 4 ty - 1 .. 4 ty + 4 and columns 4 tx - 1 .. 4 tx + 4, i.e. phases 0..3 of tile
+// tx and phases 0, 1 of tile tx + 1: 16 adjacent tiles load as one unaligned vector each.
+struct Geom {
+  int h, w, th, tw;
+  int nv;         // 16-tile vectors per block (1..3)
+  int tb;         // tiles per block = 16 nv
+  int blocks;     // blocks per tile row
+  int len;        // floats per (row, phase) line: blocks * tb + 16
+  int rows;       // padded rows: 4 th + 2
+  std::size_t plane;  // floats per channel: rows * 4 * len
+  Geom(int h_, int w_) : h(h_), w(w_), th((h_ + 3) / 4), tw((w_ + 3) / 4) {
+    // Fewest junk tiles at the row end; ties go to the longer block (fewer weight reloads).
+    int best = 3, best_waste = 1 << 30;
+    for (int v = 3; v >= 1; --v) {
+      const int t = 16 * v, waste = (tw + t - 1) / t * t - tw;
+      if (waste < best_waste) best = v, best_waste = waste;
+    }
+    nv = best;
+    tb = 16 * nv;
+    blocks = (tw + tb - 1) / tb;
+    len = blocks * tb + 16;
+    rows = 4 * th + 2;
+    plane = static_cast<std::size_t>(rows) * 4 * len;
+  }
+};
+
+const float* plane_of(const PlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+float* plane_of(const OutPlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+
+// Bits [lo, hi) of a 16-lane mask, clamped to 0..16.
+inline __mmask16 lane_range(int lo, int hi) {
+  lo = std::max(lo, 0);
+  hi = std::min(hi, 16);
+  if (hi <= lo) return 0;
+  return static_cast<__mmask16>(((1u << hi) - 1) & ~((1u << lo) - 1));
+}
+
+// Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
+inline float hsum(__m512 v) {
+  const __m512 t = _mm512_add_ps(v, _mm512_shuffle_f32x4(v, v, 0x4E));
+  const __m256 a = _mm512_castps512_ps256(t);
+  __m128 b = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
+  b = _mm_add_ps(b, _mm_movehl_ps(b, b));
+  b = _mm_add_ss(b, _mm_movehdup_ps(b));
+  return _mm_cvtss_f32(b);
+}
+
+// Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
+// pixels (masked loads outside the row) are split into the 4 phases of 16 tiles by two permutes.
+void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
+  const int ci = in.ca + in.cb;
+  const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
+  const bool par = static_cast<std::size_t>(n) * ci * hw > (1u << 15);
+  const __m512i even = _mm512_set_epi32(30, 26, 22, 18, 14, 10, 6, 2, 28, 24, 20, 16, 12, 8, 4, 0);
+  const __m512i odd = _mm512_set_epi32(31, 27, 23, 19, 15, 11, 7, 3, 29, 25, 21, 17, 13, 9, 5, 1);
+  const __m512 zero = _mm512_setzero_ps();
+#pragma omp parallel for schedule(static) if (par)
+  for (int p = 0; p < n * ci; ++p) {
+    const int img = p / ci, ch = p % ci;
+    const float* src = plane_of(in, img, ch, hw);
+    const float* m = mask ? mask + static_cast<std::size_t>(p) * hw : nullptr;
+    float* d = dst + static_cast<std::size_t>(p) * g.plane;
+    for (int yy = 0; yy < g.rows; ++yy) {
+      float* line = d + static_cast<std::size_t>(yy) * 4 * g.len;
+      const int y = yy - 1;
+      if (y < 0 || y >= g.h) {
+        std::fill(line, line + 4 * g.len, 0.f);
+        continue;
+      }
+      const float* s = src + static_cast<std::size_t>(y) * g.w;
+      const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
+      for (int tx = 0; tx < g.len; tx += 16) {
+        __m512 a[4];
+        for (int q = 0; q < 4; ++q) {
+          const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
+          __mmask16 k = lane_range(-x, g.w - x);
+          if (mr && k) k &= _mm512_cmp_ps_mask(_mm512_maskz_loadu_ps(k, mr + x), zero, _CMP_GT_OQ);
+          a[q] = k ? _mm512_maskz_loadu_ps(k, s + x) : zero;
+        }
+        // Lanes 0..7 phase 0 (1), lanes 8..15 phase 2 (3), of pixels 0..31 and 32..63.
+        const __m512 e01 = _mm512_permutex2var_ps(a[0], even, a[1]), e23 = _mm512_permutex2var_ps(a[2], even, a[3]);
+        const __m512 o01 = _mm512_permutex2var_ps(a[0], odd, a[1]), o23 = _mm512_permutex2var_ps(a[2], odd, a[3]);
+        _mm512_storeu_ps(line + tx, _mm512_shuffle_f32x4(e01, e23, 0x44));
+        _mm512_storeu_ps(line + g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0x44));
+        _mm512_storeu_ps(line + 2 * g.len + tx, _mm512_shuffle_f32x4(e01, e23, 0xEE));
+        _mm512_storeu_ps(line + 3 * g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0xEE));
+      }
+    }
+  }
+}
+
+// U = G k G^T for each 3x3 kernel k, packed [36][co blocks][ci][kCB] (zeros past the last output
+// channel). The kCB kernels of a block ride in the 8 lanes of a double vector: the transform's
+// fractions (1/6, 1/24) are applied in double and round once, and each of the 36 results is
+// stored as kCB consecutive floats.
+void transform_weights(float* u, const float* w, int co, int ci, bool transpose_flip) {
+  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
+                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
+                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
+                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
+                                     {0, 0, 1}};
+  static_assert(kCB == 8, "one double vector per block");
+  const int blocks = (co + kCB - 1) / kCB;
+  const std::size_t per_e = static_cast<std::size_t>(blocks) * ci * kCB;
+  const bool par = static_cast<std::size_t>(co) * ci > 4096;
+#pragma omp parallel for schedule(static) if (par)
+  for (int bc = 0; bc < blocks * ci; ++bc) {
+    const int b = bc / ci, c = bc % ci;
+    alignas(64) double k[9][kCB];
+    for (int j = 0; j < kCB; ++j) {
+      const int o = b * kCB + j;
+      for (int t = 0; t < 9; ++t)
+        k[t][j] = o >= co ? 0.0
+                  : transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (8 - t)]
+                                   : w[(static_cast<std::size_t>(o) * ci + c) * 9 + t];
+    }
+    __m512d kv[9];
+    for (int t = 0; t < 9; ++t) kv[t] = _mm512_load_pd(k[t]);
+    __m512d gk[6][3];  // G k: rows a, columns kw
+    for (int a = 0; a < 6; ++a)
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int kh = 0; kh < 3; ++kh)
+          if (G[a][kh] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[a][kh]), kv[kh * 3 + kw], acc);
+        gk[a][kw] = acc;
+      }
+    float* dst = u + static_cast<std::size_t>(bc) * kCB;
+    for (int a = 0; a < 6; ++a)
+      for (int bb = 0; bb < 6; ++bb) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int kw = 0; kw < 3; ++kw)
+          if (G[bb][kw] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[bb][kw]), gk[a][kw], acc);
+        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(acc));
+      }
+  }
+}
+
+// B^T applied to 6 values: the input transform's 1-D step.
+inline void bt6(const __m512 x[6], __m512 r[6]) {
+  const __m512 four = _mm512_set1_ps(4.f), five = _mm512_set1_ps(5.f), two = _mm512_set1_ps(2.f);
+  r[0] = _mm512_fnmadd_ps(five, x[2], _mm512_fmadd_ps(four, x[0], x[4]));
+  const __m512 s12 = _mm512_add_ps(x[1], x[2]), d12 = _mm512_sub_ps(x[1], x[2]);
+  r[1] = _mm512_fnmadd_ps(four, s12, _mm512_add_ps(x[4], x[3]));
+  r[2] = _mm512_fmadd_ps(four, d12, _mm512_sub_ps(x[4], x[3]));
+  const __m512 d42 = _mm512_sub_ps(x[4], x[2]), d31 = _mm512_sub_ps(x[3], x[1]);
+  r[3] = _mm512_fmadd_ps(two, d31, d42);
+  r[4] = _mm512_fnmadd_ps(two, d31, d42);
+  r[5] = _mm512_fnmadd_ps(five, x[3], _mm512_fmadd_ps(four, x[1], x[5]));
+}
+
+// A^T applied to 6 values: the output transform's 1-D step.
+inline void at6(const __m512 m[6], __m512 y[4]) {
+  const __m512 s12 = _mm512_add_ps(m[1], m[2]), d12 = _mm512_sub_ps(m[1], m[2]);
+  const __m512 s34 = _mm512_add_ps(m[3], m[4]), d34 = _mm512_sub_ps(m[3], m[4]);
+  y[0] = _mm512_add_ps(_mm512_add_ps(m[0], s12), s34);
+  y[1] = _mm512_fmadd_ps(_mm512_set1_ps(2.f), d34, d12);
+  y[2] = _mm512_fmadd_ps(_mm512_set1_ps(4.f), s34, s12);
+  y[3] = _mm512_add_ps(_mm512_fmadd_ps(_mm512_set1_ps(8.f), d34, d12), m[5]);
+}
+
+// V[e][c][16 lanes] for one 16-tile vector of channel c: tile row ty, first tile tx.
+inline void input_tile(float* v, std::size_t e_stride, const float* plane, const Geom& g, int ty, int tx) {
+  __m512 t[6][6];
+  for (int i = 0; i < 6; ++i) {
+    const float* row = plane + static_cast<std::size_t>(4 * ty + i) * 4 * g.len + tx;
+    __m512 x[6];
+    for (int k = 0; k < 6; ++k) x[k] = _mm512_loadu_ps(row + (k & 3) * g.len + (k >> 2));
+    bt6(x, t[i]);
+  }
+  for (int bb = 0; bb < 6; ++bb) {
+    __m512 col[6], r[6];
+    for (int i = 0; i < 6; ++i) col[i] = t[i][bb];
+    bt6(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
+  }
+}
+
+// M[co block rows][tb] = U[block][ci][kCB]^T V[ci][tb] for one transform element.
+template <int NV>
+inline void gemm_block(float* m, int m_stride, const float* v, int tb, const float* u, int ci) {
+  __m512 acc[kCB][NV];
+  for (int b = 0; b < kCB; ++b)
+    for (int q = 0; q < NV; ++q) acc[b][q] = _mm512_setzero_ps();
+  for (int c = 0; c < ci; ++c) {
+    __m512 x[NV];
+    for (int q = 0; q < NV; ++q) x[q] = _mm512_load_ps(v + static_cast<std::size_t>(c) * tb + 16 * q);
+    const float* uc = u + static_cast<std::size_t>(c) * kCB;
+    for (int b = 0; b < kCB; ++b) {
+      const __m512 wv = _mm512_set1_ps(uc[b]);
+      for (int q = 0; q < NV; ++q) acc[b][q] = _mm512_fmadd_ps(wv, x[q], acc[b][q]);
+    }
+  }
+  for (int b = 0; b < kCB; ++b)
+    for (int q = 0; q < NV; ++q) _mm512_store_ps(m + static_cast<std::size_t>(b) * m_stride + 16 * q, acc[b][q]);
+}
+
+// Writes the four vectors y[0..3] (output column j of 16 tiles) as 64 consecutive pixels.
+inline void store_interleaved(float* dst, const __m512 y[4], int valid) {
+  const __m512i lo = _mm512_set_epi32(23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1, 16, 0);
+  const __m512i hi = _mm512_set_epi32(31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8);
+  const __m512i plo = _mm512_set_epi64(11, 3, 10, 2, 9, 1, 8, 0);
+  const __m512i phi = _mm512_set_epi64(15, 7, 14, 6, 13, 5, 12, 4);
+  const __m512d a01l = _mm512_castps_pd(_mm512_permutex2var_ps(y[0], lo, y[1]));
+  const __m512d a01h = _mm512_castps_pd(_mm512_permutex2var_ps(y[0], hi, y[1]));
+  const __m512d a23l = _mm512_castps_pd(_mm512_permutex2var_ps(y[2], lo, y[3]));
+  const __m512d a23h = _mm512_castps_pd(_mm512_permutex2var_ps(y[2], hi, y[3]));
+  const __m512 o[4] = {_mm512_castpd_ps(_mm512_permutex2var_pd(a01l, plo, a23l)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01l, phi, a23l)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01h, plo, a23h)),
+                       _mm512_castpd_ps(_mm512_permutex2var_pd(a01h, phi, a23h))};
+  for (int q = 0; q < 4 && valid > 0; ++q, valid -= 16) {
+    if (valid >= 16)
+      _mm512_storeu_ps(dst + 16 * q, o[q]);
+    else
+      _mm512_mask_storeu_ps(dst + 16 * q, static_cast<__mmask16>((1u << valid) - 1), o[q]);
+  }
+}
+
+// Output tiles of one channel for one 16-tile vector: A^T M A, bias, ReLU, written to out.
+inline void output_tile(float* out_plane, const float* m, std::size_t e_stride, const Geom& g, int ty, int tx,
+                        float bias, bool relu) {
+  __m512 t[6][4];
+  for (int a = 0; a < 6; ++a) {
+    __m512 row[6];
+    for (int bb = 0; bb < 6; ++bb) row[bb] = _mm512_load_ps(m + (a * 6 + bb) * e_stride);
+    at6(row, t[a]);
+  }
+  const __m512 bv = _mm512_set1_ps(bias), zero = _mm512_setzero_ps();
+  const int x0 = 4 * tx, valid = std::min(64, g.w - x0);
+  if (valid <= 0) return;
+  __m512 y[4][4];
+  for (int j = 0; j < 4; ++j) {
+    __m512 col[6], r[4];
+    for (int a = 0; a < 6; ++a) col[a] = t[a][j];
+    at6(col, r);
+    for (int i = 0; i < 4; ++i) y[i][j] = relu ? _mm512_max_ps(_mm512_add_ps(r[i], bv), zero) : _mm512_add_ps(r[i], bv);
+  }
+  for (int i = 0; i < 4; ++i) {
+    const int yrow = 4 * ty + i;
+    if (yrow >= g.h) break;
+    store_interleaved(out_plane + static_cast<std::size_t>(yrow) * g.w + x0, y[i], valid);
+  }
+}
+
+template <int NV>
+void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom& g, const float* u, const float* bias,
+         bool relu) {
+  const int co = out.ca + out.cb;
+  const int co_blocks = (co + kCB - 1) / kCB;
+  const std::size_t u_e = static_cast<std::size_t>(co_blocks) * ci * kCB;
+  const int tiles_tasks = n * g.th * g.blocks;
+  const int threads = omp_get_max_threads();
+  // Few tile blocks (the deep layers): split the output channels too, each part repeating the
+  // (cheap) input transform, so every thread has work.
+  int parts = 1;
+  if (tiles_tasks < 4 * threads) parts = std::min(co_blocks, (4 * threads + tiles_tasks - 1) / tiles_tasks);
+  const int tasks = tiles_tasks * parts;
+  const double flops = 2.0 * tiles_tasks * g.tb * 36.0 * ci * co;
+  const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
+#pragma omp parallel if (flops > 2e6)
+  {
+    // One cache line past each transform element's slice: power-of-two strides would put the 36
+    // slices of a tile in one L1 set.
+    const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb + 16;
+    float* v = tl_v.get(36 * v_e);
+#pragma omp for schedule(static)
+    for (int task = 0; task < tasks; ++task) {
+      const int part = task % parts, tt = task / parts;
+      const int img = tt / (g.th * g.blocks), ty = (tt / g.blocks) % g.th, blk = tt % g.blocks;
+      const int b0 = co_blocks * part / parts, b1 = co_blocks * (part + 1) / parts;
+      const std::size_t m_e = static_cast<std::size_t>(b1 - b0) * kCB * g.tb + 16;
+      float* m = tl_m.get(36 * m_e);
+      for (int c = 0; c < ci; ++c) {
+        const float* plane = phases + (static_cast<std::size_t>(img) * ci + c) * g.plane;
+        for (int q = 0; q < NV; ++q)
+          input_tile(v + static_cast<std::size_t>(c) * g.tb + 16 * q, v_e, plane, g, ty, blk * g.tb + 16 * q);
+      }
+      for (int e = 0; e < 36; ++e)
+        for (int b = b0; b < b1; ++b)
+          gemm_block<NV>(m + e * m_e + static_cast<std::size_t>(b - b0) * kCB * g.tb, g.tb, v + e * v_e, g.tb,
+                         u + e * u_e + static_cast<std::size_t>(b) * ci * kCB, ci);
+      for (int o = b0 * kCB; o < std::min(co, b1 * kCB); ++o) {
+        float* op = plane_of(out, img, o, hw);
+        const float* mo = m + static_cast<std::size_t>(o - b0 * kCB) * g.tb;
+        for (int q = 0; q < NV; ++q)
+          output_tile(op, mo + 16 * q, m_e, g, ty, blk * g.tb + 16 * q, bias ? bias[o] : 0.f, relu);
+      }
+    }
+  }
+}
+
+// A applied to 4 values (the transpose of at6): the output gradient's 1-D step.
+inline void a4(const __m512 y[4], __m512 m[6]) {
+  const __m512 s02 = _mm512_add_ps(y[0], y[2]), s13 = _mm512_add_ps(y[1], y[3]);
+  const __m512 t02 = _mm512_fmadd_ps(_mm512_set1_ps(4.f), y[2], y[0]);
+  const __m512 t13 = _mm512_fmadd_ps(_mm512_set1_ps(8.f), y[3], _mm512_mul_ps(_mm512_set1_ps(2.f), y[1]));
+  m[0] = y[0];
+  m[1] = _mm512_add_ps(s02, s13);
+  m[2] = _mm512_sub_ps(s02, s13);
+  m[3] = _mm512_add_ps(t02, t13);
+  m[4] = _mm512_sub_ps(t02, t13);
+  m[5] = y[3];
+}
+
+// dM[e][16 lanes] = (A dY A^T)[e] for one 16-tile vector of one output-gradient channel, read
+// from its by-phase layout: output pixel (4 ty + i, 4 tx + j) is padded row 4 ty + 1 + i,
+// phase (j + 1) & 3 of tile tx + (j + 1) / 4.
+inline void grad_tile(float* m, std::size_t e_stride, const float* plane, const Geom& g, int ty, int tx) {
+  __m512 t[4][6];
+  for (int i = 0; i < 4; ++i) {
+    const float* row = plane + static_cast<std::size_t>(4 * ty + 1 + i) * 4 * g.len + tx;
+    __m512 y[4];
+    for (int j = 0; j < 4; ++j) y[j] = _mm512_loadu_ps(row + ((j + 1) & 3) * g.len + ((j + 1) >> 2));
+    a4(y, t[i]);
+  }
+  for (int b = 0; b < 6; ++b) {
+    __m512 col[4], r[6];
+    for (int i = 0; i < 4; ++i) col[i] = t[i][b];
+    a4(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(m + (a * 6 + b) * e_stride, r[a]);
+  }
+}
+
+// du[8][3] = sum over tiles of dM rows o0..o0+7 times V rows c0..c0+2 (lanes = tiles).
+inline void du_block(float* du, int du_stride, const float* dm, const float* v, std::size_t row, std::size_t tiles) {
+  __m512 acc[kCB][3];
+  for (int b = 0; b < kCB; ++b) acc[b][0] = acc[b][1] = acc[b][2] = _mm512_setzero_ps();
+  for (std::size_t t = 0; t < tiles; t += 16) {
+    const __m512 x0 = _mm512_load_ps(v + t), x1 = _mm512_load_ps(v + row + t), x2 = _mm512_load_ps(v + 2 * row + t);
+    for (int b = 0; b < kCB; ++b) {
+      __m512 gv = _mm512_load_ps(dm + b * row + t);
+      asm("" : "+v"(gv));  // one load, three FMAs (as in conv3x3.cpp's weight gradient)
+      acc[b][0] = _mm512_fmadd_ps(gv, x0, acc[b][0]);
+      acc[b][1] = _mm512_fmadd_ps(gv, x1, acc[b][1]);
+      acc[b][2] = _mm512_fmadd_ps(gv, x2, acc[b][2]);
+    }
+  }
+  for (int b = 0; b < kCB; ++b)
+    for (int k = 0; k < 3; ++k) du[b * du_stride + k] = hsum(acc[b][k]);
+}
+
+}  // namespace
+
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb, co = out.ca + out.cb;
+  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(phases, in, mask, n, g);
+  float* u = g_u.get(36 * static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci);
+  transform_weights(u, weight, co, ci, transpose_flip);
+  if (g.nv == 3)
+    run<3>(out, phases, n, ci, g, u, bias, relu);
+  else if (g.nv == 2)
+    run<2>(out, phases, n, ci, g, u, bias, relu);
+  else
+    run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(pin, in, nullptr, n, g);
+  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
+  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+
+  // Every tile of every image, transformed: V [36][ci3][tiles], dM [36][co8][tiles] (channels
+  // padded to the register block with zero rows; one cache line between elements).
+  const int co8 = (co + kCB - 1) / kCB * kCB, ci3 = (ci + 2) / 3 * 3;
+  const std::size_t tiles = static_cast<std::size_t>(n) * g.th * g.blocks * g.tb;
+  const std::size_t v_e = ci3 * tiles + 16, m_e = co8 * tiles + 16;
+  float* v = g_v_all.get(36 * v_e);
+  float* m = g_m_all.get(36 * m_e);
+  const int vectors = static_cast<int>(tiles / 16);
+  const double flops = 2.0 * 36 * tiles * ci * co;
+  const bool par = flops > 2e6;
+#pragma omp parallel if (par)
+  {
+#pragma omp for schedule(static) nowait
+    for (int e = 0; e < 36; ++e) {
+      for (int c = ci; c < ci3; ++c) std::fill(v + e * v_e + c * tiles, v + e * v_e + (c + 1) * tiles, 0.f);
+      for (int o = co; o < co8; ++o) std::fill(m + e * m_e + o * tiles, m + e * m_e + (o + 1) * tiles, 0.f);
+    }
+#pragma omp for schedule(static)
+    for (int q = 0; q < vectors; ++q) {
+      const int per_row = g.blocks * g.nv;  // vectors per tile row
+      const int img = q / (g.th * per_row), ty = (q / per_row) % g.th, tx = (q % per_row) * 16;
+      const std::size_t t0 = static_cast<std::size_t>(q) * 16;
+      for (int c = 0; c < ci; ++c)
+        input_tile(v + c * tiles + t0, v_e, pin + (static_cast<std::size_t>(img) * ci + c) * g.plane, g, ty, tx);
+      for (int o = 0; o < co; ++o)
+        grad_tile(m + o * tiles + t0, m_e, pg + (static_cast<std::size_t>(img) * co + o) * g.plane, g, ty, tx);
+    }
+  }
+
+  // dU [36][co8][ci3]: one task per (element, 8 outputs, 3 inputs), each summing all tiles.
+  const int ob = co8 / kCB, cg = ci3 / 3;
+  float* du = g_du.get(static_cast<std::size_t>(36) * co8 * ci3);
+#pragma omp parallel for schedule(static) if (par)
+  for (int task = 0; task < 36 * ob * cg; ++task) {
+    const int e = task / (ob * cg), b = (task / cg) % ob, c3 = task % cg;
+    du_block(du + (static_cast<std::size_t>(e) * co8 + b * kCB) * ci3 + 3 * c3, ci3,
+             m + e * m_e + static_cast<std::size_t>(b) * kCB * tiles, v + e * v_e + static_cast<std::size_t>(3 * c3) * tiles,
+             tiles, tiles);
+  }
+
+  // d_weight += G^T dU G per kernel, in double.
+  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
+                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
+                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
+                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
+                                     {0, 0, 1}};
+  const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
+#pragma omp parallel for schedule(static) if (par)
+  for (int o = 0; o < co; ++o)
+    for (int c = 0; c < ci; ++c) {
+      const float* d = du + static_cast<std::size_t>(o) * ci3 + c;
+      double t[6][3];  // dU G
+      for (int a = 0; a < 6; ++a)
+        for (int kw = 0; kw < 3; ++kw) {
+          double acc = 0;
+          for (int bb = 0; bb < 6; ++bb) acc += d[(a * 6 + bb) * du_e] * G[bb][kw];
+          t[a][kw] = acc;
+        }
+      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c) * 9;
+      for (int kh = 0; kh < 3; ++kh)
+        for (int kw = 0; kw < 3; ++kw) {
+          double acc = 0;
+          for (int a = 0; a < 6; ++a) acc += G[a][kh] * t[a][kw];
+          dw[kh * 3 + kw] += static_cast<float>(acc);
+        }
+    }
+}
+
+#endif
+
+}  // namespace lidarsim::nn::detail

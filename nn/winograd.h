@@ -1,0 +1,41 @@
+#pragma once
+// Winograd F(4x4, 3x3) convolution (stride 1, padding 1): each 4 x 4 output tile costs 36
+// products per channel pair instead of 144. Input tiles (6 x 6) and weights go to the
+// transform domain, 36 independent channel GEMMs run there, and the output transform adds the
+// bias and the ReLU on the way out. Tiles sit in the AVX-512 lanes (16 horizontally adjacent
+// tiles of one tile row per vector), so the transforms are plain vector adds.
+// Its error against the direct kernel is measured in tests/nn/test_winograd.cpp.
+namespace lidarsim::nn::detail {
+
+bool winograd_available();
+
+// NCHW planes [n][ca + cb] split over two buffers (the UNet's concat without a copy).
+struct PlaneSet {
+  const float* a;
+  int ca;
+  const float* b = nullptr;
+  int cb = 0;
+};
+struct OutPlaneSet {
+  float* a;
+  int ca;
+  float* b = nullptr;
+  int cb = 0;
+};
+
+// out = conv3x3(in) with weight [co, ci, 3, 3] (out has co channels, in ci), plus bias [co] (or
+// null), then ReLU when relu. With transpose_flip the weight is [ci, co, 3, 3] read flipped (the
+// input gradient of a conv whose output has ci channels). With mask, in counts only where
+// mask > 0 (the ReLU backward: mask is the forward output, same layout as in).
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu);
+
+// Adds the weight gradient of that conv (no flip) to d_weight [co, ci, 3, 3]: d_out [n, co, h, w]
+// (masked where mask > 0 when mask is given) against in [n, ci, h, w], through the transposed
+// algorithm: the transformed output gradient (A dY A^T) times the transformed input tiles
+// (B^T d B), summed over all tiles per transform element, then G^T (.) G. The tile sums run in
+// a fixed order, so the result does not depend on the thread count.
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co);
+
+}  // namespace lidarsim::nn::detail
