@@ -23,7 +23,7 @@ namespace {
 
 const char* kUsage =
     "usage:\n"
-    "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R      KPI model vs measured detections\n"
+    "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R [--nested]  KPI model vs measured detections\n"
     "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup] [--out-model CK.h5]\n"
@@ -101,6 +101,7 @@ int run(int argc, char** argv) {
     ("report", "loop report JSON", cxxopts::value<std::string>())
     ("max-effects", "loop objects: bias forms added per run, at most one per target, best first (0: no limit)", cxxopts::value<int>()->default_value("0"))
     ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel or per-row affine layer)", cxxopts::value<std::string>())
+    ("nested", "objects: also score the loop's model nested (the loop run on each outer fold's fit sequences only)")
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
@@ -124,7 +125,7 @@ int run(int argc, char** argv) {
                                              a["seqmap"].as<std::string>(), a["detector"].as<std::string>());
     const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
     const fs::path out = need(a, "out", "the report folder");
-    const auto j = qualify::qualify_objects(data, model, out, seed);
+    const auto j = qualify::qualify_objects(data, model, out, seed, a.count("nested") > 0);
     std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
               << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
               << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";

@@ -9,7 +9,9 @@ namespace lidarsim::qualify::obj {
 namespace {
 
 // One number per truth object the KPI manager produces with `model` (read from its injection),
-// keyed by (sequence, frame, id). A fresh manager per sequence: track ages restart, ids stay unique.
+// keyed by (sequence, frame, id). A fresh manager per sequence: track ages restart. The manager
+// sees ids made unique across sequences (as sensor::resimulate does), so track 3 of one sequence
+// does not take the same random streams as track 3 of another.
 template <class Read>
 std::map<std::array<int, 3>, double> simulated_per_object(const std::vector<sensor::CalibrationSequence>& seqs,
                                                           const std::vector<int>& which, const sensor::KpiModel& model,
@@ -21,9 +23,10 @@ std::map<std::array<int, 3>, double> simulated_per_object(const std::vector<sens
     const auto& cs = seqs.at(s);
     for (size_t f = 0; f < cs.frames.size(); ++f) {
       truth = cs.frames[f].truth;
+      for (auto& o : truth) o.id = s * 100000 + o.id;
       kpi.apply(truth, reported);
       for (const auto& inj : kpi.injections())
-        if (inj.modelled) out[{s, static_cast<int>(f), inj.id}] = read(inj);
+        if (inj.modelled) out[{s, static_cast<int>(f), cs.frames[f].truth[inj.truth_index].id}] = read(inj);
     }
   }
   return out;

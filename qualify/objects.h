@@ -89,8 +89,12 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
 
 // `lidar-qualify objects`: the model re-simulated on the ground truth vs the measured
 // detections; writes report.json, report.md and PNGs into out_dir. Returns the JSON.
+// With `nested`, the held-out table gets a second model column free of the loop's leak: for each
+// outer fold the loop (loop_objects, its own inner even/odd split) runs on that fold's fit
+// sequences only, and the model it writes is scored on the outer held-out sequences (the loop's
+// models and reports are written to out_dir/nested_fold_K_*).
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
-                               const std::filesystem::path& out_dir, std::uint64_t seed = 1);
+                               const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out

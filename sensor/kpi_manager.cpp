@@ -8,8 +8,14 @@
 
 namespace lidarsim::sensor {
 
+namespace {
+// Stream purposes (KpiRng::stream); error parameters use 0 .. kNumKpiParams - 1.
+constexpr std::uint64_t kPurposeMiss = 16, kPurposeFlip = 17, kPurposeScore = 18, kPurposeFalsePositives = 32;
+constexpr std::uint64_t kFalsePositiveKey = ~std::uint64_t{0};  // no track id takes this value
+}  // namespace
+
 KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
-    : model_(std::move(model)), options_(options), rng_(seed) {
+    : model_(std::move(model)), options_(options), seed_(seed) {
   model_.validate();
   class_slot_.fill(-1);
   for (int k = 0; k < 8; ++k) {
@@ -19,6 +25,7 @@ KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
     class_slot_[k] = static_cast<int>(it - class_models_.begin());
     if (it == class_models_.end()) class_models_.push_back(m);
   }
+  for (int k = 0; k < 8; ++k) fp_rng_[k] = KpiRng::stream(seed_, kFalsePositiveKey, k, kPurposeFalsePositives);
   controllers_.assign(class_models_.size() * kNumKpiParams, RunningTargetController(model_.controller));
 }
 
@@ -55,10 +62,10 @@ void KpiManager::forget_stale() {
   }
 }
 
-double KpiManager::sample_quantiles(const std::vector<double>& q, double fallback) {
+double KpiManager::sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng) {
   if (q.size() < 2) return fallback;
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  const double x = u(rng_) * static_cast<double>(q.size() - 1);
+  const double x = u(rng) * static_cast<double>(q.size() - 1);
   const size_t i = std::min(static_cast<size_t>(x), q.size() - 2);
   const double f = x - static_cast<double>(i);
   return q[i] + f * (q[i + 1] - q[i]);
@@ -128,7 +135,6 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
   ++frame_;
   reported.clear();
   injections_.resize(truth.size());
-  std::normal_distribution<double> normal(0.0, 1.0);
   for (size_t i = 0; i < truth.size(); ++i) {
     const Object& o = truth[i];
     KpiInjection& inj = injections_[i];
@@ -158,16 +164,25 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     const bool fresh = st.last_frame < 0;
     const int gap = fresh ? 1 : static_cast<int>(std::min<long>(frame_ - st.last_frame, 1000));
     st.last_frame = frame_;
-    if (fresh) st.first_frame = frame_;
+    if (fresh) {
+      st.first_frame = frame_;
+      const auto id = static_cast<std::uint64_t>(static_cast<std::int64_t>(o.id));
+      const auto ff = static_cast<std::uint64_t>(frame_);
+      for (int p = 0; p < kNumKpiParams; ++p) st.error_rng[p] = KpiRng::stream(seed_, id, ff, p);
+      st.miss_rng = KpiRng::stream(seed_, id, ff, kPurposeMiss);
+      st.flip_rng = KpiRng::stream(seed_, id, ff, kPurposeFlip);
+      st.score_rng = KpiRng::stream(seed_, id, ff, kPurposeScore);
+    }
     if (gap == 0) throw Error("kpi manager: object id " + std::to_string(o.id) + " appears twice in one frame");
 
     // Errors: advance every parameter's AR(1) state, even when the object will be missed.
     for (int p = 0; p < kNumKpiParams; ++p) {
       const ErrorModel& em = cm.errors[p];
-      const double eps = sample_innovation(em.innovation, rng_);
+      KpiRng& rng = st.error_rng[p];
+      const double eps = sample_innovation(em.innovation, rng);
       if (fresh) {
         st.z[p] = eps;  // stationary start
-        st.c[p] = normal(rng_);
+        st.c[p] = std::normal_distribution<double>(0.0, 1.0)(rng);
       } else {
         st.z[p] = ar1_step(st.z[p], em.ar1, gap, eps);
       }
@@ -184,8 +199,8 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     }
     const double pd = detection_probability(cm, rb, vb, o, range, frame_ - st.first_frame);
     inj.detection_probability = pd;
-    const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, rng_);
-    const bool flipped = st.flip.step(cm.heading_flip_probability, cm.flip_burst_mean, rng_);
+    const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, st.miss_rng);
+    const bool flipped = st.flip.step(cm.heading_flip_probability, cm.flip_burst_mean, st.flip_rng);
     inj.detected = !(options_.misses && missed);
     inj.flipped = options_.flips && flipped;
     if (!inj.detected) continue;
@@ -201,7 +216,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     r.size.y() = std::max(0.05, r.size.y() + e[int(KpiParam::Width)]);
     r.size.z() = std::max(0.05, r.size.z() + e[int(KpiParam::Height)]);
     r.heading = wrap_angle(r.heading + e[int(KpiParam::Heading)] + (inj.flipped ? std::numbers::pi : 0.0));
-    r.score = sample_quantiles(cm.score_quantiles, 1.0);
+    r.score = sample_quantiles(cm.score_quantiles, 1.0, st.score_rng);
     reported.push_back(r);
   }
 
@@ -213,20 +228,22 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       // Each model once, under its own class (not again for the classes that fall back to it).
       if (model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) == 0) continue;
       if (cm.false_positive_rate <= 0) continue;
+      KpiRng& rng = fp_rng_[k];
       std::poisson_distribution<int> poisson(cm.false_positive_rate);
-      const int n = poisson(rng_);
+      const int n = poisson(rng);
       for (int f = 0; f < n; ++f) {
         Object fp;
         fp.id = next_fp_id_--;
         if (next_fp_id_ < -1000000000) next_fp_id_ = -1000;
         fp.cls = static_cast<ObjectClass>(k);
-        const double rr = sample_quantiles(cm.fp_range_quantiles, 20), az = sample_quantiles(cm.fp_azimuth_quantiles, 0);
+        const double rr = sample_quantiles(cm.fp_range_quantiles, 20, rng),
+                     az = sample_quantiles(cm.fp_azimuth_quantiles, 0, rng);
         fp.position = Eigen::Vector3d(rr * std::cos(az), rr * std::sin(az), cm.fp_z);
         fp.size = cm.mean_size;
         std::uniform_real_distribution<double> h(-std::numbers::pi, std::numbers::pi);
-        fp.heading = h(rng_);
+        fp.heading = h(rng);
         fp.visible_fraction = 1;
-        fp.score = sample_quantiles(cm.fp_score_quantiles, 0.5);
+        fp.score = sample_quantiles(cm.fp_score_quantiles, 0.5, rng);
         reported.push_back(fp);
       }
     }

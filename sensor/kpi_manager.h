@@ -14,6 +14,10 @@
 // and per frame a Poisson number of false positives per class. A feedback controller per
 // class and parameter keeps the running mean and spread of the injected standardized noise on
 // target (0, 1), so the injected errors keep the model's mean and std per bin.
+// Random draws: each track owns one stream per error parameter and one each for its misses,
+// flips and scores, keyed by (seed, id, first frame, purpose), and each class's false
+// positives one stream; so a model change on one target or class does not move the draws of
+// another (common random numbers when two models are compared with one seed).
 // Per-frame work allocates nothing once the per-object tables have grown.
 #include <array>
 #include <cstdint>
@@ -75,18 +79,21 @@ class KpiManager {
     std::array<double, kNumKpiParams> z{};      // AR(1) states
     std::array<double, kNumKpiParams> c{};      // per-track constants
     BurstChain miss, flip;
+    std::array<KpiRng, kNumKpiParams> error_rng;
+    KpiRng miss_rng, flip_rng, score_rng;
     long last_frame = -1;
     long first_frame = -1;  // for the track_age feature of conditional terms
   };
   TrackState& state_for(int id);
   void forget_stale();
-  double sample_quantiles(const std::vector<double>& q, double fallback);
+  static double sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng);
   double detection_probability(const ClassModel& cm, int rb, int vb, const Object& o, double range,
                                long track_age) const;
 
   KpiModel model_;
   KpiOptions options_;
-  KpiRng rng_;
+  std::uint64_t seed_;
+  std::array<KpiRng, 8> fp_rng_;  // per class
   std::array<int, 8> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
   std::vector<const ClassModel*> class_models_;
   std::vector<RunningTargetController> controllers_;  // slot * kNumKpiParams + param

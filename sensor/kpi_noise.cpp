@@ -5,6 +5,42 @@
 
 namespace lidarsim::sensor {
 
+namespace {
+std::uint64_t splitmix64(std::uint64_t& x) {
+  std::uint64_t z = (x += 0x9e3779b97f4a7c15ULL);
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+}  // namespace
+
+KpiRng::KpiRng(std::uint64_t seed) {
+  for (auto& w : s_) w = splitmix64(seed);
+}
+
+KpiRng KpiRng::stream(std::uint64_t seed, std::uint64_t a, std::uint64_t b, std::uint64_t purpose) {
+  std::uint64_t h = seed;
+  std::uint64_t k = splitmix64(h);
+  for (std::uint64_t v : {a, b, purpose}) {
+    h = k ^ v;
+    k = splitmix64(h);
+  }
+  return KpiRng(k);
+}
+
+KpiRng::result_type KpiRng::operator()() {
+  const std::uint64_t r = rotl(s_[1] * 5, 7) * 9;
+  const std::uint64_t t = s_[1] << 17;
+  s_[2] ^= s_[0];
+  s_[3] ^= s_[1];
+  s_[1] ^= s_[2];
+  s_[0] ^= s_[3];
+  s_[2] ^= t;
+  s_[3] = rotl(s_[3], 45);
+  return r;
+}
+
 double sample_innovation(const Innovation& in, KpiRng& rng) {
   std::normal_distribution<double> normal(0.0, 1.0);
   switch (in.type) {

@@ -9,7 +9,24 @@
 
 namespace lidarsim::sensor {
 
-using KpiRng = std::mt19937_64;
+// A small, fast engine (xoshiro256**, 32 bytes of state) so every track can own several
+// streams. Seeded through splitmix64, so nearby seeds give unrelated streams.
+class KpiRng {
+ public:
+  using result_type = std::uint64_t;
+  explicit KpiRng(std::uint64_t seed = 1);
+  // A stream keyed by (seed, a, b, purpose): the KPI manager gives each track and each draw
+  // purpose its own, so a change in how many draws one target takes (another innovation type,
+  // a term on one class) leaves every other target's and track's draws unchanged (common
+  // random numbers between model variants).
+  static KpiRng stream(std::uint64_t seed, std::uint64_t a, std::uint64_t b, std::uint64_t purpose);
+  static constexpr result_type min() { return 0; }
+  static constexpr result_type max() { return ~result_type{0}; }
+  result_type operator()();
+
+ private:
+  std::uint64_t s_[4];
+};
 
 // One draw with mean 0 and variance 1 from the innovation distribution.
 double sample_innovation(const Innovation& in, KpiRng& rng);

@@ -126,11 +126,11 @@ TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPe
   EXPECT_EQ(m.classes.size(), 3u);
   // The loop's terms (data/models/README.md), kept per class where the re-simulated held-out
   // distribution did not get worse: width by the true box width for every class, length by the
-  // box length for Pedestrian and Cyclist, no height term.
+  // box length for Car and Pedestrian, no height term.
   for (const char* c : {"Car", "Pedestrian", "Cyclist"})
     EXPECT_EQ(m.classes.at(c).errors[int(sensor::KpiParam::Width)].conditional.feature, "box_width") << c;
-  EXPECT_FALSE(m.classes.at("Car").errors[int(sensor::KpiParam::Length)].conditional.present());
-  EXPECT_EQ(m.classes.at("Cyclist").errors[int(sensor::KpiParam::Length)].conditional.feature, "size");
+  EXPECT_EQ(m.classes.at("Car").errors[int(sensor::KpiParam::Length)].conditional.feature, "size");
+  EXPECT_FALSE(m.classes.at("Cyclist").errors[int(sensor::KpiParam::Length)].conditional.present());
   for (const char* c : {"Car", "Pedestrian", "Cyclist"})
     EXPECT_FALSE(m.classes.at(c).errors[int(sensor::KpiParam::Height)].conditional.present()) << c;
   const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
@@ -166,7 +166,7 @@ TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPe
   }
   EXPECT_EQ(added, (std::map<std::string, std::string>{{"width", "box_width"}, {"length", "size"}}))
       << j["added_effects"].dump();
-  EXPECT_EQ(dropped, 1) << "length by size is dropped for Car";
+  EXPECT_EQ(dropped, 1) << "length by size is dropped for Cyclist";
   bool height_rejected = false;
   for (const auto& c : j["candidates"])
     if (c["target"] == "height" && c["feature"] == "box_height")

@@ -48,9 +48,10 @@ class QualifyCli : public ::testing::Test {
     fs::create_directories(dir_);
   }
   void TearDown() override { fs::remove_all(dir_); }
-  fs::path tracking() {
+  fs::path tracking(int sequences = 2) {
     data::ReferenceTrackingOptions o;
     o.frames = 60;
+    o.sequences = sequences;
     data::write_reference_tracking(dir_ / "kt", o);
     return dir_ / "kt";
   }
@@ -193,6 +194,32 @@ TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
   EXPECT_GE(j["overall"]["similarity"].get<double>(), 0.0);
   EXPECT_LE(j["overall"]["similarity"].get<double>(), 1.0);
   EXPECT_TRUE(fs::exists(dir_ / "out" / "report.md"));
+}
+
+TEST_F(QualifyCli, ObjectsNestedRunsTheLoopOnEachOuterFoldsFitSequencesOnly) {
+  const fs::path kt = tracking(4);  // two per outer fold: the loop's inner split needs two
+  const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
+  const CliRun r = run("objects --nested --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
+                       (dir_ / "out").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream in(dir_ / "out" / "report.json");
+  const auto held = nlohmann::json::parse(in)["held_out_errors"];
+  ASSERT_TRUE(held.contains("nested")) << held.dump().substr(0, 300);
+  const auto& folds = held["nested"]["folds"];
+  ASSERT_EQ(folds.size(), 2u);
+  // Each loop saw only its outer fold's fit sequences: disjoint from what it is judged on, and
+  // the two folds' fit sets swap roles.
+  for (const auto& f : folds)
+    for (const auto& s : f["fit"])
+      EXPECT_EQ(std::count(f["judge"].begin(), f["judge"].end(), s), 0) << f.dump();
+  EXPECT_EQ(folds[0]["fit"], folds[1]["judge"]);
+  EXPECT_EQ(folds[1]["fit"], folds[0]["judge"]);
+  for (int k = 1; k <= 2; ++k)
+    EXPECT_NO_THROW(lidarsim::sensor::load_kpi_model(dir_ / "out" / ("nested_fold_" + std::to_string(k) + "_model.json")));
+  for (const auto& row : held["kpis"]) {
+    EXPECT_GE(row["model_nested"].get<double>(), 0.0);
+    EXPECT_LE(row["model_nested"].get<double>(), 1.0);
+  }
 }
 
 TEST(QualifyRealData, BothLoopsRunOnTheMeasuredData) {

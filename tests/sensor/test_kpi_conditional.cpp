@@ -168,6 +168,50 @@ TEST(KpiConditional, ZeroTermChangesNothingAndAbsentTermIsNotWritten) {
   EXPECT_EQ(kpi_model_to_json(parse_kpi_model(written, "zero.json")), written) << "round trip";
 }
 
+// Common random numbers: each track and purpose draws from its own stream, so a heavier-tailed
+// innovation (more draws per sample) and a term on Car length leave every other parameter, every
+// Pedestrian draw, the misses, flips, scores and false positives exactly as they were. With one
+// shared stream the extra chi-squared draws shifted everything after them.
+TEST(KpiConditional, ChangingOneClassesTargetLeavesEveryOtherDrawUnchanged) {
+  const KpiModel plain = default_kpi_model();
+  KpiModel changed = plain;
+  ErrorModel& len = changed.classes["Car"].errors[int(KpiParam::Length)];
+  len.innovation = {Innovation::Type::StudentT, 4, 0, 1};
+  len.conditional = {"speed", {0, 2}, {0.1, -0.2}, {1, 1.5}};
+  KpiManager a(plain, 9), b(changed, 9);
+  std::vector<Object> truth, oa, ob;
+  for (int i = 0; i < 6; ++i) {
+    truth.push_back(car(i, {8.0 + 9 * i, 3.0 - i, -0.9}, {double(i), 0, 0}));
+    if (i % 2) truth.back().cls = ObjectClass::Pedestrian;
+  }
+  int length_differs = 0;
+  for (int f = 0; f < 300; ++f) {
+    if (f == 150) truth.push_back(car(17, {12, -4, -0.9}, {1, 0, 0}));  // a track that starts later
+    a.apply(truth, oa);
+    b.apply(truth, ob);
+    ASSERT_EQ(oa.size(), ob.size()) << "frame " << f;
+    for (size_t i = 0; i < truth.size(); ++i) {
+      const KpiInjection &x = a.injections()[i], &y = b.injections()[i];
+      ASSERT_EQ(x.detected, y.detected) << "frame " << f;
+      ASSERT_EQ(x.flipped, y.flipped) << "frame " << f;
+      for (int p = 0; p < kNumKpiParams; ++p) {
+        if (p == int(KpiParam::Length) && truth[i].cls == ObjectClass::Car) {
+          length_differs += x.error[p] != y.error[p];
+          continue;
+        }
+        ASSERT_EQ(x.error[p], y.error[p]) << "frame " << f << " object " << truth[i].id << " " << p;
+      }
+    }
+    for (size_t k = 0; k < oa.size(); ++k) {
+      ASSERT_EQ(oa[k].score, ob[k].score) << "frame " << f;
+      if (oa[k].id <= -1000) {
+        ASSERT_EQ(oa[k].position, ob[k].position) << "false positive, frame " << f;
+      }
+    }
+  }
+  EXPECT_GT(length_differs, 0) << "the changed target itself does change";
+}
+
 std::string parse_error(const nlohmann::json& j) {
   try {
     parse_kpi_model(j.dump(), "m.json");
