@@ -122,8 +122,9 @@ void write_dataset(const fs::path& path, const Dataset& d) {
   out.commit();
 }
 
-Dataset read_dataset(const fs::path& path, const std::vector<std::string>& required_channels) {
-  const DatasetReader in(path, required_channels);
+namespace {
+
+Dataset read_all(const DatasetReader& in) {
   Dataset d = in.header();
   const int N = in.size(), C = in.channels(), H = in.rows(), W = in.cols();
   d.pgm.resize({N, C, H, W});
@@ -135,6 +136,16 @@ Dataset read_dataset(const fs::path& path, const std::vector<std::string>& requi
     in.read_frame(n, d.pgm.image(n), d.target.image(n), d.mask.image(n),
                   in.has_point_index() ? d.point_index.data() + n * plane : nullptr);
   return d;
+}
+
+}  // namespace
+
+Dataset read_dataset(const fs::path& path, const std::vector<std::string>& required_channels) {
+  return read_all(DatasetReader(path, required_channels));
+}
+
+Dataset read_dataset(const nn::MemoryImage& image, const std::vector<std::string>& required_channels) {
+  return read_all(DatasetReader(image, required_channels));
 }
 
 }  // namespace lidarsim::data

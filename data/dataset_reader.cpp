@@ -9,6 +9,7 @@
 
 #include "common/error.h"
 #include "data/hdf5_io.h"
+#include "nn/h5_memory_file.h"
 
 namespace lidarsim::data {
 namespace fs = std::filesystem;
@@ -47,6 +48,20 @@ DatasetReader::DatasetReader(const fs::path& path, const std::vector<std::string
   if (H5Fis_hdf5(path.c_str()) <= 0) throw input_error(fname_, "file", "not an HDF5 file");
   file_ = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (file_ < 0) throw input_error(fname_, "file", "cannot be opened as HDF5");
+  read_header(required_channels);
+}
+
+DatasetReader::DatasetReader(const nn::MemoryImage& image, const std::vector<std::string>& required_channels)
+    : fname_(image.name.string()) {
+  h5::quiet();
+  // H5P_DEFAULT's settings, with the in-memory driver instead of the disk.
+  h5::Id fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+  file_ = nn::open_memory_image(image, fapl);
+  if (file_ < 0) throw input_error(fname_, "file", "cannot be opened as HDF5");
+  read_header(required_channels);
+}
+
+void DatasetReader::read_header(const std::vector<std::string>& required_channels) {
   try {
     Dataset& d = header_;
     h5::Id root(H5Gopen2(file_, "/", H5P_DEFAULT), H5Gclose);

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "data/dataset.h"
+#include "nn/memory_image.h"
 
 namespace lidarsim::data {
 
@@ -16,6 +17,9 @@ class DatasetReader {
   // Checks the attributes, the shapes of every frame array and the per-frame lists;
   // `required_channels` must be in /pgm (the error names the file and the channel).
   explicit DatasetReader(const std::filesystem::path& path, const std::vector<std::string>& required_channels = {});
+  // The same checks on a file's bytes in memory (the fuzz target reads each input so); errors
+  // name image.name.
+  explicit DatasetReader(const nn::MemoryImage& image, const std::vector<std::string>& required_channels = {});
   ~DatasetReader();
   DatasetReader(const DatasetReader&) = delete;
   DatasetReader& operator=(const DatasetReader&) = delete;
@@ -34,11 +38,17 @@ class DatasetReader {
   void read_frame(int n, float* pgm, float* target, float* mask, std::int32_t* point_index = nullptr) const;
 
  private:
+  void read_header(const std::vector<std::string>& required_channels);  // closes the file on an error
+
   std::string fname_;
   Dataset header_;
   int n_ = 0, h_ = 0, w_ = 0;
   std::int64_t file_ = -1, pgm_ = -1, target_ = -1, mask_ = -1, point_index_ = -1;
   mutable std::vector<std::uint8_t> mask_buf_;
 };
+
+// read_dataset (data/dataset.h) on a file's bytes in memory (the fuzz target); errors name
+// image.name.
+Dataset read_dataset(const nn::MemoryImage& image, const std::vector<std::string>& required_channels = {});
 
 }  // namespace lidarsim::data

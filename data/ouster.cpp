@@ -144,8 +144,21 @@ std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const Ouste
   const int H = meta.pixels_per_column, W = meta.columns_per_frame;
   const std::size_t column_bytes = profile.column_header + static_cast<std::size_t>(H) * profile.pixel_bytes + (profile.legacy ? 4 : 0);
   std::vector<OusterFrame> frames;
+  // Each frame costs rows x columns cells however few of its columns arrive, so a frame id that
+  // changes every column made a 64 KB file cost hundreds of MB (found by the fuzz target). Between
+  // the first and the last frame (which a capture may cut) a frame must hold at least half its
+  // columns: real captures hold all of them, and memory stays a few times the file's size.
+  int arrived = 0;  // columns of frames.back() so far
+  long record = 0;
   auto frame_for = [&](std::uint32_t id) -> OusterFrame& {
     if (frames.empty() || frames.back().frame_id != id) {
+      if (frames.size() >= 2 && arrived < (W + 1) / 2)
+        throw input_error(fname, "record " + std::to_string(record) + " frame id",
+                          "frame " + std::to_string(frames.back().frame_id) + " ends after " + std::to_string(arrived) +
+                              " of its " + std::to_string(W) + " columns, between frames " +
+                              std::to_string(frames[frames.size() - 2].frame_id) + " and " + std::to_string(id) +
+                              " (frame ids out of order, or packets of more than one sensor?)");
+      arrived = 0;
       OusterFrame f;
       f.frame_id = id;
       f.rows = H;
@@ -162,7 +175,7 @@ std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const Ouste
   };
   pcap_pkthdr* header = nullptr;
   const std::uint8_t* data = nullptr;
-  for (long record = 1;; ++record) {
+  for (record = 1;; ++record) {
     const int rc = pcap_next_ex(pcap.get(), &header, &data);
     if (rc == PCAP_ERROR_BREAK) break;
     if (rc != 1) throw input_error(fname, "record " + std::to_string(record), std::string("cannot be read: ") + pcap_geterr(pcap.get()));
@@ -201,6 +214,7 @@ std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const Ouste
                           std::to_string(mid) + " is beyond columns_per_frame " + std::to_string(W));
       OusterFrame& f = frame_for(id);
       frame = &f;
+      ++arrived;
       if (!valid) continue;
       f.column_valid[mid] = 1;
       for (int r = 0; r < H; ++r) {
@@ -234,10 +248,14 @@ std::vector<pgm::Point> ouster_points(const OusterFrame& frame, const OusterMeta
   std::vector<pgm::Point> points;
   const double n = meta.lidar_origin_to_beam_origin_mm;
   const auto& T = meta.lidar_to_sensor;
+  // Only columns that arrived valid hold returns (the reader writes no others).
+  std::vector<int> columns;
+  for (int c = 0; c < frame.cols; ++c)
+    if (frame.column_valid.empty() || frame.column_valid[c]) columns.push_back(c);
   for (int r = 0; r < frame.rows; ++r) {
     const double phi = meta.beam_altitude_deg[r] * kDeg;
     const double theta_az = -meta.beam_azimuth_deg[r] * kDeg;
-    for (int c = 0; c < frame.cols; ++c) {
+    for (const int c : columns) {
       const std::size_t cell = static_cast<std::size_t>(r) * frame.cols + c;
       const double range = frame.range_mm[cell];
       if (range <= 0) continue;

@@ -19,7 +19,8 @@
 //   RNG15_RFL8_NIR8          as above with 4-byte pixels (range = (u16 & 0x7FFF) x 8 mm,
 //                            reflectivity u8, NIR u8).
 // A frame is every column with one frame id; its range image has rows = beams and columns =
-// measurement ids (staggered, as the sensor measures them).
+// measurement ids (staggered, as the sensor measures them). A frame between the first and the
+// last must hold at least half its columns (else an error: frame ids out of order or mixed).
 #include <array>
 #include <cstdint>
 #include <filesystem>

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/checkpoint_image.h"
 #include "nn/h5_memory_file.h"
 
 namespace lidarsim::nn {
@@ -212,11 +213,13 @@ class Reader {
  public:
   explicit Reader(const std::filesystem::path& path) : name_(path.string()) {
     if (!std::filesystem::exists(path)) throw Error(name_ + ": cannot open: no such file");
-    Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
-    H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG);
-    file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDONLY, fapl.get()), H5Fclose);
-    if (!file_.valid())
-      throw Error(name_ + ": cannot open as an HDF5 checkpoint (truncated, corrupt or not HDF5)");
+    const Handle fapl = access_list();
+    opened(H5Fopen(path.c_str(), H5F_ACC_RDONLY, fapl.get()));
+  }
+  // The same checks on a file's bytes in memory (nn/h5_memory_file.h).
+  explicit Reader(const MemoryImage& image) : name_(image.name.string()) {
+    const Handle fapl = access_list();
+    opened(open_memory_image(image, fapl.get()));
   }
 
   bool exists(const std::string& path) const {
@@ -333,6 +336,18 @@ class Reader {
   }
 
  private:
+  // STRONG: closing the file closes anything still open inside it.
+  static Handle access_list() {
+    Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+    H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG);
+    return fapl;
+  }
+  void opened(hid_t file) {
+    file_ = Handle(file, H5Fclose);
+    if (!file_.valid())
+      throw Error(name_ + ": cannot open as an HDF5 checkpoint (truncated, corrupt or not HDF5)");
+  }
+
   Handle dataset(const std::string& path) const {
     if (!exists(path)) fail(path, "missing dataset");
     Handle set(H5Dopen2(file_.get(), path.c_str(), H5P_DEFAULT), H5Dclose);
@@ -449,9 +464,9 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
   }
 }
 
-Checkpoint read_checkpoint_meta(const std::filesystem::path& path) {
-  silence_hdf5();
-  Reader r(path);
+namespace {
+
+Checkpoint read_meta(const Reader& r) {
   Checkpoint meta;
   if (!r.exists("config")) r.fail("config", "missing group (not a lidarsim checkpoint?)");
   meta.unet.in_channels = positive_int_attr(r, "unet.in_channels");
@@ -478,9 +493,7 @@ Checkpoint read_checkpoint_meta(const std::filesystem::path& path) {
   return meta;
 }
 
-void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* optimizer) {
-  silence_hdf5();
-  Reader r(path);
+void load(const Reader& r, UNet& model, Optimizer* optimizer) {
   const UNetConfig& want = model.config();
   const std::pair<const char*, int> fields[] = {{"unet.in_channels", want.in_channels},
                                                 {"unet.out_channels", want.out_channels},
@@ -529,6 +542,28 @@ void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* 
     }
     optimizer->set_steps(steps);
   }
+}
+
+}  // namespace
+
+Checkpoint read_checkpoint_meta(const std::filesystem::path& path) {
+  silence_hdf5();
+  return read_meta(Reader(path));
+}
+
+Checkpoint read_checkpoint_meta(const MemoryImage& image) {
+  silence_hdf5();
+  return read_meta(Reader(image));
+}
+
+void load_checkpoint(const std::filesystem::path& path, UNet& model, Optimizer* optimizer) {
+  silence_hdf5();
+  load(Reader(path), model, optimizer);
+}
+
+void load_checkpoint(const MemoryImage& image, UNet& model, Optimizer* optimizer) {
+  silence_hdf5();
+  load(Reader(image), model, optimizer);
 }
 
 }  // namespace lidarsim::nn

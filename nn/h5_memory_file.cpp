@@ -37,6 +37,16 @@ hid_t create_memory_file(const std::filesystem::path& name) {
   return file;
 }
 
+hid_t open_memory_image(const MemoryImage& image, hid_t fapl) {
+  static std::atomic<int> counter{0};
+  if (image.size == 0) return -1;  // HDF5 takes an empty image for "no image" and would open the path
+  if (H5Pset_fapl_core(fapl, 64 << 10, false) < 0 || H5Pset_file_image(fapl, const_cast<void*>(image.data), image.size) < 0)
+    return -1;
+  // The core driver refuses an image whose name exists on disk; this one never does.
+  const std::string unique = image.name.string() + ".image." + std::to_string(::getpid()) + "." + std::to_string(counter++);
+  return H5Fopen(unique.c_str(), H5F_ACC_RDONLY, fapl);
+}
+
 // HDF5's own metadata checksum (Jenkins lookup3), exported by libhdf5 though not in its public
 // header.
 extern "C" std::uint32_t H5_checksum_metadata(const void* data, std::size_t len, std::uint32_t initval);

@@ -8,7 +8,14 @@
 
 #include <filesystem>
 
+#include "nn/memory_image.h"
+
 namespace lidarsim::nn {
+
+// Opens `image` read-only with `fapl` (the reader's own file access list, whose driver becomes
+// the in-memory "core" driver holding a copy of the bytes; nothing is read from or written to
+// disk). Returns a negative id on failure, as H5Fopen does.
+hid_t open_memory_image(const MemoryImage& image, hid_t fapl);
 
 // A new, empty in-memory HDF5 file (H5Fclose it, or let save_memory_file do so); `name` only
 // labels it inside HDF5. Returns a negative id on failure.

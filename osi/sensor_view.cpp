@@ -77,6 +77,9 @@ osi3::MovingObject::VehicleClassification::Type osi_vehicle_type(sensor::ObjectC
 
 namespace {
 
+// Longest lane accepted, as for scenario lanes (sensor/scenario.cpp).
+constexpr double kMaxLaneLength = 100000;  // m
+
 sensor::LaneType lane_type(const osi3::LaneBoundary& b, bool& drawn) {
   using C = osi3::LaneBoundary::Classification;
   drawn = true;
@@ -180,16 +183,22 @@ void scene_from_sensor_view(const osi3::SensorView& view, long index, const std:
     sensor::LanePolyline& lane = out.map.lanes.emplace_back();
     lane.id = ids.to_model(lb.id().value());
     lane.type = type;
-    // At most 0.5 m between points, as scenario lanes (sensor/scenario.h).
+    // At most 0.5 m between points, as scenario lanes (sensor/scenario.h), which are at most
+    // 100 km long: points 1e300 m apart made an infinite count (UBSan, the osi_trace fuzz
+    // target), 1e7 m apart 2e7 points.
+    double length = 0;
     for (int k = 0; k < lb.boundary_line_size(); ++k) {
       const auto& p = lb.boundary_line(k).position();
-      if (!finite(p))
-        throw fail("global_ground_truth.lane_boundary[" + std::to_string(i) + "].boundary_line[" + std::to_string(k) +
-                       "]",
-                   "not finite");
+      const std::string field =
+          "global_ground_truth.lane_boundary[" + std::to_string(i) + "].boundary_line[" + std::to_string(k) + "]";
+      if (!finite(p)) throw fail(field, "not finite");
       const Eigen::Vector3d q(p.x(), p.y(), p.z());
       if (!lane.points.empty()) {
         const Eigen::Vector3d a = lane.points.back(), d = q - a;
+        length += d.norm();
+        if (!(length <= kMaxLaneLength))
+          throw fail(field, "the lane is " + std::to_string(length) + " m long up to here, at most " +
+                                std::to_string(static_cast<int>(kMaxLaneLength)) + " m");
         // (a tolerance, so points already 0.5 m apart are not split again)
         const int n = std::max(1, static_cast<int>(std::ceil(d.norm() / 0.5 - 1e-6)));
         for (int s = 1; s < n; ++s) lane.points.push_back(a + d * (static_cast<double>(s) / n));

@@ -3,9 +3,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <iterator>
+#include <string>
 
 #include "common/error.h"
 #include "data/dataset.h"
+#include "data/dataset_reader.h"
 #include "pgm/projection.h"
 #include "tests/data/temp_dir.h"
 
@@ -102,6 +106,27 @@ TEST(Dataset, WrongShapeAndNonHdf5FileAreErrors) {
   }
   const std::string msg = error_of([&] { data::read_dataset(dir / "d.h5"); });
   EXPECT_NE(msg.find("dataset /pgm: shape"), std::string::npos) << msg;
+}
+
+// The in-memory overload (the fuzz target's way in) runs the same checks as the path one.
+TEST(Dataset, AFileImageInMemoryReadsAsTheFileDoesAndIsRejectedAsTheFileIsWhenCut) {
+  TempDir dir;
+  data::write_dataset(dir / "d.h5", two_frames());
+  std::ifstream in(dir / "d.h5", std::ios::binary);
+  const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  const auto f = data::read_dataset(dir / "d.h5");
+  const auto m = data::read_dataset(nn::MemoryImage{bytes.data(), bytes.size(), "in-memory.h5"});
+  EXPECT_EQ(m.channels, f.channels);
+  EXPECT_EQ(m.frames, f.frames);
+  EXPECT_EQ(m.layout.to_json(), f.layout.to_json());
+  ASSERT_EQ(m.pgm.shape(), f.pgm.shape());
+  EXPECT_TRUE(std::equal(m.pgm.begin(), m.pgm.end(), f.pgm.begin()));
+  EXPECT_TRUE(std::equal(m.target.begin(), m.target.end(), f.target.begin()));
+  EXPECT_EQ(m.point_index, f.point_index);
+  for (std::size_t keep : {std::size_t{0}, std::size_t{7}, bytes.size() / 2, bytes.size() - 1}) {
+    const std::string msg = error_of([&] { data::read_dataset(nn::MemoryImage{bytes.data(), keep, "cut-in-memory.h5"}); });
+    EXPECT_NE(msg.find("cut-in-memory.h5"), std::string::npos) << "kept " << keep << ": " << msg;
+  }
 }
 
 TEST(Dataset, FailedWriteLeavesNoFileBehind) {

@@ -4,6 +4,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
 #include <numbers>
 #include <set>
 
@@ -175,4 +180,33 @@ TEST(OusterReal, MetadataOfAnotherSensorIsRefusedNamingThePacketSize) {
   const auto meta = data::read_ouster_metadata(dir / "OS-1-32-G_v2.1.1_1024x10.json");
   const std::string msg = error_of([&] { data::read_ouster_pcap(dir / "OS-2-128-U1_v2.3.0_1024x10.pcap", meta); });
   EXPECT_NE(msg.find("lidar packet of 24832 bytes"), std::string::npos) << msg;
+}
+
+// A frame id that changes every few columns cost a whole frame each (rows x columns cells): a
+// 64 KB fuzz input made hundreds of MB. A frame between the first and last now needs half its
+// columns; one lidar packet of the middle frame relabelled cuts that frame to 6 packets.
+TEST(OusterReal, AFrameCutShortBetweenOthersIsAnErrorNamingItsIds) {
+  LIDARSIM_REQUIRE_SHARED_DATA(dir, "ouster-sample-pcaps");
+  const std::filesystem::path source = dir / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap";  // frames 1795-1797, 64 packets each
+  const auto meta = data::read_ouster_metadata(data::ouster_metadata_for(source));
+  std::ifstream in(source, std::ios::binary);
+  std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  int lidar = 0;
+  for (std::size_t at = 24; at + 16 <= bytes.size();) {  // pcap records: 16-byte header, then the packet
+    std::uint32_t caplen;
+    std::memcpy(&caplen, bytes.data() + at + 8, 4);
+    const std::size_t packet = at + 16, udp = packet + 14 + 20;
+    const int port = static_cast<unsigned char>(bytes[udp + 2]) << 8 | static_cast<unsigned char>(bytes[udp + 3]);
+    if (port == meta.udp_port_lidar && lidar++ == 70) {
+      bytes[udp + 8 + 2] = static_cast<char>(1800 & 0xff);  // packet header: frame id u16 at byte 2
+      bytes[udp + 8 + 3] = static_cast<char>(1800 >> 8);
+    }
+    at = packet + caplen;
+  }
+  ASSERT_EQ(lidar, 192);
+  TempDir tmp;
+  { std::ofstream(tmp / "relabelled.pcap", std::ios::binary) << bytes; }
+  const std::string msg = error_of([&] { data::read_ouster_pcap(tmp / "relabelled.pcap", meta); });
+  EXPECT_NE(msg.find("relabelled.pcap: record "), std::string::npos) << msg;
+  EXPECT_NE(msg.find("frame 1796 ends after 96 of its 1024 columns, between frames 1795 and 1800"), std::string::npos) << msg;
 }

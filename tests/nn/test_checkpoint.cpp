@@ -17,6 +17,7 @@
 
 #include "common/error.h"
 #include "nn/checkpoint.h"
+#include "nn/checkpoint_image.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/unet.h"
@@ -426,4 +427,36 @@ TEST_F(CheckpointTest, ModelWithoutRowAffineIsSavedWithoutTheAttributeAndLoadsAs
   EXPECT_NO_THROW(load_checkpoint(p, model, nullptr));
   UNet with_rows(UNetConfig{3, 1, 4, 2, 12});
   EXPECT_THROW(load_checkpoint(p, with_rows, nullptr), Error);
+}
+
+// The in-memory overloads (the fuzz target's way in) run the same checks as the path ones.
+TEST_F(CheckpointTest, AFileImageInMemoryLoadsAsTheFileDoesAndIsRejectedAsTheFileIsWhenCut) {
+  const fs::path p = save_trained("ckpt.h5");
+  const std::string bytes = read_bytes(p);
+  const MemoryImage image{bytes.data(), bytes.size(), "in-memory.h5"};
+  const Checkpoint from_file = read_checkpoint_meta(p), from_image = read_checkpoint_meta(image);
+  EXPECT_EQ(from_image.unet, from_file.unet);
+  EXPECT_EQ(from_image.attributes, from_file.attributes);
+  EXPECT_EQ(from_image.state.rng, from_file.state.rng);
+  UNet a(kSmall), b(kSmall);
+  a.init(1);
+  b.init(2);
+  Optimizer oa(OptimizerConfig{}, a.params().size()), ob(OptimizerConfig{}, b.params().size());
+  load_checkpoint(p, a, &oa);
+  load_checkpoint(image, b, &ob);
+  EXPECT_EQ(arena_values(a), arena_values(b));
+  EXPECT_EQ(oa.m(), ob.m());
+  EXPECT_EQ(oa.steps(), ob.steps());
+
+  for (std::size_t keep : {std::size_t{0}, std::size_t{7}, bytes.size() / 2, bytes.size() - 1}) {
+    SCOPED_TRACE("kept " + std::to_string(keep) + " of " + std::to_string(bytes.size()) + " bytes");
+    const MemoryImage cut{bytes.data(), keep, "cut-in-memory.h5"};
+    try {
+      load_checkpoint(cut, b, &ob);
+      FAIL() << "a cut image was accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("cut-in-memory.h5"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_FALSE(fs::exists("cut-in-memory.h5"));  // the name only labels the image
 }

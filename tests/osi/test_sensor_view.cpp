@@ -124,3 +124,29 @@ TEST(OsiSensorView, VehicleTypesMapToOurClassesAndBack) {
   EXPECT_EQ(lidarsim::osi::class_from_osi(o), ObjectClass::Pedestrian);
   EXPECT_EQ(lidarsim::osi::osi_type(ObjectClass::Pedestrian), osi3::MovingObject::TYPE_PEDESTRIAN);
 }
+
+// Lane boundaries are split to 0.5 m as scenario lanes are: points 1e300 m apart made an
+// infinite point count (UBSan, found by the osi_trace fuzz target), 1e7 m apart 2e7 points.
+TEST(OsiSensorView, LaneBoundaryLongerThanAScenarioLaneIsAnErrorNamingThePoint) {
+  for (const double far : {1e300, 1e7}) {
+    osi3::SensorView v;
+    v.mutable_host_vehicle_id()->set_value(5);
+    v.mutable_mounting_position();
+    v.mutable_global_ground_truth()->add_moving_object()->mutable_id()->set_value(5);
+    auto* lane = v.mutable_global_ground_truth()->add_lane_boundary();
+    lane->mutable_id()->set_value(9);
+    lane->mutable_classification()->set_type(osi3::LaneBoundary::Classification::TYPE_SOLID_LINE);
+    lane->add_boundary_line()->mutable_position()->set_x(-far);
+    lane->add_boundary_line()->mutable_position()->set_x(far);
+    lidarsim::osi::IdMap ids;
+    lidarsim::osi::SceneFrame scene;
+    try {
+      lidarsim::osi::scene_from_sensor_view(v, 0, "x.osi", ids, scene);
+      FAIL() << far;
+    } catch (const lidarsim::Error& e) {
+      EXPECT_NE(std::string(e.what()).find("x.osi: message 0: global_ground_truth.lane_boundary[0].boundary_line[1]: the lane is"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+}

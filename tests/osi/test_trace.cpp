@@ -90,7 +90,23 @@ TEST(OsiTrace, TornBodyClaimingAGigabyteCostsOnlyWhatTheTraceHolds) {
   TraceReader r(in, "t.osi");
   std::string bytes;
   EXPECT_THROW(r.next(bytes), lidarsim::Error);
-  EXPECT_LT(bytes.capacity(), std::size_t{4} << 20);
+  EXPECT_LT(bytes.capacity(), std::size_t{128} << 10);  // the first chunk, 64 KiB
+}
+
+TEST(OsiTrace, BodiesLargerThanTheReadChunksArriveWhole) {
+  for (const std::size_t size : {std::size_t{0}, std::size_t{65535}, std::size_t{65537}, (std::size_t{3} << 20) + 1}) {
+    std::string body(size, '\0');
+    for (std::size_t i = 0; i < size; ++i) body[i] = static_cast<char>(i * 131 % 251);
+    const auto n = static_cast<std::uint32_t>(size);
+    const char header[4] = {static_cast<char>(n & 0xff), static_cast<char>(n >> 8 & 0xff), static_cast<char>(n >> 16 & 0xff),
+                            static_cast<char>(n >> 24)};
+    std::istringstream in(std::string(header, 4) + body);
+    TraceReader r(in, "t.osi");
+    std::string bytes;
+    ASSERT_TRUE(r.next(bytes)) << size;
+    EXPECT_TRUE(bytes == body) << size;
+    EXPECT_FALSE(r.next(bytes));
+  }
 }
 
 TEST(OsiTrace, MessageThatDoesNotParseNamesItsIndexAndType) {
