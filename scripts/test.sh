@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
-# Set up (install, configure, build) and run the whole test suite. With LIDARSIM_ASAN=1, the
-# whole suite again built with AddressSanitizer + UndefinedBehaviorSanitizer (and LeakSanitizer)
-# in build-asan/ (issue 13; README, Reliability). Opt-in until the whole sanitized suite has run
-# to the end here: the README says how far it got and what it cost.
+# Set up (install, configure, build) and run the whole test suite. With LIDARSIM_ASAN=1 (CI:
+# .ci/run sets it), the whole suite again, built with AddressSanitizer + UndefinedBehaviorSanitizer
+# (and LeakSanitizer) in build-asan/ (issue 13; README, Reliability, has the measured cost).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh

@@ -16,6 +16,7 @@
 #include "data/dataset_writer.h"
 #include "data/frame_source.h"
 #include "tests/data/temp_dir.h"
+#include "tests/support/sanitizer.h"
 #include "train/frame_batches.h"
 #include "train/trainer.h"
 
@@ -310,5 +311,11 @@ TEST(LazyTrain, PeakMemoryStaysFarBelowTheDatasetsSizeOnManyFrames) {
   EXPECT_GT(result.epochs[0].validation.cells, 500L * frames);  // a quarter of the columns, 80 % returns
   const double grew_mb = (peak_kb - before_kb) / 1024.0;
   std::printf("dataset in memory %.0f MB; training peak RSS grew by %.1f MB\n", in_memory_mb, grew_mb);
+  // AddressSanitizer keeps freed blocks in its quarantine (up to 256 MB, to catch use after free)
+  // and pads every block with redzones: the peak grew by 90 MB there, 16 MB with
+  // quarantine_size_mb=0, so it measures ASan, not what the training holds. The run above is
+  // still checked for memory errors.
+  if (lidarsim::testing::kSanitized)
+    GTEST_SKIP() << "peak RSS bound not checked under AddressSanitizer (its quarantine keeps freed frames)";
   EXPECT_LT(grew_mb, in_memory_mb / 10);
 }
