@@ -406,6 +406,24 @@ int row_affine_rows(const Reader& r) {
   return r.has_attr("config", "unet.row_affine_rows") ? positive_int_attr(r, "unet.row_affine_rows") : 0;
 }
 
+// The lookup base's config (nn/unet.h): absent in files without it (and in older ones) = none.
+LookupBaseConfig lookup_config(const Reader& r) {
+  LookupBaseConfig c;
+  if (!r.has_attr("config", "unet.lookup.classes")) return c;
+  c.classes = positive_int_attr(r, "unet.lookup.classes");
+  c.range_bins = positive_int_attr(r, "unet.lookup.range_bins");
+  c.rows = positive_int_attr(r, "unet.lookup.rows");
+  for (auto [name, field] : {std::pair{"unet.lookup.class_channel", &c.class_channel}, {"unet.lookup.range_channel", &c.range_channel}}) {
+    const std::int64_t v = r.int_attr("config", name);
+    if (v < 0 || v > 1 << 20) r.fail(std::string("config/") + name, "expected an integer >= 0, got " + std::to_string(v));
+    *field = static_cast<int>(v);
+  }
+  c.bin_width = static_cast<float>(r.double_attr("config", "unet.lookup.bin_width"));
+  if (!(c.bin_width > 0) || !std::isfinite(c.bin_width))
+    r.fail("config/unet.lookup.bin_width", "expected a finite number > 0, got " + std::to_string(c.bin_width));
+  return c;
+}
+
 }  // namespace
 
 void save_checkpoint(const std::filesystem::path& path, const UNet& model, const Optimizer* optimizer,
@@ -431,6 +449,14 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       // Only when present, so a model without the layer is saved exactly as before it existed.
       if (model.config().row_affine_rows > 0)
         w.attr(config.get(), "config", "unet.row_affine_rows", std::int64_t{model.config().row_affine_rows});
+      if (const LookupBaseConfig& lk = model.config().lookup; lk.classes > 0) {
+        w.attr(config.get(), "config", "unet.lookup.classes", std::int64_t{lk.classes});
+        w.attr(config.get(), "config", "unet.lookup.class_channel", std::int64_t{lk.class_channel});
+        w.attr(config.get(), "config", "unet.lookup.range_channel", std::int64_t{lk.range_channel});
+        w.attr(config.get(), "config", "unet.lookup.range_bins", std::int64_t{lk.range_bins});
+        w.attr(config.get(), "config", "unet.lookup.rows", std::int64_t{lk.rows});
+        w.attr(config.get(), "config", "unet.lookup.bin_width", lk.bin_width);
+      }
       if (optimizer) {
         const OptimizerConfig& oc = optimizer->config();
         w.attr(config.get(), "config", "optimizer.kind", oc.kind);
@@ -474,6 +500,7 @@ Checkpoint read_meta(const Reader& r) {
   meta.unet.base = positive_int_attr(r, "unet.base");
   meta.unet.depth = positive_int_attr(r, "unet.depth");
   meta.unet.row_affine_rows = row_affine_rows(r);
+  meta.unet.lookup = lookup_config(r);
   for (const std::string& name : r.attr_names("config"))
     if (!reserved_attribute(name)) meta.attributes[name] = r.string_attr("config", name);
   if (r.has_attr("config", "optimizer.kind")) {
@@ -508,6 +535,9 @@ void load(const Reader& r, UNet& model, Optimizer* optimizer) {
   if (const int have = row_affine_rows(r); have != want.row_affine_rows)
     r.fail("config/unet.row_affine_rows", "checkpoint has " + std::to_string(have) + " (0: no per-row affine layer), the model expects " +
                                               std::to_string(want.row_affine_rows));
+  if (!(lookup_config(r) == want.lookup))
+    r.fail("config/unet.lookup", want.lookup.classes > 0 ? "the lookup base's settings differ from the model's (or it has none)"
+                                                         : "checkpoint has a lookup base, the model has none");
 
   // Validate and read everything first; copy into the model only when all of it is good.
   ParamArena& params = model.params();

@@ -3,6 +3,8 @@
 //   /config          attributes: unet.in_channels, unet.out_channels, unet.base, unet.depth,
 //                    unet.row_affine_rows (only when the model has the per-row affine layer;
 //                    absent in older files = no layer, so they still load),
+//                    unet.lookup.{classes, class_channel, range_channel, range_bins, rows,
+//                    bin_width} (only with a lookup base; its table is under /params/lookup),
 //                    optimizer.* and every entry of Checkpoint::attributes (string values;
 //                    the input encoder, beam layout, lambda, seed travel here as text/JSON)
 //   /params/<layer>/<field>       float32 datasets with the parameter's shape (PyTorch layouts:

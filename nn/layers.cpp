@@ -616,4 +616,66 @@ void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Ten
   if (fault(testhook::Fault::row_affine) && per_image > 1) d_gain[1] = d_gain[0];
 }
 
+void lookup_base_keys(std::vector<std::int32_t>& keys, const Tensor& x, const LookupBaseConfig& c) {
+  const Shape s = x.shape();
+  if (c.classes < 1 || c.range_bins < 1 || !(c.bin_width > 0) || c.class_channel < 0 || c.range_channel < 0 ||
+      c.class_channel + c.classes > s.c || c.range_channel >= s.c || s.h != c.rows)
+    throw Error("lookup_base: input shape " + s.str() + " does not fit the table (" + std::to_string(c.classes) +
+                " class channels from " + std::to_string(c.class_channel) + ", range channel " +
+                std::to_string(c.range_channel) + ", " + std::to_string(c.rows) + " rows)");
+  const std::size_t plane = static_cast<std::size_t>(s.h) * s.w;
+  keys.resize(static_cast<std::size_t>(s.n) * plane);
+#pragma omp parallel for schedule(static)
+  for (int n = 0; n < s.n; ++n) {
+    const float* range = x.channel(n, c.range_channel);
+    for (std::size_t i = 0; i < plane; ++i) {
+      std::int32_t& k = keys[static_cast<std::size_t>(n) * plane + i];
+      if (!(range[i] > 0)) {
+        k = -1;
+        continue;
+      }
+      int g = c.classes;
+      for (int j = 0; j < c.classes; ++j)
+        if (x.channel(n, c.class_channel + j)[i] > 0.5f) {
+          g = j;
+          break;
+        }
+      const int b = std::clamp(static_cast<int>(std::floor(range[i] / c.bin_width)), 0, c.range_bins - 1);
+      k = g * c.range_bins + b;
+    }
+  }
+}
+
+void lookup_base_forward(Tensor& out, const Tensor& x, const LookupBaseConfig& c, const float* table,
+                         const float* beam) {
+  // A local buffer: a thread_local one would be a different (empty) vector in each OpenMP worker.
+  std::vector<std::int32_t> keys;
+  lookup_base_keys(keys, x, c);
+  const Shape s = x.shape();
+  ensure(out, Shape{s.n, 1, s.h, s.w});
+  const std::size_t cells = keys.size();
+#pragma omp parallel for schedule(static)
+  for (std::size_t i = 0; i < cells; ++i) {
+    const int h = static_cast<int>(i / s.w % s.h);
+    out.data()[i] = keys[i] < 0 ? 0.f : table[keys[i]] + beam[h];
+  }
+}
+
+void lookup_base_backward(float* d_table, float* d_beam, const Tensor& d_out, const Tensor& x,
+                          const LookupBaseConfig& c) {
+  const Shape s = x.shape();
+  if (!(d_out.shape() == Shape{s.n, 1, s.h, s.w}))
+    throw Error("lookup_base_backward: d_out: shape " + d_out.shape().str() + " does not match input " + s.str());
+  std::vector<std::int32_t> keys;
+  lookup_base_keys(keys, x, c);
+  // Serial: a cell's key is data, so parallel sums would race; the table is fitted, not trained,
+  // so this runs only in checks.
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    if (keys[i] < 0) continue;
+    d_table[keys[i]] += d_out.data()[i];
+    d_beam[i / s.w % s.h] += d_out.data()[i];
+  }
+  if (fault(testhook::Fault::lookup_base) && c.rows > 1) d_beam[1] = d_beam[0];
+}
+
 }  // namespace lidarsim::nn

@@ -69,6 +69,30 @@ void row_affine_forward(Tensor& out, const Tensor& in, const float* gain, const 
 void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Tensor& d_out, const Tensor& in,
                          const float* gain);
 
+// Lookup base: a fitted table's prediction read off the input itself, so a model that adds it
+// needs nothing at inference but its usual input. Per cell: group g = the first of `classes`
+// one-hot channels (from class_channel) above 0.5, else `classes` (no group); range bin b =
+// floor(range input / bin_width) clamped to [0, range_bins); out = table[g * range_bins + b] +
+// beam[h] where the range input is > 0, 0 in empty cells (no return).
+//   x [N, C, H, W] (H = rows), table [(classes + 1) * range_bins], beam [rows] -> out [N, 1, H, W].
+struct LookupBaseConfig {
+  int classes = 0;        // 0: no lookup base
+  int class_channel = 0;  // first one-hot class channel of the input
+  int range_channel = 0;  // the input channel holding range / range_max
+  int range_bins = 0;
+  float bin_width = 0.f;  // in range-input units (5 m / range_max)
+  int rows = 0;           // one beam (laser) offset per row
+  bool operator==(const LookupBaseConfig&) const = default;
+};
+// Table index of each cell of x, [N * H * W] (-1: empty cell): what forward looks up and what a
+// fit of the table accumulates over.
+void lookup_base_keys(std::vector<std::int32_t>& keys, const Tensor& x, const LookupBaseConfig& c);
+void lookup_base_forward(Tensor& out, const Tensor& x, const LookupBaseConfig& c, const float* table,
+                         const float* beam);
+// Accumulates (+=) d_table and d_beam; the base is piecewise constant in x (no input gradient).
+void lookup_base_backward(float* d_table, float* d_beam, const Tensor& d_out, const Tensor& x,
+                          const LookupBaseConfig& c);
+
 // Test-only fault injection: when set, the named backward pass puts one value at a wrong index,
 // so the gradient-check tests can prove that they catch such a bug. Never set outside tests.
 namespace testhook {
@@ -83,6 +107,7 @@ enum class Fault {
   relu,
   concat,
   row_affine,
+  lookup_base,
 };
 extern Fault fault;
 }  // namespace testhook

@@ -13,7 +13,7 @@ int ParamArena::add(const std::string& name, Shape shape, bool decays, float dec
   if (shape.numel() == 0) throw Error("ParamArena: " + name + ": empty shape " + shape.str());
   // Contiguous, no padding: offsets are the running sum of sizes, so the arena is exactly the
   // concatenation of all parameters in registration order.
-  if (!(lr_scale > 0) || !std::isfinite(lr_scale)) throw Error("ParamArena: " + name + ": lr_scale must be > 0");
+  if (!(lr_scale >= 0) || !std::isfinite(lr_scale)) throw Error("ParamArena: " + name + ": lr_scale must be >= 0 (0: frozen)");
   infos_.push_back(ParamInfo{name, shape, decays, total_, decay_center, lr_scale});
   total_ += shape.numel();
   return static_cast<int>(infos_.size()) - 1;

@@ -15,7 +15,7 @@ struct ParamInfo {
   bool decays;         // true for weights (in the L2 term), false for biases
   std::size_t offset;  // into values()/grads()
   float decay_center = 0.f;  // the L2 term pulls toward this (1 for a gain, 0 otherwise)
-  float lr_scale = 1.f;      // the optimizer's step for this parameter is lr x this
+  float lr_scale = 1.f;      // the optimizer's step for this parameter is lr x this; 0 = frozen
 };
 
 class ParamArena {

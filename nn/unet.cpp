@@ -43,6 +43,8 @@ struct UNet::Workspace {
   Tensor y;  // [N, out, H, W] the last forward's output
   Tensor head_out, g_head_out;  // the head's output before the row affine, and its gradient
   int gain = -1, offset = -1;  // row-affine parameters (-1: none)
+  int table = -1, beam = -1;   // lookup-base parameters (-1: none)
+  Tensor base;                 // [N, 1, H, W] the lookup base of the last forward
   bool have_forward = false;
   std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
   ConvIds head;
@@ -86,6 +88,20 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
   if (config.depth < 0 || config.depth > 10) throw bad("depth", config.depth, "0..10");
   if (config.row_affine_rows < 0 || config.row_affine_rows > 1 << 16)
     throw bad("row_affine_rows", config.row_affine_rows, "0 (none) .. 65536");
+  const LookupBaseConfig& lk = config.lookup;
+  if (lk.classes < 0) throw bad("lookup.classes", lk.classes, ">= 0 (0: none)");
+  if (lk.classes > 0) {
+    if (config.out_channels != 1) throw bad("out_channels", config.out_channels, "1 with a lookup base");
+    if (lk.class_channel < 0 || lk.class_channel + lk.classes > config.in_channels)
+      throw bad("lookup.class_channel", lk.class_channel, "classes one-hot channels inside the input");
+    if (lk.range_channel < 0 || lk.range_channel >= config.in_channels)
+      throw bad("lookup.range_channel", lk.range_channel, "an input channel");
+    if (lk.range_bins < 1 || lk.range_bins > 1 << 16) throw bad("lookup.range_bins", lk.range_bins, "1 .. 65536");
+    if (lk.rows < 1 || lk.rows > 1 << 16) throw bad("lookup.rows", lk.rows, "1 .. 65536");
+    if (!(lk.bin_width > 0) || !std::isfinite(lk.bin_width))
+      throw Error("UNet config: lookup.bin_width: expected a finite number > 0, got " + std::to_string(lk.bin_width));
+  }
+  const int in_net = config.in_channels + (lk.classes > 0 ? 1 : 0);  // enc0.conv1 also sees the base
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
     ConvIds ids;
@@ -96,7 +112,7 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
   Workspace& ws = *ws_;
   ws.levels.resize(static_cast<std::size_t>(config.depth) + 1);
   for (int l = 0; l <= config.depth; ++l) {
-    const int c = channels(config, l), cin = l == 0 ? config.in_channels : channels(config, l - 1);
+    const int c = channels(config, l), cin = l == 0 ? in_net : channels(config, l - 1);
     ws.enc1.push_back(conv("enc" + std::to_string(l) + ".conv1", c, cin, 3));
     ws.enc2.push_back(conv("enc" + std::to_string(l) + ".conv2", c, c, 3));
   }
@@ -122,6 +138,10 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
     ws.gain = params_.add("row_affine/gain", s, true, 1.f, 10.f);
     ws.offset = params_.add("row_affine/offset", s, true, 0.f, 10.f);
   }
+  if (lk.classes > 0) {  // fitted, not trained: no decay, step 0
+    ws.table = params_.add("lookup/table", Shape{1, 1, lk.classes + 1, lk.range_bins}, false, 0.f, 0.f);
+    ws.beam = params_.add("lookup/beam", Shape{1, 1, lk.rows, 1}, false, 0.f, 0.f);
+  }
   params_.finalize();
 }
 
@@ -141,7 +161,9 @@ void UNet::init(std::uint64_t seed) {
       std::fill(v, v + n, p.decay_center);
       continue;
     }
-    if (!p.decays) {
+    // Biases, the lookup table (fitted later) and, with a lookup base, the head start at 0: the
+    // untrained model then predicts the table exactly.
+    if (!p.decays || (config_.lookup.classes > 0 && p.name.rfind("head/", 0) == 0)) {
       std::fill(v, v + n, 0.f);
       continue;
     }
@@ -171,14 +193,29 @@ void UNet::forward(const Tensor& x, Tensor& y) {
   if (config_.row_affine_rows > 0 && s.h != config_.row_affine_rows)
     throw Error("UNet forward: input: the row-affine layer has " + std::to_string(config_.row_affine_rows) +
                 " rows (one per laser), got shape " + s.str());
+  if (config_.lookup.classes > 0 && s.h != config_.lookup.rows)
+    throw Error("UNet forward: input: the lookup base has " + std::to_string(config_.lookup.rows) +
+                " rows (one beam offset per laser), got shape " + s.str());
   for (std::size_t i = 0; i < x.numel(); ++i)
     if (!std::isfinite(x.data()[i]))
       throw Error("UNet forward: input: non-finite value at flat index " + std::to_string(i));
 
   Workspace& ws = *ws_;
-  ws.x = x;
   const float* pv = params_.values();
   const auto W = [&](int id) { return pv + params_.info(id).offset; };
+  if (ws.table >= 0) {  // the network's input is [x, base]
+    ws.tic();
+    lookup_base_forward(ws.base, x, config_.lookup, W(ws.table), W(ws.beam));
+    ws.x.resize({s.n, s.c + 1, s.h, s.w});
+    const std::size_t plane = static_cast<std::size_t>(s.h) * s.w;
+    for (int n = 0; n < s.n; ++n) {
+      std::copy(x.image(n), x.image(n) + s.c * plane, ws.x.image(n));
+      std::copy(ws.base.image(n), ws.base.image(n) + plane, ws.x.channel(n, s.c));
+    }
+    ws.toc("fwd lookup");
+  } else {
+    ws.x = x;
+  }
   const int depth = config_.depth;
   const Tensor* cur = &ws.x;
   for (int l = 0; l <= depth; ++l) {
@@ -227,6 +264,8 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
     ws.toc("fwd head");
   }
+  if (ws.table >= 0)  // out_channels is 1: y and the base have the same layout
+    for (std::size_t i = 0; i < y.numel(); ++i) y.data()[i] += ws.base.data()[i];
   ws.have_forward = true;
 }
 
@@ -239,6 +278,7 @@ void UNet::backward(const Tensor& dy) {
   Workspace& ws = *ws_;
   if (!ws.have_forward) throw Error("UNet backward: called before forward()");
   const int depth = config_.depth;
+  // The added base passes dy through unchanged; its table is fitted, not trained (no gradient).
   const Shape expect{ws.x.shape().n, config_.out_channels, ws.x.shape().h, ws.x.shape().w};
   if (!(dy.shape() == expect))
     throw Error("UNet backward: dy: expected shape " + expect.str() + ", got " + dy.shape().str());
@@ -306,7 +346,8 @@ double UNet::forward_flops(int n, int h, int w) const {
   std::vector<double> hw;
   for (int l = 0, hh = h, ww = w; l <= config_.depth; ++l, hh /= 2, ww /= 2) hw.push_back(double(hh) * ww);
   for (int l = 0; l <= config_.depth; ++l) {
-    const double c = channels(config_, l), cin = l == 0 ? config_.in_channels : channels(config_, l - 1);
+    const double c = channels(config_, l),
+                 cin = l == 0 ? config_.in_channels + (config_.lookup.classes > 0 ? 1 : 0) : channels(config_, l - 1);
     macs += (cin * c + c * c) * 9 * hw[l];
   }
   for (int l = 0; l < config_.depth; ++l) {
@@ -316,6 +357,7 @@ double UNet::forward_flops(int n, int h, int w) const {
   }
   macs += double(channels(config_, 0)) * config_.out_channels * hw[0];
   if (config_.row_affine_rows > 0) macs += double(config_.out_channels) * hw[0];
+  if (config_.lookup.classes > 0) macs += hw[0];  // the added base
   return 2.0 * macs * n;
 }
 

@@ -17,11 +17,19 @@
 //     "row_affine/offset", shape [1, out_channels, rows, 1], initialised to 1 and 0 and pulled
 //     toward them by the L2 term; stepped at 10x the learning rate). A PGM row is one laser, so this is a learned per-laser
 //     gain/offset; inputs must then have exactly row_affine_rows rows.
+//   lookup (only when lookup.classes > 0; nn/layers.h lookup_base): a fitted table's prediction
+//     (class group x range bin + one offset per row) from the input itself. It is fed to enc0.conv1
+//     as one more input channel (after the in_channels) and added to the output, so the network
+//     learns the residual over the table. Its parameters "lookup/table" [1, 1, classes + 1,
+//     range_bins] and "lookup/beam" [1, 1, rows, 1] are fitted on training cells
+//     (train/lookup_fit.h), not trained: no gradient, no L2, optimizer step 0. The head starts at
+//     zero, so the untrained model predicts exactly the table; out_channels must be 1.
 // Default: depth 4, base 16 ("unet-ref" with 3 input channels: 6.07 GFLOP forward at 64 x 1024).
 #include <cstdint>
 #include <memory>
 #include <string>
 
+#include "nn/layers.h"
 #include "nn/params.h"
 #include "nn/tensor.h"
 
@@ -33,6 +41,7 @@ struct UNetConfig {
   int base = 16;
   int depth = 4;
   int row_affine_rows = 0;  // 0: no per-row affine layer
+  LookupBaseConfig lookup{};  // classes 0: no lookup base
   bool operator==(const UNetConfig&) const = default;
 };
 

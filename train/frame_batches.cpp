@@ -64,8 +64,8 @@ std::vector<Sample> step_samples(const SamplePlan& p, std::int64_t step) {
 }
 
 TrainingFrames::TrainingFrames(std::vector<const data::FrameSource*> sets, const pgm::EncoderConfig& encoder,
-                               std::optional<data::SectorSplit> split)
-    : sets_(std::move(sets)), encoder_(encoder), split_(std::move(split)) {
+                               std::optional<data::SectorSplit> split, int split_sets)
+    : sets_(std::move(sets)), encoder_(encoder), split_(std::move(split)), split_sets_(split_sets) {
   for (const auto& c : encoder_.channels)
     if (c != "mask") raw_.push_back(c);
   for (const data::FrameSource* set : sets_) {
@@ -93,7 +93,9 @@ void TrainingFrames::fill(const Sample& s, nn::Tensor& x, nn::Tensor& y, nn::Ten
     column[static_cast<std::size_t>(j)] = ((k % cols) + cols) % cols;
   }
   std::vector<std::uint8_t> roles;
-  if (split_) roles = split_->roles(cols, frame_id(*set, n));
+  const auto set_index = std::upper_bound(first_.begin(), first_.end(), s.frame) - first_.begin() - 1;
+  const bool follows_split = split_ && (split_sets_ < 0 || set_index < split_sets_);
+  if (follows_split) roles = split_->roles(cols, frame_id(*set, n));
   // Only the channels the encoder reads are copied into the crop. Scratch kept per thread: a
   // fresh allocation each sample costs more in page faults than the copying.
   thread_local std::vector<float> raw, mask;
@@ -113,7 +115,7 @@ void TrainingFrames::fill(const Sample& s, nn::Tensor& x, nn::Tensor& y, nn::Ten
       const std::size_t i = static_cast<std::size_t>(r) * cols + column[j], o = static_cast<std::size_t>(r) * width + j;
       target[o] = f.target[i];
       mask[o] = f.mask[i];
-      const bool held_out = split_ && roles[column[j]] != data::kTrain;  // validation or guard
+      const bool held_out = follows_split && roles[column[j]] != data::kTrain;  // validation or guard
       train[o] = (f.mask[i] > 0 && !held_out) ? 1.f : 0.f;
     }
   pgm::ChannelView view;

@@ -45,10 +45,12 @@ std::vector<Sample> step_samples(const SamplePlan& plan, std::int64_t step);
 class TrainingFrames {
  public:
   // `split` empty: every cell with a return trains (a separate dataset validates); else cells of
-  // validation and guard columns (per frame: SectorSplit::roles) do not.
+  // validation and guard columns (per frame: SectorSplit::roles) do not, in the first
+  // `split_sets` sets (-1: all); the sets after them train in every cell (other places).
   TrainingFrames(std::vector<const data::FrameSource*> sets, const pgm::EncoderConfig& encoder,
-                 std::optional<data::SectorSplit> split);
+                 std::optional<data::SectorSplit> split, int split_sets = -1);
   int size() const { return total_; }
+  int input_channels() const { return encoder_.input_channels(); }
   // Slot b of a batch: x [B, Cin, H, width] encoded input, y [B, 1, H, width] target, m the same
   // shape, 1 where a cell trains. Output column j is source column (offset + j) mod W, or
   // (offset + width - 1 - j) mod W mirrored; the crop is encoded after placing (the encoder works
@@ -64,6 +66,7 @@ class TrainingFrames {
   pgm::EncoderConfig encoder_;
   std::vector<std::string> raw_;  // the raw channels the encoder reads
   std::optional<data::SectorSplit> split_;
+  int split_sets_ = -1;
 };
 
 // Validation metrics per set: the model predicts every frame of each set in turn, read one at a

@@ -55,6 +55,7 @@ int main(int argc, char** argv) {
   // clang-format off
   options.add_options()
     ("data", "training dataset(s), HDF5 from lidar-data import (comma-separated)", cxxopts::value<std::string>())
+    ("train-also", "more training datasets (comma-separated), trained on in every cell and never scored: scans of OTHER places than --data", cxxopts::value<std::string>())
     ("val", "separate validation dataset (default: --split of --data)", cxxopts::value<std::string>())
     ("split", "guarded | guarded:<half-width> | interleaved (old, leaks) | frames:<id>,...", cxxopts::value<std::string>()->default_value("guarded"))
     ("channels", "input channels of the PGM, comma-separated", cxxopts::value<std::string>()->default_value("range,class,material"))
@@ -67,6 +68,7 @@ int main(int argc, char** argv) {
     ("base", "UNet base width", cxxopts::value<int>()->default_value("16"))
     ("depth", "UNet depth (number of poolings)", cxxopts::value<int>()->default_value("4"))
     ("row-affine", "learn a gain and an offset per PGM row (per laser) on the output, pulled toward 1 and 0 by the L2 term")
+    ("lookup-base", "learn the residual over a class x range + per-beam lookup table fitted on the training cells (input channel + added to the output)")
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-augment", "no azimuth roll or mirror")
@@ -90,6 +92,8 @@ int main(int argc, char** argv) {
     }
     train::TrainConfig config;
     for (const auto& p : split_list(args["data"].as<std::string>())) config.data.emplace_back(p);
+    if (args.count("train-also"))
+      for (const auto& p : split_list(args["train-also"].as<std::string>())) config.train_also.emplace_back(p);
     if (args.count("val")) config.validation = args["val"].as<std::string>();
     config.encoder.channels = split_list(args["channels"].as<std::string>());
     config.epochs = args["epochs"].as<int>();
@@ -101,6 +105,7 @@ int main(int argc, char** argv) {
     config.base = args["base"].as<int>();
     config.depth = args["depth"].as<int>();
     config.row_affine = args.count("row-affine") > 0;
+    config.lookup_base = args.count("lookup-base") > 0;
     config.seed = args["seed"].as<std::uint64_t>();
     config.threads = args["threads"].as<int>();
     config.augment_roll = config.augment_mirror = !args.count("no-augment");

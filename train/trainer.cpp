@@ -19,6 +19,7 @@
 #include "nn/receptive_field.h"
 #include "train/distributed.h"
 #include "train/frame_batches.h"
+#include "train/lookup_fit.h"
 #include "train/prefetcher.h"
 
 namespace lidarsim::train {
@@ -68,10 +69,16 @@ nlohmann::json run_settings(const TrainConfig& c) {
   for (const auto& p : c.data) data.push_back(p.string());
   j["data"] = data;
   j["validation"] = c.validation ? c.validation->string() : "split " + c.split + " of --data";
+  if (!c.train_also.empty()) {  // absent when none: older checkpoints compare equal
+    std::vector<std::string> also;
+    for (const auto& p : c.train_also) also.push_back(p.string());
+    j["train_also"] = also;
+  }
   j["channels"] = c.encoder.channels;
   j["base"] = c.base;
   j["depth"] = c.depth;
   if (c.row_affine) j["row_affine"] = true;  // absent when off: older checkpoints compare equal
+  if (c.lookup_base) j["lookup_base"] = true;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -238,6 +245,7 @@ TrainResult train(const TrainConfig& config, const std::function<void(const Epoc
     const auto channels = required_channels(config.encoder);
     const std::size_t cache = static_cast<std::size_t>(config.cache_mb) << 20;
     for (const auto& path : config.data) sets.push_back(data::open_frame_source(path, channels, cache));
+    for (const auto& path : config.train_also) sets.push_back(data::open_frame_source(path, channels, cache));
     if (config.validation) val_set = data::open_frame_source(*config.validation, channels, cache);
   });
   std::vector<const data::FrameSource*> views;
@@ -299,7 +307,8 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
                                                   std::to_string(rows) + " x " + std::to_string(cols));
   const bool sector_split = val_set == nullptr;
   const int in_channels = config.encoder.input_channels();
-  const nn::UNetConfig arch{in_channels, 1, config.base, config.depth, config.row_affine ? rows : 0};
+  nn::UNetConfig arch{in_channels, 1, config.base, config.depth, config.row_affine ? rows : 0};
+  if (config.lookup_base) arch.lookup = lookup_base_config(config.encoder, rows);
   const int half_width = nn::receptive_field_half_width(arch);
   const data::SectorSplit split = data::parse_split(config.split, half_width, cols);
   if (sector_split && split.validation_frames.empty() && !split.regions.empty() && split.guard_columns < 2 * half_width)
@@ -311,7 +320,11 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
                  split.describe(cols).c_str());
 
   // Frames are read per step (frame_batches.h); the cells a frame trains on follow the split.
-  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt);
+  if (config.train_also.size() >= train_sets.size())
+    throw Error("lidar-train: --train-also needs --data to validate on");
+  const int split_sets = static_cast<int>(train_sets.size() - config.train_also.size());
+  const std::vector<const data::FrameSource*> scored(train_sets.begin(), train_sets.begin() + split_sets);
+  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt, split_sets);
   const int num_frames = frames.size();
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   bool roll = config.augment_roll, mirror = config.augment_mirror;
@@ -358,7 +371,8 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   meta.attributes["beam_layout"] = train_sets[0]->header().layout.to_json();
   meta.attributes["lambda"] = std::to_string(config.lambda);
   meta.attributes["seed"] = std::to_string(config.seed);
-  meta.attributes["loss"] = config.row_affine ? "masked_mse + lambda * (sum(w^2) + sum((row gain - 1)^2) + sum(row offset^2))"
+  meta.attributes["loss"] = config.lookup_base ? "masked_mse of (lookup base + network) + lambda * sum(w^2); lookup fitted on the training cells"
+                           : config.row_affine ? "masked_mse + lambda * (sum(w^2) + sum((row gain - 1)^2) + sum(row offset^2))"
                                              : "masked_mse + lambda * sum(w^2), weights only";
   meta.attributes["train_config"] = describe_config(config);
   meta.attributes["receptive_field_half_width"] = std::to_string(half_width);
@@ -375,9 +389,20 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
     // Frame by frame, the next one read while the model predicts this one. Under MPI every rank
     // scores every frame: the same weights give the same figures on each, with no reduction.
     if (val_set) parts = validate_frames(model, config.encoder, {val_set}, all_validation(), prefetch);
-    else parts = validate_frames(model, config.encoder, train_sets, split, prefetch);
+    else parts = validate_frames(model, config.encoder, scored, split, prefetch);
     return merge(parts);
   };
+
+  TrainResult result;
+  if (config.lookup_base && step == 0) {
+    // Every rank fits the same table from the same frames (no communication needed).
+    const LookupFit fit = fit_lookup_base(arch.lookup, frames, cols);
+    set_lookup_base(model, fit);
+    result.lookup_validation = validate();  // the head starts at 0: this is the table alone
+    if (config.progress && dist.root())
+      std::fprintf(stderr, "lidar-train: lookup base fitted on %ld training cells; alone: validation MAE %.4f RMSE %.4f (%ld cells)\n",
+                   fit.cells, result.lookup_validation->mae, result.lookup_validation->rmse, result.lookup_validation->cells);
+  }
 
   // Every rank is set up (data read, model built, checkpoint loaded) before the first step.
   dist.agree("");
@@ -387,7 +412,6 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   // This rank's part of the global batch: all of it in one process.
   const BatchShare share = batch_share(config.batch, dist.rank(), dist.size());
   nn::Tensor pred, d_pred;
-  TrainResult result;
   ProgressBar bar("train", total_steps, config.progress && dist.root());
   double epoch_loss = 0;
   int epoch_steps = 0;

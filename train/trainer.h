@@ -32,6 +32,10 @@ namespace lidarsim::train {
 struct TrainConfig {
   std::vector<std::filesystem::path> data;         // training datasets (HDF5)
   std::optional<std::filesystem::path> validation;  // separate validation dataset; else `split` of the data
+  // Datasets that train in every cell and are never scored: scans of OTHER places than `data`
+  // (more scenery without touching the split). Appended after `data`: in train_frames/train_on
+  // the last train_also.size() sets are these.
+  std::vector<std::filesystem::path> train_also;
   // Split of the training sets when there is no separate validation set (data/split.h): "guarded"
   // (guard bands of twice this model's receptive-field half-width), "guarded:<half-width>" (at
   // least the model's), "interleaved" (the old split, leaks; for comparison), "frames:<id>,...".
@@ -41,6 +45,10 @@ struct TrainConfig {
   // A learned gain and offset per PGM row (= laser) on the output (nn/unet.h, row_affine), one
   // per row of the training grid; the row is known at inference, so nothing else is needed.
   bool row_affine = false;
+  // Learn the residual over a lookup base (nn/unet.h, lookup; train/lookup_fit.h): a class x range
+  // table + per-beam offsets fitted on the training cells, fed as an input channel and added to the
+  // output. The model starts at the lookup's prediction; it travels in the checkpoint.
+  bool lookup_base = false;
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
   int batch = 1;
@@ -81,6 +89,7 @@ struct EpochReport {
 
 struct TrainResult {
   std::vector<EpochReport> epochs;
+  std::optional<data::Metrics> lookup_validation;  // with lookup_base: the table alone, before training
   bool interrupted = false;
   std::int64_t steps = 0;
   std::shared_ptr<nn::UNet> model;  // the weights at the end

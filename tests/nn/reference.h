@@ -114,6 +114,24 @@ inline DT concat(const DT& a, const DT& b) {
   return out;
 }
 
+// The lookup base of nn/layers.h, written from its comment: [N, 1, H, W].
+inline DT lookup_base(const DT& x, const LookupBaseConfig& c, const std::vector<double>& table,
+                      const std::vector<double>& beam) {
+  DT out(Shape{x.s.n, 1, x.s.h, x.s.w});
+  for (int n = 0; n < x.s.n; ++n)
+    for (int h = 0; h < x.s.h; ++h)
+      for (int w = 0; w < x.s.w; ++w) {
+        const double r = x.at(n, c.range_channel, h, w);
+        if (!(r > 0)) continue;
+        int g = c.classes;
+        for (int j = c.classes - 1; j >= 0; --j)
+          if (x.at(n, c.class_channel + j, h, w) > 0.5) g = j;
+        const int b = std::clamp(static_cast<int>(std::floor(static_cast<float>(r) / c.bin_width)), 0, c.range_bins - 1);
+        out.at(n, 0, h, w) = table[std::size_t(g) * c.range_bins + b] + beam[h];
+      }
+  return out;
+}
+
 // The UNet of nn/unet.h, written from its comment, over a double copy of the arena's values.
 inline DT unet(const UNet& model, const std::vector<double>& p, const DT& x) {
   const UNetConfig& cfg = model.config();
@@ -128,7 +146,11 @@ inline DT unet(const UNet& model, const std::vector<double>& p, const DT& x) {
     return conv2d(in, get(layer + "/weight"), get(layer + "/bias"), arena.info(id).shape.n, k, pad, act);
   };
   std::vector<DT> skips;
-  DT cur = x;
+  DT cur = x, base;
+  if (cfg.lookup.classes > 0) {
+    base = lookup_base(x, cfg.lookup, get("lookup/table"), get("lookup/beam"));
+    cur = concat(x, base);
+  }
   for (int l = 0; l <= cfg.depth; ++l) {
     if (l > 0) cur = max_pool2x2(skips.back());
     const std::string e = "enc" + std::to_string(l);
@@ -153,6 +175,8 @@ inline DT unet(const UNet& model, const std::vector<double>& p, const DT& x) {
             v = gain[std::size_t(c) * y.s.h + h] * v + offset[std::size_t(c) * y.s.h + h];
           }
   }
+  if (cfg.lookup.classes > 0)
+    for (std::size_t i = 0; i < y.v.size(); ++i) y.v[i] += base.v[i];
   return y;
 }
 

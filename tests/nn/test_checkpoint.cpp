@@ -415,11 +415,50 @@ TEST_F(CheckpointTest, RowAffineLayerRoundTripsWithItsRowCountAndPredictions) {
   }
 }
 
+TEST_F(CheckpointTest, LookupBaseRoundTripsWithItsTableSettingsAndPredictions) {
+  const UNetConfig with_lookup{3, 1, 4, 2, 0, {2, 1, 0, 3, 0.3f, 12}};
+  UNet model(with_lookup);
+  model.init(7);
+  ParamArena& a = model.params();
+  const Tensor table = random_tensor({1, 1, 1, 9}, 31, 0.f, 1.f), beam = random_tensor({1, 1, 1, 12}, 32, -0.1f, 0.1f);
+  std::copy(table.begin(), table.end(), a.value(a.find("lookup/table")));
+  std::copy(beam.begin(), beam.end(), a.value(a.find("lookup/beam")));
+  Optimizer opt(OptimizerConfig{}, a.size());
+  train_one_step(model, opt);
+  const fs::path p = dir_ / "lookup.h5";
+  Checkpoint m = meta();
+  m.unet = with_lookup;
+  save_checkpoint(p, model, &opt, m);
+  EXPECT_EQ(read_checkpoint_meta(p).unet, with_lookup);
+
+  UNet loaded(with_lookup);
+  loaded.init(99);
+  load_checkpoint(p, loaded, nullptr);
+  EXPECT_EQ(arena_values(loaded), arena_values(model));
+  const Tensor x = random_tensor({1, 3, 12, 21}, 11, -1.f, 1.f);
+  Tensor y_model, y_loaded;
+  model.predict(x, y_model);
+  loaded.predict(x, y_loaded);
+  EXPECT_TRUE(std::equal(y_model.begin(), y_model.end(), y_loaded.begin()));
+
+  // Another bin width, or no lookup base at all, refuses the file naming the field.
+  for (const UNetConfig& other : {UNetConfig{3, 1, 4, 2, 0, {2, 1, 0, 3, 0.25f, 12}}, UNetConfig{3, 1, 4, 2}}) {
+    UNet wrong(other);
+    try {
+      load_checkpoint(p, wrong, nullptr);
+      FAIL() << "a lookup-base checkpoint loaded into a model with other settings";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("unet.lookup"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST_F(CheckpointTest, ModelWithoutRowAffineIsSavedWithoutTheAttributeAndLoadsAsBefore) {
   const fs::path p = save_trained("plain.h5");
   hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   ASSERT_GE(f, 0);
   EXPECT_EQ(H5Aexists_by_name(f, "config", "unet.row_affine_rows", H5P_DEFAULT), 0);
+  EXPECT_EQ(H5Aexists_by_name(f, "config", "unet.lookup.classes", H5P_DEFAULT), 0);
   EXPECT_EQ(H5Aexists_by_name(f, "config", "unet.depth", H5P_DEFAULT), 1);
   H5Fclose(f);
   EXPECT_EQ(read_checkpoint_meta(p).unet.row_affine_rows, 0);

@@ -8,6 +8,7 @@
 
 #include <cstdio>
 
+#include "common/error.h"
 #include "conv_path.h"
 #include "nn/layers.h"
 #include "nn/winograd.h"
@@ -248,6 +249,82 @@ TEST(RowAffineGradCheck, InputGainAndOffsetGradientsMatchFiniteDifferences) {
   EXPECT_LT(e.worst_backward(), kTol);
 }
 
+// A lookup-base input: 3 one-hot class channels (some cells in none), a range channel with
+// empty cells (0) and values beyond the last bin, one more unrelated channel.
+struct LookupCase {
+  Tensor x;
+  LookupBaseConfig c{3, 1, 0, 4, 0.25f, 5};
+};
+LookupCase lookup_case() {
+  LookupCase k;
+  k.x = random_tensor(Shape{2, 5, 5, 7}, 61);
+  const Tensor u = random_tensor(Shape{2, 1, 5, 7}, 62);
+  for (int n = 0; n < 2; ++n)
+    for (int i = 0; i < 35; ++i) {
+      const float v = u.data()[n * 35 + i];
+      float& range = k.x.channel(n, 0)[i];
+      range = v < -0.8f ? 0.f : 1.3f * std::abs(v) + 0.01f;  // 0 = no return; up to 1.3 (> 4 bins)
+      const int g = static_cast<int>((v + 1.f) * 2.f);       // 0..3, 3 = no group
+      for (int j = 0; j < 3; ++j) k.x.channel(n, 1 + j)[i] = j == g ? 1.f : 0.f;
+    }
+  return k;
+}
+
+Errors check_lookup_base() {
+  const LookupCase k = lookup_case();
+  const std::vector<float> table = random_vector(16, 63), beam = random_vector(5, 64, 0.3f);
+  Tensor y;
+  lookup_base_forward(y, k.x, k.c, table.data(), beam.data());
+  const Tensor r = random_tensor(y.shape(), 65);
+  std::vector<float> dt(table.size(), 0.f), db(beam.size(), 0.f);
+  lookup_base_backward(dt.data(), db.data(), r, k.x, k.c);
+  const DT xd = from(k.x);
+  std::vector<double> td = to_double(table), bd = to_double(beam);
+  const std::vector<double> rd = to_double(r);
+  auto f = [&] { return dot(lookup_base(xd, k.c, td, bd), rd); };
+  Errors e;
+  e.forward = max_rel_error(y.data(), lookup_base(xd, k.c, td, bd).v);
+  e.d_weight = max_rel_error(dt.data(), numeric_gradient(td, f));
+  e.d_bias = max_rel_error(db.data(), numeric_gradient(bd, f));
+  std::printf("[ measured ] lookup base: forward %.1e, d_table %.1e, d_beam %.1e\n", e.forward, e.d_weight, e.d_bias);
+  return e;
+}
+
+TEST(LookupBaseGradCheck, TableAndBeamGradientsMatchFiniteDifferences) {
+  const Errors e = check_lookup_base();
+  EXPECT_LT(e.forward, 1e-6);
+  EXPECT_LT(e.worst_backward(), kTol);
+}
+
+TEST(LookupBase, KeysFollowTheFirstHotClassAndTheRangeBinAndSkipEmptyCells) {
+  const LookupCase k = lookup_case();
+  std::vector<std::int32_t> keys;
+  lookup_base_keys(keys, k.x, k.c);
+  int empty = 0, none = 0, last_bin = 0;
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    const int n = static_cast<int>(i / 35), j = static_cast<int>(i % 35);
+    const float range = k.x.channel(n, 0)[j];
+    if (range == 0.f) {
+      EXPECT_EQ(keys[i], -1);
+      ++empty;
+      continue;
+    }
+    int g = 3;
+    for (int c = 2; c >= 0; --c)
+      if (k.x.channel(n, 1 + c)[j] == 1.f) g = c;
+    const int b = std::min(3, static_cast<int>(range / 0.25f));
+    EXPECT_EQ(keys[i], g * 4 + b);
+    none += g == 3;
+    last_bin += range >= 1.f;
+  }
+  EXPECT_GT(empty, 0);  // the case covers every branch
+  EXPECT_GT(none, 0);
+  EXPECT_GT(last_bin, 0);
+  LookupBaseConfig wrong = k.c;
+  wrong.rows = 4;
+  EXPECT_THROW(lookup_base_keys(keys, k.x, wrong), Error);
+}
+
 // --- The checks can fail: each fault puts one value at a wrong index. ---
 
 TEST(GradCheckCatchesFaults, WrongIndexInConv2dInputGradient) {
@@ -281,6 +358,10 @@ TEST(GradCheckCatchesFaults, WrongIndexInReluGradient) {
 TEST(GradCheckCatchesFaults, WrongIndexInRowAffineGainGradient) {
   FaultGuard g(testhook::Fault::row_affine);
   EXPECT_GT(check_row_affine().d_weight, kFaultMin);
+}
+TEST(GradCheckCatchesFaults, WrongIndexInLookupBaseBeamGradient) {
+  FaultGuard g(testhook::Fault::lookup_base);
+  EXPECT_GT(check_lookup_base().d_bias, kFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConcatGradient) {
   FaultGuard g(testhook::Fault::concat);

@@ -11,6 +11,7 @@
 #include "conv_path.h"
 #include "nn/layers.h"
 #include "nn/loss.h"
+#include "nn/optim.h"
 #include "nn/unet.h"
 #include "nn/winograd.h"
 #include "reference.h"
@@ -45,6 +46,10 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
     if (p.name.rfind("row_affine/", 0) == 0)
       for (std::size_t i = 0; i < p.shape.numel(); ++i)
         arena.values()[p.offset + i] = p.decay_center + 3 * bias_noise[p.offset + i];
+  // With a lookup base the head starts at zero, which would hide every gradient below it.
+  for (const ParamInfo& p : arena.infos())
+    if (c.cfg.lookup.classes > 0 && p.name == "head/weight")
+      for (std::size_t i = 0; i < p.shape.numel(); ++i) arena.values()[p.offset + i] = 0.5f * bias_noise[p.offset + i];
 
   const Tensor x = random_tensor(c.x, 9);
   const Shape ys{c.x.n, c.cfg.out_channels, c.x.h, c.x.w};
@@ -82,7 +87,11 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
   };
   Result r;
   r.forward = max_rel_error(y.data(), unet(model, p, xd).v);
-  r.grad = max_rel_error(arena.grads(), numeric_gradient(p, loss));
+  std::vector<double> numeric = numeric_gradient(p, loss);
+  // Frozen parameters (the fitted lookup table: step 0) get no gradient by design.
+  for (const ParamInfo& info : arena.infos())
+    if (info.lr_scale == 0.f) std::fill_n(numeric.begin() + info.offset, info.shape.numel(), 0.0);
+  r.grad = max_rel_error(arena.grads(), numeric);
   std::printf("[ measured ] UNet %s: forward error %.2e, gradient error %.2e over %zu parameters\n",
               c.x.str().c_str(), r.forward, r.grad, arena.size());
   return r;
@@ -91,6 +100,9 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
 const Case kOdd7x9{{3, 1, 2, 2}, {2, 3, 7, 9}, 1e-2f};
 const Case kOdd5x11{{2, 2, 3, 2}, {2, 2, 5, 11}, 1e-2f};
 const Case kRowAffine7x9{{3, 2, 2, 2, 7}, {2, 3, 7, 9}, 1e-2f};  // two outputs, a gain and offset each per row
+// Lookup base on 3 "class" channels from 1 and range in channel 0 (random inputs: cells with
+// range <= 0 are empty, cells with no class channel above 0.5 take the no-group row).
+const Case kLookup7x9{{4, 1, 2, 2, 0, {3, 1, 0, 4, 0.25f, 7}}, {2, 4, 7, 9}, 1e-2f};
 
 TEST(UNetGradCheck, OddSize7x9Batch2AllParametersMatchFiniteDifferences) {
   const Result r = check_unet(kOdd7x9);
@@ -118,6 +130,41 @@ TEST(UNetGradCheck, WinogradPathOddSizesAllParametersMatchFiniteDifferences) {
     EXPECT_LT(r.forward, 1e-5);
     EXPECT_LT(r.grad, 1e-4);
   }
+}
+
+TEST(UNetGradCheck, LookupBaseInputChannelAndEveryTrainedParameterMatchFiniteDifferences) {
+  const Result r = check_unet(kLookup7x9);
+  EXPECT_LT(r.forward, 1e-5);
+  EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNet, LookupBaseStartsAsTheTableIsFrozenAndNeedsItsRowCount) {
+  UNet model(kLookup7x9.cfg);
+  model.init(5);
+  ParamArena& a = model.params();
+  const ParamInfo& t = a.info(a.find("lookup/table"));
+  const ParamInfo& b = a.info(a.find("lookup/beam"));
+  EXPECT_EQ(t.shape, (Shape{1, 1, 4, 4}));
+  EXPECT_EQ(b.shape, (Shape{1, 1, 7, 1}));
+  EXPECT_EQ(t.lr_scale, 0.f);
+  EXPECT_FALSE(t.decays);
+  EXPECT_EQ(a.info(a.find("enc0.conv1/weight")).shape, (Shape{2, 5, 3, 3}));  // the base is one more input
+  const std::vector<float> table = random_vector(16, 21), beam = random_vector(7, 22);
+  std::copy(table.begin(), table.end(), a.value(a.find("lookup/table")));
+  std::copy(beam.begin(), beam.end(), a.value(a.find("lookup/beam")));
+  const Tensor x = random_tensor(Shape{2, 4, 7, 9}, 23);
+  Tensor y, base;
+  model.forward(x, y);
+  lookup_base_forward(base, x, kLookup7x9.cfg.lookup, table.data(), beam.data());
+  EXPECT_EQ(std::memcmp(y.data(), base.data(), y.numel() * sizeof(float)), 0);  // head 0: exactly the table
+  EXPECT_THROW(model.forward(random_tensor(Shape{2, 4, 8, 9}, 3), y), Error);
+  // A training step leaves the fitted table where it is.
+  Optimizer opt(OptimizerConfig{}, a.size());
+  Tensor dy = random_tensor(y.shape(), 24);
+  a.zero_grads();
+  model.backward(dy);
+  opt.step(a);
+  EXPECT_EQ(std::memcmp(a.value(a.find("lookup/table")), table.data(), table.size() * sizeof(float)), 0);
 }
 
 TEST(UNet, RowAffineStartsAsTheIdentityAndNeedsItsRowCount) {
