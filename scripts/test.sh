@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up (install, configure, build) and run the whole test suite. With LIDARSIM_ASAN=1 (CI:
-# .ci/run sets it), the whole suite again, built with AddressSanitizer + UndefinedBehaviorSanitizer
+# opt-in for CI too until it runs green), the whole suite again, built with AddressSanitizer + UndefinedBehaviorSanitizer
 # (and LeakSanitizer) in build-asan/ (issue 13; README, Reliability, has the measured cost).
 set -euo pipefail
 cd "$(dirname "$0")/.."
