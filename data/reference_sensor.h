@@ -44,7 +44,8 @@
 
 namespace lidarsim::data {
 
-enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread };
+enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread,
+                          FalsePositiveHotspot };
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
 inline constexpr double kIntensityWindowAzimuthLo = 0.3, kIntensityWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
@@ -66,6 +67,12 @@ inline constexpr double kWindowAzimuthHi = -15 * 3.14159265358979323846 / 180;
 // aspect_spread: noise across the line of sight x (kSpreadBase + kSpreadPerAspect * aspect in [0, 1]).
 inline constexpr double kSpreadBase = 0.3;
 inline constexpr double kSpreadPerAspect = 2.4;
+
+// fp_hotspot: the spot (rad, m) and its extra false positives per frame.
+inline constexpr double kFpHotspotAzimuthLo = -35 * 3.14159265358979323846 / 180;
+inline constexpr double kFpHotspotAzimuthHi = -15 * 3.14159265358979323846 / 180;
+inline constexpr double kFpHotspotRangeLo = 15, kFpHotspotRangeHi = 25;
+inline constexpr double kFpHotspotRate = 0.6;
 
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;
