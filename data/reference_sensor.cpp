@@ -202,8 +202,14 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
       // False positives: Poisson-ish (Bernoulli per slot) clutter, cars, far from nothing in particular.
       for (int k = 0; k < 3; ++k)
         if (U(rng) < o.false_positives / 3) {
-          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
-                        uni(-20, 20), 1.73 - 0.75, uni(5, 60));
+          if (!o.polar_clutter) {
+            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
+                          uni(-20, 20), 1.73 - 0.75, uni(5, 60));
+          } else {
+            const double score = uni(0.5, 4), az = uni(-kPi / 4, kPi / 4), r = uni(5, 60);
+            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score,
+                          -r * std::sin(az), 1.73 - 0.75, r * std::cos(az));
+          }
           dets[0] += line;
         }
       if (hotspot) {

@@ -83,6 +83,10 @@ struct ReferenceTrackingOptions {
   double noise = 0.1;       // m (positions), size noise = noise / 2, heading noise = noise / 5 rad
   double detection_probability = 0.95;
   double false_positives = 0.2;  // per frame
+  // Clutter placed by independent draws of range (5-60 m), azimuth (-45 to 45 deg) and score, which the
+  // KPI model's independent quantiles hold exactly; default: uniform in a rectangle ahead (x 5-60 m,
+  // y -20 to 20 m), where range and azimuth depend on each other.
+  bool polar_clutter = false;
   std::uint64_t seed = 1;
 };
 void write_reference_tracking(const std::filesystem::path& dir, const ReferenceTrackingOptions& options);

@@ -19,12 +19,33 @@ struct Side {
   FpData fit, held;
   std::array<double, 3> floor{};
   FpModel base;
-  std::vector<double> dev_base;  // per held-out frame
+  std::vector<double> dev_base;  // per block
 };
 
+// Poisson deviance of each block's held-out counts per class and cell against the model's expected
+// counts summed over the block's frames (indexed by block; 0 for blocks of the other fold).
+std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t nblocks, int cells) {
+  std::vector<std::vector<double>> Y(nblocks), M(nblocks);
+  for (const auto& fr : held.frames) {
+    auto &y = Y[fr.block], &mu = M[fr.block];
+    if (y.empty()) y.assign(3 * cells, 0.0), mu.assign(3 * cells, 0.0);
+    const int b = m.frame_bin(fr);
+    for (int c = 0; c < 3; ++c) {
+      const auto& cm = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)];
+      for (int k = 0; k < cells; ++k) mu[c * cells + k] += cm[k];
+    }
+    for (const auto& [c, cell, n] : fr.counts) y[c * cells + cell] += n;
+  }
+  std::vector<double> d(nblocks, 0.0);
+  for (size_t b = 0; b < nblocks; ++b)
+    for (size_t k = 0; k < Y[b].size(); ++k)
+      d[b] += 2 * ((Y[b][k] > 0 ? Y[b][k] * std::log(Y[b][k] / M[b][k]) : 0.0) - (Y[b][k] - M[b][k]));
+  return d;
+}
+
 // Per class and cell: (held-out false positives per frame, the model's mean expected count).
-std::vector<std::array<double, 2>> rate_pairs(const FpModel& m, const FpData& held, int cells) {
-  std::vector<std::array<double, 2>> p(3 * cells, {0, 0});
+std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& held, int cells) {
+  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
   for (const auto& fr : held.frames) {
     const int b = m.frame_bin(fr);
     for (int c = 0; c < 3; ++c) {
@@ -34,7 +55,7 @@ std::vector<std::array<double, 2>> rate_pairs(const FpModel& m, const FpData& he
     for (const auto& [c, cell, y] : fr.counts) p[c * cells + cell][0] += y;
   }
   const double n = std::max<size_t>(1, held.frames.size());
-  for (auto& e : p) e[0] /= n, e[1] /= n;
+  for (auto& e : p) e[0] /= n, e[1] /= n, e[2] = e[0] / n;  // Poisson variance of the measured rate
   return p;
 }
 
@@ -59,10 +80,10 @@ std::string form_of(const FpModel& m, bool window) {
 double change_per_frame(const std::array<double, 3>& s) { return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0; }
 
 // The simulated false positives per frame and cell on fold k's held-out sequences, 4 seeds.
-std::vector<std::array<double, 2>> simulated_pairs(const TrackingData& data, const Fold& fold, const Side& side,
+std::vector<std::array<double, 3>> simulated_pairs(const TrackingData& data, const Fold& fold, const Side& side,
                                                    const sensor::KpiModel& model, std::uint64_t seed) {
   const int cells = side.g.cells();
-  std::vector<std::array<double, 2>> p(3 * cells, {0, 0});
+  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
   FpModel measured = fp_base(fold.base);  // only for the measured side of the pairs
   measured.compile(side.g, side.floor);
   const auto meas = rate_pairs(measured, side.held, cells);
@@ -74,18 +95,18 @@ std::vector<std::array<double, 2>> simulated_pairs(const TrackingData& data, con
       p[r.cls * cells + side.g.cell(r.range, r.azimuth, r.score)][1] += 1.0 / seeds;
   }
   const double n = std::max<size_t>(1, side.held.frames.size());
-  for (size_t i = 0; i < p.size(); ++i) p[i] = {meas[i][0], p[i][1] / n};
+  for (size_t i = 0; i < p.size(); ++i) p[i] = {meas[i][0], p[i][1] / n, meas[i][2] + p[i][1] / n / (seeds * n)};
   return p;
 }
 
 }  // namespace
 
-double fp_rate_error(const std::array<std::vector<std::array<double, 2>>, 2>& per_fold) {
+double fp_rate_error(const std::array<std::vector<std::array<double, 3>>, 2>& per_fold) {
   double s = 0;
   long n = 0;
   for (const auto& v : per_fold)
-    for (const auto& [a, b] : v) s += (a - b) * (a - b), ++n;
-  return n ? std::sqrt(s / n) : 0;
+    for (const auto& [a, b, var] : v) s += (a - b) * (a - b) - var, ++n;
+  return n ? std::sqrt(std::max(0.0, s / n)) : 0;
 }
 
 FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fold, 2>& folds, double threshold,
@@ -101,10 +122,16 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
     s.floor = fp_floor(s.fit, s.g.cells());
     s.base = fp_base(folds[k].base);
     s.base.compile(s.g, s.floor);
-    s.dev_base = fp_deviance(s.base, s.held);
     for (auto& fr : s.held.frames) fr.block = block_id.try_emplace(fr.block, static_cast<int>(block_id.size())).first->second;
     A.frames += static_cast<int>(s.held.frames.size());
     A.fps += static_cast<int>(s.held.fps.size());
+  }
+  const size_t nblocks = block_id.size();
+  std::vector<double> block_frames(nblocks, 0.0);
+  std::vector<int> block_fold(nblocks, 0);
+  for (int k = 0; k < 2; ++k) {
+    side[k].dev_base = block_deviance(side[k].base, side[k].held, nblocks, side[k].g.cells());
+    for (const auto& fr : side[k].held.frames) block_frames[fr.block] += 1, block_fold[fr.block] = k;
   }
   std::vector<std::array<FpModel, 2>> models;  // per candidate, per fold
   for (int f = 0; f < static_cast<int>(kFpFeatures.size()); ++f)
@@ -112,18 +139,18 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
       FpCandidate c;
       c.feature = f;
       c.window = window;
-      BlockSums sums(block_id.size(), {0, 0, 0});
+      BlockSums sums(nblocks, {0, 0, 0});
       std::array<double, 3> total{0, 0, 0};
-      std::array<std::vector<std::array<double, 2>>, 2> before, after;
+      std::array<std::vector<std::array<double, 3>>, 2> before, after;
       std::array<FpModel, 2> fitted;
       for (int k = 0; k < 2; ++k) {
         const Side& s = side[k];
         fitted[k] = fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor);
-        const auto dev = fp_deviance(fitted[k], s.held);
-        for (size_t i = 0; i < dev.size(); ++i) {
-          auto& b = sums[s.held.frames[i].block];
-          b[0] += dev[i], b[1] += s.dev_base[i], b[2] += 1;
-          total[0] += dev[i], total[1] += s.dev_base[i], total[2] += 1;
+        const auto dev = block_deviance(fitted[k], s.held, nblocks, s.g.cells());
+        for (size_t b = 0; b < nblocks; ++b) {
+          if (block_fold[b] != k) continue;
+          sums[b][0] += dev[b], sums[b][1] += s.dev_base[b], sums[b][2] += block_frames[b];
+          total[0] += dev[b], total[1] += s.dev_base[b], total[2] += block_frames[b];
         }
         before[k] = rate_pairs(s.base, s.held, s.g.cells());
         after[k] = rate_pairs(fitted[k], s.held, s.g.cells());
@@ -170,7 +197,7 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
   }
   if (A.added >= 0) {
     // What the KPI manager draws with each fold's model, against the measured held-out rates.
-    std::array<std::vector<std::array<double, 2>>, 2> sb, sa;
+    std::array<std::vector<std::array<double, 3>>, 2> sb, sa;
     for (int k = 0; k < 2; ++k) {
       sb[k] = simulated_pairs(data, folds[k], side[k], folds[k].base, seed);
       sa[k] = simulated_pairs(data, folds[k], side[k], with_fp_table(folds[k].base, models[A.added][k]), seed);
@@ -205,18 +232,19 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
                   {"decision", c.decision}});
   nlohmann::json j = {
       {"outcome",
-       "per held-out frame, class and cell of a 5 x 5 x 4 grid over (range, azimuth, score) of the fit split's false "
-       "positives (equal-count bins): the number of false positives, Poisson; the model's expected count per cell from "
-       "its rate and quantiles as the KPI manager samples them"},
+       "per block of 100 held-out frames, class and cell of a 5 x 5 x 4 grid over (range, azimuth, score) of the fit "
+       "split's false positives (equal-count bins): the number of false positives, Poisson; the model's expected count "
+       "per frame and cell from its rate and quantiles as the KPI manager samples them, summed over the block"},
       {"association", "a detection of a modelled class with score > 0 matched to no ground truth (same class, 2 m BEV "
                       "gate, Hungarian) and not within 2 m of other ground truth: lidar-calibrate's false positives"},
-      {"score_definition", "1 - D_after / D_before, D the held-out Poisson deviance, both folds; interval95 and "
-                           "change_interval95 (deviance per frame, after - before) by a basic block bootstrap over "
-                           "chunks of 100 consecutive frames of a sequence"},
+      {"score_definition", "1 - D_after / D_before, D the held-out Poisson deviance of each block's counts per class "
+                           "and cell (blocks: 100 consecutive frames of a sequence), both folds; interval95 and "
+                           "change_interval95 (deviance per frame, after - before) by a basic bootstrap over the blocks"},
       {"effect_size_definition", "fold 1: share of the expected false positives the candidate moves between cells "
                                  "(0.5 sum |mu_after - mu_before| / sum mu_before)"},
       {"error_definition", "false-positive rate error: RMS over class x cell of held-out false positives per frame minus "
-                           "the model's expected count, both folds"},
+                           "the model's expected count, beyond the held-out counts' Poisson noise (its variance "
+                           "subtracted from the mean square; re-simulated: the simulated counts' too), both folds"},
       {"threshold", threshold},
       {"held_out_frames", a.frames},
       {"held_out_false_positives", a.fps},

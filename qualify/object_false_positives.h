@@ -8,8 +8,12 @@
 //   model     Poisson with the model's expected count in the cell, a mixture of components (a rate
 //             per frame x the product of its range, azimuth and score cell probabilities, from the
 //             quantiles by linear interpolation as the manager samples them);
-//   loss      the held-out Poisson deviance; score = 1 - D_after / D_before, pooled over both folds;
-//   blocks    the bootstrap resamples 100-frame chunks of a sequence (frames and the false
+//   loss      the held-out Poisson deviance of each block's counts per class and cell (expected: the
+//             model's per-frame counts summed over the block's frames); score = 1 - D_after / D_before,
+//             pooled over both folds. Blocks, not frames: the candidates are rates, and which frames of
+//             a block carry its false detections (a persistent ghost over 30 frames) is nothing a rate
+//             can say, so per frame the deviance would be mostly that unexplainable part;
+//   blocks    100-frame chunks of a sequence, also what the bootstrap resamples (frames and the false
 //             detections that persist over them stay together; a fold holds out whole sequences).
 // Candidates, per feature (kFpFeatures) and form, fitted on a fold's fit sequences only:
 //   fp_rate_table   per class, per bin of the feature (10 equal-count bins): a rate and the bin's own
@@ -106,8 +110,10 @@ struct FpAnalysis {
   int frames = 0, fps = 0;
 };
 
-// RMS over classes and cells of the held-out false positives per frame minus the model's expected count.
-double fp_rate_error(const std::array<std::vector<std::array<double, 2>>, 2>& per_fold);
+// RMS over classes and cells of the held-out false positives per frame minus the model's expected count,
+// beyond the measured rate's Poisson noise: per cell (measured, model, noise variance), the variance
+// subtracted from the mean square (an unbiased estimate of the squared error the model makes).
+double fp_rate_error(const std::array<std::vector<std::array<double, 3>>, 2>& per_fold);
 
 // Every candidate judged on the two folds; the best attribute candidate is added when its score is at
 // least `threshold` and the block-bootstrap 95 % interval of the change of the held-out deviance lies
