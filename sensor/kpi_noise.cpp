@@ -122,7 +122,7 @@ double RunningTargetController::running_std() const { return std::sqrt(std::max(
 
 double RunningTargetController::apply(double z) {
   const double out = cfg_.enabled ? g_ * z + c_ : z;
-  const double a = 1 / cfg_.window;
+  const double a = a_;
   const double d = out - m_;
   m_ += a * d;
   v_ += a * (d * (out - m_) - v_);

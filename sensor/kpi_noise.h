@@ -74,7 +74,7 @@ struct BurstChain {
 // multiplicatively on the spread (g *= exp(-std_gain (v - 1) / 2)), bounded to [0.2, 5].
 class RunningTargetController {
  public:
-  explicit RunningTargetController(ControllerConfig cfg = {}) : cfg_(cfg) {}
+  explicit RunningTargetController(ControllerConfig cfg = {}) : cfg_(cfg), a_(1 / cfg.window) {}
   double apply(double z);
   double offset() const { return c_; }
   double gain() const { return g_; }
@@ -83,6 +83,7 @@ class RunningTargetController {
 
  private:
   ControllerConfig cfg_;
+  double a_;  // 1 / window, once rather than per sample
   double c_ = 0, g_ = 1, m_ = 0, v_ = 1;
 };
 
