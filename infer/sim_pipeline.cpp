@@ -125,12 +125,12 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   sensor::ego_to_sensor(out.ego, scenario_.sensor.mount, out.sensor);
   lap(SimStage::Frames);
 
-  sensor::apply_fov(out.sensor.objects, scenario_.sensor.fov);
+  sensor::apply_fov(out.sensor.objects, scenario_.sensor.fov, &heading_trig_);
   sensor::apply_fov_to_lanes(out.sensor.lanes, scenario_.sensor.fov);
   out.objects_in_view = static_cast<int>(out.sensor.objects.size());
   lap(SimStage::FieldOfView);
 
-  occlusion_.apply(out.sensor.objects, out.sensor.lanes);
+  occlusion_.apply(out.sensor.objects, out.sensor.lanes, &heading_trig_);
   out.objects_occluded = out.objects_partly_occluded = 0;
   for (const auto& o : out.sensor.objects) {
     if (o.visible_fraction <= 0) ++out.objects_occluded;
@@ -147,11 +147,13 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   const sensor::Pose map_from_sensor = sensor::compose(out.ego.ego_in_map, scenario_.sensor.mount);
   const sensor::Pose sensor_from_map = sensor::inverse(map_from_sensor);
   detections_.clear();
-  for (const auto& o : out.sensor.objects)
+  for (std::size_t i = 0; i < out.sensor.objects.size(); ++i) {
+    const sensor::Object& o = out.sensor.objects[i];
     if (o.visible_fraction > 0) {
       detections_.emplace_back();
-      sensor::transform_object(map_from_sensor, o, detections_.back());
+      sensor::transform_object(map_from_sensor, o, detections_.back(), &heading_trig_[i]);
     }
+  }
   tracker_.update(detections_, out.time);
   tracker_.reported(tracked_map_);
   tracked_.resize(tracked_map_.size());

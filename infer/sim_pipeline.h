@@ -23,6 +23,7 @@
 #include "infer/intensity_model.h"
 #include "pgm/polar_grid_map.h"
 #include "sensor/kpi_manager.h"
+#include "sensor/frames.h"
 #include "sensor/kpi_model.h"
 #include "sensor/occlusion.h"
 #include "sensor/pcl_generator.h"
@@ -126,6 +127,7 @@ class SimPipeline {
   sensor::SampleCursor cursor_;  // keyframe intervals of the last frame (frames run in order)
   sensor::Frame map_frame_;
   std::vector<sensor::Object> detections_, tracked_map_, tracked_, kpi_out_, pcl_objects_;
+  std::vector<sensor::HeadingTrig> heading_trig_;  // cos / sin of each sensor-frame object's heading, from the FoV stage
   std::vector<float> predicted_;
   std::vector<double> column_cos_, column_sin_;  // point cloud: direction of each PGM column
 };

@@ -13,6 +13,29 @@ constexpr double kPi = std::numbers::pi;
 
 bool full_circle(const FieldOfView& fov) { return fov.azimuth_max - fov.azimuth_min >= 2 * kPi - 1e-12; }
 
+// Bounds on z / horizontal distance that are surely inside the vertical limits: a point whose
+// ratio lies in [lo, hi] has atan2(z, hypot(x, y)) inside [elevation_min, elevation_max] with a
+// margin of 1e-6 rad, a million times the rounding of the ratio, hypot and atan2. So a box whose
+// points all fall inside needs no atan2: the elevation test passes and nothing is truncated in
+// elevation (the exact path then gives exactly these answers; near the limits it still runs).
+struct SafeRatios {
+  double lo = std::numeric_limits<double>::infinity(), hi = -std::numeric_limits<double>::infinity();  // none
+  explicit SafeRatios(const FieldOfView& fov) {
+    constexpr double margin = 1e-6, edge = kPi / 2 - 1e-3;
+    const double top = fov.elevation_max - margin, bottom = fov.elevation_min + margin;
+    if (!(top > bottom)) return;
+    hi = top >= edge ? (fov.elevation_max >= kPi / 2 ? std::numeric_limits<double>::max() : std::tan(edge)) : std::tan(top);
+    lo = bottom <= -edge ? (fov.elevation_min <= -kPi / 2 ? -std::numeric_limits<double>::max() : std::tan(-edge))
+                         : std::tan(bottom);
+  }
+  // All n ratios finite and inside.
+  bool inside(const double* k, int n) const {
+    bool ok = true;
+    for (int i = 0; i < n; ++i) ok &= k[i] >= lo && k[i] <= hi;  // false for NaN and +-inf beyond max
+    return ok;
+  }
+};
+
 void corners_of(const Object& o, double c, double s, Eigen::Vector3d corners[8]) {
   const Eigen::Vector3d half = 0.5 * o.size;
   int k = 0;
@@ -45,7 +68,7 @@ struct BoxGeometry {
   double el[10];
   bool has_el[10] = {};
   bool has_near = false;
-  explicit BoxGeometry(const Object& obj) : o(obj), c(std::cos(obj.heading)), s(std::sin(obj.heading)) {
+  explicit BoxGeometry(const Object& obj, HeadingTrig h) : o(obj), c(h.c), s(h.s) {
     corners_of(o, c, s, pts);
     for (int i = 0; i < 8; ++i) k[i] = ratio(pts[i]);
   }
@@ -82,19 +105,22 @@ struct BoxGeometry {
   Eigen::Vector3d below() const { return closest_point(o, c, s, Eigen::Vector3d(0, 0, o.position.z())); }
 };
 
-bool in_fov(BoxGeometry& g, const FieldOfView& fov) {
+bool in_fov(BoxGeometry& g, const FieldOfView& fov, const SafeRatios& safe) {
   const Eigen::Vector3d nearest = g.with_near();
   const double r_near = nearest.norm();
   if (r_near > fov.range_max) return false;
-  double r_far = 0;
-  for (const auto& p : g.pts) r_far = std::max(r_far, p.norm());
-  if (r_far < fov.range_min) return false;
+  // The largest norm is the root of the largest squared norm (sqrt is monotone and correctly rounded).
+  double r2_far = 0;
+  for (const auto& p : g.pts) r2_far = std::max(r2_far, p.squaredNorm());
+  if (std::sqrt(r2_far) < fov.range_min) return false;
   if (r_near == 0) return true;  // the sensor is inside the box: every direction sees it
 
   // Elevation interval first (a full-circle field of view needs no azimuths).
-  double el_lo = 0, el_hi = 0;
-  g.elevation_extremes(10, el_lo, el_hi);
-  if (el_hi < fov.elevation_min || el_lo > fov.elevation_max) return false;
+  if (!safe.inside(g.k, 10)) {
+    double el_lo = 0, el_hi = 0;
+    g.elevation_extremes(10, el_lo, el_hi);
+    if (el_hi < fov.elevation_min || el_lo > fov.elevation_max) return false;
+  }
   if (full_circle(fov)) return true;
   // Angular interval of the sample points, azimuths taken relative to the centre direction so
   // that a box across the +-pi seam stays one interval.
@@ -107,7 +133,7 @@ bool in_fov(BoxGeometry& g, const FieldOfView& fov) {
   }
   // Sensor straight above or below the box: it spans every azimuth.
   const Eigen::Vector3d below = g.below();
-  if (std::hypot(below.x(), below.y()) == 0) return true;
+  if (below.x() == 0 && below.y() == 0) return true;  // hypot(x, y) == 0
   // The FoV interval relative to the same reference, tested on the circle (three windings).
   const double f_lo = wrap_pi(fov.azimuth_min - az_ref);
   const double width = fov.azimuth_max - fov.azimuth_min;
@@ -118,15 +144,19 @@ bool in_fov(BoxGeometry& g, const FieldOfView& fov) {
   return false;
 }
 
-double truncation(BoxGeometry& g, const FieldOfView& fov) {
+double truncation(BoxGeometry& g, const FieldOfView& fov, const SafeRatios& safe) {
   const Object& o = g.o;
   const Eigen::Vector3d* corners = g.pts;
+  const Eigen::Vector3d below = g.below();
+  const bool on_axis = below.x() == 0 && below.y() == 0;  // hypot(x, y) == 0
+  // Every corner surely inside the vertical limits, every azimuth in view: the shares below are
+  // 1 / 1 in azimuth and el_in / el_span = 1 exactly in elevation, so the result is 0.
+  if (!on_axis && full_circle(fov) && safe.inside(g.k, 8)) return 0.0;
   double el_lo = kPi, el_hi = -kPi;
   g.elevation_extremes(8, el_lo, el_hi);
   const double width = std::min(fov.azimuth_max - fov.azimuth_min, 2 * kPi);
   double az_span = 0, az_in = 0;
-  const Eigen::Vector3d below = g.below();
-  if (std::hypot(below.x(), below.y()) == 0) {
+  if (on_axis) {
     // The sensor's vertical axis passes through the box: every azimuth, and straight down / up.
     az_span = 2 * kPi;
     az_in = width;
@@ -191,27 +221,32 @@ bool point_in_fov(const Eigen::Vector3d& p, const FieldOfView& fov) {
 }
 
 bool object_in_fov(const Object& o, const FieldOfView& fov) {
-  BoxGeometry g(o);
-  return in_fov(g, fov);
+  BoxGeometry g(o, HeadingTrig::of(o.heading));
+  return in_fov(g, fov, SafeRatios(fov));
 }
 
 double fov_truncation(const Object& o, const FieldOfView& fov) {
-  BoxGeometry g(o);
-  return truncation(g, fov);
+  BoxGeometry g(o, HeadingTrig::of(o.heading));
+  return truncation(g, fov, SafeRatios(fov));
 }
 
-int apply_fov(std::vector<Object>& objects, const FieldOfView& fov) {
+int apply_fov(std::vector<Object>& objects, const FieldOfView& fov, std::vector<HeadingTrig>* trig) {
   // One pass: both tests on one BoxGeometry (the kept objects move up, in order, as erase_if would).
   const std::size_t before = objects.size();
   std::size_t kept = 0;
+  const SafeRatios safe(fov);
+  if (trig) trig->resize(before);
   for (std::size_t i = 0; i < before; ++i) {
-    BoxGeometry g(objects[i]);
-    if (!in_fov(g, fov)) continue;
-    const double t = truncation(g, fov);
+    const HeadingTrig h = HeadingTrig::of(objects[i].heading);
+    BoxGeometry g(objects[i], h);
+    if (!in_fov(g, fov, safe)) continue;
+    const double t = truncation(g, fov, safe);
     if (kept != i) objects[kept] = std::move(objects[i]);
+    if (trig) (*trig)[kept] = h;
     objects[kept++].truncation = t;
   }
   objects.resize(kept);
+  if (trig) trig->resize(kept);
   return static_cast<int>(before - kept);
 }
 

@@ -8,6 +8,7 @@
 #include <numbers>
 #include <vector>
 
+#include "sensor/frames.h"
 #include "sensor/scene.h"
 
 namespace lidarsim::sensor {
@@ -38,8 +39,9 @@ bool object_in_fov(const Object& o, const FieldOfView& fov);  // o in the sensor
 double fov_truncation(const Object& o, const FieldOfView& fov);  // o in the sensor frame
 
 // Keeps (in order) the objects that are in view and sets their truncation; returns how many
-// were removed.
-int apply_fov(std::vector<Object>& objects, const FieldOfView& fov);
+// were removed. `trig`, when given, receives HeadingTrig::of(heading) of each kept object (same
+// order), which the later stages of the frame take instead of computing it again.
+int apply_fov(std::vector<Object>& objects, const FieldOfView& fov, std::vector<HeadingTrig>* trig = nullptr);
 // Drops lane points outside the view; lanes left with fewer than 2 points are removed.
 void apply_fov_to_lanes(std::vector<LanePolyline>& lanes, const FieldOfView& fov);
 

@@ -32,12 +32,13 @@ Pose inverse(const Pose& pose) {
   return p;
 }
 
-void transform_object(const Pose& to_from, const Object& in, Object& out) {
+void transform_object(const Pose& to_from, const Object& in, Object& out, const HeadingTrig* trig) {
+  const HeadingTrig h = trig ? *trig : HeadingTrig::of(in.heading);
   out = in;
   out.position = apply(to_from, in.position);
   out.velocity = to_from.rotation * in.velocity;
   out.acceleration = to_from.rotation * in.acceleration;
-  const Eigen::Vector3d forward(std::cos(in.heading), std::sin(in.heading), 0.0);
+  const Eigen::Vector3d forward(h.c, h.s, 0.0);
   const Eigen::Vector3d f = to_from.rotation * forward;
   out.heading = std::atan2(f.y(), f.x());
 }

@@ -17,15 +17,27 @@ Eigen::Matrix3d rotation_from_rpy(double roll, double pitch, double yaw);
 Pose make_pose(const Eigen::Vector3d& translation, double roll, double pitch, double yaw);
 Pose compose(const Pose& parent_from_mid, const Pose& mid_from_child);  // parent_from_child
 Pose inverse(const Pose& pose);
-// An angle wrapped into [-pi, pi] (remainder by 2 pi; +-pi stay where they are).
-inline double wrap_pi(double a) { return std::remainder(a, 2 * std::numbers::pi); }
+// An angle wrapped into [-pi, pi] (remainder by 2 pi; +-pi stay where they are). The remainder is
+// exact and leaves |a| <= pi as it is (the quotient rounds to 0, half to even), so only larger
+// angles pay for the call.
+inline double wrap_pi(double a) {
+  return std::abs(a) <= std::numbers::pi ? a : std::remainder(a, 2 * std::numbers::pi);
+}
 
 inline Eigen::Vector3d apply(const Pose& pose, const Eigen::Vector3d& p) {
   return pose.rotation * p + pose.translation;
 }
 
-// One object or polyline from the frame F into frame G, given G_from_F.
-void transform_object(const Pose& to_from, const Object& in, Object& out);
+// cos and sin of an object's heading. Several stages of a frame need them for the same heading
+// (field of view, occlusion, the tracker's frame change): the pipeline computes them once.
+struct HeadingTrig {
+  double c = 1, s = 0;
+  static HeadingTrig of(double heading) { return {std::cos(heading), std::sin(heading)}; }
+};
+
+// One object or polyline from the frame F into frame G, given G_from_F. `trig`, when given, is
+// HeadingTrig::of(in.heading) (the same numbers, not computed again).
+void transform_object(const Pose& to_from, const Object& in, Object& out, const HeadingTrig* trig = nullptr);
 void transform_lane(const Pose& to_from, const LanePolyline& in, LanePolyline& out);
 
 // A whole frame: out gets time and ego pose from in, objects and lanes in the new frame.

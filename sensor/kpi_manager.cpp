@@ -14,6 +14,77 @@ constexpr std::uint64_t kPurposeMiss = 16, kPurposeFlip = 17, kPurposeScore = 18
 constexpr std::uint64_t kFalsePositiveKey = ~std::uint64_t{0};  // no track id takes this value
 }  // namespace
 
+namespace {
+double wrap_angle(double a) {
+  constexpr double pi = std::numbers::pi;
+  a += pi;
+  // fmod is exact and leaves |a| < 2 pi as it is: call it only for the rest.
+  if (!(std::abs(a) < 2 * pi)) a = std::fmod(a, 2 * pi);
+  if (a < 0) a += 2 * pi;
+  return a - pi;
+}
+}  // namespace
+
+namespace {
+
+// kConditionalFeatures as numbers, so a frame compares no strings (resolved once per model).
+enum class Feature {
+  Range, Azimuth, Speed, RadialVelocity, LongitudinalVelocity, LateralVelocity, Acceleration, Size, BoxWidth,
+  BoxHeight, HeadingToLineOfSight, Truncation, Visibility, TrackAge, Unknown
+};
+
+Feature feature_of(const std::string& name) {
+  static const std::pair<const char*, Feature> names[] = {
+      {"range", Feature::Range}, {"azimuth", Feature::Azimuth}, {"speed", Feature::Speed},
+      {"radial_velocity", Feature::RadialVelocity}, {"longitudinal_velocity", Feature::LongitudinalVelocity},
+      {"lateral_velocity", Feature::LateralVelocity}, {"acceleration", Feature::Acceleration},
+      {"size", Feature::Size}, {"box_width", Feature::BoxWidth}, {"box_height", Feature::BoxHeight},
+      {"heading_to_line_of_sight", Feature::HeadingToLineOfSight}, {"truncation", Feature::Truncation},
+      {"visibility", Feature::Visibility}, {"track_age", Feature::TrackAge}};
+  for (const auto& [n, f] : names)
+    if (name == n) return f;
+  return Feature::Unknown;
+}
+
+// Only what the feature needs is computed (the azimuth and heading's cos / sin for the few that use them).
+double feature_value(Feature f, const Object& o, double range, long track_age) {
+  switch (f) {
+    case Feature::Range: return range;
+    case Feature::Azimuth: return std::atan2(o.position.y(), o.position.x());
+    case Feature::Speed: return o.velocity.head<2>().norm();  // BEV, as the loop computes it
+    case Feature::RadialVelocity: {
+      const Eigen::Vector2d v = o.velocity.head<2>();
+      return range > 1e-6 ? v.dot(o.position.head<2>() / range) : 0.0;
+    }
+    case Feature::LongitudinalVelocity: {
+      const Eigen::Vector2d v = o.velocity.head<2>();
+      const Eigen::Vector2d h(std::cos(o.heading), std::sin(o.heading));
+      return v.dot(h);
+    }
+    case Feature::LateralVelocity: {
+      const Eigen::Vector2d v = o.velocity.head<2>();
+      const Eigen::Vector2d h(std::cos(o.heading), std::sin(o.heading));
+      return -h.y() * v.x() + h.x() * v.y();
+    }
+    case Feature::Acceleration: return o.acceleration.head<2>().norm();  // BEV, as the loop computes it
+    case Feature::Size: return o.size.x();
+    case Feature::BoxWidth: return o.size.y();
+    case Feature::BoxHeight: return o.size.z();
+    case Feature::HeadingToLineOfSight: {
+      const double azimuth = std::atan2(o.position.y(), o.position.x());
+      const double a = std::abs(wrap_angle(o.heading - azimuth));  // [0, pi]
+      return a > std::numbers::pi / 2 ? std::numbers::pi - a : a;
+    }
+    case Feature::Truncation: return o.truncation;
+    case Feature::Visibility: return o.visible_fraction;
+    case Feature::TrackAge: return static_cast<double>(track_age);
+    case Feature::Unknown: break;
+  }
+  return 0;
+}
+
+}  // namespace
+
 KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
     : model_(std::move(model)), options_(options), seed_(seed) {
   model_.validate();
@@ -27,6 +98,16 @@ KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
   }
   for (int k = 0; k < 8; ++k) fp_rng_[k] = KpiRng::stream(seed_, kFalsePositiveKey, k, kPurposeFalsePositives);
   controllers_.assign(class_models_.size() * kNumKpiParams, RunningTargetController(model_.controller));
+  for (const ClassModel* cm : class_models_) {
+    for (const ErrorModel& em : cm->errors) {
+      samplers_.emplace_back(em.innovation);
+      ar1_root_.push_back(std::sqrt(std::max(0.0, 1 - em.ar1 * em.ar1)));  // as ar1_step computes it
+      error_feature_.push_back(em.conditional.present() ? static_cast<int>(feature_of(em.conditional.feature)) : -1);
+    }
+    detection_feature_.push_back(
+        cm->detection_conditional.present() ? static_cast<int>(feature_of(cm->detection_conditional.feature)) : -1);
+  }
+  for (int k = 0; k < 8; ++k) fp_own_model_[k] = model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) > 0;
 }
 
 const RunningTargetController& KpiManager::controller(ObjectClass cls, KpiParam p) const {
@@ -64,62 +145,29 @@ void KpiManager::forget_stale() {
 
 double KpiManager::sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng) {
   if (q.size() < 2) return fallback;
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  const double x = u(rng) * static_cast<double>(q.size() - 1);
+  const double x = kpi_uniform(rng) * static_cast<double>(q.size() - 1);
   const size_t i = std::min(static_cast<size_t>(x), q.size() - 2);
   const double f = x - static_cast<double>(i);
   return q[i] + f * (q[i + 1] - q[i]);
 }
 
-namespace {
-double wrap_angle(double a) {
-  constexpr double pi = std::numbers::pi;
-  a = std::fmod(a + pi, 2 * pi);
-  if (a < 0) a += 2 * pi;
-  return a - pi;
-}
-}  // namespace
 
 double conditional_feature(const std::string& name, const Object& o, double range, long track_age) {
-  const double azimuth = std::atan2(o.position.y(), o.position.x());
-  const Eigen::Vector2d v = o.velocity.head<2>();
-  const Eigen::Vector2d h(std::cos(o.heading), std::sin(o.heading));
-  if (name == "range") return range;
-  if (name == "azimuth") return azimuth;
-  if (name == "speed") return v.norm();  // BEV, as the loop computes it
-  if (name == "radial_velocity")
-    return range > 1e-6 ? v.dot(o.position.head<2>() / range) : 0.0;
-  if (name == "longitudinal_velocity") return v.dot(h);
-  if (name == "lateral_velocity") return -h.y() * v.x() + h.x() * v.y();
-  if (name == "acceleration") return o.acceleration.head<2>().norm();  // BEV, as the loop computes it
-  if (name == "size") return o.size.x();
-  if (name == "box_width") return o.size.y();
-  if (name == "box_height") return o.size.z();
-  if (name == "heading_to_line_of_sight") {
-    const double a = std::abs(wrap_angle(o.heading - azimuth));  // [0, pi]
-    return a > std::numbers::pi / 2 ? std::numbers::pi - a : a;
-  }
-  if (name == "truncation") return o.truncation;
-  if (name == "visibility") return o.visible_fraction;
-  if (name == "track_age") return static_cast<double>(track_age);
+  const Feature f = feature_of(name);
   // Not in kConditionalFeatures (a validated model names none such): a programming error.
-  throw Error("kpi manager: conditional feature \"" + name + "\" cannot be computed");
+  if (f == Feature::Unknown) throw Error("kpi manager: conditional feature \"" + name + "\" cannot be computed");
+  return feature_value(f, o, range, track_age);
 }
 
-namespace {
 
-// The bin of a (present) conditional term for this object.
-int term_bin(const ConditionalTerm& ct, const Object& o, double range, long track_age) {
-  return ct.bin(conditional_feature(ct.feature, o, range, track_age));
-}
-
-}  // namespace
-
-double KpiManager::detection_probability(const ClassModel& cm, int rb, int vb, const Object& o, double range,
+double KpiManager::detection_probability(int slot, int rb, int vb, const Object& o, double range,
                                          long track_age) const {
+  const ClassModel& cm = *class_models_[slot];
   double p = cm.detection_probability[rb][vb];
-  if (cm.detection_conditional.present())
-    p += cm.detection_conditional.bias[term_bin(cm.detection_conditional, o, range, track_age)];
+  if (detection_feature_[slot] >= 0) {
+    const auto f = static_cast<Feature>(detection_feature_[slot]);
+    p += cm.detection_conditional.bias[cm.detection_conditional.bin(feature_value(f, o, range, track_age))];
+  }
   return std::clamp(p, 0.0, 1.0);
 }
 
@@ -127,7 +175,7 @@ double KpiManager::detection_probability(const Object& o, long track_age) const 
   const int slot = class_slot_[static_cast<int>(o.cls)];
   if (slot < 0) return 1;
   const double range = o.position.head<2>().norm();
-  return detection_probability(*class_models_[slot], model_.range_bin(range), model_.visibility_bin(o.visible_fraction),
+  return detection_probability(slot, model_.range_bin(range), model_.visibility_bin(o.visible_fraction),
                                o, range, track_age);
 }
 
@@ -176,20 +224,22 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     if (gap == 0) throw Error("kpi manager: object id " + std::to_string(o.id) + " appears twice in one frame");
 
     // Errors: advance every parameter's AR(1) state, even when the object will be missed.
+    const int first = slot * kNumKpiParams;
     for (int p = 0; p < kNumKpiParams; ++p) {
       const ErrorModel& em = cm.errors[p];
       KpiRng& rng = st.error_rng[p];
-      const double eps = sample_innovation(em.innovation, rng);
+      const double eps = samplers_[first + p](rng);
       if (fresh) {
         st.z[p] = eps;  // stationary start
-        st.c[p] = std::normal_distribution<double>(0.0, 1.0)(rng);
+        st.c[p] = kpi_normal(rng);
       } else {
-        st.z[p] = ar1_step(st.z[p], em.ar1, gap, eps);
+        st.z[p] = gap == 1 ? ar1_step_1(st.z[p], em.ar1, ar1_root_[first + p], eps) : ar1_step(st.z[p], em.ar1, gap, eps);
       }
-      const double z = controllers_[slot * kNumKpiParams + p].apply(st.z[p]);
+      const double z = controllers_[first + p].apply(st.z[p]);
       double bias = 0, scale = 1;
-      if (em.conditional.present()) {
-        const int b = term_bin(em.conditional, o, range, frame_ - st.first_frame);
+      if (error_feature_[first + p] >= 0) {
+        const auto f = static_cast<Feature>(error_feature_[first + p]);
+        const int b = em.conditional.bin(feature_value(f, o, range, frame_ - st.first_frame));
         bias = em.conditional.bias[b];
         if (!em.conditional.scale.empty()) scale = em.conditional.scale[b];
       }
@@ -197,7 +247,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
                                           em.track_std * st.c[p]
                                     : 0.0;
     }
-    const double pd = detection_probability(cm, rb, vb, o, range, frame_ - st.first_frame);
+    const double pd = detection_probability(slot, rb, vb, o, range, frame_ - st.first_frame);
     inj.detection_probability = pd;
     const bool missed = st.miss.step(1 - pd, cm.miss_burst_mean, st.miss_rng);
     const bool flipped = st.flip.step(cm.heading_flip_probability, cm.flip_burst_mean, st.flip_rng);
@@ -205,7 +255,8 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     inj.flipped = options_.flips && flipped;
     if (!inj.detected) continue;
 
-    Object r = o;
+    reported.push_back(o);
+    Object& r = reported.back();
     const Eigen::Vector2d u = range > 1e-6 ? Eigen::Vector2d(bev / range) : Eigen::Vector2d(1, 0);
     const Eigen::Vector2d left(-u.y(), u.x());
     const auto& e = inj.error;
@@ -217,7 +268,6 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     r.size.z() = std::max(0.05, r.size.z() + e[int(KpiParam::Height)]);
     r.heading = wrap_angle(r.heading + e[int(KpiParam::Heading)] + (inj.flipped ? std::numbers::pi : 0.0));
     r.score = sample_quantiles(cm.score_quantiles, 1.0, st.score_rng);
-    reported.push_back(r);
   }
 
   if (options_.false_positives) {
@@ -226,7 +276,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       if (slot < 0) continue;
       const ClassModel& cm = *class_models_[slot];
       // Each model once, under its own class (not again for the classes that fall back to it).
-      if (model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) == 0) continue;
+      if (!fp_own_model_[k]) continue;
       const FalsePositiveTable& table = cm.fp_table;
       if (table.present() ? table.total_rate() <= 0 : cm.false_positive_rate <= 0) continue;
       KpiRng& rng = fp_rng_[k];

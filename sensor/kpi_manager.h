@@ -88,8 +88,7 @@ class KpiManager {
   TrackState& state_for(int id);
   void forget_stale();
   static double sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng);
-  double detection_probability(const ClassModel& cm, int rb, int vb, const Object& o, double range,
-                               long track_age) const;
+  double detection_probability(int slot, int rb, int vb, const Object& o, double range, long track_age) const;
 
   KpiModel model_;
   KpiOptions options_;
@@ -98,6 +97,13 @@ class KpiManager {
   std::array<int, 8> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
   std::vector<const ClassModel*> class_models_;
   std::vector<RunningTargetController> controllers_;  // slot * kNumKpiParams + param
+  // Per slot * kNumKpiParams + param, worked out once: the innovation's constants,
+  // sqrt(1 - ar1^2) and the conditional term's feature (-1 none).
+  std::vector<InnovationSampler> samplers_;
+  std::vector<double> ar1_root_;
+  std::vector<int> error_feature_;
+  std::vector<int> detection_feature_;  // per slot
+  std::array<bool, 8> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
   std::unordered_map<int, int> slot_of_id_;
   std::vector<TrackState> states_;
   std::vector<int> free_states_;

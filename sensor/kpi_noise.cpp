@@ -41,6 +41,37 @@ KpiRng::result_type KpiRng::operator()() {
   return r;
 }
 
+double kpi_normal(KpiRng& rng) {
+  double x, y, r2;
+  do {
+    x = 2.0 * kpi_uniform(rng) - 1.0;
+    y = 2.0 * kpi_uniform(rng) - 1.0;
+    r2 = x * x + y * y;
+  } while (r2 > 1.0 || r2 == 0.0);
+  const double mult = std::sqrt(-2 * std::log(r2) / r2);
+  return y * mult;  // * stddev 1 + mean 0: unchanged
+}
+
+InnovationSampler::InnovationSampler(const Innovation& innovation) : in(innovation) {
+  if (in.type == Innovation::Type::Mixture) {
+    const double p = in.outlier_probability, r = in.outlier_scale;
+    s_core = 1 / std::sqrt((1 - p) + p * r * r);
+    s_wide = s_core * r;
+  }
+}
+
+double InnovationSampler::operator()(KpiRng& rng) const {
+  switch (in.type) {
+    case Innovation::Type::Gaussian: return kpi_normal(rng);
+    case Innovation::Type::Mixture: {
+      const double s = kpi_uniform(rng) < in.outlier_probability ? s_wide : s_core;
+      return s * kpi_normal(rng);
+    }
+    case Innovation::Type::StudentT: break;
+  }
+  return sample_innovation(in, rng);
+}
+
 double sample_innovation(const Innovation& in, KpiRng& rng) {
   std::normal_distribution<double> normal(0.0, 1.0);
   switch (in.type) {
@@ -68,7 +99,7 @@ double ar1_step(double z, double rho, int gap, double eps) {
 }
 
 bool BurstChain::step(double rate, double burst_mean, KpiRng& rng) {
-  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const auto u = [](KpiRng& r) { return kpi_uniform(r); };
   rate = std::clamp(rate, 0.0, 1.0);
   if (!started) {  // start from the stationary distribution
     started = true;
@@ -91,7 +122,7 @@ double RunningTargetController::running_std() const { return std::sqrt(std::max(
 
 double RunningTargetController::apply(double z) {
   const double out = cfg_.enabled ? g_ * z + c_ : z;
-  const double a = 1 / cfg_.window;
+  const double a = a_;
   const double d = out - m_;
   m_ += a * d;
   v_ += a * (d * (out - m_) - v_);

@@ -31,12 +31,35 @@ class KpiRng {
   std::uint64_t s_[4];
 };
 
+// The draws libstdc++'s distributions make from a 64-bit engine, written out so they inline:
+// the same operations in the same order, so the same numbers bit for bit (the shipped model and
+// the closed-loop tests were made with them; tests/sensor/test_kpi_draws.cpp holds them equal).
+// uniform_real_distribution<double>(0, 1): generate_canonical, one draw scaled by 2^-64.
+inline double kpi_uniform(KpiRng& rng) {
+  const double u = static_cast<double>(rng()) * 0x1p-64;
+  return u >= 1 ? 0x1.fffffffffffffp-1 : u;  // rounded up to 1: the largest double below
+}
+// A fresh normal_distribution<double>(0, 1) per draw (Marsaglia's polar method; the second
+// value of the pair is dropped, as a fresh distribution object drops it).
+double kpi_normal(KpiRng& rng);
+
 // One draw with mean 0 and variance 1 from the innovation distribution.
 double sample_innovation(const Innovation& in, KpiRng& rng);
+
+// The same draw with the innovation's constants worked out once (the KPI manager keeps one per
+// class and parameter): the same numbers as sample_innovation.
+struct InnovationSampler {
+  explicit InnovationSampler(const Innovation& in = {});
+  double operator()(KpiRng& rng) const;
+  Innovation in;
+  double s_core = 1, s_wide = 1;  // mixture: the two components' sigmas
+};
 
 // AR(1) with unit stationary variance: z <- rho^gap z + sqrt(1 - rho^(2 gap)) eps. A gap of
 // several frames (an object that was absent) is one step with rho^gap, so the law is the same.
 double ar1_step(double z, double rho, int gap, double eps);
+// The same step with sqrt(1 - rho^2) given (gap 1 only; the same numbers as ar1_step).
+inline double ar1_step_1(double z, double rho, double root, double eps) { return rho * z + root * eps; }
 
 // Two states (off, on). From off it turns on with probability q, from on it turns off with
 // probability 1 / burst_mean, so runs of "on" last burst_mean frames on average and q is set so
@@ -54,7 +77,7 @@ struct BurstChain {
 // multiplicatively on the spread (g *= exp(-std_gain (v - 1) / 2)), bounded to [0.2, 5].
 class RunningTargetController {
  public:
-  explicit RunningTargetController(ControllerConfig cfg = {}) : cfg_(cfg) {}
+  explicit RunningTargetController(ControllerConfig cfg = {}) : cfg_(cfg), a_(1 / cfg.window) {}
   double apply(double z);
   double offset() const { return c_; }
   double gain() const { return g_; }
@@ -63,6 +86,7 @@ class RunningTargetController {
 
  private:
   ControllerConfig cfg_;
+  double a_;  // 1 / window, once rather than per sample
   double c_ = 0, g_ = 1, m_ = 0, v_ = 1;
 };
 

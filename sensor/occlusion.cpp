@@ -1,4 +1,5 @@
 #include "sensor/occlusion.h"
+#include "sensor/angle_bounds.h"
 #include "sensor/frames.h"
 
 #include <algorithm>
@@ -161,7 +162,7 @@ int raster_span(const float* s_in, const float* s_out, int n, float inv_ce, floa
 
 }  // namespace
 
-void Occlusion::rasterise(const Object& o, int index) {
+void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c) {
   // The box is a vertical prism, so a ray at azimuth a and elevation e runs through it while its
   // horizontal distance s = t cos e is inside the footprint rectangle's 2-D slab interval
   // [s_in(a), s_out(a)] and its height t sin e is inside [z_bot, z_top]. The 2-D interval is
@@ -169,18 +170,21 @@ void Occlusion::rasterise(const Object& o, int index) {
   // and a depth test (the same slab test as ray_box, split by axis), 16 cells at a time.
   const double cx = o.position.x(), cy = o.position.y();
   const double hx = 0.5 * o.size.x(), hy = 0.5 * o.size.y();
-  const double ch = std::cos(o.heading), sh = std::sin(o.heading);
+  const double ch = h.c, sh = h.s;
   const double lox = -(ch * cx + sh * cy), loy = -(-sh * cx + ch * cy);  // sensor origin in box coordinates
   const double z_top = o.position.z() + 0.5 * o.size.z(), z_bot = o.position.z() - 0.5 * o.size.z();
 
   // Columns: the footprint rectangle's bounding circle bounds its azimuth span (or the full
   // circle when the sensor is within it); the per-column slab test then trims the span exactly.
-  const double d_c = std::hypot(cx, cy), radius = std::hypot(hx, hy);
+  // The angles here only bound the columns and rows to visit (the slab tests decide every cell),
+  // so they come from angle_bounds.h, widened by kBoundMargin (5 x their error).
+  constexpr double kBoundMargin = 5 * kAtanBoundError;
+  const double radius = std::sqrt(hx * hx + hy * hy);  // d_c = hypot(cx, cy), from apply()
   int c_first = 0, n_cols = cols_;
   if (d_c > radius * (1 + 1e-9) + 1e-9) {
-    double az_c = std::atan2(cy, cx);
+    double az_c = atan2_bound(cy, cx);
     if (az_c < 0) az_c += 2 * kPi;
-    const double half = std::asin(radius / d_c);
+    const double half = asin_bound(radius / d_c) + kBoundMargin;
     c_first = static_cast<int>(std::floor((az_c - half) / cfg_.azimuth_resolution)) - 1;
     n_cols = std::min(cols_, static_cast<int>(std::ceil(2 * half / cfg_.azimuth_resolution)) + 3);
   }
@@ -225,8 +229,10 @@ void Occlusion::rasterise(const Object& o, int index) {
   const double tan_hi = z_top > 0 ? z_top / s_near : z_top / s_far;
   const double tan_lo = z_bot < 0 ? z_bot / s_near : z_bot / s_far;
   const double res_e = cfg_.elevation_resolution;
-  const int r0 = std::max(0, static_cast<int>(std::floor((cfg_.elevation_max - std::atan(tan_hi)) / res_e)) - 1);
-  const int r1 = std::min(rows_ - 1, static_cast<int>(std::floor((cfg_.elevation_max - std::atan(tan_lo)) / res_e)) + 1);
+  const int r0 = std::max(
+      0, static_cast<int>(std::floor((cfg_.elevation_max - (atan_bound(tan_hi) + kBoundMargin)) / res_e)) - 1);
+  const int r1 = std::min(
+      rows_ - 1, static_cast<int>(std::floor((cfg_.elevation_max - (atan_bound(tan_lo) - kBoundMargin)) / res_e)) + 1);
 
   // The run of columns may cross the azimuth seam: two pieces then.
   const int c_lo = c_first + k_lo, n_run = k_hi - k_lo + 1;
@@ -272,7 +278,8 @@ void Occlusion::rasterise(const Object& o, int index) {
   footprint_[index] = footprint;
 }
 
-void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes) {
+void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes,
+                      const std::vector<HeadingTrig>* trig) {
   // Reset only the runs of cells the previous frame wrote (a full clear costs more than a frame of boxes).
   for (const auto& [start, len] : written_) {
     std::fill_n(depth_.begin() + start, len, std::numeric_limits<float>::infinity());
@@ -286,12 +293,15 @@ void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& l
   // result does not depend on the order; the work does).
   order_.resize(n);
   key_.resize(n);
+  dist_.resize(n);
   for (int i = 0; i < n; ++i) {
     order_[i] = i;
-    key_[i] = std::hypot(objects[i].position.x(), objects[i].position.y()) - 0.5 * objects[i].size.head<2>().norm();
+    dist_[i] = std::hypot(objects[i].position.x(), objects[i].position.y());
+    key_[i] = dist_[i] - 0.5 * objects[i].size.head<2>().norm();
   }
   std::sort(order_.begin(), order_.end(), [&](int a, int b) { return key_[a] < key_[b]; });
-  for (int i : order_) rasterise(objects[i], i);
+  for (int i : order_)
+    rasterise(objects[i], i, trig ? (*trig)[i] : HeadingTrig::of(objects[i].heading), dist_[i]);
   for (int i = 0; i < n; ++i) {
     Object& obj = objects[i];
     if (footprint_[i] > 0) {

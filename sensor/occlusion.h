@@ -52,7 +52,9 @@ class Occlusion {
 
   // Objects and lanes in the sensor frame. Sets each object's visible_fraction; drops lane
   // points behind a box (lanes left with < 2 points are removed). Allocation-free once warm.
-  void apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes);
+  // `trig`, when given, holds HeadingTrig::of(heading) per object (as apply_fov gives it).
+  void apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes,
+             const std::vector<HeadingTrig>* trig = nullptr);
 
   // After apply(): per object (same order), cells of its footprint and cells it won.
   const std::vector<int>& footprint_cells() const { return footprint_; }
@@ -65,7 +67,7 @@ class Occlusion {
 
  private:
   bool cell_of(const Eigen::Vector3d& p, int& row, int& col) const;
-  void rasterise(const Object& o, int index);
+  void rasterise(const Object& o, int index, HeadingTrig h, double d_c);
 
   OcclusionConfig cfg_;
   int rows_ = 0, cols_ = 0;
@@ -74,7 +76,7 @@ class Occlusion {
   std::vector<float> col_in_, col_out_;     // per column of the box being rasterised: 2-D slab interval
   std::vector<std::pair<int, int>> written_;  // runs of cells (start, length) written this frame
   std::vector<int> order_;
-  std::vector<double> key_;
+  std::vector<double> key_, dist_;  // per object: sort key, horizontal distance of the centre
   std::vector<float> depth_;
   std::vector<int> owner_;
   std::vector<int> footprint_, visible_;

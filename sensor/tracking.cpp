@@ -43,15 +43,18 @@ void Tracker::reset() {
   next_id_ = 1;
 }
 
-void Tracker::predict(Track& t, double dt) const {
-  Eigen::Matrix4d F = Eigen::Matrix4d::Identity();
+void Tracker::transition(double dt, Eigen::Matrix4d& F, Eigen::Matrix4d& Q) const {
+  F = Eigen::Matrix4d::Identity();
   F(0, 2) = F(1, 3) = dt;
   const double q = config_.process_accel_std * config_.process_accel_std;
   const double a = q * dt * dt * dt * dt / 4, b = q * dt * dt * dt / 2, c = q * dt * dt;
-  Eigen::Matrix4d Q = Eigen::Matrix4d::Zero();
+  Q = Eigen::Matrix4d::Zero();
   Q(0, 0) = Q(1, 1) = a;
   Q(0, 2) = Q(2, 0) = Q(1, 3) = Q(3, 1) = b;
   Q(2, 2) = Q(3, 3) = c;
+}
+
+void Tracker::predict(Track& t, const Eigen::Matrix4d& F, const Eigen::Matrix4d& Q, double dt) const {
   t.x = F * t.x;
   t.P = F * t.P * F.transpose() + Q;
   // Constant velocity also in z (the filter tracks x, y only), so coasting boxes move on.
@@ -189,8 +192,10 @@ const std::vector<Track>& Tracker::update(const std::vector<Object>& detections,
   started_ = true;
   last_time_ = time;
 
+  Eigen::Matrix4d F, Q;  // the same for every track: built once per frame
+  transition(dt, F, Q);
   for (Track& t : tracks_) {
-    predict(t, dt);
+    predict(t, F, Q, dt);
     t.detection_index = -1;
   }
 
@@ -233,7 +238,7 @@ const std::vector<Track>& Tracker::update(const std::vector<Object>& detections,
     t.object.position.y() = t.x(1);
     t.object.velocity.x() = t.x(2);
     t.object.velocity.y() = t.x(3);
-    if (t.state != TrackState::Deleted) scratch_.push_back(t);
+    if (t.state != TrackState::Deleted) scratch_.push_back(std::move(t));  // tracks_ is rebuilt below
   }
   for (int j = 0; j < nd; ++j)
     if (det_assigned_[j] < 0) scratch_.push_back(make_track(detections[j], j));

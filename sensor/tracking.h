@@ -61,7 +61,8 @@ class Tracker {
   void reset();
 
  private:
-  void predict(Track& t, double dt) const;
+  void transition(double dt, Eigen::Matrix4d& F, Eigen::Matrix4d& Q) const;  // constant velocity over dt, its process noise
+  void predict(Track& t, const Eigen::Matrix4d& F, const Eigen::Matrix4d& Q, double dt) const;
   void correct(Track& t, const Object& det) const;
   Track make_track(const Object& det, int index);
   void associate(const std::vector<Object>& detections);  // sets detection_index / det_assigned_

@@ -3,6 +3,8 @@
 
 #include <cmath>
 #include <numbers>
+#include <random>
+#include <vector>
 
 #include "sensor/frames.h"
 
@@ -71,4 +73,20 @@ TEST(Frames, PitchedMountTiltsPointsDown) {
   const auto& p = sensor.objects[0].position;
   EXPECT_NEAR(std::atan2(p.z(), p.x()), 10 * kPi / 180, 1e-12);
   EXPECT_NEAR(p.norm(), 20, 1e-12);
+}
+
+TEST(Frames, WrapPiIsTheRemainderBy2PiBitForBit) {
+  // wrap_pi skips the call for |a| <= pi: it must give std::remainder's answer everywhere.
+  constexpr double pi = std::numbers::pi;
+  std::vector<double> angles = {0.0, -0.0, pi, -pi, std::nextafter(pi, 4.0), std::nextafter(-pi, -4.0),
+                                2 * pi, -2 * pi, 3 * pi, -3 * pi, 1e-300, 1e300, -7.5, 100.25};
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> u(-20, 20);
+  for (int i = 0; i < 100000; ++i) angles.push_back(u(rng));
+  for (double a : angles) {
+    const double want = std::remainder(a, 2 * pi), got = wrap_pi(a);
+    EXPECT_EQ(std::signbit(want), std::signbit(got)) << a;
+    ASSERT_EQ(want, got) << a;
+  }
+  EXPECT_TRUE(std::isnan(wrap_pi(std::nan(""))));
 }
