@@ -15,7 +15,11 @@ InferencePrecision read_env() {
   if (!env || !*env) return InferencePrecision::fp32;
   return parse_inference_precision(env, "environment: LIDARSIM_INFER_PRECISION");
 }
-InferencePrecision g_precision = read_env();
+// Read on first use (not at static initialisation), so a bad value is the command's one-line error.
+InferencePrecision& requested() {
+  static InferencePrecision p = read_env();
+  return p;
+}
 bool g_forced_unsupported = false;
 std::atomic<bool> g_warned{false};
 bool g_active = false;
@@ -29,13 +33,14 @@ InferencePrecision parse_inference_precision(const std::string& text, const std:
 
 const char* to_string(InferencePrecision p) { return p == InferencePrecision::bf16 ? "bf16" : "fp32"; }
 
-void set_inference_precision(InferencePrecision p) { g_precision = p; }
-InferencePrecision inference_precision() { return g_precision; }
+void set_inference_precision(InferencePrecision p) { requested() = p; }
+InferencePrecision inference_precision() { return requested(); }
 
 bool bf16_supported() { return !g_forced_unsupported && detail::conv3x3_bf16_available(); }
 
 InferencePrecision effective_inference_precision() {
-  if (g_precision != InferencePrecision::bf16 || bf16_supported()) return g_precision;
+  const InferencePrecision p = requested();
+  if (p != InferencePrecision::bf16 || bf16_supported()) return p;
   if (!g_warned.exchange(true))
     std::fprintf(stderr, "lidarsim: bf16 inference requested but this CPU has no AVX-512 BF16: running fp32\n");
   return InferencePrecision::fp32;

@@ -74,7 +74,9 @@ import json, os, sys, datetime
 out, growth, write_readme, cpu, ncpu, load_before, load_after, blas = sys.argv[1:]
 u = json.load(open(os.path.join(out, "unet_vs_torch.json")))
 p = json.load(open(os.path.join(out, "pipeline.json")))
-names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4", "infer_b1": "inference, batch 1"}
+names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4", "infer_b1": "inference, batch 1",
+         "infer_b4": "inference, batch 4", "infer_b1_bf16": "inference in bf16 (peer: its fp32), batch 1",
+         "infer_b4_bf16": "inference in bf16 (peer: its fp32), batch 4"}
 torch = u.get("torch") or {}
 lines = []
 lines.append(f"Measured by `scripts/bench.sh` on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC: "
