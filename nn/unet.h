@@ -61,8 +61,7 @@ class UNet {
 
   // x: [N, in_channels, H, W] -> y: [N, out_channels, H, W]. Keeps activations for backward().
   void forward(const Tensor& x, Tensor& y);
-  // Inference only: same result as forward(), without keeping what backward() needs; in bf16
-  // (3x3 convolutions, fp32 accumulation) when nn/precision.h says so.
+  // Inference only: same result as forward(), without keeping what backward() needs.
   void predict(const Tensor& x, Tensor& y);
   // dy: [N, out_channels, H, W] of the last forward(); accumulates (+=) into params().grads().
   void backward(const Tensor& dy);
