@@ -194,12 +194,15 @@ int main(int argc, char** argv) {
       bool bf16 = false;  // our bf16 inference; the peer row is PyTorch's fp32 inference
       Timing ours, torch, torch_bf16;
     };
-    std::vector<Row> table{{"train_b1", 1, true}, {"train_b4", 4, true}, {"infer_b1", 1, false}, {"infer_b4", 4, false}};
+    std::vector<Row> table{{"train_b1", 1, true, false, {}, {}, {}},
+                           {"train_b4", 4, true, false, {}, {}, {}},
+                           {"infer_b1", 1, false, false, {}, {}, {}},
+                           {"infer_b4", 4, false, false, {}, {}, {}}};
     const bool bf16 = !opt.count("no-bf16") && bf16_supported();
     if (!opt.count("no-bf16") && !bf16) std::cerr << "bench: this CPU has no AVX-512 BF16: no bf16 rows\n";
     if (bf16) {
-      table.push_back({"infer_b1_bf16", 1, false, true});
-      table.push_back({"infer_b4_bf16", 4, false, true});
+      table.push_back({"infer_b1_bf16", 1, false, true, {}, {}, {}});
+      table.push_back({"infer_b4_bf16", 4, false, true, {}, {}, {}});
     }
     for (Row& row : table) {
       set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);

@@ -159,6 +159,7 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
     throw Error("conv2d_forward: kernel: k " + std::to_string(k) + ", pad " + std::to_string(pad) +
                 " does not fit input " + s.str());
   ensure(out, Shape{s.n, co, ho, wo});
+  // UNet::predict in bf16 (nn/precision.h): the bf16 kernel, where it is the faster choice.
   if (k == 3 && pad == 1 && detail::bf16_convs_active() && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w)) {
     detail::conv3x3_bf16_forward_cat(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu);
     return;
