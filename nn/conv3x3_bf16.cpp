@@ -5,6 +5,8 @@
 #endif
 #include "nn/conv3x3_bf16.h"
 
+#include "nn/conv3x3.h"
+
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
@@ -36,7 +38,9 @@ bool conv3x3_bf16_available() {
   return ok;
 }
 
-bool conv3x3_takes_bf16(int, int, int, int, int) { return true; }
+bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
+  return !conv3x3_takes_winograd(n, ci, co, h, w);
+}
 
 namespace {
 
