@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/winograd.h"
 
 #include <algorithm>
 #include <cstddef>
@@ -39,7 +40,15 @@ bool conv3x3_bf16_available() {
 }
 
 bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
-  return !conv3x3_takes_winograd(n, ci, co, h, w);
+  // LIDARSIM_CONV3X3=direct: bf16 everywhere; =winograd: Winograd (fp32) wherever it applies.
+  if (conv3x3_path() == Conv3x3Path::winograd && winograd_available()) return false;
+  if (!conv3x3_takes_winograd(n, ci, co, h, w)) return true;
+  // Where the fp32 rule takes Winograd, from bench_conv3x3 --forward-only (unet-ref, batch 1
+  // and 4, CPU time): bf16 took 1.6-2.2x less time than the fp32 direct kernel on every layer,
+  // and less than Winograd at 1,024 pixels per channel (1.1x, its few tiles) and at 65,536
+  // (1.3x, its transforms' memory traffic), more at 4,096 and 16,384 (0.75-1.0x).
+  const long pixels = static_cast<long>(n) * h * w;
+  return pixels < 2048 || pixels >= 32768;
 }
 
 namespace {
