@@ -139,7 +139,9 @@ TEST(Conv3x3Bf16, MatchesFp32WithinBf16RoundingOnOddSizesAndConcats) {
       EXPECT_LE(bound, 1.0) << "|bf16 - fp32| exceeds 2^-7 of the dot product's magnitude";
       // bf16 really ran: rounding 8-bit significands always shows somewhere (1x1 maps excepted:
       // with one input value per channel the product may be exact).
-      if (c.h * c.w > 1) EXPECT_GT(rel, 0.0) << "bit-identical to fp32: the bf16 kernel did not run";
+      if (c.h * c.w > 1) {
+        EXPECT_GT(rel, 0.0) << "bit-identical to fp32: the bf16 kernel did not run";
+      }
       worst_bound = std::max(worst_bound, bound);
       worst_rel = std::max(worst_rel, rel);
     }
