@@ -53,6 +53,7 @@ std::string to_string(ObjectEffect e) {
     case ObjectEffect::AzimuthDropout: return "azimuth_dropout";
     case ObjectEffect::AzimuthWindowDropout: return "azimuth_window_dropout";
     case ObjectEffect::AspectSpread: return "aspect_spread";
+    case ObjectEffect::FalsePositiveHotspot: return "fp_hotspot";
     default: return "none";
   }
 }
@@ -74,6 +75,7 @@ std::string effect_feature(ObjectEffect e) {
     case ObjectEffect::AzimuthDropout: return "azimuth";
     case ObjectEffect::AzimuthWindowDropout: return "azimuth";
     case ObjectEffect::AspectSpread: return "heading_to_line_of_sight";
+    case ObjectEffect::FalsePositiveHotspot: return "azimuth";
     default: return "";
   }
 }
@@ -97,6 +99,9 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
   std::normal_distribution<double> N01(0, 1);
   std::uniform_real_distribution<double> U(0, 1);
   auto uni = [&](double a, double b) { return a + (b - a) * U(rng); };
+  // The hot spot's false positives: a stream of their own, so nothing else moves.
+  std::mt19937_64 spot_rng(o.seed ^ 0x5a17c0ffee5eedULL);
+  const bool hotspot = o.effect == ObjectEffect::FalsePositiveHotspot || o.second_effect == ObjectEffect::FalsePositiveHotspot;
   std::string seqmap;
   for (int s = 0; s < o.sequences; ++s) {
     const std::string name = seq_name(s, 4);
@@ -182,6 +187,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
           }
           case ObjectEffect::AzimuthDropout:
           case ObjectEffect::AzimuthWindowDropout:
+          case ObjectEffect::FalsePositiveHotspot:
           case ObjectEffect::None: break;
           }
         }
@@ -196,10 +202,28 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
       // False positives: Poisson-ish (Bernoulli per slot) clutter, cars, far from nothing in particular.
       for (int k = 0; k < 3; ++k)
         if (U(rng) < o.false_positives / 3) {
-          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
-                        uni(-20, 20), 1.73 - 0.75, uni(5, 60));
+          if (!o.polar_clutter) {
+            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
+                          uni(-20, 20), 1.73 - 0.75, uni(5, 60));
+          } else {
+            const double score = uni(0.5, 4), az = uni(-kPi / 4, kPi / 4), r = uni(5, 60);
+            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score,
+                          -r * std::sin(az), 1.73 - 0.75, r * std::cos(az));
+          }
           dets[0] += line;
         }
+      if (hotspot) {
+        std::uniform_real_distribution<double> su(0, 1);
+        const int n = std::poisson_distribution<int>(kFpHotspotRate)(spot_rng);
+        for (int k = 0; k < n; ++k) {
+          const double az = kFpHotspotAzimuthLo + (kFpHotspotAzimuthHi - kFpHotspotAzimuthLo) * su(spot_rng);
+          const double r = kFpHotspotRangeLo + (kFpHotspotRangeHi - kFpHotspotRangeLo) * su(spot_rng);
+          const double score = 0.5 + 3.5 * su(spot_rng);
+          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score,
+                        -r * std::sin(az), 1.73 - 0.75, r * std::cos(az));
+          dets[0] += line;
+        }
+      }
     }
     // A DontCare region in the last frame, as KITTI's label files have: the reader takes the last
     // labelled frame as the sequence's end, and clutter may fall into frames after the last track.

@@ -44,7 +44,8 @@
 
 namespace lidarsim::data {
 
-enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread };
+enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread,
+                          FalsePositiveHotspot };
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
 inline constexpr double kIntensityWindowAzimuthLo = 0.3, kIntensityWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
@@ -67,6 +68,12 @@ inline constexpr double kWindowAzimuthHi = -15 * 3.14159265358979323846 / 180;
 inline constexpr double kSpreadBase = 0.3;
 inline constexpr double kSpreadPerAspect = 2.4;
 
+// fp_hotspot: the spot (rad, m) and its extra false positives per frame.
+inline constexpr double kFpHotspotAzimuthLo = -35 * 3.14159265358979323846 / 180;
+inline constexpr double kFpHotspotAzimuthHi = -15 * 3.14159265358979323846 / 180;
+inline constexpr double kFpHotspotRangeLo = 15, kFpHotspotRangeHi = 25;
+inline constexpr double kFpHotspotRate = 0.6;
+
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;
   ObjectEffect second_effect = ObjectEffect::None;  // planted as well (give it a different target)
@@ -76,6 +83,10 @@ struct ReferenceTrackingOptions {
   double noise = 0.1;       // m (positions), size noise = noise / 2, heading noise = noise / 5 rad
   double detection_probability = 0.95;
   double false_positives = 0.2;  // per frame
+  // Clutter placed by independent draws of range (5-60 m), azimuth (-45 to 45 deg) and score, which the
+  // KPI model's independent quantiles hold exactly; default: uniform in a rectangle ahead (x 5-60 m,
+  // y -20 to 20 m), where range and azimuth depend on each other.
+  bool polar_clutter = false;
   std::uint64_t seed = 1;
 };
 void write_reference_tracking(const std::filesystem::path& dir, const ReferenceTrackingOptions& options);

@@ -12,6 +12,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "qualify/intensity.h"
+#include "qualify/object_false_positives.h"
 #include "qualify/objects.h"
 #include "qualify/report.h"
 #include "sensor/kpi_model.h"
@@ -257,6 +258,7 @@ int run(int argc, char** argv) {
             j["error_metric"].get<std::string>() + " before " + qualify::fmt(j["error_before"].get<double>(), 4) +
             ", after " + qualify::fmt(j["error_after"].get<double>(), 4) + "\n";
     if (j.contains("candidates")) md += qualify::candidates_markdown(j["candidates"]);
+    if (j.contains("false_positives")) md += qualify::obj::fp_markdown(j["false_positives"]);
     fs::path md_path = report;
     md_path.replace_extension(".md");
     write_file_atomically(md_path, md);

@@ -5,6 +5,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "qualify/object_false_positives.h"
 #include "qualify/report.h"
 
 namespace lidarsim::qualify::obj {
@@ -333,6 +334,17 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     if (is_spread(kind)) m = with_spread_term(m, e, ct->feature);
     else if (t == kDetectionTarget) m = with_term(m, e.bias, t, ct->feature, nvis, classes);
     else m = with_term_and_noise(m, e.bias, t, ct->feature, nvis, fold.fit_r[t], fold.win[t], classes);
+  }
+  // The false-positive table, refitted with the loop's form: a window or step has at most 3 bins.
+  for (const auto& [name, cm] : recipe.classes) {
+    const sensor::FalsePositiveTable& ft = cm.fp_table;
+    const auto it = std::find(kFpFeatures.begin(), kFpFeatures.end(), ft.feature);
+    if (!ft.present() || it == kFpFeatures.end()) continue;
+    FpCandidate c;
+    c.feature = static_cast<int>(it - kFpFeatures.begin());
+    c.window = ft.edges.size() <= 3;
+    m = with_fitted_fp_table(m, fold, c, bins);
+    break;
   }
   return m;
 }

@@ -7,6 +7,7 @@
 #include "common/error.h"
 #include "qualify/object_candidates.h"
 #include "qualify/object_distribution.h"
+#include "qualify/object_false_positives.h"
 #include "qualify/object_folds.h"
 #include "qualify/object_simulated.h"
 #include "qualify/object_terms.h"
@@ -361,11 +362,15 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       add_final(fit_effect(whole, e.c->target, e.c->feature, e.c->kind, nvis, options.bins).bias, e.c->target,
                 kObjectFeatures[e.c->feature], e.j.classes);
   }
-  if (!options.out_model.empty())
-    sensor::save_kpi_model(term           ? final_term_model
+  // False positives: their own outcome and stream, judged apart from the error and detection terms.
+  const FpAnalysis fpa = analyse_false_positives(data, folds, options.threshold, options.bins, options.seed);
+  if (!options.out_model.empty()) {
+    sensor::KpiModel out = term         ? final_term_model
                            : add_spread ? with_spread_term(whole.base, *final_spread, kObjectFeatures[sp->feature])
-                                          : whole.base,
-                           options.out_model);
+                                        : whole.base;
+    if (fpa.added >= 0) out = with_fitted_fp_table(out, whole, fpa.candidates[fpa.added], options.bins);
+    sensor::save_kpi_model(out, options.out_model);
+  }
 
   std::string plot;
   if (!options.plots_dir.empty()) {
@@ -478,6 +483,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                   {"decision", decision}});
   }
   j["candidates"] = cj;
+  j["false_positives"] = fp_json(fpa, options.threshold);
   j["error_metric"] = t == kDetectionTarget ? "deviance per object" : "RMS residual";
   j["error_before"] = top.error_before;
   j["error_after"] = add ? top.error_after : top.error_before;

@@ -161,10 +161,15 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
         bool near_other = false;
         for (const sensor::Object& o : fr.others)
           if ((o.position - d.position).head<2>().norm() <= opt.gate) near_other = true;
-        if (!near_other) ++fp[ci];
+        if (near_other) continue;
+        ++fp[ci];
+        out.fp_records.push_back({static_cast<int>(out.frame_seq.size()), ci, d.position.head<2>().norm(),
+                                  std::atan2(d.position.y(), d.position.x()), d.score});
       }
       out.false_positives.push_back(fp);
       out.frame_seq.push_back(s);
+      out.frame_index.push_back(static_cast<int>(f));
+      out.frame_truths.push_back(static_cast<int>(std::min(fr.truth.size(), truth[f].size())));
     }
   }
   return out;

@@ -62,10 +62,22 @@ struct ObjectRecord {
   std::vector<double> feature;                     // kObjectFeatures order
 };
 
+// A false positive: a detection of a modelled class with score > min_score that sensor/kpi_fit.h's
+// association matched to no truth and that is not within the gate of other ground truth (Van, ...),
+// exactly what lidar-calibrate counts into false_positive_rate.
+struct FalsePositiveRecord {
+  int slot = 0;  // the frame's index in ObjectSet::frame_seq
+  int cls = 0;   // 0 Car, 1 Pedestrian, 2 Cyclist
+  double range = 0, azimuth = 0, score = 0;  // BEV range (m), atan2(y, x) (rad), detector score
+};
+
 struct ObjectSet {
   std::vector<ObjectRecord> records;
   std::vector<std::array<int, 3>> false_positives;  // per frame, per class
   std::vector<int> frame_seq;                       // sequence index of each frame
+  std::vector<int> frame_index;                     // the frame's index in its sequence
+  std::vector<int> frame_truths;                    // ground-truth objects of the three classes in the frame
+  std::vector<FalsePositiveRecord> fp_records;      // every false positive, frame by frame
 };
 
 struct TrackingData {

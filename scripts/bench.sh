@@ -4,24 +4,27 @@
 # object-level model (bench_pipeline; no peer), optionally the growth bench (--growth: bench_growth,
 # which also redraws docs/growth.png). Prints a Markdown table with ours, the peer's and the
 # ratio side by side, the machine, the date and the load; --write-readme puts it into README.md
-# between the "bench.sh table" markers.
+# between the "bench.sh table" markers. --rounds N (default 3) repeats the engine and pipeline
+# benches N times and reports the median of the rounds (ratios: the median of each round's ratio,
+# with the range), because a shared machine moves single runs by 10-20 %.
 #
 # Installs the peer's Debian packages when missing (python3-torch, python3-h5py, and
 # libopenblas0-openmp, which becomes the system libblas.so.3 that Debian's torch links, instead of
 # the slow reference BLAS). Options: --reps N (engine rows, default 7), --runs N (pipeline runs,
-# default 5), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
+# default 5), --rounds N (default 3), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
 # --no-build (use the benches already built, e.g. while another build runs in the same tree);
 # anything after -- goes to bench_unet_vs_torch (e.g. -- --threads 2).
 # Run on an otherwise idle machine: the numbers are medians, but a busy CPU still skews them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-reps=7 runs=5 growth=0 write_readme=0 build=1 out=""
+reps=7 runs=5 rounds=3 growth=0 write_readme=0 build=1 out=""
 extra=()
 while (($#)); do
   case "$1" in
     --reps) reps=$2; shift 2 ;;
     --runs) runs=$2; shift 2 ;;
+    --rounds) rounds=$2; shift 2 ;;
     --growth) growth=1; shift ;;
     --write-readme) write_readme=1; shift ;;
     --no-build) build=0; shift ;;
@@ -61,42 +64,71 @@ if ((build)); then
 fi
 
 load_before=$(cut -d' ' -f1-3 /proc/loadavg)
-"$build_dir/bench/bench_unet_vs_torch" --python /usr/bin/python3 --reps "$reps" --json "$out/unet_vs_torch.json" "${extra[@]}"
-"$build_dir/bench/bench_pipeline" --runs "$runs" --json "$out/pipeline.json"
+for ((round = 1; round <= rounds; round++)); do
+  echo "bench: round $round of $rounds" >&2
+  mkdir -p "$out/round$round"
+  "$build_dir/bench/bench_unet_vs_torch" --python /usr/bin/python3 --reps "$reps" \
+    --json "$out/round$round/unet_vs_torch.json" "${extra[@]}"
+  # whole: UNet on every frame, no outputs; outputs: the `lidar-infer sim --every 10` loop.
+  "$build_dir/bench/bench_pipeline" --runs "$runs" --only whole,objects,outputs \
+    --json "$out/round$round/pipeline.json"
+done
 if ((growth)); then
   "$build_dir/bench/bench_growth" --png docs/growth.png --json "$out/growth.json"
 fi
 load_after=$(cut -d' ' -f1-3 /proc/loadavg)
 
 cpu=$(lscpu 2>/dev/null | sed -n 's/^Model name: *//p' | head -1)
-python3 - "$out" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" <<'PY'
-import json, os, sys, datetime
-out, growth, write_readme, cpu, ncpu, load_before, load_after, blas = sys.argv[1:]
-u = json.load(open(os.path.join(out, "unet_vs_torch.json")))
-p = json.load(open(os.path.join(out, "pipeline.json")))
-names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4", "infer_b1": "inference, batch 1",
-         "infer_b4": "inference, batch 4", "infer_b1_bf16": "inference in bf16 (peer: its fp32), batch 1",
+python3 - "$out" "$rounds" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" <<'PY'
+import json, os, sys, datetime, statistics
+out, rounds, growth, write_readme, cpu, ncpu, load_before, load_after, blas = sys.argv[1:]
+rounds = int(rounds)
+us = [json.load(open(os.path.join(out, f"round{i}", "unet_vs_torch.json"))) for i in range(1, rounds + 1)]
+ps = [json.load(open(os.path.join(out, f"round{i}", "pipeline.json"))) for i in range(1, rounds + 1)]
+med = statistics.median
+names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4",
+         "infer_b1": "inference, batch 1", "infer_b4": "inference, batch 4",
+         "infer_b1_bf16": "inference in bf16 (peer: its fp32), batch 1",
          "infer_b4_bf16": "inference in bf16 (peer: its fp32), batch 4"}
+u = us[0]
 torch = u.get("torch") or {}
 lines = []
 lines.append(f"Measured by `scripts/bench.sh` on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC: "
              f"{cpu or 'unknown CPU'}, {ncpu} online CPUs, {u['threads']} threads, load average {load_before} before and "
              f"{load_after} after. Peer: PyTorch {torch.get('torch_version', '?')} in the same run (fastest of its "
-             f"settings per row; libblas.so.3 -> {blas}). Medians of {u['reps']} repetitions (engine) and "
-             f"{p['runs']} runs (pipeline).")
+             f"settings per row; libblas.so.3 -> {blas}). Each figure is the median of {rounds} rounds; a round "
+             f"takes the median of {u['reps']} repetitions (engine) and {ps[0]['runs']} runs (pipeline). Ratios: the "
+             f"median of the rounds' ratios (each round times ours and PyTorch back to back), their range in brackets.")
 lines.append("")
 lines.append(f"| row ({u['rows']} x {u['cols']}) | ours | PyTorch | ours / PyTorch | our GFLOP/s |")
 lines.append("|---|---:|---:|---:|---:|")
 for r in u["table"]:
-    ratio = f"**{r['ratio']:.2f}**" if r.get("torch_s") else "–"
-    peer = f"{r['torch_s']:.3f} s" if r.get("torch_s") else "–"
-    lines.append(f"| unet-ref {names.get(r['row'], r['row'])} | {r['ours_s']:.3f} s | {peer} | {ratio} | {r['ours_gflops']:.0f} |")
-w, o = p["whole"], p["objects"]
-lines.append(f"| whole pipeline, 64 x 1024, UNet base {w['unet_base']} depth {w['unet_depth']} ({w['model']}) | "
-             f"{w['fps']:.1f} frames/s ({w['stage_ms']['unet']:.1f} ms UNet, {w['stage_ms']['pcl_generator']:.1f} ms PCL generator) | – | – | |")
-lines.append(f"| object-level model, {o['count']} objects | {o['fps']:.0f} frames/s wall ({o['fps_cpu_bound']:.0f} from CPU time; "
-             f"occlusion {1000 * o['stage_ms']['occlusion']:.0f} µs, tracking {1000 * o['stage_ms']['tracking']:.0f} µs, "
-             f"KPI {1000 * o['stage_ms']['kpi']:.0f} µs) | – | – | |")
+    rows = [next(x for x in ui["table"] if x["row"] == r["row"]) for ui in us]
+    ours = med([x["ours_s"] for x in rows])
+    gflops = med([x["ours_gflops"] for x in rows])
+    if r.get("torch_s"):
+        ratios = [x["ratio"] for x in rows]
+        peer = f"{med([x['torch_s'] for x in rows]):.3f} s"
+        ratio = f"**{med(ratios):.2f}** ({min(ratios):.2f}–{max(ratios):.2f})"
+    else:
+        peer, ratio = "–", "–"
+    lines.append(f"| unet-ref {names.get(r['row'], r['row'])} | {ours:.3f} s | {peer} | {ratio} | {gflops:.0f} |")
+w = {k: med([p["whole"][k] for p in ps]) for k in ("fps",)}
+w0 = ps[0]["whole"]
+unet_ms = med([p["whole"]["stage_ms"]["unet"] for p in ps])
+pcl_ms = med([p["whole"]["stage_ms"]["pcl_generator"] for p in ps])
+lines.append(f"| whole pipeline, 64 x 1024, UNet base {w0['unet_base']} depth {w0['unet_depth']} ({w0['model']}) on every frame, no outputs | "
+             f"{w['fps']:.1f} frames/s ({unet_ms:.1f} ms UNet, {pcl_ms:.1f} ms PCL generator) | – | – | |")
+o = ps[0]["outputs"]
+loop_fps = med([p["outputs"]["loop_fps"] for p in ps])
+loop_bound = med([p["outputs"]["fps_cpu_bound"] for p in ps])
+lines.append(f"| `lidar-infer sim --every {o['every']}` loop (outputs of every {o['every']}th frame written, UNet on those) | "
+             f"{loop_fps:.0f} frames/s wall (<= {loop_bound:.0f} from CPU time) | – | – | |")
+ob = ps[0]["objects"]
+stage = lambda k: 1000 * med([p["objects"]["stage_ms"][k] for p in ps])
+lines.append(f"| object-level model, {ob['count']} objects | {med([p['objects']['fps'] for p in ps]):.0f} frames/s wall "
+             f"({med([p['objects']['fps_cpu_bound'] for p in ps]):.0f} from CPU time; occlusion {stage('occlusion'):.0f} µs, "
+             f"tracking {stage('tracking'):.0f} µs, KPI {stage('kpi'):.0f} µs) | – | – | |")
 if growth == "1":
     g = json.load(open(os.path.join(out, "growth.json")))
     for s in g["series"]:

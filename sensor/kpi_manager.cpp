@@ -227,25 +227,42 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       const ClassModel& cm = *class_models_[slot];
       // Each model once, under its own class (not again for the classes that fall back to it).
       if (model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) == 0) continue;
-      if (cm.false_positive_rate <= 0) continue;
+      const FalsePositiveTable& table = cm.fp_table;
+      if (table.present() ? table.total_rate() <= 0 : cm.false_positive_rate <= 0) continue;
       KpiRng& rng = fp_rng_[k];
-      std::poisson_distribution<int> poisson(cm.false_positive_rate);
-      const int n = poisson(rng);
-      for (int f = 0; f < n; ++f) {
-        Object fp;
-        fp.id = next_fp_id_--;
-        if (next_fp_id_ < -1000000000) next_fp_id_ = -1000;
-        fp.cls = static_cast<ObjectClass>(k);
-        const double rr = sample_quantiles(cm.fp_range_quantiles, 20, rng),
-                     az = sample_quantiles(cm.fp_azimuth_quantiles, 0, rng);
-        fp.position = Eigen::Vector3d(rr * std::cos(az), rr * std::sin(az), cm.fp_z);
-        fp.size = cm.mean_size;
-        std::uniform_real_distribution<double> h(-std::numbers::pi, std::numbers::pi);
-        fp.heading = h(rng);
-        fp.visible_fraction = 1;
-        fp.score = sample_quantiles(cm.fp_score_quantiles, 0.5, rng);
-        reported.push_back(fp);
+      // n false positives placed by the given quantiles (empty: the class's), from the class's stream.
+      auto emit = [&](double rate, const std::vector<double>& rq, const std::vector<double>& aq,
+                      const std::vector<double>& sq) {
+        std::poisson_distribution<int> poisson(rate);
+        const int n = poisson(rng);
+        for (int f = 0; f < n; ++f) {
+          Object fp;
+          fp.id = next_fp_id_--;
+          if (next_fp_id_ < -1000000000) next_fp_id_ = -1000;
+          fp.cls = static_cast<ObjectClass>(k);
+          const double rr = sample_quantiles(rq.empty() ? cm.fp_range_quantiles : rq, 20, rng),
+                       az = sample_quantiles(aq.empty() ? cm.fp_azimuth_quantiles : aq, 0, rng);
+          fp.position = Eigen::Vector3d(rr * std::cos(az), rr * std::sin(az), cm.fp_z);
+          fp.size = cm.mean_size;
+          std::uniform_real_distribution<double> h(-std::numbers::pi, std::numbers::pi);
+          fp.heading = h(rng);
+          fp.visible_fraction = 1;
+          fp.score = sample_quantiles(sq.empty() ? cm.fp_score_quantiles : sq, 0.5, rng);
+          reported.push_back(fp);
+        }
+      };
+      if (!table.present()) {
+        emit(cm.false_positive_rate, {}, {}, {});
+        continue;
       }
+      // A table: each bin its own Poisson count, placed by the bin's quantiles.
+      static const std::vector<double> none;
+      auto at = [](const std::vector<std::vector<double>>& q, size_t b) -> const std::vector<double>& {
+        return q.empty() ? none : q[b];
+      };
+      for (size_t b = 0; b < table.rate.size(); ++b)
+        if (table.rate[b] > 0)
+          emit(table.rate[b], at(table.range_quantiles, b), at(table.azimuth_quantiles, b), at(table.score_quantiles, b));
     }
   }
   if (frame_ % 64 == 0) forget_stale();

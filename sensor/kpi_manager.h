@@ -11,7 +11,8 @@
 //   - a score drawn from the class's score quantiles;
 //   - optional conditional terms (kpi_model.h ConditionalTerm): a bias and sigma scale per bin
 //     of a feature computed from the truth object (and, for track_age, the id's state);
-// and per frame a Poisson number of false positives per class. A feedback controller per
+// and per frame a Poisson number of false positives per class (with the class's optional fp_table:
+// per bin of the table its own Poisson count, placed by the bin's quantiles). A feedback controller per
 // class and parameter keeps the running mean and spread of the injected standardized noise on
 // target (0, 1), so the injected errors keep the model's mean and std per bin.
 // Random draws: each track owns one stream per error parameter and one each for its misses,

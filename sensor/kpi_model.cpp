@@ -52,6 +52,17 @@ int ConditionalTerm::bin(double value) const {
   return std::max(0, static_cast<int>(it - edges.begin()) - 1);
 }
 
+int FalsePositiveTable::bin(double value) const {
+  const auto it = std::upper_bound(edges.begin(), edges.end(), value);
+  return std::max(0, static_cast<int>(it - edges.begin()) - 1);
+}
+
+double FalsePositiveTable::total_rate() const {
+  double s = 0;
+  for (double r : rate) s += r;
+  return s;
+}
+
 const ClassModel* KpiModel::find(ObjectClass cls) const {
   auto get = [&](const std::string& name) -> const ClassModel* {
     const auto it = classes.find(name);
@@ -218,6 +229,67 @@ json write_conditional(const ConditionalTerm& ct) {
   return j;
 }
 
+// The false-positive table (absent: nothing to check). A bin with a rate needs range and azimuth
+// quantiles, its own or the class's.
+void check_fp_table(const ClassModel& c, const std::string& file, const std::string& tf) {
+  const FalsePositiveTable& t = c.fp_table;
+  if (!t.present()) return;
+  if (std::find(kFalsePositiveFeatures.begin(), kFalsePositiveFeatures.end(), t.feature) ==
+      kFalsePositiveFeatures.end())
+    throw input_error(file, tf + ".feature", "must be range, azimuth or score, got \"" + t.feature + "\"");
+  if (t.edges.empty()) throw input_error(file, tf + ".edges", "must list at least one lower bin edge");
+  for (size_t i = 0; i < t.edges.size(); ++i) {
+    const std::string fi = tf + ".edges[" + std::to_string(i) + "]";
+    check_finite(t.edges[i], file, fi);
+    if (i > 0) check(t.edges[i] > t.edges[i - 1], file, fi, "must increase", t.edges[i]);
+  }
+  check_vector(t.rate, t.edges.size(), file, tf + ".rate", 0, 1e6);
+  const std::pair<const std::vector<std::vector<double>>*, const char*> qs[3] = {
+      {&t.range_quantiles, "range_quantiles"}, {&t.azimuth_quantiles, "azimuth_quantiles"},
+      {&t.score_quantiles, "score_quantiles"}};
+  for (const auto& [q, name] : qs) {
+    if (!q->empty() && q->size() != t.edges.size())
+      throw input_error(file, tf + "." + name,
+                        "must have " + std::to_string(t.edges.size()) + " entries (one per bin) or none, got " +
+                            std::to_string(q->size()));
+    for (size_t b = 0; b < q->size(); ++b) check_quantiles((*q)[b], file, tf + "." + name + "[" + std::to_string(b) + "]");
+  }
+  for (size_t b = 0; b < t.edges.size(); ++b) {
+    if (t.rate[b] <= 0) continue;
+    const bool range = (!t.range_quantiles.empty() && !t.range_quantiles[b].empty()) || !c.fp_range_quantiles.empty();
+    const bool az = (!t.azimuth_quantiles.empty() && !t.azimuth_quantiles[b].empty()) || !c.fp_azimuth_quantiles.empty();
+    if (!range || !az)
+      throw input_error(file, tf + "." + (range ? "azimuth_quantiles" : "range_quantiles") + "[" + std::to_string(b) + "]",
+                        "needed (or the class's) where the bin's rate > 0");
+  }
+}
+
+FalsePositiveTable read_fp_table(const json& j, const std::string& file, const std::string& tf) {
+  FalsePositiveTable t;
+  const json& fj = member(j, "feature", file, tf);
+  if (!fj.is_string() || fj.get<std::string>().empty())
+    throw input_error(file, tf + ".feature", "must be a feature name, got " + fj.dump());
+  t.feature = fj.get<std::string>();
+  t.edges = numbers_at(j, "edges", file, tf, false);
+  t.rate = numbers_at(j, "rate", file, tf, false);
+  for (auto [q, name] : {std::pair{&t.range_quantiles, "range_quantiles"}, std::pair{&t.azimuth_quantiles, "azimuth_quantiles"},
+                         std::pair{&t.score_quantiles, "score_quantiles"}}) {
+    if (!j.contains(name)) continue;
+    const json& a = j[name];
+    if (!a.is_array()) throw input_error(file, tf + "." + name, "must be an array of quantile arrays");
+    for (size_t b = 0; b < a.size(); ++b) q->push_back(numbers(a[b], file, tf + "." + name + "[" + std::to_string(b) + "]"));
+  }
+  return t;
+}
+
+json write_fp_table(const FalsePositiveTable& t) {
+  json j = {{"feature", t.feature}, {"edges", t.edges}, {"rate", t.rate}};
+  if (!t.range_quantiles.empty()) j["range_quantiles"] = t.range_quantiles;
+  if (!t.azimuth_quantiles.empty()) j["azimuth_quantiles"] = t.azimuth_quantiles;
+  if (!t.score_quantiles.empty()) j["score_quantiles"] = t.score_quantiles;
+  return j;
+}
+
 }  // namespace
 
 void KpiModel::validate(const std::string& file) const {
@@ -271,6 +343,7 @@ void KpiModel::validate(const std::string& file) const {
     if (c.false_positive_rate > 0 && (c.fp_range_quantiles.empty() || c.fp_azimuth_quantiles.empty()))
       throw input_error(file, base + ".fp_range_quantiles", "needed when false_positive_rate > 0");
     check_finite(c.fp_z, file, base + ".fp_z");
+    check_fp_table(c, file, base + ".fp_table");
     for (int i = 0; i < 3; ++i) {
       const std::string f = base + ".mean_size[" + std::to_string(i) + "]";
       check_finite(c.mean_size[i], file, f);
@@ -338,6 +411,7 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
     c.fp_azimuth_quantiles = numbers_at(cj, "fp_azimuth_quantiles", file, base, true);
     c.fp_score_quantiles = numbers_at(cj, "fp_score_quantiles", file, base, true);
     c.fp_z = number_at(cj, "fp_z", file, base, -0.9, true);
+    if (cj.contains("fp_table")) c.fp_table = read_fp_table(cj["fp_table"], file, base + ".fp_table");
     if (cj.contains("mean_size")) {
       const auto s = numbers_at(cj, "mean_size", file, base, false);
       if (s.size() != 3) throw input_error(file, base + ".mean_size", "must have 3 entries (length, width, height)");
@@ -397,6 +471,7 @@ std::string kpi_model_to_json(const KpiModel& m) {
     cj["fp_azimuth_quantiles"] = c.fp_azimuth_quantiles;
     cj["fp_score_quantiles"] = c.fp_score_quantiles;
     cj["fp_z"] = c.fp_z;
+    if (c.fp_table.present()) cj["fp_table"] = write_fp_table(c.fp_table);  // absent: the file is as before
     cj["mean_size"] = {c.mean_size[0], c.mean_size[1], c.mean_size[2]};
     j["classes"][name] = cj;
   }

@@ -63,6 +63,24 @@ inline const std::vector<std::string> kConditionalFeatures = {
     "acceleration", "size", "box_width", "box_height", "heading_to_line_of_sight", "truncation", "visibility",
     "track_age"};
 
+// Optional false-positive table of a class ("fp_table" in the file; issue 11, the object loop's
+// false-positive effect): the class's false positives as a table over bins of one of their own
+// attributes (kFalsePositiveFeatures), each bin with its own Poisson rate per frame and its own
+// quantiles of range, azimuth and score to place its false positives by (an empty entry: the
+// class's fp_*_quantiles). When present it replaces false_positive_rate and the class quantiles in
+// the KPI manager: independent range and azimuth quantiles cannot hold a hot spot (false detections
+// in a window of azimuth at one range), a table over azimuth with per-bin range quantiles can.
+struct FalsePositiveTable {
+  std::string feature;        // empty: no table (the file has no "fp_table")
+  std::vector<double> edges;  // lower bin edges, increasing; values below edges[0] use bin 0
+  std::vector<double> rate;   // per bin, false positives per frame, >= 0
+  std::vector<std::vector<double>> range_quantiles, azimuth_quantiles, score_quantiles;  // per bin, or empty
+  bool present() const { return !feature.empty(); }
+  int bin(double value) const;
+  double total_rate() const;
+};
+inline const std::vector<std::string> kFalsePositiveFeatures = {"range", "azimuth", "score"};
+
 struct ErrorModel {
   std::vector<double> mean;                  // per range bin
   std::vector<double> sigma;                 // per range bin, >= 0 ("std" in the file)
@@ -89,6 +107,7 @@ struct ClassModel {
   std::vector<double> fp_azimuth_quantiles;  // rad, atan2(y, x)
   std::vector<double> fp_score_quantiles;
   double fp_z = -0.9;               // m, box centre height in the sensor frame
+  FalsePositiveTable fp_table;      // optional; replaces the rate and quantiles above when present
   Eigen::Vector3d mean_size = Eigen::Vector3d(4, 1.8, 1.5);
 };
 

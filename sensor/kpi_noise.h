@@ -14,7 +14,10 @@ namespace lidarsim::sensor {
 class KpiRng {
  public:
   using result_type = std::uint64_t;
-  explicit KpiRng(std::uint64_t seed = 1);
+  // Not explicit without a seed: arrays of streams in aggregates are value-initialised (clang
+  // refuses an explicit default constructor there; the fuzz build uses clang).
+  KpiRng() : KpiRng(1) {}
+  explicit KpiRng(std::uint64_t seed);
   // A stream keyed by (seed, a, b, purpose): the KPI manager gives each track and each draw
   // purpose its own, so a change in how many draws one target takes (another innovation type,
   // a term on one class) leaves every other target's and track's draws unchanged (common

@@ -1,0 +1,298 @@
+// The object loop's false-positive candidates judged on the cross-fit (object_false_positives.h).
+#include "qualify/object_false_positives.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <sstream>
+
+#include "qualify/report.h"
+#include "sensor/kpi_fit.h"
+
+namespace lidarsim::qualify::obj {
+
+namespace {
+
+// One fold's false-positive data: grid, fit and held-out counts, the base model.
+struct Side {
+  FpGrid g;
+  FpData fit, held;
+  std::array<double, 3> floor{};
+  FpModel base;
+  std::vector<double> dev_base;  // per block
+};
+
+// Poisson deviance of each block's held-out counts per class and cell against the model's expected
+// counts summed over the block's frames (indexed by block; 0 for blocks of the other fold).
+std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t nblocks, int cells) {
+  std::vector<std::vector<double>> Y(nblocks), M(nblocks);
+  for (const auto& fr : held.frames) {
+    auto &y = Y[fr.block], &mu = M[fr.block];
+    if (y.empty()) y.assign(3 * cells, 0.0), mu.assign(3 * cells, 0.0);
+    const int b = m.frame_bin(fr);
+    for (int c = 0; c < 3; ++c) {
+      const auto& cm = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)];
+      for (int k = 0; k < cells; ++k) mu[c * cells + k] += cm[k];
+    }
+    for (const auto& [c, cell, n] : fr.counts) y[c * cells + cell] += n;
+  }
+  std::vector<double> d(nblocks, 0.0);
+  for (size_t b = 0; b < nblocks; ++b)
+    for (size_t k = 0; k < Y[b].size(); ++k)
+      d[b] += 2 * ((Y[b][k] > 0 ? Y[b][k] * std::log(Y[b][k] / M[b][k]) : 0.0) - (Y[b][k] - M[b][k]));
+  return d;
+}
+
+// Per class and cell: (held-out false positives per frame, the model's mean expected count).
+std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& held, int cells) {
+  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
+  for (const auto& fr : held.frames) {
+    const int b = m.frame_bin(fr);
+    for (int c = 0; c < 3; ++c) {
+      const auto& mu = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)];
+      for (int k = 0; k < cells; ++k) p[c * cells + k][1] += mu[k];
+    }
+    for (const auto& [c, cell, y] : fr.counts) p[c * cells + cell][0] += y;
+  }
+  const double n = std::max<size_t>(1, held.frames.size());
+  for (auto& e : p) e[0] /= n, e[1] /= n, e[2] = e[0] / n;  // Poisson variance of the measured rate
+  return p;
+}
+
+std::string form_of(const FpModel& m, bool window) {
+  std::ostringstream o;
+  if (!window) {
+    o << "table, " << m.cuts.size() + 1 << " bins";
+    return o.str();
+  }
+  if (m.cuts.empty()) return "no window found";
+  o << (m.cuts.size() == 2 ? "window, edges" : "step, edge");
+  for (double v : m.cuts) o << " " << fmt(v, 3);
+  o << "; rate per frame (all classes)";
+  for (size_t b = 0; b < m.cuts.size() + 1; ++b) {
+    double r = 0;
+    for (int c = 0; c < 3; ++c) r += b < m.comps[c].size() ? m.comps[c][b].rate : 0;
+    o << " " << fmt(r, 3);
+  }
+  return o.str();
+}
+
+double change_per_frame(const std::array<double, 3>& s) { return s[2] > 0 ? (s[0] - s[1]) / s[2] : 0.0; }
+
+// The simulated false positives per frame and cell on fold k's held-out sequences, 4 seeds.
+std::vector<std::array<double, 3>> simulated_pairs(const TrackingData& data, const Fold& fold, const Side& side,
+                                                   const sensor::KpiModel& model, std::uint64_t seed) {
+  const int cells = side.g.cells();
+  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
+  FpModel measured = fp_base(fold.base);  // only for the measured side of the pairs
+  measured.compile(side.g, side.floor);
+  const auto meas = rate_pairs(measured, side.held, cells);
+  const int seeds = 4;
+  for (int s = 0; s < seeds; ++s) {
+    const auto sim = sensor::resimulate(data.calib, model, seed + 200 + s);
+    const ObjectSet set = collect_objects(data, fold.held_idx, &sim);
+    for (const auto& r : set.fp_records)
+      p[r.cls * cells + side.g.cell(r.range, r.azimuth, r.score)][1] += 1.0 / seeds;
+  }
+  const double n = std::max<size_t>(1, side.held.frames.size());
+  for (size_t i = 0; i < p.size(); ++i) p[i] = {meas[i][0], p[i][1] / n, meas[i][2] + p[i][1] / n / (seeds * n)};
+  return p;
+}
+
+}  // namespace
+
+double fp_rate_error(const std::array<std::vector<std::array<double, 3>>, 2>& per_fold) {
+  double s = 0;
+  long n = 0;
+  for (const auto& v : per_fold)
+    for (const auto& [a, b, var] : v) s += (a - b) * (a - b) - var, ++n;
+  return n ? std::sqrt(std::max(0.0, s / n)) : 0;
+}
+
+FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fold, 2>& folds, double threshold,
+                                   int bins, std::uint64_t seed) {
+  FpAnalysis A;
+  std::array<Side, 2> side;
+  std::map<int, int> block_id;
+  for (int k = 0; k < 2; ++k) {
+    Side& s = side[k];
+    s.g = fp_grid(folds[k].fit_set);
+    s.fit = fp_data(folds[k].fit_set, s.g);
+    s.held = fp_data(folds[k].held_set, s.g);
+    s.floor = fp_floor(s.fit, s.g.cells());
+    s.base = fp_base(folds[k].base);
+    s.base.compile(s.g, s.floor);
+    for (auto& fr : s.held.frames) fr.block = block_id.try_emplace(fr.block, static_cast<int>(block_id.size())).first->second;
+    A.frames += static_cast<int>(s.held.frames.size());
+    A.fps += static_cast<int>(s.held.fps.size());
+  }
+  const size_t nblocks = block_id.size();
+  std::vector<double> block_frames(nblocks, 0.0);
+  std::vector<int> block_fold(nblocks, 0);
+  for (int k = 0; k < 2; ++k) {
+    side[k].dev_base = block_deviance(side[k].base, side[k].held, nblocks, side[k].g.cells());
+    for (const auto& fr : side[k].held.frames) block_frames[fr.block] += 1, block_fold[fr.block] = k;
+  }
+  std::vector<std::array<FpModel, 2>> models;  // per candidate, per fold
+  for (int f = 0; f < static_cast<int>(kFpFeatures.size()); ++f)
+    for (bool window : {false, true}) {
+      FpCandidate c;
+      c.feature = f;
+      c.window = window;
+      BlockSums sums(nblocks, {0, 0, 0});
+      std::array<double, 3> total{0, 0, 0};
+      std::array<std::vector<std::array<double, 3>>, 2> before, after;
+      std::array<FpModel, 2> fitted;
+      for (int k = 0; k < 2; ++k) {
+        const Side& s = side[k];
+        fitted[k] = fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor);
+        const auto dev = block_deviance(fitted[k], s.held, nblocks, s.g.cells());
+        for (size_t b = 0; b < nblocks; ++b) {
+          if (block_fold[b] != k) continue;
+          sums[b][0] += dev[b], sums[b][1] += s.dev_base[b], sums[b][2] += block_frames[b];
+          total[0] += dev[b], total[1] += s.dev_base[b], total[2] += block_frames[b];
+        }
+        before[k] = rate_pairs(s.base, s.held, s.g.cells());
+        after[k] = rate_pairs(fitted[k], s.held, s.g.cells());
+      }
+      c.form = form_of(fitted[0], window);
+      double moved = 0, mass = 0;
+      for (size_t i = 0; i < before[0].size(); ++i)
+        moved += std::abs(after[0][i][1] - before[0][i][1]), mass += before[0][i][1];
+      c.effect_size = mass > 0 ? 0.5 * moved / mass : 0;
+      BlockSums used;
+      for (const auto& b : sums)
+        if (b[2] > 0) used.push_back(b);
+      c.score = r2_of_sums(total);
+      c.interval = block_bootstrap_interval(used, r2_of_sums);
+      c.change = block_bootstrap_interval(used, change_per_frame);
+      c.deviance_before = total[2] > 0 ? total[1] / total[2] : 0;
+      c.deviance_after = total[2] > 0 ? total[0] / total[2] : 0;
+      c.error_before = fp_rate_error(before);
+      c.error_after = fp_rate_error(after);
+      c.frames = static_cast<long>(total[2]);
+      c.fps = A.fps;
+      A.candidates.push_back(c);
+      models.push_back(std::move(fitted));
+    }
+  // The best candidate on an attribute of the false detection (what the KPI model's fp_table holds).
+  for (size_t i = 0; i < A.candidates.size(); ++i) {
+    const FpCandidate& c = A.candidates[i];
+    if (c.feature < kFpAttributeFeatures && (A.added < 0 || c.score > A.candidates[A.added].score))
+      A.added = static_cast<int>(i);
+  }
+  const int best = A.added;
+  if (best >= 0) {
+    const FpCandidate& b = A.candidates[best];
+    if (!(b.score >= threshold && b.change[1] < 0)) A.added = -1;
+  }
+  for (size_t i = 0; i < A.candidates.size(); ++i) {
+    FpCandidate& c = A.candidates[i];
+    if (static_cast<int>(i) == A.added) c.decision = "added";
+    else if (c.score < threshold) c.decision = "ruled out: held-out score below the threshold";
+    else if (c.change[1] >= 0) c.decision = "rejected: the interval of the held-out deviance change reaches 0";
+    else if (c.feature >= kFpAttributeFeatures)
+      c.decision = "not addable: a frame feature (the KPI model's fp_table is over the false detection's attributes)";
+    else c.decision = "not added: one false-positive table per run, the best first";
+  }
+  if (A.added >= 0) {
+    // What the KPI manager draws with each fold's model, against the measured held-out rates.
+    std::array<std::vector<std::array<double, 3>>, 2> sb, sa;
+    for (int k = 0; k < 2; ++k) {
+      sb[k] = simulated_pairs(data, folds[k], side[k], folds[k].base, seed);
+      sa[k] = simulated_pairs(data, folds[k], side[k], with_fp_table(folds[k].base, models[A.added][k]), seed);
+    }
+    A.simulated_before = fp_rate_error(sb);
+    A.simulated_after = fp_rate_error(sa);
+  }
+  return A;
+}
+
+sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& whole, const FpCandidate& c, int bins) {
+  const FpGrid g = fp_grid(whole.fit_set);
+  const FpData fit = fp_data(whole.fit_set, g);
+  return with_fp_table(m, fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, fp_floor(fit, g.cells())));
+}
+
+nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
+  nlohmann::json cj = nlohmann::json::array();
+  for (const FpCandidate& c : a.candidates)
+    cj.push_back({{"feature", kFpFeatures[c.feature]},
+                  {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+                  {"form_fold1", c.form},
+                  {"effect_size", c.effect_size},
+                  {"score", c.score},
+                  {"interval95", c.interval},
+                  {"significant", c.interval[0] > 0},
+                  {"change_interval95", c.change},
+                  {"deviance_before", c.deviance_before},
+                  {"deviance_after", c.deviance_after},
+                  {"error_before", c.error_before},
+                  {"error_after", c.error_after},
+                  {"decision", c.decision}});
+  nlohmann::json j = {
+      {"outcome",
+       "per block of 100 held-out frames, class and cell of a 5 x 5 x 4 grid over (range, azimuth, score) of the fit "
+       "split's false positives (equal-count bins): the number of false positives, Poisson; the model's expected count "
+       "per frame and cell from its rate and quantiles as the KPI manager samples them, summed over the block"},
+      {"association", "a detection of a modelled class with score > 0 matched to no ground truth (same class, 2 m BEV "
+                      "gate, Hungarian) and not within 2 m of other ground truth: lidar-calibrate's false positives"},
+      {"score_definition", "1 - D_after / D_before, D the held-out Poisson deviance of each block's counts per class "
+                           "and cell (blocks: 100 consecutive frames of a sequence), both folds; interval95 and "
+                           "change_interval95 (deviance per frame, after - before) by a basic bootstrap over the blocks"},
+      {"effect_size_definition", "fold 1: share of the expected false positives the candidate moves between cells "
+                                 "(0.5 sum |mu_after - mu_before| / sum mu_before)"},
+      {"error_definition", "false-positive rate error: RMS over class x cell of held-out false positives per frame minus "
+                           "the model's expected count, beyond the held-out counts' Poisson noise (its variance "
+                           "subtracted from the mean square; re-simulated: the simulated counts' too), both folds"},
+      {"threshold", threshold},
+      {"held_out_frames", a.frames},
+      {"held_out_false_positives", a.fps},
+      {"candidates", cj}};
+  if (a.added >= 0) {
+    const FpCandidate& c = a.candidates[a.added];
+    j["added"] = {{"feature", kFpFeatures[c.feature]},
+                  {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+                  {"score", c.score},
+                  {"change_interval95", c.change},
+                  {"error_before", c.error_before},
+                  {"error_after", c.error_after},
+                  {"simulated_error_before", a.simulated_before},
+                  {"simulated_error_after", a.simulated_after},
+                  {"model_term_on", "classes.*.fp_table"}};
+  } else {
+    j["added"] = nullptr;
+  }
+  return j;
+}
+
+std::string fp_markdown(const nlohmann::json& fp) {
+  std::string md = "\n## False positives\n\nOutcome: " + fp["outcome"].get<std::string>() + ". Association: " +
+                   fp["association"].get<std::string>() + ". Score: " + fp["score_definition"].get<std::string>() +
+                   ". Held out: " + std::to_string(fp["held_out_frames"].get<int>()) + " frames, " +
+                   std::to_string(fp["held_out_false_positives"].get<int>()) + " false positives.\n\n";
+  if (fp["added"].is_null()) {
+    md += "Added: **none**\n";
+  } else {
+    const auto& a = fp["added"];
+    md += "Added: **" + a["feature"].get<std::string>() + "** (" + a["kind"].get<std::string>() +
+          ", per class in `fp_table`): rate error " + fmt(a["error_before"].get<double>(), 4) + " -> " +
+          fmt(a["error_after"].get<double>(), 4) + "; re-simulated by the KPI manager " +
+          fmt(a["simulated_error_before"].get<double>(), 4) + " -> " + fmt(a["simulated_error_after"].get<double>(), 4) +
+          "\n";
+  }
+  md += "\n| feature | kind | form (fold 1) | effect size | held-out score [95%] | deviance change per frame [95%] | "
+        "deviance per frame before | after | rate error before | after | decision |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& c : fp["candidates"])
+    md += "| " + c["feature"].get<std::string>() + " | " + c["kind"].get<std::string>() + " | " +
+          c["form_fold1"].get<std::string>() + " | " + fmt(c["effect_size"].get<double>()) + " | " +
+          fmt(c["score"].get<double>()) + " [" + fmt(c["interval95"][0].get<double>()) + ", " +
+          fmt(c["interval95"][1].get<double>()) + "] | [" + fmt(c["change_interval95"][0].get<double>(), 4) + ", " +
+          fmt(c["change_interval95"][1].get<double>(), 4) + "] | " + fmt(c["deviance_before"].get<double>(), 4) +
+          " | " + fmt(c["deviance_after"].get<double>(), 4) + " | " + fmt(c["error_before"].get<double>(), 4) + " | " +
+          fmt(c["error_after"].get<double>(), 4) + " | " + c["decision"].get<std::string>() + " |\n";
+  return md;
+}
+
+}  // namespace lidarsim::qualify::obj

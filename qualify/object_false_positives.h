@@ -1,0 +1,129 @@
+#pragma once
+// The object loop's false-positive analysis (internal to qualify/; issue 11). The KPI manager draws
+// a class's false positives as a Poisson count per frame, each placed by independent quantiles of
+// range, azimuth and score (sensor/kpi_model.h). The measured false positives (the calibration's
+// association, objects.h FalsePositiveRecord) are compared with that, per held-out frame, as counts:
+//   outcome   per frame, class and cell of a grid over (range, azimuth, score) — equal-count bins of
+//             the fit split's false positives (5 x 5 x 4) — the number of false positives;
+//   model     Poisson with the model's expected count in the cell, a mixture of components (a rate
+//             per frame x the product of its range, azimuth and score cell probabilities, from the
+//             quantiles by linear interpolation as the manager samples them);
+//   loss      the held-out Poisson deviance of each block's counts per class and cell (expected: the
+//             model's per-frame counts summed over the block's frames); score = 1 - D_after / D_before,
+//             pooled over both folds. Blocks, not frames: the candidates are rates, and which frames of
+//             a block carry its false detections (a persistent ghost over 30 frames) is nothing a rate
+//             can say, so per frame the deviance would be mostly that unexplainable part;
+//   blocks    100-frame chunks of a sequence, also what the bootstrap resamples (frames and the false
+//             detections that persist over them stay together; a fold holds out whole sequences).
+// Candidates, per feature (kFpFeatures) and form, fitted on a fold's fit sequences only:
+//   fp_rate_table   per class, per bin of the feature (10 equal-count bins): a rate and the bin's own
+//                   quantiles of range, azimuth and score (the class's where it has < 20 there);
+//   fp_rate_window  the same with the bins below, inside and above one window of the feature (a step
+//                   when it reaches an end), edges chosen on the fit split among 20 equal-count bins.
+// The base model (one component per class) cannot hold a joint effect such as a hot spot (false
+// detections in a window of azimuth at one range) or a score that falls with range; these forms can.
+// Frame features (truth_count, frame_index) keep the class's placement and give each frame bin its own
+// rate; they are tested and reported, but the KPI model's fp_table is over a false positive's own
+// attribute, so only range, azimuth and score can be added.
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "qualify/object_folds.h"
+
+namespace lidarsim::qualify::obj {
+
+inline const std::vector<std::string> kFpFeatures = {"range", "azimuth", "score", "truth_count", "frame_index"};
+inline constexpr int kFpAttributeFeatures = 3;  // the first three: attributes of the false detection
+inline constexpr int kFpBlockFrames = 100;      // bootstrap block: consecutive frames of one sequence
+
+// The cells the rate is judged on: cut points of range, azimuth and score.
+struct FpGrid {
+  std::vector<double> range, azimuth, score;
+  int cells() const;
+  int cell(double r, double a, double s) const;
+};
+FpGrid fp_grid(const ObjectSet& fit);
+
+// A set's frames and false positives, by grid cell.
+struct FpData {
+  struct Frame {
+    int block = 0;
+    std::array<double, 2> feature{0, 0};  // truth_count, frame_index
+    std::vector<std::array<int, 3>> counts;  // (class, cell, count) of its false positives
+  };
+  std::vector<Frame> frames;
+  std::vector<FalsePositiveRecord> fps;  // the set's, with slot = index in frames
+};
+FpData fp_data(const ObjectSet& set, const FpGrid& g);
+
+struct FpComponent {
+  double rate = 0;                // per frame
+  std::vector<double> rq, aq, sq;  // quantiles of range, azimuth, score
+};
+
+// One false-positive model of the three classes. Attribute features: every component every frame (a
+// mixture); frame features: the frame's bin's component. feature -1: the base model's own.
+struct FpModel {
+  int feature = -1;
+  std::vector<double> cuts;  // bin k = [cuts[k-1], cuts[k])
+  std::array<std::vector<FpComponent>, 3> comps;  // per class, per bin
+  std::array<std::vector<std::vector<double>>, 3> mu;  // compiled: per class, bin, cell: expected count
+  void compile(const FpGrid& g, const std::array<double, 3>& floor);
+  int frame_bin(const FpData::Frame& f) const;
+};
+
+FpModel fp_base(const sensor::KpiModel& base);
+// The candidate of `feature` (index in kFpFeatures), table or window, fitted on `fit`.
+FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
+                     const FpGrid& g, const std::array<double, 3>& floor);
+// Poisson deviance of `m` on the frames of `d` (per frame, summed over classes and cells).
+std::vector<double> fp_deviance(const FpModel& m, const FpData& d);
+// The floor added to every cell's expected count (the same for every model of a fold): 0.1 % of the
+// class's fit rate spread over the cells, so an empty cell costs a finite deviance.
+std::array<double, 3> fp_floor(const FpData& fit, int cells);
+
+// The model with each class's fp_table from an attribute candidate.
+sensor::KpiModel with_fp_table(const sensor::KpiModel& m, const FpModel& fp);
+
+struct FpCandidate {
+  int feature = 0;
+  bool window = false;
+  std::string form;  // fold 1's
+  double effect_size = 0;  // fold 1: largest ratio of the candidate's to the base's expected count in a cell
+  double score = 0;
+  std::array<double, 2> interval{0, 0};  // of the score
+  std::array<double, 2> change{0, 0};    // of the held-out deviance per frame, after - before
+  double deviance_before = 0, deviance_after = 0;  // per held-out frame
+  double error_before = 0, error_after = 0;        // false-positive rate error (fp_rate_error)
+  long frames = 0, fps = 0;
+  std::string decision;
+};
+
+struct FpAnalysis {
+  std::vector<FpCandidate> candidates;
+  int added = -1;  // index of the added candidate
+  double simulated_before = -1, simulated_after = -1;  // rate error re-simulated by the KPI manager
+  int frames = 0, fps = 0;
+};
+
+// RMS over classes and cells of the held-out false positives per frame minus the model's expected count,
+// beyond the measured rate's Poisson noise: per cell (measured, model, noise variance), the variance
+// subtracted from the mean square (an unbiased estimate of the squared error the model makes).
+double fp_rate_error(const std::array<std::vector<std::array<double, 3>>, 2>& per_fold);
+
+// Every candidate judged on the two folds; the best attribute candidate is added when its score is at
+// least `threshold` and the block-bootstrap 95 % interval of the change of the held-out deviance lies
+// below 0. The added one is re-simulated with the KPI manager on each fold's held-out sequences.
+FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fold, 2>& folds, double threshold,
+                                   int bins, std::uint64_t seed);
+// The added candidate refitted on every sequence (`whole`'s fit split) and written into `m`.
+sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& whole, const FpCandidate& c, int bins);
+
+nlohmann::json fp_json(const FpAnalysis& a, double threshold);
+std::string fp_markdown(const nlohmann::json& fp);
+
+}  // namespace lidarsim::qualify::obj
