@@ -3,7 +3,10 @@
 // (ReLU-masked by the direct forward's output), median process CPU time per call over --reps (--wall: wall time),
 // with the CPU time of the whole run and the load average, and the largest
 // difference between the two paths relative to the largest output. The automatic rule in
-// nn/conv3x3.cpp (conv3x3_takes_winograd) comes from this table.
+// nn/conv3x3.cpp (conv3x3_takes_winograd) comes from this table. Where the CPU has AVX-512 BF16,
+// also the bf16 inference kernel's forward pass (nn/conv3x3_bf16.h): its time, its speed-up over
+// the fp32 direct and Winograd forward passes, and its difference from the direct output; the
+// rule conv3x3_takes_bf16 comes from these columns.
 #include <omp.h>
 
 #include <algorithm>
@@ -20,6 +23,7 @@
 
 #include "common/error.h"
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_bf16.h"
 #include "nn/layers.h"
 #include "nn/winograd.h"
 
@@ -79,6 +83,7 @@ int main(int argc, char** argv) {
       ("cols", "input columns", cxxopts::value<int>()->default_value("1024"))
       ("level", "only this UNet level (-1: all)", cxxopts::value<int>()->default_value("-1"))
       ("wall", "time wall clock instead of process CPU time")
+      ("forward-only", "time only the forward passes (gradient columns print 0)")
       ("h,help", "show help");
     const auto opt = options.parse(argc, argv);
     if (opt.count("help")) {
@@ -91,11 +96,14 @@ int main(int argc, char** argv) {
     omp_set_num_threads(opt["threads"].as<int>());
     const std::string load_before = loadavg();
     const double cpu0 = cpu_seconds();
-    const bool wall = opt.count("wall") > 0;
+    const bool wall = opt.count("wall") > 0, fwd_only = opt.count("forward-only") > 0;
     const int base = 16, depth = 4;
-    std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s\n", "batch", "ci", "co", "h", "w",
+    const bool bf16 = detail::conv3x3_bf16_available();
+    std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s", "batch", "ci", "co", "h", "w",
                 "fwd dir", "fwd win", "speedup", "dgr dir", "dgr win", "speedup", "wgr dir", "wgr win", "speedup",
                 "fwd diff", "dgr diff", "wgr diff");
+    if (bf16) std::printf(" %8s %8s %8s %9s", "fwd bf16", "dir/bf16", "win/bf16", "bf16 diff");
+    std::printf("\n");
     std::mt19937 rng(1);
     std::normal_distribution<float> normal;
     for (int n : opt["batch"].as<std::vector<int>>()) {
@@ -116,6 +124,9 @@ int main(int argc, char** argv) {
           for (int p = 0; p < 2; ++p) {
             detail::set_conv3x3_path(p ? detail::Conv3x3Path::winograd : detail::Conv3x3Path::direct);
             t_fwd[p] = median_seconds([&] { conv2d_forward(y[p], x, wt.data(), bias.data(), co, 3, 1, true); }, reps, wall);
+            t_dgr[p] = t_wgr[p] = 0;
+            d_w[p].assign(wt.size(), 0.f);
+            if (fwd_only) continue;
             t_dgr[p] = median_seconds(
                 [&] { conv2d_backward(&d_in[p], nullptr, nullptr, g, y[0], x, wt.data(), 3, 1, true); }, reps, wall);
             d_w[p].assign(wt.size(), 0.f);
@@ -126,13 +137,26 @@ int main(int argc, char** argv) {
                 },
                 reps, wall);
           }
+          Tensor y16(n, co, h, w);
+          const double t_b16 =
+              bf16 ? median_seconds(
+                         [&] {
+                           detail::conv3x3_bf16_forward_cat(y16.data(), x.data(), ci, nullptr, 0, n, h, w, wt.data(),
+                                                            bias.data(), co, true);
+                         },
+                         reps, wall)
+                   : 0;
           Tensor dw0(1, 1, 1, static_cast<int>(wt.size())), dw1(1, 1, 1, static_cast<int>(wt.size()));
           std::copy(d_w[0].begin(), d_w[0].end(), dw0.begin());
           std::copy(d_w[1].begin(), d_w[1].end(), dw1.begin());
-          std::printf("%-5d %4d %4d %4d %5d %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.1e %8.1e %8.1e\n", n,
+          std::printf("%-5d %4d %4d %4d %5d %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.1e %8.1e %8.1e", n,
                       ci, co, h, w, 1e3 * t_fwd[0], 1e3 * t_fwd[1], t_fwd[0] / t_fwd[1], 1e3 * t_dgr[0],
                       1e3 * t_dgr[1], t_dgr[0] / t_dgr[1], 1e3 * t_wgr[0], 1e3 * t_wgr[1], t_wgr[0] / t_wgr[1],
                       rel_diff(y[1], y[0]), rel_diff(d_in[1], d_in[0]), rel_diff(dw1, dw0));
+          if (bf16)
+            std::printf(" %8.3f %8.2f %8.2f %9.1e", 1e3 * t_b16, t_fwd[0] / t_b16, t_fwd[1] / t_b16,
+                        rel_diff(y16, y[0]));
+          std::printf("\n");
           std::fflush(stdout);
         }
       }

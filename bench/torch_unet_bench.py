@@ -12,6 +12,8 @@ so the peer is measured at its best:
   default        torch's defaults (oneDNN convolutions where torch picks them, NCHW)
   no_onednn      torch.backends.mkldnn.enabled = False (im2col + BLAS convolutions)
   channels_last  model and input in channels_last memory format (oneDNN's preferred layout)
+With --bf16 also infer_b1_bf16 / infer_b4_bf16: inference under torch.autocast("cpu",
+dtype=torch.bfloat16) (the default and channels_last settings; null where autocast fails).
 """
 import argparse
 import json
@@ -71,6 +73,17 @@ def measure(args, model, opt, channels_last):
                 model(x)
 
         out[f"infer_b{n}"], out[f"infer_b{n}_min"], out[f"infer_b{n}_cpu"] = timed(infer, args.warmup, args.reps)
+        if args.bf16 and torch.backends.mkldnn.enabled:
+
+            def infer_bf16():
+                with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+                    model(x)
+
+            try:
+                row = f"infer_b{n}_bf16"
+                out[row], out[row + "_min"], out[row + "_cpu"] = timed(infer_bf16, args.warmup, args.reps)
+            except Exception as e:  # noqa: BLE001 - reported, the fp32 rows still count
+                print(f"torch bf16 autocast failed: {e}", file=sys.stderr)
     return out
 
 
@@ -93,6 +106,7 @@ def main():
     p.add_argument("--warmup", type=int, default=2)
     p.add_argument("--settings", default="default,no_onednn,channels_last",
                    help="comma-separated subset of default, no_onednn, channels_last")
+    p.add_argument("--bf16", action="store_true", help="also time bf16 autocast inference")
     args = p.parse_args()
 
     torch.set_num_threads(args.threads)
@@ -116,6 +130,16 @@ def main():
         print(f"torch {setting}: {per_setting[setting]}", file=sys.stderr)
     torch.backends.mkldnn.enabled = True
     best = {}
+    for row in ("infer_b1_bf16", "infer_b4_bf16") if args.bf16 else ():
+        have = [k for k in per_setting if row in per_setting[k]]
+        if not have:
+            best[row] = None
+            continue
+        key = min(have, key=lambda k: per_setting[k][row])
+        best[row] = per_setting[key][row]
+        best[row + "_min"] = per_setting[key][row + "_min"]
+        best[row + "_setting"] = key
+        best[row + "_cpu"] = min(per_setting[k][row + "_cpu"] for k in have)
     for row in ("train_b1", "train_b4", "infer_b1", "infer_b4"):
         key = min(per_setting, key=lambda k: per_setting[k][row])
         best[row] = per_setting[key][row]

@@ -4,7 +4,9 @@
 // --warmup untimed runs. PyTorch runs as a subprocess (bench/torch_unet_bench.py) with
 // OMP_NUM_THREADS set and OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE unset for it alone, so it gets
 // OpenBLAS's own choice of kernels. A 4096^3 fp32 GEMM through Eigen gives the machine's
-// practical peak for context.
+// practical peak for context. Where the CPU has AVX-512 BF16, also our bf16 inference
+// (nn/precision.h) at batch 1 and 4, against PyTorch's fp32 inference (the peer) and, as an
+// extra column, PyTorch's own bf16 (torch.autocast on the CPU).
 #include <omp.h>
 
 #include <Eigen/Core>
@@ -25,6 +27,7 @@
 #include "common/error.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
+#include "nn/precision.h"
 #include "nn/unet.h"
 
 #ifndef LIDARSIM_SOURCE_DIR
@@ -108,11 +111,12 @@ std::string shell_quote(const std::string& s) {
 
 // Runs the PyTorch peer and returns its JSON (the last line it prints on stdout).
 nlohmann::json run_torch(const std::string& python, const std::string& script, int threads, int rows, int cols,
-                         int reps, int warmup, float lambda, const std::string& settings) {
+                         int reps, int warmup, float lambda, const std::string& settings, bool bf16) {
   std::ostringstream cmd;
   cmd << "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OMP_NUM_THREADS=" << threads << " " << shell_quote(python)
       << " " << shell_quote(script) << " --threads " << threads << " --rows " << rows << " --cols " << cols
-      << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --settings " << shell_quote(settings);
+      << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --settings " << shell_quote(settings)
+      << (bf16 ? " --bf16" : "");
   std::cerr << "bench: running PyTorch: " << cmd.str() << "\n";
   FILE* pipe = ::popen(cmd.str().c_str(), "r");
   if (!pipe) throw Error(script + ": cannot start " + python);
@@ -156,6 +160,9 @@ int main(int argc, char** argv) {
       ("torch-settings", "PyTorch settings to try, the fastest counts per row (default, no_onednn, channels_last)",
        cxxopts::value<std::string>()->default_value("default,no_onednn,channels_last"))
       ("no-torch", "time only our engine")
+      ("no-bf16", "leave out the bf16 inference rows (they need AVX-512 BF16)")
+      ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+      ("bf16-only", "only the bf16 inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
       ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
       ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
       ("h,help", "show help");
@@ -186,13 +193,25 @@ int main(int argc, char** argv) {
       std::string name;
       int batch;
       bool train;
-      Timing ours, torch;
+      bool bf16 = false;  // our bf16 inference; the peer row is PyTorch's fp32 inference
+      Timing ours, torch, torch_bf16;
     };
-    std::vector<Row> table{{"train_b1", 1, true, {}, {}},
-                           {"train_b4", 4, true, {}, {}},
-                           {"infer_b1", 1, false, {}, {}},
-                           {"infer_b4", 4, false, {}, {}}};
+    std::vector<Row> table{{"train_b1", 1, true, false, {}, {}, {}},
+                           {"train_b4", 4, true, false, {}, {}, {}},
+                           {"infer_b1", 1, false, false, {}, {}, {}},
+                           {"infer_b4", 4, false, false, {}, {}, {}}};
+    const bool bf16 = !opt.count("no-bf16") && bf16_supported();
+    if (!opt.count("no-bf16") && !bf16) std::cerr << "bench: this CPU has no AVX-512 BF16: no bf16 rows\n";
+    if (bf16) {
+      table.push_back({"infer_b1_bf16", 1, false, true, {}, {}, {}});
+      table.push_back({"infer_b4_bf16", 4, false, true, {}, {}, {}});
+    }
+    if (opt.count("infer-only"))
+      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return r.train; }), table.end());
+    if (opt.count("bf16-only"))
+      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.bf16; }), table.end());
     for (Row& row : table) {
+      set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);
       const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
       Tensor y, dy;
       if (row.train) {
@@ -212,16 +231,22 @@ int main(int argc, char** argv) {
       }
       std::cerr << "bench: ours " << row.name << " " << row.ours.median << " s\n";
     }
+    set_inference_precision(InferencePrecision::fp32);
 
     // --- PyTorch, same run ----------------------------------------------------------------
     nlohmann::json peer;
     const bool with_torch = !opt.count("no-torch");
     if (with_torch) {
       peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
-                       reps, warmup, lambda, torch_settings);
-      for (Row& row : table)
-        row.torch = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>(),
-                     peer.at(row.name + "_cpu").get<double>()};
+                       reps, warmup, lambda, torch_settings, bf16);
+      for (Row& row : table) {
+        const std::string peer_row = row.bf16 ? row.name.substr(0, row.name.size() - 5) : row.name;  // fp32 peer
+        row.torch = {peer.at(peer_row).get<double>(), peer.at(peer_row + "_min").get<double>(),
+                     peer.at(peer_row + "_cpu").get<double>()};
+        if (row.bf16 && peer.contains(row.name) && peer.at(row.name).is_number())
+          row.torch_bf16 = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>(),
+                            peer.at(row.name + "_cpu").get<double>()};
+      }
     }
 
     // --- GEMM peak ------------------------------------------------------------------------
@@ -233,7 +258,7 @@ int main(int argc, char** argv) {
     // --- report ---------------------------------------------------------------------------
     std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", rows,
                 cols, threads, reps, warmup);
-    std::printf("%-10s %10s %10s %12s %12s %13s %12s %10s %10s %10s\n", "row", "ours (s)", "torch (s)", "ours/torch",
+    std::printf("%-13s %10s %10s %12s %12s %13s %12s %10s %10s %10s\n", "row", "ours (s)", "torch (s)", "ours/torch",
                 "ours GFLOP/s", "torch GFLOP/s", "min ratio", "ours CPU", "torch CPU", "CPU ratio");
     nlohmann::json out_rows = nlohmann::json::array();
     for (const Row& row : table) {
@@ -243,18 +268,40 @@ int main(int argc, char** argv) {
       const double min_ratio = with_torch ? row.ours.min / row.torch.min : 0;
       const double cpu_ratio = with_torch ? row.ours.cpu / row.torch.cpu : 0;
       if (with_torch)
-        std::printf("%-10s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f %10.4f %10.4f %10.3f\n", row.name.c_str(),
+        std::printf("%-13s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f %10.4f %10.4f %10.3f\n", row.name.c_str(),
                     row.ours.median, row.torch.median, ratio, flops / row.ours.median * 1e-9,
                     flops / row.torch.median * 1e-9, min_ratio, row.ours.cpu, row.torch.cpu, cpu_ratio);
       else
-        std::printf("%-10s %10.4f %10s %12s %12.1f %13s %12s %10.4f %10s %10s\n", row.name.c_str(), row.ours.median,
+        std::printf("%-13s %10.4f %10s %12s %12.1f %13s %12s %10.4f %10s %10s\n", row.name.c_str(), row.ours.median,
                     "-", "-", flops / row.ours.median * 1e-9, "-", "-", row.ours.cpu, "-", "-");
       out_rows.push_back({{"row", row.name}, {"ours_s", row.ours.median}, {"ours_min_s", row.ours.min},
                           {"torch_s", row.torch.median}, {"torch_min_s", row.torch.min}, {"ratio", ratio},
                           {"min_ratio", min_ratio}, {"ours_cpu_s", row.ours.cpu}, {"torch_cpu_s", row.torch.cpu},
                           {"cpu_ratio", cpu_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
                           {"flops", flops}});
+      if (row.bf16 && row.torch_bf16.median > 0) {
+        out_rows.back()["torch_bf16_s"] = row.torch_bf16.median;
+        out_rows.back()["torch_bf16_cpu_s"] = row.torch_bf16.cpu;
+      }
     }
+    // PyTorch's own bf16 (autocast) beside ours: an extra peer, not the reference.
+    for (const Row& row : table)
+      if (row.bf16 && with_torch) {
+        if (row.torch_bf16.median > 0)
+          std::printf("%s: torch bf16 autocast %.4f s (CPU %.4f s); ours bf16 / torch bf16: %.3f wall, %.3f CPU\n",
+                      row.name.c_str(), row.torch_bf16.median, row.torch_bf16.cpu, row.ours.median / row.torch_bf16.median,
+                      row.ours.cpu / row.torch_bf16.cpu);
+        else
+          std::printf("%s: torch bf16 autocast did not run (see the peer's notes on stderr)\n", row.name.c_str());
+      }
+    for (const Row& row : table)
+      if (row.bf16 && !row.train) {
+        const std::string fp32 = row.name.substr(0, row.name.size() - 5);
+        for (const Row& r32 : table)
+          if (r32.name == fp32)
+            std::printf("%s: ours bf16 / ours fp32: %.3f wall, %.3f CPU\n", row.name.c_str(),
+                        row.ours.median / r32.ours.median, row.ours.cpu / r32.ours.cpu);
+      }
     if (gemm_n > 0) {
       const double gf = 2.0 * gemm_n * double(gemm_n) * gemm_n / gemm_s * 1e-9;
       std::printf("GEMM %d^3 fp32 (Eigen, %d threads over columns): %.3f s, %.1f GFLOP/s\n", gemm_n, threads, gemm_s,

@@ -21,6 +21,7 @@
 #include "infer/frame_writer.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
+#include "nn/precision.h"
 
 namespace {
 
@@ -52,6 +53,8 @@ int run_predict(int argc, char** argv) {
     ("format", "point cloud format: pcd or ply", cxxopts::value<std::string>()->default_value("pcd"))
     ("max-frames", "at most this many scans (0 = all)", cxxopts::value<int>()->default_value("0"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
+     "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
@@ -74,10 +77,12 @@ int run_predict(int argc, char** argv) {
   if (args["threads"].as<int>() < 1 || args["threads"].as<int>() > 1024)
     throw Error("lidar-infer predict: --threads must be in [1, 1024], got " + std::to_string(args["threads"].as<int>()));
   omp_set_num_threads(args["threads"].as<int>());
+  if (args.count("precision"))
+    nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer predict: --precision"));
   const auto summary = infer::predict_scans(o);
-  std::printf("%zu scans: MAE %.4f RMSE %.4f over %ld cells, %.3f s per scan; outputs in %s (summary.md)\n",
+  std::printf("%zu scans: MAE %.4f RMSE %.4f over %ld cells, %.3f s per scan (%s); outputs in %s (summary.md)\n",
               summary.scans.size(), summary.mae, summary.rmse, summary.cells, summary.seconds_per_scan,
-              o.out.c_str());
+              nn::to_string(nn::effective_inference_precision()), o.out.c_str());
   return 0;
 }
 
@@ -105,6 +110,8 @@ int run_sim(int argc, char** argv) {
     ("frames", "at most this many frames (0 = the whole scenario)", cxxopts::value<int>()->default_value("0"))
     ("format", "point cloud format: pcd or ply", cxxopts::value<std::string>()->default_value("pcd"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
+     "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
     ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("no-outputs", "only time the pipeline: write nothing but the summary")
     ("every", "write the outputs of every N-th frame only (the UNet then runs on those frames only)", cxxopts::value<int>()->default_value("1"))
@@ -137,6 +144,8 @@ int run_sim(int argc, char** argv) {
   if (args["frames"].as<int>() < 0)
     throw Error("lidar-infer sim: --frames must be >= 0 (0: the whole scenario), got " + std::to_string(args["frames"].as<int>()));
   omp_set_num_threads(threads);
+  if (args.count("precision"))
+    nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer sim: --precision"));
   infer::SimOptions sim_options;
   sim_options.seed = args["seed"].as<std::uint64_t>();
   if (args.count("sensor")) sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());

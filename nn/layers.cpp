@@ -19,6 +19,8 @@
 
 #include "common/error.h"
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_bf16.h"
+#include "nn/precision.h"
 
 namespace lidarsim::nn {
 
@@ -157,6 +159,11 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
     throw Error("conv2d_forward: kernel: k " + std::to_string(k) + ", pad " + std::to_string(pad) +
                 " does not fit input " + s.str());
   ensure(out, Shape{s.n, co, ho, wo});
+  // UNet::predict in bf16 (nn/precision.h): the bf16 kernel, where it is the faster choice.
+  if (k == 3 && pad == 1 && detail::bf16_convs_active() && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w)) {
+    detail::conv3x3_bf16_forward_cat(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu);
+    return;
+  }
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
     detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu);
     return;
@@ -273,6 +280,12 @@ void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const flo
                         bool relu) {
   check_cat(a, b, "conv2d_cat_forward");
   const Shape sa = a.shape();
+  if (detail::bf16_convs_active() && detail::conv3x3_takes_bf16(sa.n, sa.c + b.shape().c, co, sa.h, sa.w)) {
+    ensure(out, Shape{sa.n, co, sa.h, sa.w});
+    detail::conv3x3_bf16_forward_cat(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias,
+                                     co, relu);
+    return;
+  }
   if (!detail::conv3x3_available()) {
     concat_forward(g_cat, a, b);
     conv2d_forward(out, g_cat, weight, bias, co, 3, 1, relu);

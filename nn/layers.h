@@ -8,7 +8,8 @@
 // buffers (no allocation in steady state), so one process runs one op at a time: do not call
 // them from several threads at once (parallelism lives inside each op).
 // 3x3/padding-1 convolutions take a direct AVX-512 kernel (nn/conv3x3.h) when compiled for it;
-// everything else goes through im2col + Eigen GEMM.
+// everything else goes through im2col + Eigen GEMM. While UNet::predict runs in bf16
+// (nn/precision.h), their forward passes take the bf16 kernel (nn/conv3x3_bf16.h).
 #include <cstdint>
 #include <vector>
 

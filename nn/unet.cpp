@@ -11,6 +11,7 @@
 
 #include "common/error.h"
 #include "nn/layers.h"
+#include "nn/precision.h"
 
 namespace lidarsim::nn {
 
@@ -270,7 +271,9 @@ void UNet::forward(const Tensor& x, Tensor& y) {
 }
 
 void UNet::predict(const Tensor& x, Tensor& y) {
-  // The graph keeps every activation anyway (they are reused buffers), so inference is forward().
+  // The graph keeps every activation anyway (they are reused buffers), so inference is forward(),
+  // with the 3x3 convolutions in bf16 when that precision is on (nn/precision.h).
+  const detail::Bf16ConvScope scope(effective_inference_precision() == InferencePrecision::bf16);
   forward(x, y);
 }
 

@@ -61,7 +61,8 @@ class UNet {
 
   // x: [N, in_channels, H, W] -> y: [N, out_channels, H, W]. Keeps activations for backward().
   void forward(const Tensor& x, Tensor& y);
-  // Inference only: same result as forward(), without keeping what backward() needs.
+  // Inference only: same result as forward(), without keeping what backward() needs; with bf16
+  // inference on (nn/precision.h) the 3x3 convolutions run in bf16 with fp32 sums instead.
   void predict(const Tensor& x, Tensor& y);
   // dy: [N, out_channels, H, W] of the last forward(); accumulates (+=) into params().grads().
   void backward(const Tensor& dy);

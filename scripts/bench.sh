@@ -87,7 +87,9 @@ us = [json.load(open(os.path.join(out, f"round{i}", "unet_vs_torch.json"))) for 
 ps = [json.load(open(os.path.join(out, f"round{i}", "pipeline.json"))) for i in range(1, rounds + 1)]
 med = statistics.median
 names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch 4",
-         "infer_b1": "inference, batch 1", "infer_b4": "inference, batch 4"}
+         "infer_b1": "inference, batch 1", "infer_b4": "inference, batch 4",
+         "infer_b1_bf16": "inference in bf16 (peer: its fp32), batch 1",
+         "infer_b4_bf16": "inference in bf16 (peer: its fp32), batch 4"}
 u = us[0]
 torch = u.get("torch") or {}
 lines = []
