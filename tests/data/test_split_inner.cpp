@@ -46,9 +46,9 @@ TEST(InnerSplit, NeverTouchesTheScoredRegionsAndNoInputColumnIsShared) {
   for (const int cols : {256, 1024, 2048})
     for (const int half : {2, 9, 23, 51})
       for (const int width : {8, 32}) {
-        const auto scored = data::guarded_split(half, cols);
-        data::SectorSplit inner;
+        data::SectorSplit scored, inner;
         try {
+          scored = data::guarded_split(half, cols);
           inner = data::inner_split(scored, half, cols, width);
         } catch (const Error&) {
           continue;  // does not fit (checked below for the layouts that must)

@@ -32,7 +32,7 @@ TEST(LookupBaseLoop, UntrainedModelEqualsTheLoopsClassRangePerBeamTable) {
   lo.base_model = "lookup";
   const nlohmann::json j = qualify::loop_intensity(ds, lo);
   ASSERT_EQ(j["ranking"][0]["feature"], "beam_row") << j["ranking"].dump();
-  const double loop_mae = j["candidates"]["per-beam table: additive correction"].get<double>();
+  const double loop_mae = j["candidates_held_out_mae"]["per-beam table: additive correction"].get<double>();
   const data::SectorSplit split = qualify::intensity_split(ds, "guarded", 3);
   const qualify::IntensityCells c = qualify::intensity_cells(ds, split);
   const std::vector<double> table = qualify::lookup_beam_prediction(c, ds.rows());
