@@ -158,9 +158,24 @@ SectorSplit inner_split(const SectorSplit& scored, int half_width, int columns, 
   return inner;
 }
 
+SectorSplit inner_frames_split(const SectorSplit& scored, const std::vector<std::string>& ids) {
+  if (scored.validation_frames.empty()) throw Error("inner split: inner frames need a frame hold-out (--split frames:...)");
+  if (ids.empty()) throw Error("inner split: no inner frames given");
+  for (const auto& id : ids)
+    for (const auto& held : scored.validation_frames)
+      if (id.empty() || (id.size() >= held.size() ? id.compare(id.size() - held.size(), held.size(), held) == 0
+                                                 : held.compare(held.size() - id.size(), id.size(), id) == 0))
+        throw Error("inner split: inner frame \"" + id + "\" is (or names) the scored frame \"" + held + "\"");
+  SectorSplit inner;
+  inner.name = "inner frames";
+  inner.validation_frames = ids;
+  return inner;
+}
+
 SectorSplit with_inner(const SectorSplit& scored, const SectorSplit& inner) {
   SectorSplit s = scored;
   s.name = scored.name + " + inner";
+  s.validation_frames.insert(s.validation_frames.end(), inner.validation_frames.begin(), inner.validation_frames.end());
   s.regions.insert(s.regions.end(), inner.regions.begin(), inner.regions.end());
   s.guard_columns = std::max(scored.guard_columns, inner.guard_columns);
   return s;

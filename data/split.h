@@ -78,6 +78,10 @@ SectorSplit parse_split(const std::string& spec, int half_width, int columns = 1
 // split has guarded regions and at least `width` training columns remain in that arc.
 // Returned split: regions = the inner region, guard_columns = 2 h.
 SectorSplit inner_split(const SectorSplit& scored, int half_width, int columns = 1024, int width = 32);
+// The same for a frame hold-out (frames from different places, "frames:ID,..."): the inner set is
+// whole training frames `ids` (other places than the scored ones; no guard needed, nothing is
+// shared between frames). Throws unless `scored` holds out frames and no id names a scored frame.
+SectorSplit inner_frames_split(const SectorSplit& scored, const std::vector<std::string>& ids);
 // The split the network trains under with an inner region: the scored regions and the inner
 // region are all held out, each with its guard bands.
 SectorSplit with_inner(const SectorSplit& scored, const SectorSplit& inner);

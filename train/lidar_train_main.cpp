@@ -74,6 +74,8 @@ int main(int argc, char** argv) {
     ("early-stop", "choose the epoch on an inner region carved out of the training columns (with its own guard band; never the scored regions), "
      "keep that epoch's weights, score the validation regions once")
     ("inner-columns", "with --early-stop: width of the inner region in columns", cxxopts::value<int>()->default_value("32"))
+    ("inner-frames", "with --early-stop and --split frames:...: the inner set, training frames held out whole (comma-separated ids)",
+     cxxopts::value<std::string>())
     ("patience", "with --early-stop: stop after this many epochs without a new inner best (0: run every epoch)",
      cxxopts::value<int>()->default_value("0"))
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
@@ -117,8 +119,9 @@ int main(int argc, char** argv) {
     config.early_stop = args.count("early-stop") > 0;
     config.inner_columns = args["inner-columns"].as<int>();
     config.patience = args["patience"].as<int>();
-    if (!config.early_stop && (args.count("inner-columns") || args.count("patience")))
-      throw lidarsim::Error("lidar-train: --inner-columns and --patience need --early-stop");
+    if (args.count("inner-frames")) config.inner_frames = split_list(args["inner-frames"].as<std::string>());
+    if (!config.early_stop && (args.count("inner-columns") || args.count("patience") || args.count("inner-frames")))
+      throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
     config.seed = args["seed"].as<std::uint64_t>();
     config.threads = args["threads"].as<int>();
     config.augment_roll = config.augment_mirror = !args.count("no-augment");

@@ -82,6 +82,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   if (c.lookup_base) j["lookup_base"] = true;
   if (c.lookup_base && c.lookup_form != "groups") j["lookup_form"] = c.lookup_form;
   if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};
+  if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -296,6 +297,10 @@ TrainResult train_frames(const TrainConfig& requested, const std::vector<const d
 
 namespace {
 
+int split_sets_of(const std::vector<const data::FrameSource*>& sets, const TrainConfig& c) {
+  return static_cast<int>(sets.size() - std::min(sets.size(), c.train_also.size()));
+}
+
 TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
                            const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
                            bool& set_up) {
@@ -335,19 +340,39 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   if (config.early_stop) {
     if (!sector_split)
       throw Error("lidar-train: --early-stop: needs the split of --data (not --val): the inner region is carved out of its training columns");
-    if (split.regions.empty() || !split.validation_frames.empty())
-      throw Error("lidar-train: --early-stop: needs a guarded region split (--split guarded), got --split " + config.split);
-    inner = data::inner_split(split, half_width, cols, config.inner_columns);
-    train_split = data::with_inner(split, *inner);
-    const auto roles = train_split.roles(cols);
-    const long b = std::lround(inner->regions[0].first * cols), e = std::lround(inner->regions[0].second * cols);
-    char text[400];
-    std::snprintf(text, sizeof text,
-                  "inner region [%ld, %ld) (%d columns, every scan) chooses the epoch; guard bands [%ld, %ld) (the scored "
-                  "region's) and [%ld, %ld) (its own), each %d columns; %ld training columns left of %d",
-                  b, e, config.inner_columns, (b - inner->guard_columns + cols) % cols, b, e, (e + inner->guard_columns) % cols,
-                  inner->guard_columns, static_cast<long>(std::count(roles.begin(), roles.end(), data::kTrain)), cols);
-    inner_text = text;
+    if (!split.validation_frames.empty()) {
+      if (config.inner_frames.empty())
+        throw Error("lidar-train: --early-stop with --split frames:...: needs --inner-frames ID,... (training frames of other places)");
+      inner = data::inner_frames_split(split, config.inner_frames);
+      train_split = data::with_inner(split, *inner);
+      long inner_n = 0, train_n = 0;
+      for (int k = 0; k < split_sets_of(train_sets, config); ++k)
+        for (const auto& id : train_sets[static_cast<std::size_t>(k)]->header().frames) {
+          if (split.roles(1, id)[0] != data::kTrain) continue;
+          (inner->roles(1, id)[0] == data::kValidation ? inner_n : train_n) += 1;
+        }
+      if (inner_n == 0 || train_n == 0)
+        throw Error("lidar-train: --inner-frames: " + std::to_string(inner_n) + " inner and " + std::to_string(train_n) +
+                    " training frames match; both must be at least 1");
+      std::string ids;
+      for (const auto& id : config.inner_frames) ids += (ids.empty() ? "" : ", ") + id;
+      inner_text = "inner frames " + ids + " (" + std::to_string(inner_n) + " frames, held out whole) choose the epoch; " +
+                   std::to_string(train_n) + " training frames left";
+    } else {
+      if (split.regions.empty())
+        throw Error("lidar-train: --early-stop: needs a guarded region split (--split guarded) or frames:..., got --split " + config.split);
+      inner = data::inner_split(split, half_width, cols, config.inner_columns);
+      train_split = data::with_inner(split, *inner);
+      const auto roles = train_split.roles(cols);
+      const long b = std::lround(inner->regions[0].first * cols), e = std::lround(inner->regions[0].second * cols);
+      char text[400];
+      std::snprintf(text, sizeof text,
+                    "inner region [%ld, %ld) (%d columns, every scan) chooses the epoch; guard bands [%ld, %ld) (the scored "
+                    "region's) and [%ld, %ld) (its own), each %d columns; %ld training columns left of %d",
+                    b, e, config.inner_columns, (b - inner->guard_columns + cols) % cols, b, e, (e + inner->guard_columns) % cols,
+                    inner->guard_columns, static_cast<long>(std::count(roles.begin(), roles.end(), data::kTrain)), cols);
+      inner_text = text;
+    }
     if (config.progress && dist.root()) std::fprintf(stderr, "lidar-train: early stopping: %s\n", inner_text.c_str());
     if (config.resume && !config.out.empty() && std::filesystem::exists(config.out))
       throw Error("lidar-train: --early-stop with --resume: not supported (the inner losses of the epochs before are not in the checkpoint)");

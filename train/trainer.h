@@ -62,6 +62,9 @@ struct TrainConfig {
   // so that the untrained model is the same table as without early stopping.
   bool early_stop = false;
   int inner_columns = 32;
+  // With a frame hold-out (split "frames:..."): the inner set is these training frames, held out
+  // whole (other places; data/split.h inner_frames_split).
+  std::vector<std::string> inner_frames;
   int patience = 0;  // stop after this many epochs without a new inner best (0: run every epoch)
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))

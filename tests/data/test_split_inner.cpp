@@ -91,3 +91,18 @@ TEST(InnerSplit, RefusesSplitsWithoutGuardedRegionsAndRegionsThatDoNotFit) {
   EXPECT_THROW(data::inner_split(data::guarded_split(51, 1024), 51, 1024, 64), Error);
   EXPECT_THROW(data::inner_split(data::guarded_split(51, 1024), 51, 1024, 0), Error);
 }
+
+TEST(InnerSplit, FrameHoldOutTakesWholeTrainingFramesOfOtherPlaces) {
+  const auto scored = data::parse_split("frames:000000,000003", 51);
+  const auto inner = data::inner_frames_split(scored, {"000001"});
+  const auto training = data::with_inner(scored, inner);
+  EXPECT_EQ(inner.roles(4, "kitti/000001")[2], data::kValidation);
+  EXPECT_EQ(inner.roles(4, "kitti/000003")[2], data::kTrain);  // scored frames are not inner
+  EXPECT_EQ(training.roles(4, "kitti/000001")[0], data::kValidation);
+  EXPECT_EQ(training.roles(4, "kitti/000003")[0], data::kValidation);
+  EXPECT_EQ(training.roles(4, "kitti/000002")[0], data::kTrain);
+  EXPECT_THROW(data::inner_frames_split(scored, {"000003"}), Error);     // a scored frame
+  EXPECT_THROW(data::inner_frames_split(scored, {"kitti/000000"}), Error);  // names one too
+  EXPECT_THROW(data::inner_frames_split(scored, {}), Error);
+  EXPECT_THROW(data::inner_frames_split(data::guarded_split(51, 1024), {"000001"}), Error);
+}

@@ -154,6 +154,30 @@ TEST(EarlyStop, PatienceEndsTheRunAndSeparateValidationIsRefused) {
   EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
 }
 
+TEST(EarlyStop, FrameHoldOutChoosesOnWholeInnerFramesThatDoNotTrain) {
+  train::TrainConfig c = config();
+  c.split = "frames:synthetic/0";
+  c.inner_frames = {"synthetic/1"};
+  const data::Dataset d = synthetic();
+  const train::TrainResult r = train::train_on(c, {&d}, {"synthetic"});
+  ASSERT_GT(r.chosen_epoch, 0);
+  int argmin = 0;
+  for (std::size_t k = 0; k < r.epochs.size(); ++k)
+    if (r.epochs[k].inner->mae < r.epochs[static_cast<std::size_t>(argmin)].inner->mae) argmin = static_cast<int>(k);
+  EXPECT_EQ(r.chosen_epoch, argmin + 1);
+  long frame0 = 0;  // the scored frame: every cell with a return
+  for (int k = 0; k < kRows * kCols; ++k) frame0 += d.mask.channel(0, 0)[k] > 0;
+  EXPECT_EQ(r.chosen_validation->cells, frame0);
+  data::Dataset changed = d;  // the inner frame's targets do not train
+  for (int k = 0; k < kRows * kCols; ++k) changed.target.channel(1, 0)[k] = 5.f;
+  const train::TrainResult t = train::train_on(c, {&changed}, {"synthetic"});
+  for (std::size_t k = 0; k < r.epochs.size(); ++k) EXPECT_EQ(t.epochs[k].train_loss, r.epochs[k].train_loss) << k;
+  c.inner_frames.clear();
+  EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
+  c.inner_frames = {"synthetic/0"};  // the scored frame
+  EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
+}
+
 TEST(LookupBaseClasses, KeysTheTableByEveryClass) {
   train::TrainConfig c = config();
   c.early_stop = false;
