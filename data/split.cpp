@@ -129,6 +129,58 @@ SectorSplit guarded_split(int half_width, int columns) {
   return s;
 }
 
+SectorSplit inner_split(const SectorSplit& scored, int half_width, int columns, int width) {
+  if (scored.regions.empty() || !scored.validation_frames.empty() || scored.guard_columns < 2 * half_width)
+    throw Error("inner split: needs a guarded region split (guard bands of at least twice the half-width), got " +
+                scored.describe(columns));
+  if (width < 1) throw Error("inner split: width must be at least 1 column, got " + std::to_string(width));
+  const auto roles = scored.roles(columns);
+  // The longest run of training columns (circular), found from a column that is not training.
+  int start = -1;
+  for (int c = 0; c < columns; ++c)
+    if (roles[c] != kTrain) start = c;
+  if (start < 0) throw Error("inner split: the split holds nothing out");
+  int best_begin = 0, best_len = 0;
+  for (int k = 1, run = 0; k <= columns; ++k) {
+    const int c = wrap(start + k, columns);
+    run = roles[c] == kTrain ? run + 1 : 0;
+    if (run > best_len) best_len = run, best_begin = wrap(c - run + 1, columns);
+  }
+  const int band = 2 * half_width;
+  if (width + band + width > best_len)
+    throw Error("inner split: an inner region of " + std::to_string(width) + " columns and its guard band of " +
+                std::to_string(band) + " leave fewer than " + std::to_string(width) +
+                " training columns in the longest training arc (" + std::to_string(best_len) + " columns)");
+  SectorSplit inner;
+  inner.name = "inner";
+  inner.guard_columns = band;
+  inner.regions = {{static_cast<double>(best_begin) / columns, static_cast<double>(best_begin + width) / columns}};
+  return inner;
+}
+
+SectorSplit inner_frames_split(const SectorSplit& scored, const std::vector<std::string>& ids) {
+  if (scored.validation_frames.empty()) throw Error("inner split: inner frames need a frame hold-out (--split frames:...)");
+  if (ids.empty()) throw Error("inner split: no inner frames given");
+  for (const auto& id : ids)
+    for (const auto& held : scored.validation_frames)
+      if (id.empty() || (id.size() >= held.size() ? id.compare(id.size() - held.size(), held.size(), held) == 0
+                                                 : held.compare(held.size() - id.size(), id.size(), id) == 0))
+        throw Error("inner split: inner frame \"" + id + "\" is (or names) the scored frame \"" + held + "\"");
+  SectorSplit inner;
+  inner.name = "inner frames";
+  inner.validation_frames = ids;
+  return inner;
+}
+
+SectorSplit with_inner(const SectorSplit& scored, const SectorSplit& inner) {
+  SectorSplit s = scored;
+  s.name = scored.name + " + inner";
+  s.validation_frames.insert(s.validation_frames.end(), inner.validation_frames.begin(), inner.validation_frames.end());
+  s.regions.insert(s.regions.end(), inner.regions.begin(), inner.regions.end());
+  s.guard_columns = std::max(scored.guard_columns, inner.guard_columns);
+  return s;
+}
+
 SectorSplit parse_split(const std::string& spec, int half_width, int columns) {
   if (spec == "interleaved") return reference_split();
   if (spec == "guarded") return guarded_split(half_width, columns);

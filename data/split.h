@@ -65,4 +65,25 @@ SectorSplit guarded_split(int half_width, int columns = 1024);
 // "frames:ID,ID". Throws naming the spec.
 SectorSplit parse_split(const std::string& spec, int half_width, int columns = 1024);
 
+// Early stopping that cannot leak (lidar-train --early-stop): an inner validation region of
+// `width` columns carved out of the training columns of a region split, on which the epoch is
+// chosen; the scored regions are never looked at. No input column may be seen by two of {training
+// cell, inner cell, scored cell}, so any two of them are more than 2 h columns apart. The guarded
+// split's training arcs are too short for an inner region with its own 2 h band on both sides
+// (depth 3: two arcs of 180 columns, 2 h = 102), so the inner region starts right after the end of
+// a scored region's guard band (the first columns of the longest training arc): that band, 2 h
+// wide, already separates it from the scored cells, and the inner region's own band of 2 h on the
+// other side separates it from the training cells. Depth 3 at 1024 columns, width 32: inner
+// [294, 326), band [326, 428), training [428, 474) and [806, 986): 226 columns. Throws unless the
+// split has guarded regions and at least `width` training columns remain in that arc.
+// Returned split: regions = the inner region, guard_columns = 2 h.
+SectorSplit inner_split(const SectorSplit& scored, int half_width, int columns = 1024, int width = 32);
+// The same for a frame hold-out (frames from different places, "frames:ID,..."): the inner set is
+// whole training frames `ids` (other places than the scored ones; no guard needed, nothing is
+// shared between frames). Throws unless `scored` holds out frames and no id names a scored frame.
+SectorSplit inner_frames_split(const SectorSplit& scored, const std::vector<std::string>& ids);
+// The split the network trains under with an inner region: the scored regions and the inner
+// region are all held out, each with its guard bands.
+SectorSplit with_inner(const SectorSplit& scored, const SectorSplit& inner);
+
 }  // namespace lidarsim::data

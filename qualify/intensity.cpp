@@ -76,6 +76,8 @@ void check_loop_options(const IntensityLoopOptions& o) {
     throw Error("loop intensity: --base \"" + o.base_model + "\": unknown (expected unet or lookup)");
   if (o.unet.seeds < 1 || o.unet.steps < 1 || o.unet.threads < 1)
     throw Error("loop intensity: --seeds, --steps and --threads must be at least 1");
+  if (o.unet.lookup_base && o.base_model != "unet")
+    throw Error("loop intensity: --lookup-base: only with --base unet (the UNets learn the residual over the lookup)");
   if (o.rounds < 1 || o.rounds > 9) throw Error("loop intensity: --rounds: expected 1..9, got " + std::to_string(o.rounds));
   if (!(o.min_relative_gain >= 0 && o.min_relative_gain < 1))
     throw Error("loop intensity: --min-gain: expected a share in [0, 1), got " + std::to_string(o.min_relative_gain));
@@ -147,6 +149,19 @@ std::vector<double> lookup_prediction(const IntensityCells& c) {
   const std::vector<double> global(c.size(), n ? sum / n : 0);
   const auto by_class = lookup(c, [&](size_t i) { return long(c.cls[i]); }, global);
   return lookup(c, [&](size_t i) { return long(c.cls[i]) * 1000 + data::range_bin(c.feature[0][i]); }, by_class);
+}
+
+std::vector<double> lookup_beam_prediction(const IntensityCells& c, int rows) {
+  const std::vector<double> base = lookup_prediction(c);
+  std::vector<double> x, r;
+  for (size_t i = 0; i < c.size(); ++i)
+    if (!c.held_out[i]) x.push_back(c.row[i]), r.push_back(c.measured[i] - base[i]);
+  const Winsor w = winsor_limits(r);
+  for (double& v : r) v = w(v);
+  const BinnedTable beam = fit_table(category_edges(rows), x, r);
+  std::vector<double> out(c.size());
+  for (size_t i = 0; i < c.size(); ++i) out[i] = base[i] + beam(c.row[i]);
+  return out;
 }
 
 nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir, const fs::path& out_dir) {
@@ -318,6 +333,8 @@ UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::
     t.encoder = encoder;
     t.base = o.unet.base, t.depth = o.unet.depth;
     t.row_affine = row_affine;
+    t.lookup_base = o.unet.lookup_base;
+    t.lookup_form = "classes";
     t.epochs = 1, t.steps_per_epoch = o.unet.steps;
     t.batch = o.unet.batch, t.crop_columns = o.unet.crop_columns;
     t.lr = o.unet.lr, t.lambda = o.unet.lambda;
@@ -330,7 +347,9 @@ UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::
       std::fprintf(stderr, "loop intensity: UNet %d/%d (%s, seed %d, %d steps)\n", ++done, total, label.c_str(), k + 1,
                    o.unet.steps);
     train::TrainResult r = train::train_on(t, {&ds}, {"scans"});
-    const nn::Tensor pred = train::predict_dataset(*r.model, encoder, ds);
+    // The encoder the model was trained with (a lookup base keys its class input by every class).
+    const nn::Tensor pred = train::predict_dataset(
+        *r.model, pgm::EncoderConfig::from_json(r.meta.attributes.at("encoder"), "loop UNet encoder"), ds);
     std::vector<double> p(c.size());
     for (size_t i = 0; i < c.size(); ++i) p[i] = pred.image(c.frame[i])[c.cell[i] % cells];
     for (size_t i = 0; i < c.size(); ++i) fits.ensemble[i] += p[i] / o.unet.seeds;
@@ -548,7 +567,8 @@ nlohmann::json loop_round(const data::Dataset& ds, const IntensityLoopOptions& o
   j["base_model"] = unet ? "UNet (base " + std::to_string(options.unet.base) + ", depth " +
                                std::to_string(options.unet.depth) + ") on range, class, material, trained " +
                                std::to_string(options.unet.steps) + " steps on the fit sectors; mean of " +
-                               std::to_string(options.unet.seeds) + " seeds"
+                               std::to_string(options.unet.seeds) + " seeds" +
+                               (options.unet.lookup_base ? "; learning the residual over the class x 5 m range + per-beam lookup" : "")
                          : "class x 5 m range-bin lookup fitted on the fit sectors";
   j["before"] = before.mae;
   j["after"] = aft.mae;

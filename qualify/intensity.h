@@ -63,6 +63,11 @@ data::SectorSplit intensity_split(const data::Dataset& ds, const std::string& sp
 
 // Class x 5 m range-bin lookup fitted on the fit cells (fallback: class mean, global mean).
 std::vector<double> lookup_prediction(const IntensityCells& c);
+// That lookup plus the per-beam offset table the lookup loop adds (its best lookup on the guarded
+// split, "per-beam table: additive correction"): residuals over the lookup on the fit cells,
+// winsorised at their 1st/99th percentile, sum / (n + 5) per beam row of `rows`. The untrained
+// `lidar-train --lookup-base=classes` model predicts the same (train/lookup_fit.h).
+std::vector<double> lookup_beam_prediction(const IntensityCells& c, int rows);
 
 // `lidar-qualify intensity`: the checkpoint's prediction vs measured intensity on the held-out
 // cells: MAE, RMSE, histogram intersection (+ bootstrap interval, ceiling between validation
@@ -79,6 +84,9 @@ struct LoopTraining {
   float lr = 2e-3f, lambda = 1e-6f;
   int seeds = 2;  // seeds 1..n; the prediction is their mean, the same seeds before and after
   int threads = 2;
+  // The UNets learn the residual over the loop's best lookup (class x 5 m range + per-beam
+  // offsets; lidar-train --lookup-base=classes), starting from it.
+  bool lookup_base = false;
 };
 
 struct IntensityLoopOptions {

@@ -105,6 +105,7 @@ int run(int argc, char** argv) {
     ("nested", "objects: also score the loop's model nested (the loop run on each outer fold's fit sequences only)")
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
+    ("lookup-base", "loop intensity --base unet: the UNets learn the residual over the class x 5 m range + per-beam lookup (lidar-train --lookup-base=classes)")
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
     ("threads", "loop intensity: OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (old, leaks) | guarded:<half-width> | frames:<id>,... (whole frames held out)", cxxopts::value<std::string>()->default_value("guarded"))
@@ -166,6 +167,7 @@ int run(int argc, char** argv) {
       io.unet.steps = a["steps"].as<int>();
       io.unet.seeds = a["seeds"].as<int>();
       io.unet.threads = a["threads"].as<int>();
+      io.unet.lookup_base = a.count("lookup-base") > 0;
       io.split = a["split"].as<std::string>();
       io.progress = !a.count("quiet");
       if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();

@@ -68,7 +68,16 @@ int main(int argc, char** argv) {
     ("base", "UNet base width", cxxopts::value<int>()->default_value("16"))
     ("depth", "UNet depth (number of poolings)", cxxopts::value<int>()->default_value("4"))
     ("row-affine", "learn a gain and an offset per PGM row (per laser) on the output, pulled toward 1 and 0 by the L2 term")
-    ("lookup-base", "learn the residual over a class x range + per-beam lookup table fitted on the training cells (input channel + added to the output)")
+    ("lookup-base", "learn the residual over a class x range + per-beam lookup table fitted on the training cells (input channel + added to the output); "
+     "=groups (default): the class groups of the input encoding; =classes: every class, per-beam offsets as the intensity loop fits them (its best lookup)",
+     cxxopts::value<std::string>()->implicit_value("groups"))
+    ("early-stop", "choose the epoch on an inner region carved out of the training columns (with its own guard band; never the scored regions), "
+     "keep that epoch's weights, score the validation regions once")
+    ("inner-columns", "with --early-stop: width of the inner region in columns", cxxopts::value<int>()->default_value("32"))
+    ("inner-frames", "with --early-stop and --split frames:...: the inner set, training frames held out whole (comma-separated ids)",
+     cxxopts::value<std::string>())
+    ("patience", "with --early-stop: stop after this many epochs without a new inner best (0: run every epoch)",
+     cxxopts::value<int>()->default_value("0"))
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-augment", "no azimuth roll or mirror")
@@ -106,6 +115,13 @@ int main(int argc, char** argv) {
     config.depth = args["depth"].as<int>();
     config.row_affine = args.count("row-affine") > 0;
     config.lookup_base = args.count("lookup-base") > 0;
+    if (config.lookup_base) config.lookup_form = args["lookup-base"].as<std::string>();
+    config.early_stop = args.count("early-stop") > 0;
+    config.inner_columns = args["inner-columns"].as<int>();
+    config.patience = args["patience"].as<int>();
+    if (args.count("inner-frames")) config.inner_frames = split_list(args["inner-frames"].as<std::string>());
+    if (!config.early_stop && (args.count("inner-columns") || args.count("patience") || args.count("inner-frames")))
+      throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
     config.seed = args["seed"].as<std::uint64_t>();
     config.threads = args["threads"].as<int>();
     config.augment_roll = config.augment_mirror = !args.count("no-augment");
@@ -136,16 +152,19 @@ int main(int argc, char** argv) {
     }
     dist.agree(lock_error);
 
-    std::string csv = "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
+    // With --early-stop the epochs are measured on the inner region only (the scored regions once, at the end).
+    std::string csv = config.early_stop ? "epoch,step,train_loss,inner_mae,inner_rmse,inner_cells\n"
+                                        : "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
     std::signal(SIGINT, on_sigint);
     if (dist.active()) std::signal(SIGUSR1, on_sigint);  // mpirun forwards SIGUSR1, not SIGINT, to the ranks
     const auto result = train::train(config, [&](const train::EpochReport& r) {
-      std::fprintf(stderr, "epoch %d/%d  loss %.5f  val MAE %.4f  RMSE %.4f  (%ld cells)  -> %s  [%.1f frames/s, validation %.1f s]\n",
-                   r.epoch, config.epochs, r.train_loss, r.validation.mae, r.validation.rmse, r.validation.cells,
+      const lidarsim::data::Metrics& m = r.inner ? *r.inner : r.validation;
+      std::fprintf(stderr, "epoch %d/%d  loss %.5f  %s MAE %.4f  RMSE %.4f  (%ld cells)  -> %s  [%.1f frames/s, validation %.1f s]\n",
+                   r.epoch, config.epochs, r.train_loss, r.inner ? "inner" : "val", m.mae, m.rmse, m.cells,
                    config.out.c_str(), r.samples / std::max(1e-9, r.train_seconds), r.validation_seconds);
       char line[160];
       std::snprintf(line, sizeof line, "%d,%lld,%.6f,%.6f,%.6f,%ld\n", r.epoch, static_cast<long long>(r.step),
-                    r.train_loss, r.validation.mae, r.validation.rmse, r.validation.cells);
+                    r.train_loss, m.mae, m.rmse, m.cells);
       csv += line;
       if (args.count("log")) write_file_atomically(args["log"].as<std::string>(), csv);
     });
@@ -155,7 +174,15 @@ int main(int argc, char** argv) {
                    static_cast<long long>(result.steps), config.out.c_str());
       return 130;
     }
-    if (!result.epochs.empty()) {
+    if (result.chosen_validation) {
+      const auto& chosen = result.epochs[static_cast<std::size_t>(result.chosen_epoch - 1)];
+      std::printf("early stopping: %s; chosen epoch %d of %zu run (inner MAE %.4f); its weights kept\n"
+                  "final: val MAE %.4f RMSE %.4f over %ld cells (chosen epoch %d, scored once); checkpoint %s; "
+                  "receptive field half-width %d columns; split %s\n",
+                  result.inner_region.c_str(), result.chosen_epoch, result.epochs.size(), chosen.inner->mae,
+                  result.chosen_validation->mae, result.chosen_validation->rmse, result.chosen_validation->cells,
+                  result.chosen_epoch, config.out.c_str(), half_width, config.split.c_str());
+    } else if (!result.epochs.empty()) {
       const auto& last = result.epochs.back();
       std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s; receptive field half-width %d columns; "
                   "split %s\n",

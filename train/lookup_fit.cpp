@@ -5,6 +5,7 @@
 
 #include "common/error.h"
 #include "data/baselines.h"
+#include "pgm/materials.h"
 
 namespace lidarsim::train {
 
@@ -24,7 +25,14 @@ nn::LookupBaseConfig lookup_base_config(const pgm::EncoderConfig& encoder, int r
   return c;
 }
 
-LookupFit fit_lookup_base(const nn::LookupBaseConfig& config, const TrainingFrames& frames, int cols) {
+std::vector<pgm::ClassGroup> one_group_per_class() {
+  std::vector<pgm::ClassGroup> groups;
+  for (int id = 0; id < pgm::cls::count; ++id) groups.push_back({pgm::class_name(id), {id}});
+  return groups;
+}
+
+LookupFit fit_lookup_base(const nn::LookupBaseConfig& config, const TrainingFrames& frames, int cols,
+                          BeamFit beam_fit) {
   const int keys_n = (config.classes + 1) * config.range_bins;
   std::vector<double> sum(static_cast<std::size_t>(keys_n)), group_sum(static_cast<std::size_t>(config.classes + 1));
   std::vector<long> count(sum.size()), group_count(group_sum.size());
@@ -63,11 +71,32 @@ LookupFit fit_lookup_base(const nn::LookupBaseConfig& config, const TrainingFram
     const double fallback = group_count[g] ? group_sum[g] / group_count[g] : global;
     fit.table[k] = static_cast<float>(count[k] ? sum[k] / count[k] : fallback);
   }
+  // Residuals over the table; for the loop's form in double, as the loop computes them from its
+  // double means (the mean form keeps its earlier float table, bit for bit).
+  auto table_mean = [&](int k) -> double {
+    if (beam_fit == BeamFit::mean) return fit.table[k];
+    const int g = k / config.range_bins;
+    return count[k] ? sum[k] / count[k] : group_count[g] ? group_sum[g] / group_count[g] : global;
+  };
+  std::vector<double> resid(kept.size());
+  for (std::size_t i = 0; i < kept.size(); ++i) resid[i] = kept[i].y - table_mean(kept[i].key);
+  double lo = -1e300, hi = 1e300, shrink = 0;
+  if (beam_fit == BeamFit::loop) {
+    // qualify/residual.h winsor_limits (q = 0.01) and fit_table's shrinkage (5).
+    shrink = 5;
+    if (resid.size() >= 10) {
+      std::vector<double> sorted = resid;
+      std::sort(sorted.begin(), sorted.end());
+      lo = sorted[static_cast<std::size_t>(0.01 * (sorted.size() - 1))];
+      hi = sorted[static_cast<std::size_t>(0.99 * (sorted.size() - 1))];
+    }
+  }
   std::vector<double> row_sum(static_cast<std::size_t>(config.rows));
   std::vector<long> row_count(row_sum.size());
-  for (const Cell& c : kept) row_sum[c.row] += c.y - fit.table[c.key], ++row_count[c.row];
+  for (std::size_t i = 0; i < kept.size(); ++i) row_sum[kept[i].row] += std::clamp(resid[i], lo, hi), ++row_count[kept[i].row];
   fit.beam.resize(row_sum.size());
-  for (int r = 0; r < config.rows; ++r) fit.beam[r] = row_count[r] ? static_cast<float>(row_sum[r] / row_count[r]) : 0.f;
+  for (int r = 0; r < config.rows; ++r)
+    fit.beam[r] = row_count[r] ? static_cast<float>(row_sum[r] / (row_count[r] + shrink)) : 0.f;
   return fit;
 }
 

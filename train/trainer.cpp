@@ -18,6 +18,7 @@
 #include "nn/optim.h"
 #include "nn/receptive_field.h"
 #include "train/distributed.h"
+#include "train/early_stop.h"
 #include "train/frame_batches.h"
 #include "train/lookup_fit.h"
 #include "train/prefetcher.h"
@@ -79,6 +80,9 @@ nlohmann::json run_settings(const TrainConfig& c) {
   j["depth"] = c.depth;
   if (c.row_affine) j["row_affine"] = true;  // absent when off: older checkpoints compare equal
   if (c.lookup_base) j["lookup_base"] = true;
+  if (c.lookup_base && c.lookup_form != "groups") j["lookup_form"] = c.lookup_form;
+  if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};
+  if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -152,6 +156,11 @@ void validate_settings(const TrainConfig& c) {
   if (!(c.lambda >= 0) || !std::isfinite(c.lambda)) refuse("lambda", "must be a finite number >= 0", std::to_string(c.lambda));
   if (!(c.final_lr_fraction >= 0 && c.final_lr_fraction <= 1))
     refuse("final-lr-fraction", "must be in [0, 1]", std::to_string(c.final_lr_fraction));
+  if (c.lookup_form != "groups" && c.lookup_form != "classes")
+    refuse("lookup-base", "must be groups or classes", "\"" + c.lookup_form + "\"");
+  if (c.inner_columns < 1 || c.inner_columns > 100000)
+    refuse("inner-columns", "must be in [1, 100000]", std::to_string(c.inner_columns));
+  if (c.patience < 0 || c.patience > 1000000) refuse("patience", "must be in [0, 1000000] (0: every epoch)", std::to_string(c.patience));
 }
 
 // One step's gradients over every rank's part of the batch (x, y, m hold this rank's part):
@@ -267,9 +276,11 @@ TrainResult train_on(const TrainConfig& config, const std::vector<const data::Da
   return train_frames(config, views, val_set.get(), on_epoch);
 }
 
-TrainResult train_frames(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
+TrainResult train_frames(const TrainConfig& requested, const std::vector<const data::FrameSource*>& train_sets,
                          const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch) {
   Distributed& dist = Distributed::world();
+  TrainConfig config = requested;
+  if (config.lookup_base && config.lookup_form == "classes") config.encoder.class_groups = one_group_per_class();
   bool set_up = false;
   if (!dist.active()) return train_on_ranks(config, train_sets, val_set, on_epoch, set_up);
   try {
@@ -285,6 +296,10 @@ TrainResult train_frames(const TrainConfig& config, const std::vector<const data
 }
 
 namespace {
+
+int split_sets_of(const std::vector<const data::FrameSource*>& sets, const TrainConfig& c) {
+  return static_cast<int>(sets.size() - std::min(sets.size(), c.train_also.size()));
+}
 
 TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
                            const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
@@ -318,13 +333,57 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   if (sector_split && config.progress && dist.root())
     std::fprintf(stderr, "lidar-train: receptive field half-width %d columns; split: %s\n", half_width,
                  split.describe(cols).c_str());
+  // Early stopping: the network trains outside the inner region and its guard band too.
+  std::optional<data::SectorSplit> inner;
+  data::SectorSplit train_split = split;
+  std::string inner_text;
+  if (config.early_stop) {
+    if (!sector_split)
+      throw Error("lidar-train: --early-stop: needs the split of --data (not --val): the inner region is carved out of its training columns");
+    if (!split.validation_frames.empty()) {
+      if (config.inner_frames.empty())
+        throw Error("lidar-train: --early-stop with --split frames:...: needs --inner-frames ID,... (training frames of other places)");
+      inner = data::inner_frames_split(split, config.inner_frames);
+      train_split = data::with_inner(split, *inner);
+      long inner_n = 0, train_n = 0;
+      for (int k = 0; k < split_sets_of(train_sets, config); ++k)
+        for (const auto& id : train_sets[static_cast<std::size_t>(k)]->header().frames) {
+          if (split.roles(1, id)[0] != data::kTrain) continue;
+          (inner->roles(1, id)[0] == data::kValidation ? inner_n : train_n) += 1;
+        }
+      if (inner_n == 0 || train_n == 0)
+        throw Error("lidar-train: --inner-frames: " + std::to_string(inner_n) + " inner and " + std::to_string(train_n) +
+                    " training frames match; both must be at least 1");
+      std::string ids;
+      for (const auto& id : config.inner_frames) ids += (ids.empty() ? "" : ", ") + id;
+      inner_text = "inner frames " + ids + " (" + std::to_string(inner_n) + " frames, held out whole) choose the epoch; " +
+                   std::to_string(train_n) + " training frames left";
+    } else {
+      if (split.regions.empty())
+        throw Error("lidar-train: --early-stop: needs a guarded region split (--split guarded) or frames:..., got --split " + config.split);
+      inner = data::inner_split(split, half_width, cols, config.inner_columns);
+      train_split = data::with_inner(split, *inner);
+      const auto roles = train_split.roles(cols);
+      const long b = std::lround(inner->regions[0].first * cols), e = std::lround(inner->regions[0].second * cols);
+      char text[400];
+      std::snprintf(text, sizeof text,
+                    "inner region [%ld, %ld) (%d columns, every scan) chooses the epoch; guard bands [%ld, %ld) (the scored "
+                    "region's) and [%ld, %ld) (its own), each %d columns; %ld training columns left of %d",
+                    b, e, config.inner_columns, (b - inner->guard_columns + cols) % cols, b, e, (e + inner->guard_columns) % cols,
+                    inner->guard_columns, static_cast<long>(std::count(roles.begin(), roles.end(), data::kTrain)), cols);
+      inner_text = text;
+    }
+    if (config.progress && dist.root()) std::fprintf(stderr, "lidar-train: early stopping: %s\n", inner_text.c_str());
+    if (config.resume && !config.out.empty() && std::filesystem::exists(config.out))
+      throw Error("lidar-train: --early-stop with --resume: not supported (the inner losses of the epochs before are not in the checkpoint)");
+  }
 
   // Frames are read per step (frame_batches.h); the cells a frame trains on follow the split.
   if (config.train_also.size() >= train_sets.size())
     throw Error("lidar-train: --train-also needs --data to validate on");
   const int split_sets = static_cast<int>(train_sets.size() - config.train_also.size());
   const std::vector<const data::FrameSource*> scored(train_sets.begin(), train_sets.begin() + split_sets);
-  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt, split_sets);
+  const TrainingFrames frames(train_sets, config.encoder, sector_split ? std::optional(train_split) : std::nullopt, split_sets);
   const int num_frames = frames.size();
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   bool roll = config.augment_roll, mirror = config.augment_mirror;
@@ -377,6 +436,7 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   meta.attributes["train_config"] = describe_config(config);
   meta.attributes["receptive_field_half_width"] = std::to_string(half_width);
   meta.attributes["split"] = sector_split ? split.describe(cols) : "separate validation dataset";
+  if (inner) meta.attributes["early_stop"] = inner_text;
   auto save = [&](std::int64_t at_step) {
     meta.state.step = at_step;
     meta.state.epoch = at_step / steps_per_epoch;
@@ -394,9 +454,17 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   };
 
   TrainResult result;
+  result.inner_region = inner_text;
+  EarlyStop stopper(config.patience);
+  std::vector<float> best_weights;
   if (config.lookup_base && step == 0) {
     // Every rank fits the same table from the same frames (no communication needed).
-    const LookupFit fit = fit_lookup_base(arch.lookup, frames, cols);
+    // On every training column of the split (with early stopping the inner region's too), so the
+    // table is the same with or without it; the scored regions and their guards never.
+    const TrainingFrames table_frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt,
+                                      split_sets);
+    const LookupFit fit = fit_lookup_base(arch.lookup, table_frames, cols,
+                                          config.lookup_form == "classes" ? BeamFit::loop : BeamFit::mean);
     set_lookup_base(model, fit);
     result.lookup_validation = validate();  // the head starts at 0: this is the table alone
     if (config.progress && dist.root())
@@ -475,7 +543,13 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
       report.samples = epoch_steps * config.batch;
       const auto validation_start = std::chrono::steady_clock::now();
       report.train_seconds = std::chrono::duration<double>(validation_start - epoch_start).count();
-      report.validation = validate();
+      if (inner) {
+        report.inner = merge(validate_frames(model, config.encoder, scored, *inner, prefetch));
+        if (stopper.add(report.inner->mae))
+          best_weights.assign(model.params().values(), model.params().values() + model.params().size());
+      } else {
+        report.validation = validate();
+      }
       report.validation_seconds =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - validation_start).count();
       epoch_loss = 0;
@@ -494,12 +568,25 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
       result.interrupted = true;
       break;
     }
+    if (inner && epoch_done && stopper.exhausted()) break;  // every rank saw the same inner losses
+  }
+  if (inner && !result.interrupted && stopper.best_epoch() > 0) {
+    // The chosen epoch's weights, scored once on the validation regions; the checkpoint then
+    // holds them (weights only: the optimizer state belongs to the last step).
+    std::copy(best_weights.begin(), best_weights.end(), model.params().values());
+    result.chosen_epoch = stopper.best_epoch();
+    result.chosen_validation = validate();
+    meta.state.step = static_cast<std::int64_t>(result.chosen_epoch) * steps_per_epoch;
+    meta.state.epoch = result.chosen_epoch;
+    meta.attributes["early_stop"] = inner_text + "; chosen epoch " + std::to_string(result.chosen_epoch);
+    agreed([&] {
+      if (checkpoints && dist.root()) nn::save_checkpoint(config.out, model, nullptr, meta);
+    });
   }
   if (!result.interrupted) {
     bar.finish();
     if (config.export_weights) {
-      meta.state.step = step;
-      meta.state.epoch = step / steps_per_epoch;
+      if (!inner) meta.state.step = step, meta.state.epoch = step / steps_per_epoch;
       agreed([&] {
         if (dist.root()) nn::save_checkpoint(*config.export_weights, model, nullptr, meta);
       });
@@ -507,8 +594,7 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   }
   result.steps = step;
   result.model = model_ptr;
-  meta.state.step = step;
-  meta.state.epoch = step / steps_per_epoch;
+  if (result.chosen_epoch == 0) meta.state.step = step, meta.state.epoch = step / steps_per_epoch;
   result.meta = meta;
   return result;
 }

@@ -49,6 +49,23 @@ struct TrainConfig {
   // table + per-beam offsets fitted on the training cells, fed as an input channel and added to the
   // output. The model starts at the lookup's prediction; it travels in the checkpoint.
   bool lookup_base = false;
+  // The lookup base's form: "groups" (the encoder's class groups, plain per-row mean offsets) or
+  // "classes" (the intensity loop's best lookup: one group per class id, per-beam offsets fitted as
+  // the loop fits them; train/lookup_fit.h). "classes" replaces the encoder's class groups with
+  // one_group_per_class(), so the network's class input is one-hot over every class too.
+  std::string lookup_form = "groups";
+  // Early stopping that cannot leak (data/split.h inner_split, train/early_stop.h): the network
+  // does not train on an inner region of `inner_columns` columns and its guard band; the epoch
+  // with the lowest MAE there is chosen and its weights kept; the scored validation regions are
+  // measured once, for that epoch's weights. Needs a guarded region split of --data. The lookup
+  // base, if any, is still fitted on all the split's training columns (inner region included),
+  // so that the untrained model is the same table as without early stopping.
+  bool early_stop = false;
+  int inner_columns = 32;
+  // With a frame hold-out (split "frames:..."): the inner set is these training frames, held out
+  // whole (other places; data/split.h inner_frames_split).
+  std::vector<std::string> inner_frames;
+  int patience = 0;  // stop after this many epochs without a new inner best (0: run every epoch)
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
   int batch = 1;
@@ -81,7 +98,8 @@ struct EpochReport {
   int epoch = 0;       // 1-based
   std::int64_t step = 0;
   double train_loss = 0;  // mean total loss over the epoch's steps
-  data::Metrics validation;
+  data::Metrics validation;  // with early_stop: not measured (cells 0)
+  std::optional<data::Metrics> inner;  // with early_stop: MAE/RMSE on the inner region
   // Wall time of the epoch's steps (since the epoch or the run started) and of its validation.
   double train_seconds = 0, validation_seconds = 0;
   int samples = 0;  // frames (crops) the epoch's steps trained on
@@ -92,7 +110,12 @@ struct TrainResult {
   std::optional<data::Metrics> lookup_validation;  // with lookup_base: the table alone, before training
   bool interrupted = false;
   std::int64_t steps = 0;
-  std::shared_ptr<nn::UNet> model;  // the weights at the end
+  // With early_stop: the chosen epoch (1-based), the scored validation of its weights (measured
+  // once, after the choice), and the inner region, its guard band and the training columns left.
+  int chosen_epoch = 0;
+  std::optional<data::Metrics> chosen_validation;
+  std::string inner_region;
+  std::shared_ptr<nn::UNet> model;  // the weights at the end (with early_stop: the chosen epoch's)
   nn::Checkpoint meta;              // what a checkpoint of them records (/config, /state)
 };
 
