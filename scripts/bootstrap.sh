@@ -21,8 +21,13 @@ fi
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
 # ccache, where installed, makes rebuilds in other checkouts of the same tree nearly free.
+# Paths below the source folder enter ccache's keys relative to it (CCACHE_BASEDIR), so a clone
+# elsewhere (CI) gets hits too.
 launcher=()
-command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+if command -v ccache >/dev/null; then
+  launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+  export CCACHE_BASEDIR=$PWD
+fi
 # LIDARSIM_CMAKE_ARGS: extra settings, e.g. the sanitizer build of scripts/test.sh.
 read -r -a extra <<< "${LIDARSIM_CMAKE_ARGS:-}"
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} "${launcher[@]}" "${extra[@]}" >/dev/null

@@ -72,7 +72,12 @@ if [ -x build/train/lidar-train ] && [ -f "$build/seed_dataset.h5" ]; then
     seed checkpoint "$build/seed_checkpoint.h5" 10000000
 fi
 for f in "$shared"/ouster-sample-pcaps/*.json; do seed ouster_metadata "$f"; done
-for f in "$shared"/ouster-sample-pcaps/*.pcap; do seed ouster_pcap "$f"; done  # header + 2-9 packets
+# The captures as a 32-beam, 512-column sensor sends them (the target's metadata): 10-27 packets
+# across a frame's end.
+if [[ " $targets " == *" ouster_pcap "* ]]; then
+  mkdir -p "$seeds/ouster_pcap"
+  for f in "$shared"/ouster-sample-pcaps/*.pcap; do python3 fuzz/ouster_seed.py "$f" "$seeds/ouster_pcap/$(basename "$f")"; done
+fi
 for f in "$shared"/nuscenes-sample-frame/*.pcd.bin; do seed nuscenes "$f" 4000; done
 # RELLIS-3D: 32 columns of 64 points of the .bin, then their labels (the target splits at 16/20).
 for f in "$shared"/rellis3d-os1-sample/*.bin; do

@@ -6,6 +6,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/image.h"
+#include "tests/support/temp_path.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
@@ -20,7 +21,7 @@ TEST(Image, ViridisEndsAreDarkPurpleAndYellow) {
 }
 
 TEST(Image, WritePngProducesAPngSignatureAndNoTemporaryFile) {
-  const fs::path dir = fs::temp_directory_path() / "lidarsim_test_image";
+  const fs::path dir = lidarsim::testing::temp_path("test_image");
   fs::create_directories(dir);
   const fs::path path = dir / "a.png";
   Image image(5, 3, {10, 20, 30});
@@ -35,7 +36,7 @@ TEST(Image, WritePngProducesAPngSignatureAndNoTemporaryFile) {
 }
 
 TEST(AtomicFile, UncommittedWriteLeavesTheOldFileIntact) {
-  const fs::path path = fs::temp_directory_path() / "lidarsim_atomic.txt";
+  const fs::path path = lidarsim::testing::temp_path("atomic.txt");
   write_file_atomically(path, "old");
   {
     AtomicFile file(path);

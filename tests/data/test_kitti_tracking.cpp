@@ -10,6 +10,7 @@
 #include "common/error.h"
 #include "data/kitti_tracking.h"
 #include "tests/support/shared_data.h"
+#include "tests/support/temp_path.h"
 
 #include <functional>
 
@@ -31,7 +32,7 @@ KittiCalib axis_calib(const Eigen::Vector3d& t = Eigen::Vector3d::Zero()) {
 }
 
 fs::path write(const std::string& name, const std::string& text) {
-  const fs::path p = fs::temp_directory_path() / ("lidarsim_test_kitti_tracking_" + name);
+  const fs::path p = lidarsim::testing::temp_path("test_kitti_tracking_" + name);
   std::ofstream(p) << text;
   return p;
 }

@@ -17,6 +17,7 @@
 #include "sensor/kpi_fit.h"
 #include "sensor/kpi_model.h"
 #include "tests/support/shared_data.h"
+#include "tests/support/temp_path.h"
 
 namespace lidarsim {
 namespace {
@@ -135,8 +136,8 @@ TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPe
     EXPECT_FALSE(m.classes.at(c).errors[int(sensor::KpiParam::Height)].conditional.present()) << c;
   const fs::path exe = testing::binary_dir() / "qualify/lidar-qualify";
   ASSERT_TRUE(fs::exists(exe)) << "build lidar-qualify first: " << exe;
-  const fs::path out = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_model.json";
-  const fs::path report = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_loop" / "loop.json";
+  const fs::path out = testing::temp_path("test_kpi_calibration_model.json");
+  const fs::path report = testing::temp_path("test_kpi_calibration_loop") / "loop.json";
   fs::create_directories(report.parent_path());
   const std::string cmd = exe.string() + " loop objects --kitti-tracking " + root.string() + " --report " +
                           report.string() + " --out-model " + out.string() + " >/dev/null 2>&1";
@@ -178,9 +179,10 @@ TEST(KpiCalibration, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPe
 TEST(KpiCalibration, CliBadInputGivesOneErrorLineAndNonZeroExit) {
   const fs::path exe = testing::binary_dir() / "data/lidar-calibrate";
   ASSERT_TRUE(fs::exists(exe)) << "build lidar-calibrate first: " << exe;
-  const fs::path err = fs::temp_directory_path() / "lidarsim_test_kpi_calibration_err.txt";
+  const fs::path err = testing::temp_path("test_kpi_calibration_err.txt");
+  const std::string out = " --out " + testing::temp_path("test_kpi_calibration_bad.json").string();
   auto run = [&](const std::string& args) {
-    const int rc = std::system((exe.string() + " " + args + " >/dev/null 2>" + err.string()).c_str());
+    const int rc = std::system((exe.string() + " " + args + out + " >/dev/null 2>" + err.string()).c_str());
     std::ifstream in(err);
     std::string first, rest;
     std::getline(in, first);
@@ -188,19 +190,21 @@ TEST(KpiCalibration, CliBadInputGivesOneErrorLineAndNonZeroExit) {
     EXPECT_TRUE(rest.empty()) << "one line only, got more: " << rest;
     return std::make_pair(rc, first);
   };
-  auto [rc1, e1] = run("--kitti-tracking /nonexistent/kitti --out /tmp/x.json");
+  auto [rc1, e1] = run("--kitti-tracking /nonexistent/kitti");
   EXPECT_NE(rc1, 0);
   EXPECT_EQ(e1, "error: /nonexistent/kitti: --kitti-tracking: not a directory");
-  auto [rc2, e2] = run("--out /tmp/x.json");
+  auto [rc2, e2] = run("");
   EXPECT_NE(rc2, 0);
   EXPECT_NE(e2.find("error: --kitti-tracking: required"), std::string::npos) << e2;
   // A folder whose seqmap lists sequences that are not there.
-  const fs::path dir = fs::temp_directory_path() / "lidarsim_test_kpi_empty_kitti";
+  const fs::path dir = testing::temp_path("test_kpi_empty_kitti");
   fs::create_directories(dir);
   std::ofstream(dir / "evaluate_tracking.seqmap.val") << "0042 empty 000000 000010\n";
-  auto [rc3, e3] = run("--kitti-tracking " + dir.string() + " --out /tmp/x.json");
+  auto [rc3, e3] = run("--kitti-tracking " + dir.string());
   EXPECT_NE(rc3, 0);
   EXPECT_NE(e3.find("sequences: none of the listed sequences is present"), std::string::npos) << e3;
+  fs::remove_all(dir);
+  fs::remove(err);
 }
 
 }  // namespace

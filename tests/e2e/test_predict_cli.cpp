@@ -18,6 +18,7 @@
 #include "pgm/polar_grid_map.h"
 #include "tests/support/shared_data.h"
 #include "tests/support/image_checks.h"
+#include "tests/support/temp_path.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
@@ -32,7 +33,7 @@ std::string read_text(const fs::path& path) {
 // Runs lidar-infer with `args`; returns the exit code and leaves stderr in `err`.
 int run_infer(const std::string& args, std::string& err) {
   const fs::path exe = lidarsim::testing::binary_dir() / "infer" / "lidar-infer";
-  const fs::path err_file = fs::temp_directory_path() / "lidarsim_predict_err.txt";
+  const fs::path err_file = lidarsim::testing::temp_path("predict_err.txt");
   const int rc = std::system((exe.string() + " " + args + " >/dev/null 2>" + err_file.string()).c_str());
   err = read_text(err_file);
   return WEXITSTATUS(rc);
@@ -41,7 +42,7 @@ int run_infer(const std::string& args, std::string& err) {
 }  // namespace
 
 TEST(PredictCli, BundledModelOnTheBundledScanWritesCloudImageAndSummary) {
-  const fs::path out = fs::temp_directory_path() / "lidarsim_predict";
+  const fs::path out = lidarsim::testing::temp_path("predict");
   fs::remove_all(out);
   const fs::path model = lidarsim::testing::source_dir() / "data/models/intensity_unet.h5";
   const fs::path scans = lidarsim::testing::source_dir() / "data/samples/semantickitti";
@@ -94,7 +95,7 @@ TEST(PredictPicture, RowsHaveCaptionsAndColourScalesBelowAHeaderNamingTheScan) {
 TEST(PredictCli, MissingModelGivesOneLineNamingTheFileAndNonZeroExit) {
   std::string err;
   const int rc = run_infer("predict --quiet --model /nonexistent/model.h5 --scan /nonexistent/scan.bin --out " +
-                               (fs::temp_directory_path() / "lidarsim_predict_bad").string(),
+                               lidarsim::testing::temp_path("predict_bad").string(),
                            err);
   EXPECT_NE(rc, 0);
   EXPECT_NE(err.find("/nonexistent/model.h5"), std::string::npos) << err;
@@ -102,7 +103,7 @@ TEST(PredictCli, MissingModelGivesOneLineNamingTheFileAndNonZeroExit) {
 }
 
 TEST(PredictCli, ATruncatedScanNamesTheFile) {
-  const fs::path dir = fs::temp_directory_path() / "lidarsim_predict_trunc";
+  const fs::path dir = lidarsim::testing::temp_path("predict_trunc");
   fs::create_directories(dir);
   const fs::path scan = dir / "000000.bin";
   std::ofstream(scan, std::ios::binary) << std::string(16 * 10 + 7, '\0');  // not a multiple of 16 bytes
@@ -121,7 +122,7 @@ TEST(PointCloudIo, PcdAndPlyHeadersDescribeTheFieldsAndTheBinaryBodyHasEveryValu
   cloud.add_field("y", {3.f, 4.f});
   cloud.add_field("z", {5.f, 6.f});
   cloud.add_field("intensity", {0.25f, 0.5f});
-  const fs::path dir = fs::temp_directory_path() / "lidarsim_cloud_io";
+  const fs::path dir = lidarsim::testing::temp_path("cloud_io");
   fs::create_directories(dir);
   data::write_point_cloud(dir / "a.pcd", cloud);
   data::write_point_cloud(dir / "a.ply", cloud);

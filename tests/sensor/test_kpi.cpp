@@ -12,6 +12,7 @@
 #include "sensor/kpi_manager.h"
 #include "sensor/kpi_model.h"
 #include "sensor/kpi_noise.h"
+#include "tests/support/temp_path.h"
 
 namespace lidarsim::sensor {
 namespace {
@@ -268,7 +269,7 @@ TEST(KpiManager, SizeErrorsAreNearlyConstantPerTrack) {
 // --- the model file ---
 
 std::filesystem::path temp_file(const std::string& name, const std::string& text) {
-  const auto p = std::filesystem::temp_directory_path() / ("lidarsim_test_kpi_" + name);
+  const auto p = ::lidarsim::testing::temp_path("test_kpi_" + name);
   std::ofstream(p) << text;
   return p;
 }
@@ -284,7 +285,7 @@ std::string error_of(const std::filesystem::path& p) {
 
 TEST(KpiModelFile, RoundTripsThroughJson) {
   const KpiModel m = default_kpi_model();
-  const auto p = std::filesystem::temp_directory_path() / "lidarsim_test_kpi_roundtrip.json";
+  const auto p = ::lidarsim::testing::temp_path("test_kpi_roundtrip.json");
   save_kpi_model(m, p);
   const KpiModel r = load_kpi_model(p);
   EXPECT_EQ(kpi_model_to_json(r), kpi_model_to_json(m));

@@ -12,6 +12,7 @@
 #include "data/dataset.h"
 #include "data/import.h"
 #include "tests/support/shared_data.h"
+#include "tests/support/temp_path.h"
 #include "train/trainer.h"
 
 namespace fs = std::filesystem;
@@ -20,7 +21,7 @@ using namespace lidarsim;
 namespace {
 
 fs::path temp_dir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("lidarsim_train_" + name);
+  const fs::path dir = lidarsim::testing::temp_path("train_" + name);
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
