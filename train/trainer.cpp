@@ -340,6 +340,9 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
   if (config.early_stop) {
     if (!sector_split)
       throw Error("lidar-train: --early-stop: needs the split of --data (not --val): the inner region is carved out of its training columns");
+    // Frames name places; a column split has no frame to hold out, so the option would be ignored.
+    if (split.validation_frames.empty() && !config.inner_frames.empty())
+      throw Error("lidar-train: --inner-frames: needs --split frames:...; with a column split the inner region is columns (--inner-columns)");
     if (!split.validation_frames.empty()) {
       if (config.inner_frames.empty())
         throw Error("lidar-train: --early-stop with --split frames:...: needs --inner-frames ID,... (training frames of other places)");

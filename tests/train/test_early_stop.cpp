@@ -154,6 +154,13 @@ TEST(EarlyStop, PatienceEndsTheRunAndSeparateValidationIsRefused) {
   EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
 }
 
+TEST(EarlyStop, InnerFramesWithAColumnSplitIsAnErrorNotIgnored) {
+  train::TrainConfig c = config();
+  c.inner_frames = {"000001"};
+  const data::Dataset d = synthetic();
+  EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
+}
+
 TEST(EarlyStop, FrameHoldOutChoosesOnWholeInnerFramesThatDoNotTrain) {
   train::TrainConfig c = config();
   c.split = "frames:synthetic/0";
