@@ -20,6 +20,7 @@
 #include "common/error.h"
 #include "nn/conv3x3.h"
 #include "nn/conv3x3_bf16.h"
+#include "nn/conv_transpose2x2.h"
 #include "nn/precision.h"
 
 namespace lidarsim::nn {
@@ -323,6 +324,10 @@ void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weigh
     throw Error("conv_transpose2x2_forward: out: " + std::to_string(out_h) + " x " + std::to_string(out_w) +
                 " is smaller than twice the input " + s.str());
   ensure(out, Shape{s.n, co, out_h, out_w});
+  if (detail::conv_transpose2x2_available()) {
+    detail::conv_transpose2x2_forward_fast(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, out_h, out_w);
+    return;
+  }
   const int ci = s.c, h = s.h, w = s.w, hw = h * w, co4 = 4 * co;
   // Input rows per task: ~2048 pixels, but at least 4 tasks so deep (short) maps still split.
   const int rows = std::max(1, std::min((h + 3) / 4, 2048 / w));

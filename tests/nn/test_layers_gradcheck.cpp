@@ -146,6 +146,27 @@ TEST(ConvTranspose, PaddedRowsAndColumnsAreZeroWithoutBias) {
   }
 }
 
+// The register-blocked forward kernel (nn/conv_transpose2x2.h) works on 32 input columns and two
+// output channels at a time: rows that end inside a block, an odd channel out and padded outputs
+// must all match the double reference, on the serial and the parallel path.
+TEST(ConvTranspose, BlockedKernelMatchesTheReferenceAtEveryEdge) {
+  struct Case {
+    int n, ci, h, w, co, out_h, out_w;
+  };
+  for (const Case& c : {Case{1, 5, 3, 37, 3, 6, 74}, Case{2, 7, 4, 16, 5, 9, 35}, Case{1, 3, 2, 1, 1, 4, 2},
+                        Case{2, 64, 16, 96, 32, 32, 192}}) {
+    SCOPED_TRACE("in " + std::to_string(c.ci) + "x" + std::to_string(c.h) + "x" + std::to_string(c.w) + " co " +
+                 std::to_string(c.co));
+    const Tensor x = random_tensor(Shape{c.n, c.ci, c.h, c.w}, 31);
+    const std::vector<float> wt = random_vector(std::size_t(c.ci) * c.co * 4, 32, 0.5f);
+    const std::vector<float> b = random_vector(std::size_t(c.co), 33, 0.3f);
+    Tensor y;
+    conv_transpose2x2_forward(y, x, wt.data(), b.data(), c.co, c.out_h, c.out_w);
+    const DT ref = conv_transpose2x2(from(x), to_double(wt), to_double(b), c.co, c.out_h, c.out_w);
+    EXPECT_LT(max_rel_error(y.data(), ref.v), 1e-5);
+  }
+}
+
 double check_max_pool(int h, int w) {
   const Tensor x = random_tensor(Shape{2, 3, h, w}, 21);
   Tensor y;
