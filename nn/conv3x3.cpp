@@ -49,9 +49,15 @@ bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_gra
   // tiles the 36 transformed weight planes outweigh them (4 x 64, batch 1: 0.35-0.75x); elsewhere
   // Winograd took 1.2-2.5x less time (forward, input gradient) and 1.1-1.9x (weight gradient,
   // which keeps every tile's transforms in memory: at 65,536 pixels and more it broke even).
+  // Redone 2026-11-26 with one thread at high priority (steadier than two threads on a loaded
+  // machine): with 16 input channels Winograd wins where the output has 32 or more (1.1-1.3x at
+  // 64 x 1024, 1.2-2.3x at 32 x 512: the forward pass of enc1.conv1 and the input gradient of
+  // dec0.conv1) and at 32 x 512 and below whatever the output (the input gradient of
+  // enc1.conv1, 1.1-2.2x); with 16 outputs at 64 x 1024 direct stays (0.75-1.05x).
   const long pixels = static_cast<long>(n) * h * w;
-  if (std::min(ci, co) < 32 || pixels < 1024) return false;
-  return !weight_grad || pixels < 65536;
+  if (std::min(ci, co) < 16 || pixels < 1024) return false;
+  if (weight_grad) return std::min(ci, co) >= 32 && pixels < 65536;
+  return std::min(ci, co) >= 32 || co >= 32 || static_cast<long>(h) * w <= 32 * 512;
 }
 
 #ifndef __AVX512F__
