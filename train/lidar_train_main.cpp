@@ -78,6 +78,8 @@ int main(int argc, char** argv) {
      cxxopts::value<std::string>())
     ("patience", "with --early-stop: stop after this many epochs without a new inner best (0: run every epoch)",
      cxxopts::value<int>()->default_value("0"))
+    ("shrink-residual", "with --lookup-base and --early-stop: scale the network's residual over the table by the factor "
+     "in 0, 0.05, ..., 1 with the lowest inner MAE (0: the table, 1: the network as trained)")
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-augment", "no azimuth roll or mirror")
@@ -120,6 +122,7 @@ int main(int argc, char** argv) {
     config.inner_columns = args["inner-columns"].as<int>();
     config.patience = args["patience"].as<int>();
     if (args.count("inner-frames")) config.inner_frames = split_list(args["inner-frames"].as<std::string>());
+    config.shrink_residual = args.count("shrink-residual") > 0;
     if (!config.early_stop && (args.count("inner-columns") || args.count("patience") || args.count("inner-frames")))
       throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
     config.seed = args["seed"].as<std::uint64_t>();
@@ -173,6 +176,16 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "interrupted at step %lld: checkpoint saved to %s (continue with --resume)\n",
                    static_cast<long long>(result.steps), config.out.c_str());
       return 130;
+    }
+    if (result.residual_scale) {
+      std::string tried;
+      for (const auto& [factor, mae] : result.residual_scale_inner_mae) {
+        char item[40];
+        std::snprintf(item, sizeof item, "%s%.2f: %.4f", tried.empty() ? "" : ", ", factor, mae);
+        tried += item;
+      }
+      std::printf("residual scale: %.2f (inner MAE by factor: %s); validation of the chosen epoch unscaled: MAE %.4f RMSE %.4f\n",
+                  *result.residual_scale, tried.c_str(), result.unscaled_validation->mae, result.unscaled_validation->rmse);
     }
     if (result.chosen_validation) {
       const auto& chosen = result.epochs[static_cast<std::size_t>(result.chosen_epoch - 1)];

@@ -21,6 +21,7 @@
 #include "train/early_stop.h"
 #include "train/frame_batches.h"
 #include "train/lookup_fit.h"
+#include "train/residual_shrink.h"
 #include "train/prefetcher.h"
 
 namespace lidarsim::train {
@@ -83,6 +84,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   if (c.lookup_base && c.lookup_form != "groups") j["lookup_form"] = c.lookup_form;
   if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};
   if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
+  if (c.shrink_residual) j["shrink_residual"] = true;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -160,6 +162,8 @@ void validate_settings(const TrainConfig& c) {
     refuse("lookup-base", "must be groups or classes", "\"" + c.lookup_form + "\"");
   if (c.inner_columns < 1 || c.inner_columns > 100000)
     refuse("inner-columns", "must be in [1, 100000]", std::to_string(c.inner_columns));
+  if (c.shrink_residual && !(c.lookup_base && c.early_stop))
+    refuse("shrink-residual", "needs --lookup-base and --early-stop (the factor is chosen on the inner region)", "set");
   if (c.patience < 0 || c.patience > 1000000) refuse("patience", "must be in [0, 1000000] (0: every epoch)", std::to_string(c.patience));
 }
 
@@ -578,6 +582,16 @@ TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const da
     // holds them (weights only: the optimizer state belongs to the last step).
     std::copy(best_weights.begin(), best_weights.end(), model.params().values());
     result.chosen_epoch = stopper.best_epoch();
+    if (config.shrink_residual) {
+      // The inner region alone decides; the scored regions are measured after (the unscaled
+      // weights too, for the before/after report: neither figure feeds back into the choice).
+      result.unscaled_validation = validate();
+      const ResidualShrink shrink = choose_residual_scale(
+          model, [&] { return merge(validate_frames(model, config.encoder, scored, *inner, prefetch)).mae; });
+      result.residual_scale = shrink.scale;
+      result.residual_scale_inner_mae = shrink.inner_mae;
+      inner_text += "; residual scaled by " + std::to_string(shrink.scale).substr(0, 4) + " (chosen on the inner region)";
+    }
     result.chosen_validation = validate();
     meta.state.step = static_cast<std::int64_t>(result.chosen_epoch) * steps_per_epoch;
     meta.state.epoch = result.chosen_epoch;

@@ -66,6 +66,10 @@ struct TrainConfig {
   // whole (other places; data/split.h inner_frames_split).
   std::vector<std::string> inner_frames;
   int patience = 0;  // stop after this many epochs without a new inner best (0: run every epoch)
+  // With lookup_base and early_stop: after the epoch is chosen, scale the network's residual over
+  // the table by the factor in {0, 0.05, ..., 1} with the lowest inner MAE (train/residual_shrink.h).
+  // 0 gives the table back, 1 the chosen epoch unchanged; the scored regions never take part.
+  bool shrink_residual = false;
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
   int batch = 1;
@@ -114,6 +118,11 @@ struct TrainResult {
   // once, after the choice), and the inner region, its guard band and the training columns left.
   int chosen_epoch = 0;
   std::optional<data::Metrics> chosen_validation;
+  // With shrink_residual: the factor chosen and the inner MAE at each factor tried; and, for the
+  // report only (after the choice), the scored validation of the chosen epoch left unscaled.
+  std::optional<double> residual_scale;
+  std::optional<data::Metrics> unscaled_validation;
+  std::vector<std::pair<double, double>> residual_scale_inner_mae;
   std::string inner_region;
   std::shared_ptr<nn::UNet> model;  // the weights at the end (with early_stop: the chosen epoch's)
   nn::Checkpoint meta;              // what a checkpoint of them records (/config, /state)

@@ -12,6 +12,7 @@
 #include "pgm/materials.h"
 #include "train/early_stop.h"
 #include "train/lookup_fit.h"
+#include "train/residual_shrink.h"
 #include "train/trainer.h"
 
 using namespace lidarsim;
@@ -198,4 +199,41 @@ TEST(LookupBaseClasses, KeysTheTableByEveryClass) {
   EXPECT_EQ(encoder.class_groups.size(), static_cast<std::size_t>(pgm::cls::count));
   c.lookup_form = "tree";
   EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
+}
+
+// --shrink-residual: the factor on the network's residual over the table is chosen on the inner
+// region alone, the model returned holds it, factor 0 is the table and 1 the network unchanged.
+TEST(ShrinkResidual, ChoosesTheFactorOnTheInnerRegionAndTheModelHoldsIt) {
+  train::TrainConfig c = config();
+  c.lookup_base = true;
+  c.shrink_residual = true;
+  const data::Dataset d = synthetic();
+  const train::TrainResult r = train::train_on(c, {&d}, {"synthetic"});
+  ASSERT_TRUE(r.residual_scale.has_value());
+  ASSERT_EQ(r.residual_scale_inner_mae.size(), 21u);
+  double best = r.residual_scale_inner_mae[0].second, at = r.residual_scale_inner_mae[0].first;
+  for (const auto& [factor, mae] : r.residual_scale_inner_mae)
+    if (mae < best) best = mae, at = factor;
+  EXPECT_DOUBLE_EQ(*r.residual_scale, at);
+  // The returned model is the scaled one: its inner MAE is the chosen factor's.
+  const data::SectorSplit split = data::guarded_split(kHalf, kCols);
+  const auto inner = data::inner_split(split, kHalf, kCols, 8);
+  const auto prediction = train::predict_dataset(*r.model, c.encoder, d);
+  EXPECT_NEAR(data::evaluate_prediction(d, prediction, true, inner).mae, best, 1e-6);
+  EXPECT_NEAR(data::evaluate_prediction(d, prediction, true, split).mae, r.chosen_validation->mae, 1e-9);
+  // Factor 0 gives the table back: the same as the untrained model's validation.
+  train::scale_residual(*r.model, 0.0);
+  const auto table = data::evaluate_prediction(d, train::predict_dataset(*r.model, c.encoder, d), true, split);
+  ASSERT_TRUE(r.lookup_validation.has_value());
+  EXPECT_NEAR(table.mae, r.lookup_validation->mae, 1e-6);
+}
+
+TEST(ShrinkResidual, NeedsALookupBaseAndEarlyStopping) {
+  train::TrainConfig c = config();
+  c.shrink_residual = true;
+  const data::Dataset d = synthetic();
+  EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);  // no lookup base
+  c.lookup_base = true;
+  c.early_stop = false;
+  EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);  // no inner region
 }
