@@ -112,11 +112,17 @@ struct FpCandidate {
 //   track lengths      the false positives linked greedily one to one (nearest first) to the previous
 //                      frame's within the gate: tracks of length 1, 2, 3-5, 6-10, 11-30, > 30 frames;
 //   dispersion         variance / mean of the count per frame.
-// The candidate (fp_persistence in the KPI model): per class a survival probability fitted on the fit
-// sequences so that the KPI manager's false positives, drawn on the fit split's frames, have the fit
-// split's persistence share (bisection; births at rate x (1 - survival), so the rate holds), a jitter
-// (robust sd of a linked pair's lateral step) and a score AR(1) (Spearman of linked pairs' scores,
-// as a Gaussian copula's correlation). Judged on the held-out sequences: the KPI manager re-simulates
+// The candidate (fp_persistence in the KPI model), per class fitted on the fit sequences: a share of
+// ghosts and their survival (the rest last one frame; the rate holds). Survival: the continuation of
+// runs, sum max(0, L - 2) / sum (L - 1) over the tracks (a geometric run continues with the survival
+// at every length, a one-frame false positive adds to neither); ghost share: bisection so that the KPI
+// manager's false positives, drawn on the fit split's frames, have the fit split's persistence share
+// (when even all ghosts fall short, share 1 and the survival by bisection instead); the target is then
+// scaled by the ratio of the share the re-simulated fit sequences get to the false positives' own
+// (the re-simulation adds non-persistent false positives: truth detections placed beyond the gate) and
+// solved again. A jitter (robust sd
+// of a linked pair's lateral step) and a score AR(1) (Spearman of linked pairs' scores, as a Gaussian
+// copula's correlation). Judged on the held-out sequences: the KPI manager re-simulates
 // them (4 seeds) with the fold's base model and with the base plus persistence; error = RMS over
 // classes (>= 20 measured held-out false positives) of simulated minus measured persistence share;
 // score = 1 - error_after / error_before; intervals by a basic bootstrap over the held-out 100-frame
@@ -132,11 +138,12 @@ struct FpPersistStats {
   std::array<std::array<double, kFpTrackBins>, 3> tracks{};  // per class: tracks by length bin
   std::array<std::vector<double>, 3> lateral_step;          // linked pairs: step of y (sensor frame), m
   std::array<std::vector<std::array<double, 2>>, 3> score_pairs;  // linked pairs: (score, previous score)
+  std::array<double, 3> links{}, links2{};  // per class over tracks of length L: sum (L - 1), sum max(0, L - 2)
 };
 FpPersistStats fp_persist_stats(const ObjectSet& set);
 
 struct FpPersistClass {
-  double survival = 0, jitter = 0, score_ar1 = 0;  // fitted on fold 1's fit sequences
+  double survival = 0, ghost_share = 1, jitter = 0, score_ar1 = 0;  // fitted on fold 1's fit sequences
   long held_fps = 0;
   double share_measured = 0, share_before = 0, share_after = 0;
   double dispersion_measured = 0, dispersion_before = 0, dispersion_after = 0;
@@ -157,8 +164,10 @@ struct FpPersistence {
 // The persistence candidate judged on the two folds (the fold's base models, its fit sequences only).
 FpPersistence analyse_fp_persistence(const TrackingData& data, const std::array<Fold, 2>& folds, double threshold,
                                      std::uint64_t seed);
-// Each class's fp_persistence fitted on `fit` (the model's own rates and placement drawn).
-sensor::KpiModel with_fp_persistence(const sensor::KpiModel& m, const ObjectSet& fit, std::uint64_t seed);
+// Each class's fp_persistence fitted on the sequences `fit_idx` (their records `fit`; the model's own
+// rates and placement drawn).
+sensor::KpiModel with_fp_persistence(const sensor::KpiModel& m, const TrackingData& data, const std::vector<int>& fit_idx,
+                                     const ObjectSet& fit, std::uint64_t seed);
 
 struct FpAnalysis {
   std::vector<FpCandidate> candidates;

@@ -95,9 +95,29 @@ sensor::KpiModel with_persistence(sensor::KpiModel m, const std::array<sensor::F
   return m;
 }
 
+// The KPI manager's re-simulation of `held` (the other sequences left empty) with `model`, kHeldSeeds
+// seeds; each block's sums divided by the seeds, and the tracks summed.
+FpPersistStats simulated_stats(const TrackingData& data, const std::vector<int>& held, const sensor::KpiModel& model,
+                               std::uint64_t seed) {
+  std::vector<sensor::CalibrationSequence> only(data.calib.size());
+  for (int s : held) only[s] = data.calib[s];
+  for (size_t s = 0; s < only.size(); ++s)
+    if (only[s].frames.empty()) only[s].name = data.calib[s].name;
+  FpPersistStats out;
+  for (int k = 0; k < kHeldSeeds; ++k) {
+    const auto sim = sensor::resimulate(only, model, seed + 300 + k);
+    const FpPersistStats st = fp_persist_stats(collect_objects(data, held, &sim));
+    for (const auto& [b, s] : st.blocks) add_to(out.blocks[b], s, 1.0 / kHeldSeeds);
+    for (int c = 0; c < 3; ++c)
+      for (int l = 0; l < kFpTrackBins; ++l) out.tracks[c][l] += st.tracks[c][l];
+  }
+  return out;
+}
+
 // Jitter and score correlation from the fit split's linked pairs; survival by bisection so that the
 // manager's false positives on the fit frames have the fit split's persistence share.
-std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::KpiModel& m, const ObjectSet& fit,
+std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::KpiModel& m, const TrackingData& data,
+                                                                const std::vector<int>& fit_idx, const ObjectSet& fit,
                                                                 std::uint64_t seed) {
   const FpPersistStats st = fp_persist_stats(fit);
   const std::array<double, 3> target = shares(st);
@@ -126,46 +146,77 @@ std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::Kp
     const double rho_s = sxx > 0 ? sxy / sxx : 0;
     p[c].score_ar1 = std::clamp(2 * std::sin(std::numbers::pi / 6 * rho_s), 0.0, 1.0);
   }
-  auto simulated_shares = [&](const std::array<double, 3>& s) {
-    std::array<sensor::FalsePositivePersistence, 3> q = p;
-    for (int c = 0; c < 3; ++c) q[c].survival = s[c];
+  // Survival from the continuation of runs; then the ghost share (or, when all ghosts fall short, the
+  // survival) by bisection on the persistence share of the manager's draws on the fit frames.
+  std::array<bool, 3> fitted{};
+  for (int c = 0; c < 3; ++c) {
+    fitted[c] = static_cast<long>(st.lateral_step[c].size()) >= kMinPairs && st.links[c] > 0;
+    p[c].survival = fitted[c] ? std::clamp(st.links2[c] / st.links[c], 0.05, 0.95) : 0;
+    p[c].ghost_share = 1;
+  }
+  auto simulated_shares = [&](const std::array<sensor::FalsePositivePersistence, 3>& q) {
     const sensor::KpiModel mm = with_persistence(m, q);
     FpPersistSums t{};
     for (int k = 0; k < kFitSeeds; ++k) add_to(t, total(fp_persist_stats(simulate_false_positives(mm, fit, seed + k))));
     return std::array<double, 3>{summarise(t[0]).share, summarise(t[1]).share, summarise(t[2]).share};
   };
-  const std::array<double, 3> at0 = simulated_shares({0, 0, 0});
-  std::array<double, 3> lo{0, 0, 0}, hi{0.95, 0.95, 0.95};
-  std::array<bool, 3> fitted{};
-  for (int c = 0; c < 3; ++c) fitted[c] = static_cast<long>(st.lateral_step[c].size()) >= kMinPairs && at0[c] < target[c];
-  for (int it = 0; it < kBisection; ++it) {
-    std::array<double, 3> mid;
-    for (int c = 0; c < 3; ++c) mid[c] = fitted[c] ? 0.5 * (lo[c] + hi[c]) : 0;
-    const auto sh = simulated_shares(mid);
-    for (int c = 0; c < 3; ++c)
-      if (fitted[c]) (sh[c] < target[c] ? lo[c] : hi[c]) = mid[c];
+  // The bisection for a target share per class (the start p: survival from the runs, ghost share 1).
+  const std::array<sensor::FalsePositivePersistence, 3> start = p;
+  const std::array<bool, 3> usable = fitted;
+  auto solve = [&](const std::array<double, 3>& target) {
+    std::array<sensor::FalsePositivePersistence, 3> p = start;
+    std::array<bool, 3> fitted = usable;
+    {
+      auto none = p;
+      for (auto& q : none) q.survival = 0;
+      const auto at0 = simulated_shares(none);
+      for (int c = 0; c < 3; ++c) fitted[c] = fitted[c] && at0[c] < target[c];
+    }
+    const auto at1 = simulated_shares(p);  // every false positive a ghost
+    std::array<bool, 3> by_share{};
+    std::array<double, 3> lo{}, hi{};
+    for (int c = 0; c < 3; ++c) {
+      by_share[c] = at1[c] >= target[c];
+      lo[c] = by_share[c] ? 0.001 : p[c].survival;
+      hi[c] = by_share[c] ? 1.0 : 0.95;
+    }
+    for (int it = 0; it < kBisection; ++it) {
+      auto q = p;
+      for (int c = 0; c < 3; ++c) {
+        const double mid = 0.5 * (lo[c] + hi[c]);
+        if (!fitted[c]) q[c].survival = 0;
+        else if (by_share[c]) q[c].ghost_share = mid;
+        else q[c].survival = mid;
+      }
+      const auto sh = simulated_shares(q);
+      for (int c = 0; c < 3; ++c)
+        if (fitted[c]) (sh[c] < target[c] ? lo[c] : hi[c]) = 0.5 * (lo[c] + hi[c]);
+    }
+    for (int c = 0; c < 3; ++c) {
+      if (!fitted[c]) p[c].survival = 0;
+      else if (by_share[c]) p[c].ghost_share = 0.5 * (lo[c] + hi[c]);
+      else p[c].survival = 0.5 * (lo[c] + hi[c]);
+    }
+    for (int c = 0; c < 3; ++c) p[c].survival = fitted[c] ? p[c].survival : 0;
+    return p;
+  };
+  p = solve(target);
+  // The manager's false positives alone miss what the re-simulation adds (detections of the truth
+  // placed beyond the gate count as false positives too, and never persist): scale the target by the
+  // ratio of the re-simulated fit sequences' share to the false positives' own, then solve again.
+  const FpPersistStats resim = simulated_stats(data, fit_idx, with_persistence(m, p), seed + 50);
+  const std::array<double, 3> got = shares(resim);
+  FpPersistSums own{};
+  for (int k = 0; k < kFitSeeds; ++k)
+    add_to(own, total(fp_persist_stats(simulate_false_positives(with_persistence(m, p), fit, seed + k))));
+  std::array<double, 3> target2 = target;
+  bool again = false;
+  for (int c = 0; c < 3; ++c) {
+    const double mine = summarise(own[c]).share;
+    if (p[c].survival > 0 && got[c] > 0 && mine > 0) target2[c] = std::min(0.99, target[c] * mine / got[c]), again = true;
   }
-  for (int c = 0; c < 3; ++c) p[c].survival = fitted[c] ? 0.5 * (lo[c] + hi[c]) : 0;
+  if (again) p = solve(target2);
   return p;
-}
-
-// The KPI manager's re-simulation of `held` (the other sequences left empty) with `model`, kHeldSeeds
-// seeds; each block's sums divided by the seeds, and the tracks summed.
-FpPersistStats simulated_stats(const TrackingData& data, const std::vector<int>& held, const sensor::KpiModel& model,
-                               std::uint64_t seed) {
-  std::vector<sensor::CalibrationSequence> only(data.calib.size());
-  for (int s : held) only[s] = data.calib[s];
-  for (size_t s = 0; s < only.size(); ++s)
-    if (only[s].frames.empty()) only[s].name = data.calib[s].name;
-  FpPersistStats out;
-  for (int k = 0; k < kHeldSeeds; ++k) {
-    const auto sim = sensor::resimulate(only, model, seed + 300 + k);
-    const FpPersistStats st = fp_persist_stats(collect_objects(data, held, &sim));
-    for (const auto& [b, s] : st.blocks) add_to(out.blocks[b], s, 1.0 / kHeldSeeds);
-    for (int c = 0; c < 3; ++c)
-      for (int l = 0; l < kFpTrackBins; ++l) out.tracks[c][l] += st.tracks[c][l];
-  }
-  return out;
 }
 
 }  // namespace
@@ -188,7 +239,12 @@ FpPersistStats fp_persist_stats(const ObjectSet& set) {
   std::vector<char> continued(order.size(), 0);
   auto close = [&](size_t f) {  // the tracks ending in frame f
     for (size_t i = begin[f]; i < begin[f + 1]; ++i)
-      if (!continued[i]) st.tracks[set.fp_records[order[i]].cls][track_bin(len[i])] += 1;
+      if (!continued[i]) {
+        const int c = set.fp_records[order[i]].cls;
+        st.tracks[c][track_bin(len[i])] += 1;
+        st.links[c] += len[i] - 1;
+        st.links2[c] += std::max(0, len[i] - 2);
+      }
   };
   std::vector<std::array<double, 3>> pairs;  // (distance, this, previous)
   for (size_t f = 0; f < nf; ++f) {
@@ -240,8 +296,9 @@ FpPersistStats fp_persist_stats(const ObjectSet& set) {
   return st;
 }
 
-sensor::KpiModel with_fp_persistence(const sensor::KpiModel& m, const ObjectSet& fit, std::uint64_t seed) {
-  sensor::KpiModel out = with_persistence(m, fit_persistence(m, fit, seed));
+sensor::KpiModel with_fp_persistence(const sensor::KpiModel& m, const TrackingData& data, const std::vector<int>& fit_idx,
+                                     const ObjectSet& fit, std::uint64_t seed) {
+  sensor::KpiModel out = with_persistence(m, fit_persistence(m, data, fit_idx, fit, seed));
   out.source = m.source + "; plus the object loop's false-positive persistence";
   return out;
 }
@@ -254,15 +311,16 @@ FpPersistence analyse_fp_persistence(const TrackingData& data, const std::array<
   std::array<std::array<std::array<double, kFpTrackBins>, 3>, 3> tracks{};  // which, class, bin
   for (int k = 0; k < 2; ++k) {
     const Fold& fold = folds[k];
-    const auto p = fit_persistence(fold.base, fold.fit_set, seed + 100 * k);
+    const auto p = fit_persistence(fold.base, data, fold.fit_idx, fold.fit_set, seed + 100 * k);
     for (int c = 0; c < 3; ++c) R.survival[k][c] = p[c].survival;
     if (k == 0) {
       double w = 0, sw = 0;
       for (int c = 0; c < 3; ++c) {
-        R.classes[c].survival = p[c].survival, R.classes[c].jitter = p[c].jitter, R.classes[c].score_ar1 = p[c].score_ar1;
+        R.classes[c].survival = p[c].survival, R.classes[c].ghost_share = p[c].ghost_share;
+        R.classes[c].jitter = p[c].jitter, R.classes[c].score_ar1 = p[c].score_ar1;
         const auto it = fold.base.classes.find(kObjectClasses[c]);
         const double rate = it == fold.base.classes.end() ? 0 : it->second.false_positive_rate;
-        w += rate, sw += rate * p[c].survival;
+        w += rate, sw += rate * p[c].ghost_share * p[c].survival;
       }
       R.effect_size = w > 0 ? sw / w : 0;
     }

@@ -306,7 +306,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       // Persistence: last frame's false positives first, each surviving with its own draw (only
       // with the field, so without it the stream is drawn exactly as before).
       std::vector<Ghost>& ghosts = ghosts_[k];
-      double birth_factor = 1;
+      double birth_factor = 1, ghost_birth_share = 1;
       if (pers.present()) {
         const double c = std::cos(ego_yaw_), s = std::sin(ego_yaw_);
         const double root = std::sqrt(std::max(0.0, 1 - pers.score_ar1 * pers.score_ar1));
@@ -326,8 +326,11 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
           ghosts[kept++] = g;
         }
         ghosts.resize(kept);
-        // The first frame starts from the stationary count (Poisson with the full rate).
-        if (fp_started_[k]) birth_factor = 1 - pers.survival;
+        // Births: one-frame false positives at rate x (1 - g) and ghosts at rate x g x (1 - survival); the
+        // first frame starts from the stationary count (Poisson with the full rate, a share g ghosts).
+        const double g = pers.ghost_share;
+        birth_factor = fp_started_[k] ? (1 - g) + g * (1 - pers.survival) : 1;
+        ghost_birth_share = fp_started_[k] ? g * (1 - pers.survival) / birth_factor : g;
         fp_started_[k] = true;
       } else {
         ghosts.clear();
@@ -365,7 +368,8 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
           g.score_z = kpi_normal(rng);
           g.score_q = &q;
           report(g);
-          ghosts.push_back(g);
+          // A ghost, or one frame only (a draw only when some births last one frame).
+          if (ghost_birth_share >= 1 || kpi_uniform(rng) < ghost_birth_share) ghosts.push_back(g);
         }
       };
       if (!table.present()) {

@@ -293,17 +293,21 @@ json write_fp_table(const FalsePositiveTable& t) {
 void check_fp_persistence(const FalsePositivePersistence& p, const std::string& file, const std::string& pf) {
   check_finite(p.survival, file, pf + ".survival");
   check(p.survival >= 0 && p.survival <= 0.999, file, pf + ".survival", "must be in [0, 0.999]", p.survival);
+  check_finite(p.ghost_share, file, pf + ".ghost_share");
+  check(p.ghost_share > 0 && p.ghost_share <= 1, file, pf + ".ghost_share", "must be in (0, 1]", p.ghost_share);
   check_finite(p.jitter, file, pf + ".jitter");
   check(p.jitter >= 0 && p.jitter <= 100, file, pf + ".jitter", "must be in [0, 100] m", p.jitter);
   check_finite(p.score_ar1, file, pf + ".score_ar1");
   check(p.score_ar1 >= 0 && p.score_ar1 <= 1, file, pf + ".score_ar1", "must be in [0, 1]", p.score_ar1);
 }
 
-// "survival" is needed (an object without it says nothing); jitter and score_ar1 default to 0.
+// "survival" is needed (an object without it says nothing); ghost_share defaults to 1, jitter and
+// score_ar1 to 0.
 FalsePositivePersistence read_fp_persistence(const json& j, const std::string& file, const std::string& pf) {
-  if (!j.is_object()) throw input_error(file, pf, "must be an object with survival, jitter, score_ar1");
+  if (!j.is_object()) throw input_error(file, pf, "must be an object with survival, ghost_share, jitter, score_ar1");
   FalsePositivePersistence p;
   p.survival = number_at(j, "survival", file, pf, 0, false);
+  p.ghost_share = number_at(j, "ghost_share", file, pf, 1, true);
   p.jitter = number_at(j, "jitter", file, pf, 0, true);
   p.score_ar1 = number_at(j, "score_ar1", file, pf, 0, true);
   return p;
@@ -496,6 +500,7 @@ std::string kpi_model_to_json(const KpiModel& m) {
     if (c.fp_table.present()) cj["fp_table"] = write_fp_table(c.fp_table);  // absent: the file is as before
     if (c.fp_persistence.present())
       cj["fp_persistence"] = {{"survival", c.fp_persistence.survival},
+                              {"ghost_share", c.fp_persistence.ghost_share},
                               {"jitter", c.fp_persistence.jitter},
                               {"score_ar1", c.fp_persistence.score_ar1}};
     cj["mean_size"] = {c.mean_size[0], c.mean_size[1], c.mean_size[2]};

@@ -82,7 +82,7 @@ KpiModel car_clutter(double survival, double jitter, double score_ar1) {
   for (auto& [name, c] : m.classes) c.false_positive_rate = 0;
   ClassModel& car = m.classes.at("Car");
   car.false_positive_rate = 1.5;
-  car.fp_persistence = {survival, jitter, score_ar1};
+  car.fp_persistence = {survival, 1, jitter, score_ar1};
   return m;
 }
 
@@ -127,6 +127,36 @@ TEST(KpiFpPersistence, GhostsKeepTheirIdSurviveGeometricallyAndKeepTheMeanCount)
   EXPECT_LT(dscore / steps, 0.8);
 }
 
+// A share of ghosts: the rest last one frame; the mean count is still the rate, the share with the
+// same id a frame before is ghost_share x survival, and a ghost's run continues with the survival.
+TEST(KpiFpPersistence, AShareOfGhostsTheRestOneFrame) {
+  KpiModel m = car_clutter(0.8, 0, 1);
+  m.classes.at("Car").fp_persistence.ghost_share = 0.4;
+  KpiManager kpi(m, 13);
+  std::vector<Object> none, out;
+  std::map<int, int> life;
+  double n = 0, again = 0;
+  std::map<int, Object> prev;
+  const int frames = 6000;
+  for (int f = 0; f < frames; ++f) {
+    kpi.apply(none, out);
+    std::map<int, Object> cur;
+    for (const Object& o : out) {
+      cur[o.id] = o;
+      ++life[o.id];
+      again += prev.count(o.id);
+    }
+    n += out.size();
+    prev = std::move(cur);
+  }
+  EXPECT_NEAR(n / frames, 1.5, 0.12);
+  EXPECT_NEAR(again / n, 0.4 * 0.8, 0.03);
+  double longer = 0, at_least_2 = 0, at_least_3 = 0;
+  for (const auto& [id, l] : life) longer += l > 1, at_least_2 += std::max(0, l - 1), at_least_3 += std::max(0, l - 2);
+  EXPECT_NEAR(at_least_3 / at_least_2, 0.8, 0.03);  // continuation of a ghost's run
+  EXPECT_GT(longer, 100);
+}
+
 // Ego motion: a ghost stays put in the world, so in the sensor frame it moves back by the step.
 TEST(KpiFpPersistence, WithEgoMotionGhostsStayPutInTheWorld) {
   KpiManager kpi(car_clutter(0.95, 0, 1), 3);
@@ -154,7 +184,7 @@ TEST(KpiFpPersistence, WithEgoMotionGhostsStayPutInTheWorld) {
 TEST(KpiFpPersistence, PersistenceOnOneClassLeavesEveryOtherDrawUnchanged) {
   const KpiModel plain = default_kpi_model();
   KpiModel changed = plain;
-  changed.classes["Car"].fp_persistence = {0.7, 0.1, 0.5};
+  changed.classes["Car"].fp_persistence = {0.7, 0.6, 0.1, 0.5};
   KpiManager a(plain, 5), b(changed, 5);
   std::vector<Object> truth{truth_object(1, ObjectClass::Car, 10, 1), truth_object(2, ObjectClass::Pedestrian, 15, -2)},
       oa, ob;
@@ -182,11 +212,12 @@ TEST(KpiFpPersistence, AbsentFieldIsNotWrittenAndTheFieldRoundTrips) {
   const KpiModel plain = default_kpi_model();
   EXPECT_EQ(kpi_model_to_json(plain).find("fp_persistence"), std::string::npos);
   KpiModel m = plain;
-  m.classes["Cyclist"].fp_persistence = {0.42, 0.13, 0.6};
+  m.classes["Cyclist"].fp_persistence = {0.42, 0.7, 0.13, 0.6};
   const std::string text = kpi_model_to_json(m);
   const KpiModel back = parse_kpi_model(text, "m.json");
   EXPECT_EQ(kpi_model_to_json(back), text);
   EXPECT_EQ(back.classes.at("Cyclist").fp_persistence.survival, 0.42);
+  EXPECT_EQ(back.classes.at("Cyclist").fp_persistence.ghost_share, 0.7);
   EXPECT_EQ(back.classes.at("Cyclist").fp_persistence.jitter, 0.13);
   EXPECT_EQ(back.classes.at("Cyclist").fp_persistence.score_ar1, 0.6);
   EXPECT_FALSE(back.classes.at("Car").fp_persistence.present());
@@ -203,7 +234,7 @@ std::string parse_error(const nlohmann::json& j) {
 
 TEST(KpiFpPersistence, BadFieldsAreOneErrorNamingFileAndField) {
   KpiModel m = default_kpi_model();
-  m.classes["Car"].fp_persistence = {0.5, 0.1, 0.5};
+  m.classes["Car"].fp_persistence = {0.5, 0.8, 0.1, 0.5};
   const auto good = nlohmann::json::parse(kpi_model_to_json(m));
   const std::string f = "m.json: classes.Car.fp_persistence";
   auto with = [&](const char* key, nlohmann::json v) {
@@ -215,6 +246,7 @@ TEST(KpiFpPersistence, BadFieldsAreOneErrorNamingFileAndField) {
   EXPECT_NE(with("survival", 1.0).find(f + ".survival: must be in [0, 0.999]"), std::string::npos) << with("survival", 1.0);
   EXPECT_NE(with("survival", -0.1).find(f + ".survival: must be in"), std::string::npos);
   EXPECT_NE(with("survival", "high").find(f + ".survival"), std::string::npos);
+  EXPECT_NE(with("ghost_share", 0).find(f + ".ghost_share: must be in (0, 1]"), std::string::npos);
   EXPECT_NE(with("jitter", -1).find(f + ".jitter: must be in [0, 100] m"), std::string::npos);
   EXPECT_NE(with("score_ar1", 1.5).find(f + ".score_ar1: must be in [0, 1]"), std::string::npos);
   auto j = good;
