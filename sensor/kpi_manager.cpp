@@ -299,7 +299,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
         fp.size = cm.mean_size;
         fp.heading = g.heading;
         fp.visible_fraction = 1;
-        fp.score = quantile_at(g.score_q ? *g.score_q : std::vector<double>{}, 0.5,
+        fp.score = quantile_at(g.score_q ? *g.score_q : kNone, 0.5,
                                0.5 * std::erfc(-g.score_z / std::numbers::sqrt2));
         reported.push_back(fp);
       };

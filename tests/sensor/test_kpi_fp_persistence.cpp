@@ -94,7 +94,7 @@ TEST(KpiFpPersistence, GhostsKeepTheirIdSurviveGeometricallyAndKeepTheMeanCount)
   std::vector<Object> none, out;
   std::map<int, Object> prev;
   std::map<int, int> life;  // id -> frames seen
-  double n = 0, n2 = 0, seen_again = 0, step2 = 0, steps = 0, dscore = 0;
+  double n = 0, n2 = 0, seen_again = 0, step2 = 0, steps = 0, dscore = 0, score_sum = 0;
   const int frames = 4000;
   for (int f = 0; f < frames; ++f) {
     kpi.apply(none, out);
@@ -104,6 +104,7 @@ TEST(KpiFpPersistence, GhostsKeepTheirIdSurviveGeometricallyAndKeepTheMeanCount)
       ASSERT_EQ(o.cls, ObjectClass::Car);
       cur[o.id] = o;
       ++life[o.id];
+      score_sum += o.score;
       const auto it = prev.find(o.id);
       if (it == prev.end()) continue;
       ++seen_again;
@@ -125,6 +126,8 @@ TEST(KpiFpPersistence, GhostsKeepTheirIdSurviveGeometricallyAndKeepTheMeanCount)
   // The default model's Car false-positive scores span 0-5: consecutive scores of a ghost differ
   // little with score_ar1 0.9 (a fresh draw: about 1.7 on average).
   EXPECT_LT(dscore / steps, 0.8);
+  // ... while the scores keep the quantiles' distribution: uniform on [0, 1] and [1, 5], mean 1.75.
+  EXPECT_NEAR(score_sum / n, 1.75, 0.12);
 }
 
 // A share of ghosts: the rest last one frame; the mean count is still the rate, the share with the
