@@ -101,6 +101,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
   auto uni = [&](double a, double b) { return a + (b - a) * U(rng); };
   // The hot spot's false positives: a stream of their own, so nothing else moves.
   std::mt19937_64 spot_rng(o.seed ^ 0x5a17c0ffee5eedULL);
+  std::mt19937_64 ghost_rng(o.seed ^ 0x6b05757acce55ULL);
   const bool hotspot = o.effect == ObjectEffect::FalsePositiveHotspot || o.second_effect == ObjectEffect::FalsePositiveHotspot;
   std::string seqmap;
   for (int s = 0; s < o.sequences; ++s) {
@@ -137,6 +138,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
     std::string labels;
     std::string dets[3];  // Car, Pedestrian, Cyclist
     char line[512];
+    std::vector<std::array<double, 3>> ghosts;  // x, y (sensor frame), score
     for (int f = 0; f < o.frames; ++f) {
       for (const Track& t : tracks) {
         if (f < t.start || f >= t.end) continue;
@@ -212,6 +214,26 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
           }
           dets[0] += line;
         }
+      if (o.ghost_survival > 0) {
+        // Survivors first, then births at the rate that keeps kFpGhostRate per frame (the first frame
+        // starts with the stationary count).
+        std::uniform_real_distribution<double> gu(0, 1);
+        std::normal_distribution<double> gn(0, kFpGhostJitter);
+        size_t kept = 0;
+        for (auto& g : ghosts)
+          if (gu(ghost_rng) < o.ghost_survival) g[0] += gn(ghost_rng), g[1] += gn(ghost_rng), ghosts[kept++] = g;
+        ghosts.resize(kept);
+        const int n = std::poisson_distribution<int>(kFpGhostRate * (f == 0 ? 1 : 1 - o.ghost_survival))(ghost_rng);
+        for (int k = 0; k < n; ++k) {
+          const double az = -kPi / 4 + kPi / 2 * gu(ghost_rng), r = 5 + 55 * gu(ghost_rng);
+          ghosts.push_back({r * std::cos(az), r * std::sin(az), 0.5 + 3.5 * gu(ghost_rng)});
+        }
+        for (const auto& g : ghosts) {
+          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, g[2], -g[1],
+                        1.73 - 0.75, g[0]);
+          dets[0] += line;
+        }
+      }
       if (hotspot) {
         std::uniform_real_distribution<double> su(0, 1);
         const int n = std::poisson_distribution<int>(kFpHotspotRate)(spot_rng);

@@ -73,6 +73,10 @@ inline constexpr double kFpHotspotAzimuthLo = -35 * 3.14159265358979323846 / 180
 inline constexpr double kFpHotspotAzimuthHi = -15 * 3.14159265358979323846 / 180;
 inline constexpr double kFpHotspotRangeLo = 15, kFpHotspotRangeHi = 25;
 inline constexpr double kFpHotspotRate = 0.6;
+// Ghost tracks (ReferenceTrackingOptions::ghost_survival): extra Car false positives per frame on
+// average, placed as polar_clutter, each moving by this jitter per frame (m, per axis).
+inline constexpr double kFpGhostRate = 0.6;
+inline constexpr double kFpGhostJitter = 0.05;
 
 struct ReferenceTrackingOptions {
   ObjectEffect effect = ObjectEffect::None;
@@ -87,6 +91,10 @@ struct ReferenceTrackingOptions {
   // KPI model's independent quantiles hold exactly; default: uniform in a rectangle ahead (x 5-60 m,
   // y -20 to 20 m), where range and azimuth depend on each other.
   bool polar_clutter = false;
+  // Planted ghost tracks (issue 11): kFpGhostRate extra Car false positives per frame, each reported
+  // again the next frame with this probability (same place up to kFpGhostJitter, same score), births at
+  // kFpGhostRate x (1 - survival); 0: none. Drawn from a stream of its own, so nothing else moves.
+  double ghost_survival = 0;
   std::uint64_t seed = 1;
 };
 void write_reference_tracking(const std::filesystem::path& dir, const ReferenceTrackingOptions& options);

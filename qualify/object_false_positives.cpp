@@ -205,6 +205,8 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
     A.simulated_before = fp_rate_error(sb);
     A.simulated_after = fp_rate_error(sa);
   }
+  // Ghost tracks: a candidate of its own (its own outcome), judged beside the rate tables.
+  A.persistence = analyse_fp_persistence(data, folds, threshold, seed);
   return A;
 }
 
@@ -230,6 +232,76 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
                   {"error_before", c.error_before},
                   {"error_after", c.error_after},
                   {"decision", c.decision}});
+  const FpPersistence& P = a.persistence;
+  {
+    std::ostringstream form;
+    form << "ghost share x survival (fold 1)";
+    for (int c = 0; c < 3; ++c)
+      form << " " << kObjectClasses[c] << " " << fmt(P.classes[c].ghost_share, 3) << " x " << fmt(P.classes[c].survival, 3);
+    form << "; jitter";
+    for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].jitter, 3);
+    form << " m; score_ar1";
+    for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].score_ar1, 3);
+    cj.push_back({{"feature", "previous_frame"},
+                  {"kind", "fp_persistence"},
+                  {"form_fold1", form.str()},
+                  {"effect_size", P.effect_size},
+                  {"score", P.score},
+                  {"interval95", P.interval},
+                  {"significant", P.interval[0] > 0},
+                  {"change_interval95", P.change},
+                  {"error_metric", "persistence share error"},
+                  {"error_before", P.error_before},
+                  {"error_after", P.error_after},
+                  {"decision", P.decision}});
+  }
+  nlohmann::json pcl = nlohmann::json::object();
+  // Total variation between two track-length distributions (shares per length bin).
+  auto tv = [](const std::array<double, kFpTrackBins>& a, const std::array<double, kFpTrackBins>& b) {
+    double d = 0;
+    for (int l = 0; l < kFpTrackBins; ++l) d += std::abs(a[l] - b[l]);
+    return 0.5 * d;
+  };
+  for (int c = 0; c < 3; ++c) {
+    const FpPersistClass& k = P.classes[c];
+    pcl[kObjectClasses[c]] = {{"held_out_false_positives", k.held_fps},
+                              {"survival_fold1", k.survival},
+                              {"ghost_share_fold1", k.ghost_share},
+                              {"survival_fold2", P.survival[1][c]},
+                              {"jitter_fold1", k.jitter},
+                              {"score_ar1_fold1", k.score_ar1},
+                              {"persistence_share", {{"measured", k.share_measured}, {"before", k.share_before}, {"after", k.share_after}}},
+                              {"dispersion", {{"measured", k.dispersion_measured}, {"before", k.dispersion_before}, {"after", k.dispersion_after}}},
+                              {"track_length_shares", {{"measured", k.tracks_measured}, {"before", k.tracks_before}, {"after", k.tracks_after}}},
+                              {"mean_track_length", {{"measured", k.mean_track_measured}, {"before", k.mean_track_before}, {"after", k.mean_track_after}}},
+                              {"track_length_tv", {{"before", tv(k.tracks_measured, k.tracks_before)}, {"after", tv(k.tracks_measured, k.tracks_after)}}}};
+  }
+  nlohmann::json pj = {
+      {"outcome", "per held-out false positive: whether one of the same class lies within 1.5 m (BEV) in the previous "
+                  "frame of its sequence (persistence share, per class)"},
+      {"model", "per class fp_persistence fitted on the fit sequences: survival = sum max(0, L - 2) / sum (L - 1) over "
+                "the false-positive tracks (greedy links within 1.5 m); ghost_share by bisection so that the KPI "
+                "manager's false positives on the fit split's frames have the fit split's persistence share (if all "
+                "ghosts fall short: ghost_share 1, survival by bisection); jitter = median |lateral step| / 0.6745 and "
+                "score_ar1 = 2 sin(pi/6 Spearman) of linked pairs"},
+      {"error_definition", "RMS over classes with >= 20 held-out false positives of the simulated (KPI manager, 4 seeds, "
+                           "the fold's held-out ground truth) minus the measured persistence share; before: the fold's "
+                           "base model, after: base plus fp_persistence"},
+      {"score_definition", "1 - error_after / error_before; interval95 and change_interval95 (error_after - "
+                           "error_before) by a basic bootstrap over the held-out 100-frame blocks; added when score >= "
+                           "threshold and change_interval95 lies below 0"},
+      {"track_length_bins", {"1", "2", "3-5", "6-10", "11-30", ">30"}},
+      {"track_length_tv_definition", "total variation between the measured and simulated shares of tracks per length bin"},
+      {"dispersion_definition", "variance / mean of the count per held-out frame (all held-out frames pooled)"},
+      {"effect_size", P.effect_size},
+      {"score", P.score},
+      {"interval95", P.interval},
+      {"change_interval95", P.change},
+      {"error_before", P.error_before},
+      {"error_after", P.error_after},
+      {"added", P.added},
+      {"model_term_on", "classes.*.fp_persistence"},
+      {"classes", pcl}};
   nlohmann::json j = {
       {"outcome",
        "per block of 100 held-out frames, class and cell of a 5 x 5 x 4 grid over (range, azimuth, score) of the fit "
@@ -248,7 +320,8 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
       {"threshold", threshold},
       {"held_out_frames", a.frames},
       {"held_out_false_positives", a.fps},
-      {"candidates", cj}};
+      {"candidates", cj},
+      {"persistence", pj}};
   if (a.added >= 0) {
     const FpCandidate& c = a.candidates[a.added];
     j["added"] = {{"feature", kFpFeatures[c.feature]},
@@ -284,14 +357,44 @@ std::string fp_markdown(const nlohmann::json& fp) {
   md += "\n| feature | kind | form (fold 1) | effect size | held-out score [95%] | deviance change per frame [95%] | "
         "deviance per frame before | after | rate error before | after | decision |\n"
         "|---|---|---|---|---|---|---|---|---|---|---|\n";
+  // The persistence row has no deviance: its error is the persistence share's, its change that error's.
+  auto num = [&](const nlohmann::json& c, const char* k) { return c.contains(k) ? fmt(c[k].get<double>(), 4) : "—"; };
   for (const auto& c : fp["candidates"])
     md += "| " + c["feature"].get<std::string>() + " | " + c["kind"].get<std::string>() + " | " +
           c["form_fold1"].get<std::string>() + " | " + fmt(c["effect_size"].get<double>()) + " | " +
           fmt(c["score"].get<double>()) + " [" + fmt(c["interval95"][0].get<double>()) + ", " +
           fmt(c["interval95"][1].get<double>()) + "] | [" + fmt(c["change_interval95"][0].get<double>(), 4) + ", " +
-          fmt(c["change_interval95"][1].get<double>(), 4) + "] | " + fmt(c["deviance_before"].get<double>(), 4) +
-          " | " + fmt(c["deviance_after"].get<double>(), 4) + " | " + fmt(c["error_before"].get<double>(), 4) + " | " +
+          fmt(c["change_interval95"][1].get<double>(), 4) + "] | " + num(c, "deviance_before") + " | " +
+          num(c, "deviance_after") + " | " + fmt(c["error_before"].get<double>(), 4) + " | " +
           fmt(c["error_after"].get<double>(), 4) + " | " + c["decision"].get<std::string>() + " |\n";
+  if (fp.contains("persistence")) {
+    const auto& p = fp["persistence"];
+    md += "\n### Persistence (ghost tracks)\n\nOutcome: " + p["outcome"].get<std::string>() + ". Model: " +
+          p["model"].get<std::string>() + ". Error: " + p["error_definition"].get<std::string>() + ". Score: " +
+          p["score_definition"].get<std::string>() + ".\n\nAdded: **" + (p["added"].get<bool>() ? "yes" : "no") +
+          "**; persistence share error " + fmt(p["error_before"].get<double>(), 4) + " -> " +
+          fmt(p["error_after"].get<double>(), 4) + ", score " + fmt(p["score"].get<double>()) + " [" +
+          fmt(p["interval95"][0].get<double>()) + ", " + fmt(p["interval95"][1].get<double>()) + "]\n\n" +
+          "| class | held-out FPs | ghost share x survival (fold 1); survival fold 2 | jitter m | score_ar1 | persistence share measured / before / after "
+          "| dispersion measured / before / after | mean track length measured / before / after | single-frame tracks "
+          "measured / before / after | track-length TV before / after |\n|---|---|---|---|---|---|---|---|---|---|\n";
+    for (const auto& [name, k] : p["classes"].items()) {
+      auto three = [&](const nlohmann::json& v, int d) {
+        return fmt(v["measured"].get<double>(), d) + " / " + fmt(v["before"].get<double>(), d) + " / " +
+               fmt(v["after"].get<double>(), d);
+      };
+      const auto& t = k["track_length_shares"];
+      md += "| " + name + " | " + std::to_string(k["held_out_false_positives"].get<long>()) + " | " +
+            fmt(k["ghost_share_fold1"].get<double>(), 3) + " x " + fmt(k["survival_fold1"].get<double>(), 3) + "; " +
+            fmt(k["survival_fold2"].get<double>(), 3) + " | " +
+            fmt(k["jitter_fold1"].get<double>(), 3) + " | " + fmt(k["score_ar1_fold1"].get<double>(), 3) + " | " +
+            three(k["persistence_share"], 3) + " | " + three(k["dispersion"], 2) + " | " +
+            three(k["mean_track_length"], 2) + " | " + fmt(t["measured"][0].get<double>(), 3) + " / " +
+            fmt(t["before"][0].get<double>(), 3) + " / " + fmt(t["after"][0].get<double>(), 3) + " | " +
+            fmt(k["track_length_tv"]["before"].get<double>(), 3) + " / " + fmt(k["track_length_tv"]["after"].get<double>(), 3) +
+            " |\n";
+    }
+  }
   return md;
 }
 

@@ -369,6 +369,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                            : add_spread ? with_spread_term(whole.base, *final_spread, kObjectFeatures[sp->feature])
                                         : whole.base;
     if (fpa.added >= 0) out = with_fitted_fp_table(out, whole, fpa.candidates[fpa.added], options.bins);
+    if (fpa.persistence.added) out = with_fp_persistence(out, data, whole.fit_idx, whole.fit_set, options.seed);
     sensor::save_kpi_model(out, options.out_model);
   }
 

@@ -12,6 +12,7 @@ namespace {
 // Stream purposes (KpiRng::stream); error parameters use 0 .. kNumKpiParams - 1.
 constexpr std::uint64_t kPurposeMiss = 16, kPurposeFlip = 17, kPurposeScore = 18, kPurposeFalsePositives = 32;
 constexpr std::uint64_t kFalsePositiveKey = ~std::uint64_t{0};  // no track id takes this value
+const std::vector<double> kNone;  // a table bin without quantiles of its own
 }  // namespace
 
 namespace {
@@ -145,7 +146,12 @@ void KpiManager::forget_stale() {
 
 double KpiManager::sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng) {
   if (q.size() < 2) return fallback;
-  const double x = kpi_uniform(rng) * static_cast<double>(q.size() - 1);
+  return quantile_at(q, fallback, kpi_uniform(rng));
+}
+
+double KpiManager::quantile_at(const std::vector<double>& q, double fallback, double u) {
+  if (q.size() < 2) return fallback;
+  const double x = u * static_cast<double>(q.size() - 1);
   const size_t i = std::min(static_cast<size_t>(x), q.size() - 2);
   const double f = x - static_cast<double>(i);
   return q[i] + f * (q[i + 1] - q[i]);
@@ -177,6 +183,11 @@ double KpiManager::detection_probability(const Object& o, long track_age) const 
   const double range = o.position.head<2>().norm();
   return detection_probability(slot, model_.range_bin(range), model_.visibility_bin(o.visible_fraction),
                                o, range, track_age);
+}
+
+void KpiManager::set_ego_motion(const Eigen::Vector2d& translation, double yaw) {
+  ego_xy_ = translation;
+  ego_yaw_ = yaw;
 }
 
 void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& reported) {
@@ -278,27 +289,87 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       // Each model once, under its own class (not again for the classes that fall back to it).
       if (!fp_own_model_[k]) continue;
       const FalsePositiveTable& table = cm.fp_table;
-      if (table.present() ? table.total_rate() <= 0 : cm.false_positive_rate <= 0) continue;
+      const FalsePositivePersistence& pers = cm.fp_persistence;
       KpiRng& rng = fp_rng_[k];
+      auto report = [&](const Ghost& g) {
+        Object fp;
+        fp.id = g.id;
+        fp.cls = static_cast<ObjectClass>(k);
+        fp.position = Eigen::Vector3d(g.x, g.y, cm.fp_z);
+        fp.size = cm.mean_size;
+        fp.heading = g.heading;
+        fp.visible_fraction = 1;
+        fp.score = quantile_at(g.score_q ? *g.score_q : kNone, 0.5,
+                               0.5 * std::erfc(-g.score_z / std::numbers::sqrt2));
+        reported.push_back(fp);
+      };
+      // Persistence: last frame's false positives first, each surviving with its own draw (only
+      // with the field, so without it the stream is drawn exactly as before).
+      std::vector<Ghost>& ghosts = ghosts_[k];
+      double birth_factor = 1, ghost_birth_share = 1;
+      if (pers.present()) {
+        const double c = std::cos(ego_yaw_), s = std::sin(ego_yaw_);
+        const double root = std::sqrt(std::max(0.0, 1 - pers.score_ar1 * pers.score_ar1));
+        size_t kept = 0;
+        for (Ghost& g : ghosts) {
+          if (!(kpi_uniform(rng) < pers.survival)) continue;
+          // Into this frame's sensor frame: the ghost stays put in the world.
+          const double dx = g.x - ego_xy_.x(), dy = g.y - ego_xy_.y();
+          g.x = c * dx + s * dy, g.y = -s * dx + c * dy;
+          g.heading = wrap_angle(g.heading - ego_yaw_);
+          if (pers.jitter > 0) {
+            g.x += pers.jitter * kpi_normal(rng);
+            g.y += pers.jitter * kpi_normal(rng);
+          }
+          g.score_z = pers.score_ar1 * g.score_z + root * kpi_normal(rng);
+          report(g);
+          ghosts[kept++] = g;
+        }
+        ghosts.resize(kept);
+        // Births: one-frame false positives at rate x (1 - g) and ghosts at rate x g x (1 - survival); the
+        // first frame starts from the stationary count (Poisson with the full rate, a share g ghosts).
+        const double g = pers.ghost_share;
+        birth_factor = fp_started_[k] ? (1 - g) + g * (1 - pers.survival) : 1;
+        ghost_birth_share = fp_started_[k] ? g * (1 - pers.survival) / birth_factor : g;
+        fp_started_[k] = true;
+      } else {
+        ghosts.clear();
+      }
+      if (table.present() ? table.total_rate() <= 0 : cm.false_positive_rate <= 0) continue;
       // n false positives placed by the given quantiles (empty: the class's), from the class's stream.
       auto emit = [&](double rate, const std::vector<double>& rq, const std::vector<double>& aq,
                       const std::vector<double>& sq) {
-        std::poisson_distribution<int> poisson(rate);
+        std::poisson_distribution<int> poisson(rate * birth_factor);
         const int n = poisson(rng);
         for (int f = 0; f < n; ++f) {
-          Object fp;
-          fp.id = next_fp_id_--;
+          Ghost g;
+          g.id = next_fp_id_--;
           if (next_fp_id_ < -1000000000) next_fp_id_ = -1000;
-          fp.cls = static_cast<ObjectClass>(k);
           const double rr = sample_quantiles(rq.empty() ? cm.fp_range_quantiles : rq, 20, rng),
                        az = sample_quantiles(aq.empty() ? cm.fp_azimuth_quantiles : aq, 0, rng);
-          fp.position = Eigen::Vector3d(rr * std::cos(az), rr * std::sin(az), cm.fp_z);
-          fp.size = cm.mean_size;
+          g.x = rr * std::cos(az), g.y = rr * std::sin(az);
           std::uniform_real_distribution<double> h(-std::numbers::pi, std::numbers::pi);
-          fp.heading = h(rng);
-          fp.visible_fraction = 1;
-          fp.score = sample_quantiles(sq.empty() ? cm.fp_score_quantiles : sq, 0.5, rng);
-          reported.push_back(fp);
+          g.heading = h(rng);
+          const std::vector<double>& q = sq.empty() ? cm.fp_score_quantiles : sq;
+          if (!pers.present()) {
+            // As before the persistence field: one uniform through the quantiles.
+            Object fp;
+            fp.id = g.id;
+            fp.cls = static_cast<ObjectClass>(k);
+            fp.position = Eigen::Vector3d(g.x, g.y, cm.fp_z);
+            fp.size = cm.mean_size;
+            fp.heading = g.heading;
+            fp.visible_fraction = 1;
+            fp.score = sample_quantiles(q, 0.5, rng);
+            reported.push_back(fp);
+            continue;
+          }
+          // A normal score, so its AR(1) over the ghost's life keeps the quantiles' distribution.
+          g.score_z = kpi_normal(rng);
+          g.score_q = &q;
+          report(g);
+          // A ghost, or one frame only (a draw only when some births last one frame).
+          if (ghost_birth_share >= 1 || kpi_uniform(rng) < ghost_birth_share) ghosts.push_back(g);
         }
       };
       if (!table.present()) {
@@ -306,15 +377,16 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
         continue;
       }
       // A table: each bin its own Poisson count, placed by the bin's quantiles.
-      static const std::vector<double> none;
       auto at = [](const std::vector<std::vector<double>>& q, size_t b) -> const std::vector<double>& {
-        return q.empty() ? none : q[b];
+        return q.empty() ? kNone : q[b];
       };
       for (size_t b = 0; b < table.rate.size(); ++b)
         if (table.rate[b] > 0)
           emit(table.rate[b], at(table.range_quantiles, b), at(table.azimuth_quantiles, b), at(table.score_quantiles, b));
     }
   }
+  ego_xy_.setZero();
+  ego_yaw_ = 0;
   if (frame_ % 64 == 0) forget_stale();
 }
 

@@ -12,7 +12,9 @@
 //   - optional conditional terms (kpi_model.h ConditionalTerm): a bias and sigma scale per bin
 //     of a feature computed from the truth object (and, for track_age, the id's state);
 // and per frame a Poisson number of false positives per class (with the class's optional fp_table:
-// per bin of the table its own Poisson count, placed by the bin's quantiles). A feedback controller per
+// per bin of the table its own Poisson count, placed by the bin's quantiles; with the class's optional
+// fp_persistence last frame's false positives survive, keeping their id, and births come at the rate x
+// (1 - survival)). A feedback controller per
 // class and parameter keeps the running mean and spread of the injected standardized noise on
 // target (0, 1), so the injected errors keep the model's mean and std per bin.
 // Random draws: each track owns one stream per error parameter and one each for its misses,
@@ -65,6 +67,12 @@ class KpiManager {
   // objects (same id as their truth) followed by false positives (ids <= -1000).
   void apply(const std::vector<Object>& truth, std::vector<Object>& reported);
 
+  // The sensor's motion since the previous apply() (translation in the previous frame's sensor frame,
+  // m, and yaw, rad), for the next apply() only: persistent false positives (ClassModel::fp_persistence)
+  // are moved by its inverse, so they stay put in the world as KITTI's ghosts do. Not called: they
+  // stay put in the sensor frame.
+  void set_ego_motion(const Eigen::Vector2d& translation, double yaw);
+
   const std::vector<KpiInjection>& injections() const { return injections_; }
   // The stationary detection probability apply() uses for this truth object (sensor frame,
   // visible_fraction set) at `track_age` frames after its first frame: the model's
@@ -87,6 +95,14 @@ class KpiManager {
   };
   TrackState& state_for(int id);
   void forget_stale();
+  // A persistent false positive (ClassModel::fp_persistence), kept from frame to frame.
+  struct Ghost {
+    int id = 0;
+    double x = 0, y = 0, heading = 0;
+    double score_z = 0;                         // normal score of its score
+    const std::vector<double>* score_q = nullptr;  // the score quantiles it was born with (in model_)
+  };
+  static double quantile_at(const std::vector<double>& q, double fallback, double u);
   static double sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng);
   double detection_probability(int slot, int rb, int vb, const Object& o, double range, long track_age) const;
 
@@ -108,6 +124,10 @@ class KpiManager {
   std::vector<TrackState> states_;
   std::vector<int> free_states_;
   std::vector<KpiInjection> injections_;
+  std::array<std::vector<Ghost>, 8> ghosts_;  // per class
+  std::array<bool, 8> fp_started_{};
+  Eigen::Vector2d ego_xy_ = Eigen::Vector2d::Zero();
+  double ego_yaw_ = 0;
   long frame_ = 0;
   int next_fp_id_ = -1000;
 };

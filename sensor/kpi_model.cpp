@@ -290,6 +290,29 @@ json write_fp_table(const FalsePositiveTable& t) {
   return j;
 }
 
+void check_fp_persistence(const FalsePositivePersistence& p, const std::string& file, const std::string& pf) {
+  check_finite(p.survival, file, pf + ".survival");
+  check(p.survival >= 0 && p.survival <= 0.999, file, pf + ".survival", "must be in [0, 0.999]", p.survival);
+  check_finite(p.ghost_share, file, pf + ".ghost_share");
+  check(p.ghost_share > 0 && p.ghost_share <= 1, file, pf + ".ghost_share", "must be in (0, 1]", p.ghost_share);
+  check_finite(p.jitter, file, pf + ".jitter");
+  check(p.jitter >= 0 && p.jitter <= 100, file, pf + ".jitter", "must be in [0, 100] m", p.jitter);
+  check_finite(p.score_ar1, file, pf + ".score_ar1");
+  check(p.score_ar1 >= 0 && p.score_ar1 <= 1, file, pf + ".score_ar1", "must be in [0, 1]", p.score_ar1);
+}
+
+// "survival" is needed (an object without it says nothing); ghost_share defaults to 1, jitter and
+// score_ar1 to 0.
+FalsePositivePersistence read_fp_persistence(const json& j, const std::string& file, const std::string& pf) {
+  if (!j.is_object()) throw input_error(file, pf, "must be an object with survival, ghost_share, jitter, score_ar1");
+  FalsePositivePersistence p;
+  p.survival = number_at(j, "survival", file, pf, 0, false);
+  p.ghost_share = number_at(j, "ghost_share", file, pf, 1, true);
+  p.jitter = number_at(j, "jitter", file, pf, 0, true);
+  p.score_ar1 = number_at(j, "score_ar1", file, pf, 0, true);
+  return p;
+}
+
 }  // namespace
 
 void KpiModel::validate(const std::string& file) const {
@@ -344,6 +367,7 @@ void KpiModel::validate(const std::string& file) const {
       throw input_error(file, base + ".fp_range_quantiles", "needed when false_positive_rate > 0");
     check_finite(c.fp_z, file, base + ".fp_z");
     check_fp_table(c, file, base + ".fp_table");
+    check_fp_persistence(c.fp_persistence, file, base + ".fp_persistence");
     for (int i = 0; i < 3; ++i) {
       const std::string f = base + ".mean_size[" + std::to_string(i) + "]";
       check_finite(c.mean_size[i], file, f);
@@ -412,6 +436,8 @@ KpiModel parse_kpi_model(const std::string& text, const std::string& file) {
     c.fp_score_quantiles = numbers_at(cj, "fp_score_quantiles", file, base, true);
     c.fp_z = number_at(cj, "fp_z", file, base, -0.9, true);
     if (cj.contains("fp_table")) c.fp_table = read_fp_table(cj["fp_table"], file, base + ".fp_table");
+    if (cj.contains("fp_persistence"))
+      c.fp_persistence = read_fp_persistence(cj["fp_persistence"], file, base + ".fp_persistence");
     if (cj.contains("mean_size")) {
       const auto s = numbers_at(cj, "mean_size", file, base, false);
       if (s.size() != 3) throw input_error(file, base + ".mean_size", "must have 3 entries (length, width, height)");
@@ -472,6 +498,11 @@ std::string kpi_model_to_json(const KpiModel& m) {
     cj["fp_score_quantiles"] = c.fp_score_quantiles;
     cj["fp_z"] = c.fp_z;
     if (c.fp_table.present()) cj["fp_table"] = write_fp_table(c.fp_table);  // absent: the file is as before
+    if (c.fp_persistence.present())
+      cj["fp_persistence"] = {{"survival", c.fp_persistence.survival},
+                              {"ghost_share", c.fp_persistence.ghost_share},
+                              {"jitter", c.fp_persistence.jitter},
+                              {"score_ar1", c.fp_persistence.score_ar1}};
     cj["mean_size"] = {c.mean_size[0], c.mean_size[1], c.mean_size[2]};
     j["classes"][name] = cj;
   }

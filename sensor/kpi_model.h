@@ -81,6 +81,24 @@ struct FalsePositiveTable {
 };
 inline const std::vector<std::string> kFalsePositiveFeatures = {"range", "azimuth", "score"};
 
+// Optional persistence of a class's false positives ("fp_persistence" in the file; issue 11): on KITTI
+// 36 % of PointRCNN's false positives have one of the same class within 1.5 m in the previous frame
+// (ghost tracks), while most others last one frame. A share `ghost_share` of the false positives are
+// ghosts: reported again the next frame with probability `survival` (a geometric lifetime, mean
+// 1 / (1 - survival) frames), with the same id, class, box and heading, moved by `jitter` (m, per axis
+// per frame), their score's normal score an AR(1) with `score_ar1` (so the score quantiles hold); the
+// rest last one frame. Births of ghosts come at rate x ghost_share x (1 - survival), so the mean count
+// per frame stays the class's rate (the first frame starts from the stationary count). Ghosts live in
+// the sensor frame unless the caller gives the ego motion (KpiManager::set_ego_motion): measured on
+// KITTI they stay put in the world (they move backwards with the ego speed in the sensor frame).
+struct FalsePositivePersistence {
+  double survival = 0;     // [0, 0.999]; 0: no persistence (the file has no "fp_persistence")
+  double ghost_share = 1;  // (0, 1]: share of the false positives (per frame) that are ghosts
+  double jitter = 0;       // m, >= 0
+  double score_ar1 = 0;    // [0, 1]; 0: a fresh score each frame, 1: the score kept
+  bool present() const { return survival > 0; }
+};
+
 struct ErrorModel {
   std::vector<double> mean;                  // per range bin
   std::vector<double> sigma;                 // per range bin, >= 0 ("std" in the file)
@@ -108,6 +126,7 @@ struct ClassModel {
   std::vector<double> fp_score_quantiles;
   double fp_z = -0.9;               // m, box centre height in the sensor frame
   FalsePositiveTable fp_table;      // optional; replaces the rate and quantiles above when present
+  FalsePositivePersistence fp_persistence;  // optional; absent: a fresh set of false positives every frame
   Eigen::Vector3d mean_size = Eigen::Vector3d(4, 1.8, 1.5);
 };
 

@@ -84,7 +84,7 @@ TEST(LoopFalsePositives, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsTheHeldOutRa
   const double sb = fp["added"]["simulated_error_before"], sa = fp["added"]["simulated_error_after"];
   EXPECT_LE(sa, 0.7 * sb);
   // Every candidate tested is listed, frame features included.
-  EXPECT_EQ(fp["candidates"].size(), 10u);
+  EXPECT_EQ(fp["candidates"].size(), 11u);  // and the persistence candidate
   // The written Car table: the bin holding the spot's centre places its false positives in the spot's
   // extent of the other coordinate, at least at half the spot's rate.
   const sensor::FalsePositiveTable& t = run.model.classes.at("Car").fp_table;
