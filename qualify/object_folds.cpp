@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <numbers>
 
 #include "common/error.h"
@@ -55,6 +56,13 @@ std::vector<int> Split::classes() const {
   std::vector<int> c(rec.size());
   for (size_t i = 0; i < c.size(); ++i) c[i] = rec[i]->cls;
   return c;
+}
+std::vector<int> Split::tracks() const {
+  std::map<std::pair<int, int>, int> id;  // track ids are per sequence
+  std::vector<int> t(rec.size());
+  for (size_t i = 0; i < t.size(); ++i)
+    t[i] = id.try_emplace({rec[i]->seq, rec[i]->track}, static_cast<int>(id.size())).first->second;
+  return t;
 }
 std::vector<int> Split::cells(int t, int nvis) const {
   std::vector<int> c(rec.size());

@@ -35,6 +35,7 @@ struct Split {
 
   std::vector<double> column(int f) const;
   std::vector<int> classes() const;
+  std::vector<int> tracks() const;  // one id per (sequence, track): the bootstrap's blocks
   // The model's own cell of each record for target t: range bin (error means), or range bin x
   // visibility bin (detection probability).
   std::vector<int> cells(int t, int nvis) const;
@@ -52,6 +53,9 @@ struct Fold {
   ObjectSet fit_set, held_set;
   std::vector<Split> fit_r, held_r;  // per target
   std::vector<Winsor> win;           // per target, from the fit residuals
+  // fit_effect shrinks the bias forms fitted on this fold by their track-bootstrap uncertainty
+  // (object_terms.h shrink_by_track_bootstrap); off: the fitted values as they are.
+  bool shrink_terms = true;
 };
 
 Split gather(const ObjectSet& s, const sensor::KpiModel& base, int t);

@@ -35,6 +35,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   std::array<Fold, 2> folds;
   make_fold(folds[0], data, even, odd, opt);
   make_fold(folds[1], data, odd, even, opt);
+  for (Fold& k : folds) k.shrink_terms = options.shrink_terms;
   const int nvis = folds[0].base.visibility_bins();
 
   // Held-out tracks are the bootstrap blocks: a track's errors are correlated frame to frame.
@@ -345,6 +346,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   // The model to use from now on: base and term fitted on every sequence.
   Fold whole;
   make_fold(whole, data, all, {}, opt);
+  whole.shrink_terms = options.shrink_terms;
   const Refit final_ref = fit_effect(whole, t, f, top.kind, nvis, options.bins).bias;
   std::optional<Effect> final_spread;
   if (add_spread) final_spread = fit_effect(whole, sp->target, sp->feature, sp->kind, nvis, options.bins);
@@ -525,6 +527,11 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                         {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
     for (int c = 0; c < 3; ++c)
       if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+    if (options.shrink_terms) {  // the bias kept per bin = fitted x factor
+      e["pooled"]["shrink_factor"] = final_ref.factor.pooled.value;
+      for (int c = 0; c < 3; ++c)
+        if (tab.own[c]) e[kObjectClasses[c]]["shrink_factor"] = final_ref.factor.per_class[c].value;
+    }
     j["effect"] = e;
   }
   // Every bias form added (the top one first), each with its own before -> after; the simulated
@@ -542,8 +549,22 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     return d;
   };
   nlohmann::json aj = nlohmann::json::array();
+  // Each fold's shrink factors per bin (pooled, then the classes with their own table); null when not shrunk.
+  auto shrink_entry = [&](const Judged& J) {
+    if (!options.shrink_terms) return nlohmann::json(nullptr);
+    nlohmann::json out = nlohmann::json::array();
+    for (const Refit& r : J.refs) {
+      nlohmann::json f = {{"pooled", {{"factor", r.factor.pooled.value}, {"se", r.se.pooled.value}}}};
+      for (int c = 0; c < 3; ++c)
+        if (r.factor.own[c])
+          f[kObjectClasses[c]] = {{"factor", r.factor.per_class[c].value}, {"se", r.se.per_class[c].value}};
+      out.push_back(f);
+    }
+    return out;
+  };
   auto added_entry = [&](const Candidate& c, const Judged& J, double sb, double sa) {
     return nlohmann::json{{"feature", kObjectFeatures[c.feature]},
+                          {"shrink_per_fold", shrink_entry(J)},
                           {"target", kObjectTargets[c.target]},
                           {"kind", to_string(c.kind)},
                           {"score", c.score},

@@ -105,8 +105,10 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
 // outer fold the loop (loop_objects, its own inner even/odd split) runs on that fold's fit
 // sequences only, and the model it writes is scored on the outer held-out sequences (the loop's
 // models and reports are written to out_dir/nested_fold_K_*).
+// shrink_terms: the terms refitted on each half (and the nested loop's) are shrunk as LoopOptions::shrink_terms.
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
-                               const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false);
+                               const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
+                               bool shrink_terms = true);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
@@ -115,6 +117,9 @@ struct LoopOptions {
   std::filesystem::path out_model;  // where to write the refitted KPI model (empty: not written)
   std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
   int max_effects = 0;              // bias forms added per run, at most one per target (0: no limit)
+  // Bias terms shrunk towards 0 by their track-bootstrap uncertainty on the fit sequences
+  // (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md).
+  bool shrink_terms = true;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
