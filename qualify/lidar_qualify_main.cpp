@@ -102,7 +102,7 @@ int run(int argc, char** argv) {
     ("report", "loop report JSON", cxxopts::value<std::string>())
     ("max-effects", "loop objects: bias forms added per run, at most one per target, best first (0: no limit)", cxxopts::value<int>()->default_value("0"))
     ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel or per-row affine layer)", cxxopts::value<std::string>())
-    ("term-shrink", "objects, loop objects: shrink the loop's bias terms towards 0 by their track-bootstrap uncertainty on the fit sequences (on | off)", cxxopts::value<std::string>()->default_value("on"))
+    ("term-shrink", "objects, loop objects: shrink the loop's bias terms by their track-bootstrap uncertainty on the fit sequences: off | zero (every table towards 0) | pooled (the pooled table towards 0, each class's towards it)", cxxopts::value<std::string>()->default_value("off"))
     ("nested", "objects: also score the loop's model nested (the loop run on each outer fold's fit sequences only)")
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
@@ -124,9 +124,11 @@ int run(int argc, char** argv) {
   if (!a.unmatched().empty()) throw Error("unexpected argument \"" + a.unmatched().front() + "\"");
   const std::uint64_t seed = a["seed"].as<std::uint64_t>();
   const std::string shrink_arg = a["term-shrink"].as<std::string>();
-  if (shrink_arg != "on" && shrink_arg != "off")
-    throw Error("--term-shrink: expected on or off, got \"" + shrink_arg + "\"");
-  const bool shrink_terms = shrink_arg == "on";
+  if (shrink_arg != "off" && shrink_arg != "zero" && shrink_arg != "pooled")
+    throw Error("--term-shrink: expected off, zero or pooled, got \"" + shrink_arg + "\"");
+  const qualify::TermShrink shrink_terms = shrink_arg == "zero"     ? qualify::TermShrink::TowardsZero
+                                           : shrink_arg == "pooled" ? qualify::TermShrink::TowardsPooled
+                                                                    : qualify::TermShrink::Off;
   if (cmd == "objects") {
     const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                              a["seqmap"].as<std::string>(), a["detector"].as<std::string>());

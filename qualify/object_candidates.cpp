@@ -122,12 +122,14 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
     case Kind::MeanTable:
     case Kind::RateTable:
       e.bias = backfit(x, r, cls, cells, bins);
-      if (k.shrink_terms) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), false);
+      if (k.shrink_terms != TermShrink::Off)
+        shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), false,
+                                  k.shrink_terms == TermShrink::TowardsPooled);
       break;
     case Kind::MeanWindow:
     case Kind::RateWindow:
       e.bias = backfit_window(x, r, cls, cells, 4 * bins);
-      if (k.shrink_terms) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
+      if (k.shrink_terms != TermShrink::Off) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
       break;
     case Kind::SpreadTable:
     case Kind::SpreadWindow: {
@@ -313,7 +315,7 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 }
 
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins, bool shrink_terms) {
+                              int bins, TermShrink shrink_terms) {
   Fold fold;
   make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
   fold.shrink_terms = shrink_terms;

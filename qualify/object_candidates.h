@@ -12,7 +12,7 @@
 // touches an end is a step), chosen by the between-groups sum of squares (bias forms) or the
 // Gaussian likelihood ratio of two variances (spread forms); at least 30 fit samples each side.
 // Bias forms are refitted jointly with the model's own cells (backfitting, object_terms.h).
-// Bias forms fitted on a fold with Fold::shrink_terms are shrunk towards 0 by their own
+// Bias forms fitted on a fold with Fold::shrink_terms set are shrunk by their own
 // track-bootstrap uncertainty (object_terms.h shrink_by_track_bootstrap) before they are judged.
 // Spread forms are measured around the fit split's per-class x range-bin mean, in units of that
 // cell's standard deviation, so a feature-dependent bias does not pose as a spread.
@@ -86,6 +86,6 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 // noise shrunk, object_terms.h with_term_and_noise). For held-out checks of a model that carries terms.
 // shrink_terms: as Fold::shrink_terms.
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins = 10, bool shrink_terms = true);
+                              int bins = 10, TermShrink shrink_terms = TermShrink::Off);
 
 }  // namespace lidarsim::qualify::obj

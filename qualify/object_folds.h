@@ -55,7 +55,7 @@ struct Fold {
   std::vector<Winsor> win;           // per target, from the fit residuals
   // fit_effect shrinks the bias forms fitted on this fold by their track-bootstrap uncertainty
   // (object_terms.h shrink_by_track_bootstrap); off: the fitted values as they are.
-  bool shrink_terms = true;
+  TermShrink shrink_terms = TermShrink::Off;
 };
 
 Split gather(const ObjectSet& s, const sensor::KpiModel& base, int t);

@@ -527,7 +527,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                         {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
     for (int c = 0; c < 3; ++c)
       if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
-    if (options.shrink_terms) {  // the bias kept per bin = fitted x factor
+    if (options.shrink_terms != TermShrink::Off) {  // per bin: the share of the fitted (deviation) kept
       e["pooled"]["shrink_factor"] = final_ref.factor.pooled.value;
       for (int c = 0; c < 3; ++c)
         if (tab.own[c]) e[kObjectClasses[c]]["shrink_factor"] = final_ref.factor.per_class[c].value;
@@ -551,7 +551,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   nlohmann::json aj = nlohmann::json::array();
   // Each fold's shrink factors per bin (pooled, then the classes with their own table); null when not shrunk.
   auto shrink_entry = [&](const Judged& J) {
-    if (!options.shrink_terms) return nlohmann::json(nullptr);
+    if (options.shrink_terms == TermShrink::Off) return nlohmann::json(nullptr);
     nlohmann::json out = nlohmann::json::array();
     for (const Refit& r : J.refs) {
       nlohmann::json f = {{"pooled", {{"factor", r.factor.pooled.value}, {"se", r.se.pooled.value}}}};

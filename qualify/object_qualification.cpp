@@ -49,7 +49,7 @@ double rate_similarity(const RateTable& a, const RateTable& b) {
 }  // namespace
 
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model, const fs::path& out_dir,
-                               std::uint64_t seed, bool nested, bool shrink_terms) {
+                               std::uint64_t seed, bool nested, TermShrink shrink_terms) {
   fs::create_directories(out_dir);
   std::vector<int> all(data.calib.size());
   for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);

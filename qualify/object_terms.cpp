@@ -156,13 +156,14 @@ std::vector<double> refit_values(const Slots& s, int inside, const std::vector<d
   return v;
 }
 
-// Empirical-Bayes factors of one table's bins [lo, hi) (only bins that hold fit data count).
-void pool_towards_zero(const std::vector<double>& v, const std::vector<double>& se, const std::vector<bool>& held,
-                       int lo, int hi, std::vector<double>& factor) {
+// Empirical-Bayes factors of one table's bins [lo, hi) for their deviations from prior (only bins
+// that hold fit data count): the kept value is prior + factor x (value - prior).
+void pool_towards(const std::vector<double>& v, const std::vector<double>& prior, const std::vector<double>& se,
+                  const std::vector<bool>& held, int lo, int hi, std::vector<double>& factor) {
   double acc = 0;
   int m = 0;
   for (int b = lo; b < hi; ++b)
-    if (held[b]) acc += v[b] * v[b] - se[b] * se[b], ++m;
+    if (held[b]) acc += (v[b] - prior[b]) * (v[b] - prior[b]) - se[b] * se[b], ++m;
   const double tau2 = m > 0 ? std::max(0.0, acc / m) : 0.0;
   for (int b = lo; b < hi; ++b)
     factor[b] = !held[b] ? 1.0 : tau2 <= 0 ? 0.0 : tau2 / (tau2 + se[b] * se[b]);
@@ -172,7 +173,7 @@ void pool_towards_zero(const std::vector<double>& v, const std::vector<double>& 
 
 void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
                                const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
-                               bool window, int replicates, std::uint64_t seed) {
+                               bool window, bool towards_pooled, int replicates, std::uint64_t seed) {
   const size_t n = r.size();
   if (n == 0 || replicates < 2) return;
   const Slots s = slots_of(f.table, x, cls);
@@ -269,17 +270,26 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
   } else {
     for (int b = 0; b < s.total; ++b) se[b] = std::sqrt(std::max(se[b] * se[b], floor2(b)));
   }
-  pool_towards_zero(value, se, held, 0, s.npooled, factor);
+  std::vector<double> prior(s.total, 0.0);
+  pool_towards(value, prior, se, held, 0, s.npooled, factor);
+  if (towards_pooled) {
+    // A class bin's prior: the shrunk pooled table averaged over the class's records in that bin.
+    std::vector<double> acc(s.total, 0.0), cnt(s.total, 0.0);
+    for (size_t i = 0; i < n; ++i)
+      if (s.own[i] >= 0) acc[s.own[i]] += value[s.pooled[i]] * factor[s.pooled[i]], cnt[s.own[i]] += 1;
+    for (int b = s.npooled; b < s.total; ++b) prior[b] = cnt[b] > 0 ? acc[b] / cnt[b] : 0.0;
+  }
   for (int c = 0; c < 3; ++c)
     if (s.offset[c] >= 0)
-      pool_towards_zero(value, se, held, s.offset[c], s.offset[c] + static_cast<int>(f.table.per_class[c].value.size()),
-                        factor);
+      pool_towards(value, prior, se, held, s.offset[c], s.offset[c] + static_cast<int>(f.table.per_class[c].value.size()),
+                   factor);
 
   // Write back: values x factor, and the factors and standard errors laid out like the table.
   f.factor = f.table, f.se = f.table;
   auto put = [&](BinnedTable& t, BinnedTable& ft, BinnedTable& st, int off) {
     for (size_t b = 0; b < t.value.size(); ++b)
-      t.value[b] *= factor[off + b], ft.value[b] = factor[off + b], st.value[b] = se[off + b];
+      t.value[b] = prior[off + b] + factor[off + b] * (t.value[b] - prior[off + b]), ft.value[b] = factor[off + b],
+      st.value[b] = se[off + b];
   };
   put(f.table.pooled, f.factor.pooled, f.se.pooled, 0);
   for (int c = 0; c < 3; ++c)

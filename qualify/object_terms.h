@@ -67,11 +67,15 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
 // of (value^2 - se^2), at least 0, and each bin x tau^2 / (tau^2 + se^2). A table whose bins are no
 // larger than their noise is shrunk to 0; a bin as large as many standard errors keeps nearly all
 // of it; for a window (one bin) this is max(0, 1 - se^2 / value^2). The cell offsets are refitted
-// against the shrunk table. `window`: f came from backfit_window (only its inside bin is a value).
+// against the shrunk table. towards_pooled: each class's own table is pooled towards the (shrunk)
+// pooled table instead of 0 (prior mean of a class bin = the pooled table's mean over the class's
+// records in it; tau^2 from the deviations), so a class with few tracks borrows the shape the
+// other classes show. `window`: f came from backfit_window (only its inside bin is a value).
 // Deterministic (fixed seed).
 void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
                                const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
-                               bool window, int replicates = 100, std::uint64_t seed = 7);
+                               bool window, bool towards_pooled = false, int replicates = 100,
+                               std::uint64_t seed = 7);
 
 // A mean term on an error explains part of the spread the base model's noise was fitted to carry:
 // without this the refitted model's errors come out too wide (term + the old noise). Per class,

@@ -99,6 +99,12 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                           const std::vector<sensor::CalibrationSequence>* detections = nullptr,
                           const sensor::FitOptions& opt = {});
 
+// How the loop's fitted bias terms are shrunk by their own track-bootstrap uncertainty on the fit
+// sequences (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md):
+// not at all, every table's bins towards 0, or the pooled table towards 0 and each class's own
+// table towards the pooled one.
+enum class TermShrink { Off, TowardsZero, TowardsPooled };
+
 // `lidar-qualify objects`: the model re-simulated on the ground truth vs the measured
 // detections; writes report.json, report.md and PNGs into out_dir. Returns the JSON.
 // With `nested`, the held-out table gets a second model column free of the loop's leak: for each
@@ -108,7 +114,7 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
 // shrink_terms: the terms refitted on each half (and the nested loop's) are shrunk as LoopOptions::shrink_terms.
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
                                const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
-                               bool shrink_terms = true);
+                               TermShrink shrink_terms = TermShrink::Off);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
@@ -119,7 +125,7 @@ struct LoopOptions {
   int max_effects = 0;              // bias forms added per run, at most one per target (0: no limit)
   // Bias terms shrunk towards 0 by their track-bootstrap uncertainty on the fit sequences
   // (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md).
-  bool shrink_terms = true;
+  TermShrink shrink_terms = TermShrink::Off;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
