@@ -315,8 +315,9 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 }
 
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins, TermShrink shrink_terms) {
+                              int bins, TermShrink shrink_terms, bool pool_track_spread) {
   Fold fold;
+  fold.pool_track_spread = pool_track_spread;
   make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
   fold.shrink_terms = shrink_terms;
   const int nvis = fold.base.visibility_bins();

@@ -33,6 +33,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   for (int s = 0; s < nseq; ++s) (s % 2 == 0 ? even : odd).push_back(s), all.push_back(s);
   const sensor::FitOptions opt;
   std::array<Fold, 2> folds;
+  for (Fold& k : folds) k.pool_track_spread = options.pool_track_spread;
   make_fold(folds[0], data, even, odd, opt);
   make_fold(folds[1], data, odd, even, opt);
   for (Fold& k : folds) k.shrink_terms = options.shrink_terms;
@@ -345,6 +346,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
 
   // The model to use from now on: base and term fitted on every sequence.
   Fold whole;
+  whole.pool_track_spread = options.pool_track_spread;
   make_fold(whole, data, all, {}, opt);
   whole.shrink_terms = options.shrink_terms;
   const Refit final_ref = fit_effect(whole, t, f, top.kind, nvis, options.bins).bias;
@@ -594,6 +596,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (int k = 0; k < 2; ++k) fj[k]["before"] = spread_fold[k].first, fj[k]["after"] = spread_fold[k].second;
   j["folds"] = fj;
   j["held_out_samples"] = before_r.size();
+  if (options.pool_track_spread) {
+    nlohmann::json tj = nlohmann::json::object();  // track_std after / before, per class: length, width, height
+    for (int c = 0; c < 3; ++c)
+      if (c < static_cast<int>(whole.track_spread_factor.size())) tj[kObjectClasses[c]] = whole.track_spread_factor[c];
+    j["track_spread_pooling"] = tj;
+  }
   if (!plot.empty()) j["plot"] = plot;
   return j;
 }

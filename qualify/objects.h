@@ -111,10 +111,10 @@ enum class TermShrink { Off, TowardsZero, TowardsPooled };
 // outer fold the loop (loop_objects, its own inner even/odd split) runs on that fold's fit
 // sequences only, and the model it writes is scored on the outer held-out sequences (the loop's
 // models and reports are written to out_dir/nested_fold_K_*).
-// shrink_terms: the terms refitted on each half (and the nested loop's) are shrunk as LoopOptions::shrink_terms.
+// shrink_terms, pool_track_spread: the recipe refitted on each half (and the nested loop) as LoopOptions's.
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
                                const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
-                               TermShrink shrink_terms = TermShrink::Off);
+                               TermShrink shrink_terms = TermShrink::Off, bool pool_track_spread = false);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
@@ -126,6 +126,9 @@ struct LoopOptions {
   // Bias terms shrunk towards 0 by their track-bootstrap uncertainty on the fit sequences
   // (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md).
   TermShrink shrink_terms = TermShrink::Off;
+  // The base model's per-track size constants partially pooled across classes (object_folds.h
+  // pool_track_spread; the sixth pass, qualify/README.md).
+  bool pool_track_spread = false;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
