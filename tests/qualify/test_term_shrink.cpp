@@ -1,6 +1,7 @@
 // The loop's bias terms shrunk by their own track-bootstrap uncertainty (qualify/object_terms.h
 // shrink_by_track_bootstrap): a bin carried by few tracks is trusted less than the same bin value
-// carried by many, a strong effect seen on many tracks survives nearly whole, noise goes.
+// carried by many, a strong effect seen on many tracks survives nearly whole, noise goes. And the
+// base model's per-track size constants pooled across classes (object_folds.h pool_track_spread).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -8,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "qualify/object_folds.h"
 #include "qualify/object_terms.h"
 
 namespace {
@@ -141,6 +143,49 @@ TEST(TermShrink, AClassWithFewTracksIsPooledTowardsTheSharedShapeNotTowardsZero)
   // Class 0 (many tracks) is hardly moved either way.
   for (size_t b = 0; b < raw.table.per_class[0].value.size(); ++b)
     EXPECT_NEAR(pooled.table.per_class[0].value[b], raw.table.per_class[0].value[b], 0.03) << "bin " << b;
+}
+
+}  // namespace
+
+// The base model's per-track size constants pooled across classes (qualify/object_folds.h
+// pool_track_spread): a class seen on few tracks is pulled towards the others' ratio of per-track
+// to within-track spread, a class seen on many keeps its own.
+namespace {
+
+lidarsim::sensor::ErrorModel size_error(double sigma, double track_std) {
+  lidarsim::sensor::ErrorModel e;
+  e.sigma = {sigma, sigma};
+  e.track_std = track_std;
+  return e;
+}
+
+TEST(TrackSpreadPooling, AClassWithFewTracksBorrowsTheOthersRatioAClassWithManyKeepsItsOwn) {
+  using lidarsim::sensor::KpiParam;
+  lidarsim::sensor::KpiModel m;
+  // Ratios track_std / sigma: Car 1.0 (200 tracks), Pedestrian 1.1 (200 tracks), Cyclist 2.0 (5 tracks).
+  const double ratio[3] = {1.0, 1.1, 2.0};
+  const int tracks[3] = {200, 200, 5};
+  const char* names[3] = {"Car", "Pedestrian", "Cyclist"};
+  lidarsim::qualify::ObjectSet fit;
+  for (int c = 0; c < 3; ++c) {
+    lidarsim::sensor::ClassModel cm;
+    for (KpiParam p : {KpiParam::Length, KpiParam::Width, KpiParam::Height})
+      cm.errors[int(p)] = size_error(0.1, 0.1 * ratio[c]);
+    m.classes[names[c]] = cm;
+    for (int t = 0; t < tracks[c]; ++t)
+      for (int f = 0; f < 10; ++f) {
+        lidarsim::qualify::ObjectRecord r;
+        r.cls = c, r.seq = 0, r.track = 1000 * c + t, r.frame = f, r.detected = true;
+        fit.records.push_back(r);
+      }
+  }
+  const auto applied = lidarsim::qualify::obj::pool_track_spread(m, fit);
+  const double cyc = m.classes.at("Cyclist").errors[int(KpiParam::Length)].track_std / 0.1;
+  const double car = m.classes.at("Car").errors[int(KpiParam::Length)].track_std / 0.1;
+  EXPECT_LT(cyc, 1.6) << "5 tracks: pulled most of the way from 2.0 towards ~1.05";
+  EXPECT_GT(cyc, 1.0);
+  EXPECT_NEAR(car, 1.0, 0.03) << "200 tracks: its own";
+  EXPECT_NEAR(applied[2][0], cyc / 2.0, 1e-9);
 }
 
 }  // namespace
