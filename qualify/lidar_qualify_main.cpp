@@ -102,6 +102,8 @@ int run(int argc, char** argv) {
     ("report", "loop report JSON", cxxopts::value<std::string>())
     ("max-effects", "loop objects: bias forms added per run, at most one per target, best first (0: no limit)", cxxopts::value<int>()->default_value("0"))
     ("out-model", "loop: write the refitted model here (objects: KPI model JSON with the added conditional term; intensity: the UNet checkpoint with the added channel or per-row affine layer)", cxxopts::value<std::string>())
+    ("term-shrink", "objects, loop objects: shrink the loop's bias terms by their track-bootstrap uncertainty on the fit sequences: off | zero (every table towards 0) | pooled (the pooled table towards 0, each class's towards it)", cxxopts::value<std::string>()->default_value("off"))
+    ("pool-track-spread", "objects, loop objects: the base model's per-track size constants partially pooled across classes (a class with few tracks borrows the others' ratio to the within-track noise)")
     ("nested", "objects: also score the loop's model nested (the loop run on each outer fold's fit sequences only)")
     ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
@@ -122,12 +124,19 @@ int run(int argc, char** argv) {
   }
   if (!a.unmatched().empty()) throw Error("unexpected argument \"" + a.unmatched().front() + "\"");
   const std::uint64_t seed = a["seed"].as<std::uint64_t>();
+  const std::string shrink_arg = a["term-shrink"].as<std::string>();
+  if (shrink_arg != "off" && shrink_arg != "zero" && shrink_arg != "pooled")
+    throw Error("--term-shrink: expected off, zero or pooled, got \"" + shrink_arg + "\"");
+  const qualify::TermShrink shrink_terms = shrink_arg == "zero"     ? qualify::TermShrink::TowardsZero
+                                           : shrink_arg == "pooled" ? qualify::TermShrink::TowardsPooled
+                                                                    : qualify::TermShrink::Off;
   if (cmd == "objects") {
     const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                              a["seqmap"].as<std::string>(), a["detector"].as<std::string>());
     const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
     const fs::path out = need(a, "out", "the report folder");
-    const auto j = qualify::qualify_objects(data, model, out, seed, a.count("nested") > 0);
+    const auto j = qualify::qualify_objects(data, model, out, seed, a.count("nested") > 0, shrink_terms,
+                                              a.count("pool-track-spread") > 0);
     std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
               << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
               << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";
@@ -154,6 +163,8 @@ int run(int argc, char** argv) {
       lo.max_effects = a["max-effects"].as<int>();
       if (lo.max_effects < 0) throw Error("loop objects: --max-effects must be >= 0, got " + std::to_string(lo.max_effects));
       lo.seed = seed;
+      lo.shrink_terms = shrink_terms;
+      lo.pool_track_spread = a.count("pool-track-spread") > 0;
       const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                                a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
       j = qualify::loop_objects(data, lo);

@@ -120,9 +120,17 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
   const auto r = t == kDetectionTarget ? s.r : s.clipped(k.win[t]);
   switch (kind) {
     case Kind::MeanTable:
-    case Kind::RateTable: e.bias = backfit(x, r, cls, cells, bins); break;
+    case Kind::RateTable:
+      e.bias = backfit(x, r, cls, cells, bins);
+      if (k.shrink_terms != TermShrink::Off)
+        shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), false,
+                                  k.shrink_terms == TermShrink::TowardsPooled);
+      break;
     case Kind::MeanWindow:
-    case Kind::RateWindow: e.bias = backfit_window(x, r, cls, cells, 4 * bins); break;
+    case Kind::RateWindow:
+      e.bias = backfit_window(x, r, cls, cells, 4 * bins);
+      if (k.shrink_terms != TermShrink::Off) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
+      break;
     case Kind::SpreadTable:
     case Kind::SpreadWindow: {
       std::map<std::pair<int, int>, std::array<double, 3>> acc;  // sum, sum of squares, n
@@ -307,9 +315,11 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 }
 
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins) {
+                              int bins, TermShrink shrink_terms, bool pool_track_spread) {
   Fold fold;
+  fold.pool_track_spread = pool_track_spread;
   make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
+  fold.shrink_terms = shrink_terms;
   const int nvis = fold.base.visibility_bins();
   sensor::KpiModel m = fold.base;
   for (int t = 0; t < kObjectTargetCount; ++t) {

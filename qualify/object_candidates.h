@@ -12,6 +12,8 @@
 // touches an end is a step), chosen by the between-groups sum of squares (bias forms) or the
 // Gaussian likelihood ratio of two variances (spread forms); at least 30 fit samples each side.
 // Bias forms are refitted jointly with the model's own cells (backfitting, object_terms.h).
+// Bias forms fitted on a fold with Fold::shrink_terms set are shrunk by their own
+// track-bootstrap uncertainty (object_terms.h shrink_by_track_bootstrap) before they are judged.
 // Spread forms are measured around the fit split's per-class x range-bin mean, in units of that
 // cell's standard deviation, so a feature-dependent bias does not pose as a spread.
 #include <array>
@@ -82,7 +84,9 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 // scale, else a mean table; on detection: a rate table), each refitted on the same sequences with
 // the loop's forms (object_candidates.h), for the classes that carry it (a mean table with the
 // noise shrunk, object_terms.h with_term_and_noise). For held-out checks of a model that carries terms.
+// shrink_terms, pool_track_spread: as Fold's.
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins = 10);
+                              int bins = 10, TermShrink shrink_terms = TermShrink::Off,
+                              bool pool_track_spread = false);
 
 }  // namespace lidarsim::qualify::obj

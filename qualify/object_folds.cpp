@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <numbers>
 
 #include "common/error.h"
@@ -56,6 +57,13 @@ std::vector<int> Split::classes() const {
   for (size_t i = 0; i < c.size(); ++i) c[i] = rec[i]->cls;
   return c;
 }
+std::vector<int> Split::tracks() const {
+  std::map<std::pair<int, int>, int> id;  // track ids are per sequence
+  std::vector<int> t(rec.size());
+  for (size_t i = 0; i < t.size(); ++i)
+    t[i] = id.try_emplace({rec[i]->seq, rec[i]->track}, static_cast<int>(id.size())).first->second;
+  return t;
+}
 std::vector<int> Split::cells(int t, int nvis) const {
   std::vector<int> c(rec.size());
   for (size_t i = 0; i < c.size(); ++i)
@@ -97,12 +105,57 @@ void make_fold(Fold& k, const TrackingData& data, std::vector<int> fit_idx, std:
   for (int s : k.fit_idx) seqs.push_back(data.calib[s]);
   k.base = sensor::fit_kpi_model(seqs, opt);
   k.fit_set = collect_objects(data, k.fit_idx, nullptr, opt);
+  if (k.pool_track_spread) k.track_spread_factor = pool_track_spread(k.base, k.fit_set);
   if (!k.held_idx.empty()) k.held_set = collect_objects(data, k.held_idx, nullptr, opt);
   for (int t = 0; t < kObjectTargetCount; ++t) {
     k.fit_r.push_back(gather(k.fit_set, k.base, t));
     k.held_r.push_back(gather(k.held_set, k.base, t));
     k.win.push_back(winsor_limits(k.fit_r[t].r));
   }
+}
+
+std::vector<std::array<double, 3>> pool_track_spread(sensor::KpiModel& m, const ObjectSet& fit) {
+  std::array<std::map<std::pair<int, int>, int>, 3> frames;  // per class: detected frames per track
+  for (const auto& r : fit.records)
+    if (r.detected && r.cls >= 0 && r.cls < 3) ++frames[r.cls][{r.seq, r.track}];
+  std::array<int, 3> tracks{};
+  for (int c = 0; c < 3; ++c)
+    for (const auto& [key, n] : frames[c]) tracks[c] += n >= 3;
+  std::vector<std::array<double, 3>> applied(3, {1.0, 1.0, 1.0});
+  const sensor::KpiParam params[3] = {sensor::KpiParam::Length, sensor::KpiParam::Width, sensor::KpiParam::Height};
+  for (int q = 0; q < 3; ++q) {
+    std::array<double, 3> l{}, v{}, sw{};
+    std::array<bool, 3> use{};
+    int m_used = 0;
+    for (int c = 0; c < 3; ++c) {
+      const auto it = m.classes.find(kObjectClasses[c]);
+      if (it == m.classes.end() || tracks[c] < 3) continue;
+      const sensor::ErrorModel& em = it->second.errors[int(params[q])];
+      double s2 = 0;
+      for (double s : em.sigma) s2 += s * s;
+      sw[c] = std::sqrt(s2 / std::max<size_t>(1, em.sigma.size()));
+      if (em.track_std <= 0 || sw[c] <= 0) continue;
+      l[c] = std::log(em.track_std / sw[c]), v[c] = 1.0 / (2.0 * (tracks[c] - 1)), use[c] = true, ++m_used;
+    }
+    if (m_used < 2) continue;
+    double wsum = 0, mu = 0, mean_l = 0, mean_v = 0;
+    for (int c = 0; c < 3; ++c)
+      if (use[c]) wsum += 1 / v[c], mu += l[c] / v[c], mean_l += l[c], mean_v += v[c];
+    mu /= wsum, mean_l /= m_used, mean_v /= m_used;
+    double spread = 0;
+    for (int c = 0; c < 3; ++c)
+      if (use[c]) spread += (l[c] - mean_l) * (l[c] - mean_l);
+    const double tau2 = std::max(0.0, spread / (m_used - 1) - mean_v);
+    for (int c = 0; c < 3; ++c) {
+      if (!use[c]) continue;
+      const double pooled = mu + (tau2 / (tau2 + v[c])) * (l[c] - mu);
+      sensor::ErrorModel& em = m.classes.find(kObjectClasses[c])->second.errors[int(params[q])];
+      const double next = sw[c] * std::exp(pooled);
+      applied[c][q] = next / em.track_std;
+      em.track_std = next;
+    }
+  }
+  return applied;
 }
 
 std::vector<std::string> names_of(const TrackingData& data, const std::vector<int>& idx) {

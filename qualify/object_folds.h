@@ -35,6 +35,7 @@ struct Split {
 
   std::vector<double> column(int f) const;
   std::vector<int> classes() const;
+  std::vector<int> tracks() const;  // one id per (sequence, track): the bootstrap's blocks
   // The model's own cell of each record for target t: range bin (error means), or range bin x
   // visibility bin (detection probability).
   std::vector<int> cells(int t, int nvis) const;
@@ -52,7 +53,21 @@ struct Fold {
   ObjectSet fit_set, held_set;
   std::vector<Split> fit_r, held_r;  // per target
   std::vector<Winsor> win;           // per target, from the fit residuals
+  // fit_effect shrinks the bias forms fitted on this fold by their track-bootstrap uncertainty
+  // (object_terms.h shrink_by_track_bootstrap); off: the fitted values as they are.
+  TermShrink shrink_terms = TermShrink::Off;
+  // Set before make_fold: the base model's per-track constants partially pooled across classes
+  // (pool_track_spread).
+  bool pool_track_spread = false;
+  std::vector<std::array<double, 3>> track_spread_factor;  // what it applied: [class][length, width, height]
 };
+
+// The size errors' per-track constant (track_std) of a class with few tracks is poorly known: its
+// ratio to the within-track noise (sigma, RMS over range bins) is partially pooled across classes
+// on the log scale (empirical Bayes: sampling variance 1 / (2 (T - 1)) for T tracks with >= 3
+// detected frames in `fit`; prior mean and variance by moments over the classes), and track_std
+// set to sigma x the pooled ratio. Returns per class and size parameter the factor applied.
+std::vector<std::array<double, 3>> pool_track_spread(sensor::KpiModel& m, const ObjectSet& fit);
 
 Split gather(const ObjectSet& s, const sensor::KpiModel& base, int t);
 

@@ -33,8 +33,10 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   for (int s = 0; s < nseq; ++s) (s % 2 == 0 ? even : odd).push_back(s), all.push_back(s);
   const sensor::FitOptions opt;
   std::array<Fold, 2> folds;
+  for (Fold& k : folds) k.pool_track_spread = options.pool_track_spread;
   make_fold(folds[0], data, even, odd, opt);
   make_fold(folds[1], data, odd, even, opt);
+  for (Fold& k : folds) k.shrink_terms = options.shrink_terms;
   const int nvis = folds[0].base.visibility_bins();
 
   // Held-out tracks are the bootstrap blocks: a track's errors are correlated frame to frame.
@@ -344,7 +346,9 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
 
   // The model to use from now on: base and term fitted on every sequence.
   Fold whole;
+  whole.pool_track_spread = options.pool_track_spread;
   make_fold(whole, data, all, {}, opt);
+  whole.shrink_terms = options.shrink_terms;
   const Refit final_ref = fit_effect(whole, t, f, top.kind, nvis, options.bins).bias;
   std::optional<Effect> final_spread;
   if (add_spread) final_spread = fit_effect(whole, sp->target, sp->feature, sp->kind, nvis, options.bins);
@@ -526,6 +530,11 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                         {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
     for (int c = 0; c < 3; ++c)
       if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+    if (options.shrink_terms != TermShrink::Off) {  // per bin: the share of the fitted (deviation) kept
+      e["pooled"]["shrink_factor"] = final_ref.factor.pooled.value;
+      for (int c = 0; c < 3; ++c)
+        if (tab.own[c]) e[kObjectClasses[c]]["shrink_factor"] = final_ref.factor.per_class[c].value;
+    }
     j["effect"] = e;
   }
   // Every bias form added (the top one first), each with its own before -> after; the simulated
@@ -543,8 +552,22 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     return d;
   };
   nlohmann::json aj = nlohmann::json::array();
+  // Each fold's shrink factors per bin (pooled, then the classes with their own table); null when not shrunk.
+  auto shrink_entry = [&](const Judged& J) {
+    if (options.shrink_terms == TermShrink::Off) return nlohmann::json(nullptr);
+    nlohmann::json out = nlohmann::json::array();
+    for (const Refit& r : J.refs) {
+      nlohmann::json f = {{"pooled", {{"factor", r.factor.pooled.value}, {"se", r.se.pooled.value}}}};
+      for (int c = 0; c < 3; ++c)
+        if (r.factor.own[c])
+          f[kObjectClasses[c]] = {{"factor", r.factor.per_class[c].value}, {"se", r.se.per_class[c].value}};
+      out.push_back(f);
+    }
+    return out;
+  };
   auto added_entry = [&](const Candidate& c, const Judged& J, double sb, double sa) {
     return nlohmann::json{{"feature", kObjectFeatures[c.feature]},
+                          {"shrink_per_fold", shrink_entry(J)},
                           {"target", kObjectTargets[c.target]},
                           {"kind", to_string(c.kind)},
                           {"score", c.score},
@@ -574,6 +597,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (int k = 0; k < 2; ++k) fj[k]["before"] = spread_fold[k].first, fj[k]["after"] = spread_fold[k].second;
   j["folds"] = fj;
   j["held_out_samples"] = before_r.size();
+  if (options.pool_track_spread) {
+    nlohmann::json tj = nlohmann::json::object();  // track_std after / before, per class: length, width, height
+    for (int c = 0; c < 3; ++c)
+      if (c < static_cast<int>(whole.track_spread_factor.size())) tj[kObjectClasses[c]] = whole.track_spread_factor[c];
+    j["track_spread_pooling"] = tj;
+  }
   if (!plot.empty()) j["plot"] = plot;
   return j;
 }

@@ -49,7 +49,8 @@ double rate_similarity(const RateTable& a, const RateTable& b) {
 }  // namespace
 
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model, const fs::path& out_dir,
-                               std::uint64_t seed, bool nested) {
+                               std::uint64_t seed, bool nested, TermShrink shrink_terms,
+                               bool pool_track_spread) {
   fs::create_directories(out_dir);
   std::vector<int> all(data.calib.size());
   for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
@@ -218,7 +219,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
       if (judge.empty()) continue;
       std::vector<sensor::CalibrationSequence> fit_seqs;
       for (int s : fit) fit_seqs.push_back(data.calib[s]);
-      const sensor::KpiModel fitted = obj::refit_recipe(data, fit, model);
+      const sensor::KpiModel fitted = obj::refit_recipe(data, fit, model, 10, shrink_terms, pool_track_spread);
       const sensor::KpiModel gauss = sensor::gaussian_iid_model(fit_seqs, fopt);
       const bool run_nested = nested && fit.size() >= 2;
       sensor::KpiModel looped;
@@ -231,6 +232,8 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
           sub.calib.push_back(data.calib[s]);
         }
         LoopOptions lo;
+        lo.shrink_terms = shrink_terms;
+        lo.pool_track_spread = pool_track_spread;
         lo.out_model = out_dir / ("nested_fold_" + std::to_string(k + 1) + "_model.json");
         fs::create_directories(out_dir);
         const nlohmann::json lj = loop_objects(sub, lo);

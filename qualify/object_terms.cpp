@@ -1,6 +1,8 @@
 #include "qualify/object_terms.h"
 
 #include <algorithm>
+#include <cmath>
+#include <random>
 
 namespace lidarsim::qualify::obj {
 
@@ -98,6 +100,210 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
       if (a.second >= 20) f.d[k] = a.first / a.second;
   }
   return f;
+}
+
+namespace {
+
+// Where each record's term value sits in a flat vector of the refit's table values: the pooled
+// table's bins first, then each class's own table (if any).
+struct Slots {
+  int npooled = 0, total = 0;
+  std::array<int, 3> offset{-1, -1, -1};
+  std::vector<int> pooled, own;  // per record; own = -1 when the class uses the pooled table
+  int used(size_t i) const { return own[i] >= 0 ? own[i] : pooled[i]; }
+};
+
+Slots slots_of(const ClassTables& t, const std::vector<double>& x, const std::vector<int>& cls) {
+  Slots s;
+  s.npooled = static_cast<int>(t.pooled.value.size());
+  s.total = s.npooled;
+  for (int c = 0; c < 3; ++c)
+    if (t.own[c]) s.offset[c] = s.total, s.total += static_cast<int>(t.per_class[c].value.size());
+  s.pooled.resize(x.size());
+  s.own.assign(x.size(), -1);
+  for (size_t i = 0; i < x.size(); ++i) {
+    s.pooled[i] = t.pooled.bin(x[i]);
+    if (cls[i] >= 0 && cls[i] < 3 && t.own[cls[i]]) s.own[i] = s.offset[cls[i]] + t.per_class[cls[i]].bin(x[i]);
+  }
+  return s;
+}
+
+// The term's values refitted with its edges kept and record weights w: backfit's (or
+// backfit_window's) four passes. `inside`: the window's bin (-1: a table).
+std::vector<double> refit_values(const Slots& s, int inside, const std::vector<double>& r, const std::vector<int>& cell,
+                                 int ncell, const std::vector<double>& w) {
+  std::vector<double> d(ncell, 0.0), v(s.total, 0.0), sum(s.total), cnt(s.total), dsum(ncell), dcnt(ncell);
+  for (int pass = 0; pass < 4; ++pass) {
+    std::fill(sum.begin(), sum.end(), 0.0), std::fill(cnt.begin(), cnt.end(), 0.0);
+    for (size_t i = 0; i < r.size(); ++i) {
+      if (w[i] == 0) continue;
+      const double y = r[i] - d[cell[i]];
+      sum[s.pooled[i]] += w[i] * y, cnt[s.pooled[i]] += w[i];
+      if (s.own[i] >= 0) sum[s.own[i]] += w[i] * y, cnt[s.own[i]] += w[i];
+    }
+    if (inside >= 0) {
+      double si = 0, ni = 0, so = 0, no = 0;
+      for (int b = 0; b < s.npooled; ++b) (b == inside ? si : so) += sum[b], (b == inside ? ni : no) += cnt[b];
+      std::fill(v.begin(), v.end(), 0.0);
+      if (ni > 0 && no > 0) v[inside] = (si / ni - so / no) * ni / (ni + 5.0);
+    } else {
+      for (int b = 0; b < s.total; ++b) v[b] = cnt[b] > 0 ? sum[b] / (cnt[b] + 5.0) : 0.0;
+    }
+    std::fill(dsum.begin(), dsum.end(), 0.0), std::fill(dcnt.begin(), dcnt.end(), 0.0);
+    for (size_t i = 0; i < r.size(); ++i) dsum[cell[i]] += w[i] * (r[i] - v[s.used(i)]), dcnt[cell[i]] += w[i];
+    for (int c = 0; c < ncell; ++c) d[c] = dcnt[c] >= 20 ? dsum[c] / dcnt[c] : 0.0;
+  }
+  return v;
+}
+
+// Empirical-Bayes factors of one table's bins [lo, hi) for their deviations from prior (only bins
+// that hold fit data count): the kept value is prior + factor x (value - prior).
+void pool_towards(const std::vector<double>& v, const std::vector<double>& prior, const std::vector<double>& se,
+                  const std::vector<bool>& held, int lo, int hi, std::vector<double>& factor) {
+  double acc = 0;
+  int m = 0;
+  for (int b = lo; b < hi; ++b)
+    if (held[b]) acc += (v[b] - prior[b]) * (v[b] - prior[b]) - se[b] * se[b], ++m;
+  const double tau2 = m > 0 ? std::max(0.0, acc / m) : 0.0;
+  for (int b = lo; b < hi; ++b)
+    factor[b] = !held[b] ? 1.0 : tau2 <= 0 ? 0.0 : tau2 / (tau2 + se[b] * se[b]);
+}
+
+}  // namespace
+
+void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
+                               const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
+                               bool window, bool towards_pooled, int replicates, std::uint64_t seed) {
+  const size_t n = r.size();
+  if (n == 0 || replicates < 2) return;
+  const Slots s = slots_of(f.table, x, cls);
+  int inside = -1;
+  if (window) {
+    for (int b = 0; b < s.npooled; ++b)
+      if (f.table.pooled.value[b] != 0) inside = b;
+    if (inside < 0) return;  // no window: nothing to shrink
+  }
+  std::map<std::pair<int, int>, int> cell_id;
+  std::vector<int> cell(n);
+  for (size_t i = 0; i < n; ++i)
+    cell[i] = cell_id.try_emplace({cls[i], rb[i]}, static_cast<int>(cell_id.size())).first->second;
+  std::map<int, int> track_id;
+  std::vector<int> tr(n);
+  for (size_t i = 0; i < n; ++i) tr[i] = track_id.try_emplace(track[i], static_cast<int>(track_id.size())).first->second;
+  const int ntracks = static_cast<int>(track_id.size()), ncell = static_cast<int>(cell_id.size());
+
+  std::vector<double> value(s.total);
+  std::vector<bool> held(s.total, false);
+  for (int b = 0; b < s.npooled; ++b) value[b] = f.table.pooled.value[b], held[b] = f.table.pooled.count[b] > 0;
+  for (int c = 0; c < 3; ++c)
+    if (s.offset[c] >= 0)
+      for (size_t b = 0; b < f.table.per_class[c].value.size(); ++b)
+        value[s.offset[c] + b] = f.table.per_class[c].value[b], held[s.offset[c] + b] = f.table.per_class[c].count[b] > 0;
+  if (window)
+    for (int b = 0; b < s.total; ++b) held[b] = b == inside;
+
+  // Bootstrap over tracks: each replicate's standard deviation per bin.
+  std::mt19937_64 rng(seed);
+  std::vector<double> s1(s.total, 0.0), s2(s.total, 0.0), wt(ntracks), w(n);
+  for (int q = 0; q < replicates; ++q) {
+    std::fill(wt.begin(), wt.end(), 0.0);
+    for (int j = 0; j < ntracks; ++j) wt[rng() % static_cast<std::uint64_t>(ntracks)] += 1;
+    for (size_t i = 0; i < n; ++i) w[i] = wt[tr[i]];
+    const auto v = refit_values(s, inside, r, cell, ncell, w);
+    for (int b = 0; b < s.total; ++b) s1[b] += v[b], s2[b] += v[b] * v[b];
+  }
+  std::vector<double> se(s.total), factor(s.total, 1.0);
+  for (int b = 0; b < s.total; ++b) {
+    const double m = s1[b] / replicates;
+    se[b] = std::sqrt(std::max(0.0, (s2[b] / replicates - m * m) * replicates / (replicates - 1.0)));
+  }
+  // A floor under the bootstrap: a bin that holds one or two tracks shows the bootstrap no spread
+  // between tracks (resampling one track gives its own mean again), so the bin's variance is also
+  // taken as the table's between-track variance (of the residual after the term, per track means,
+  // method of moments) x sum(n_j^2) / n^2 over the bin's tracks + within-track variance / n.
+  std::vector<double> e(n);
+  for (size_t i = 0; i < n; ++i) e[i] = r[i] - f(cls[i], rb[i], x[i]);
+  auto components = [&](int c) {  // c < 0: every record (the pooled table)
+    std::map<int, std::array<double, 3>> tm;  // per track: sum, sum of squares, n
+    for (size_t i = 0; i < n; ++i)
+      if (c < 0 || cls[i] == c) {
+        auto& a = tm[tr[i]];
+        a[0] += e[i], a[1] += e[i] * e[i], a[2] += 1;
+      }
+    double within = 0, nw = 0, m1 = 0, m2 = 0, inv = 0;
+    for (const auto& [id, a] : tm) {
+      const double m = a[0] / a[2];
+      within += a[1] - a[2] * m * m, nw += a[2] - 1, m1 += m, m2 += m * m, inv += 1 / a[2];
+    }
+    const double T = static_cast<double>(tm.size());
+    const double sw2 = nw > 0 ? within / nw : 0.0;
+    const double sb2 = T > 1 ? std::max(0.0, (m2 - m1 * m1 / T) / (T - 1) - sw2 * inv / T) : 0.0;
+    return std::array<double, 2>{sb2, sw2};
+  };
+  std::array<std::array<double, 2>, 4> comp{};  // pooled, then per class
+  comp[0] = components(-1);
+  for (int c = 0; c < 3; ++c)
+    if (s.offset[c] >= 0) comp[c + 1] = components(c);
+  std::map<std::pair<int, int>, double> per_track;  // (slot, track) -> samples
+  for (size_t i = 0; i < n; ++i) {
+    per_track[{s.pooled[i], tr[i]}] += 1;
+    if (s.own[i] >= 0) per_track[{s.own[i], tr[i]}] += 1;
+  }
+  std::vector<double> nb(s.total, 0.0), nb2(s.total, 0.0);
+  for (const auto& [key, c] : per_track) nb[key.first] += c, nb2[key.first] += c * c;
+  auto floor2 = [&](int b) {
+    int scope = 0;
+    for (int c = 0; c < 3; ++c)
+      if (s.offset[c] >= 0 && b >= s.offset[c]) scope = c + 1;
+    return nb[b] > 0 ? comp[scope][0] * nb2[b] / (nb[b] * nb[b]) + comp[scope][1] / nb[b] : 0.0;
+  };
+  if (window) {
+    double out2 = 0, no = 0, no2 = 0;  // the outside of the window as one group
+    for (int b = 0; b < s.npooled; ++b)
+      if (b != inside) no += nb[b];
+    std::map<int, double> ot;
+    for (size_t i = 0; i < n; ++i)
+      if (s.pooled[i] != inside) ot[tr[i]] += 1;
+    for (const auto& [id, c] : ot) no2 += c * c;
+    if (no > 0) out2 = comp[0][0] * no2 / (no * no) + comp[0][1] / no;
+    se[inside] = std::sqrt(std::max(se[inside] * se[inside], floor2(inside) + out2));
+  } else {
+    for (int b = 0; b < s.total; ++b) se[b] = std::sqrt(std::max(se[b] * se[b], floor2(b)));
+  }
+  std::vector<double> prior(s.total, 0.0);
+  pool_towards(value, prior, se, held, 0, s.npooled, factor);
+  if (towards_pooled) {
+    // A class bin's prior: the shrunk pooled table averaged over the class's records in that bin.
+    std::vector<double> acc(s.total, 0.0), cnt(s.total, 0.0);
+    for (size_t i = 0; i < n; ++i)
+      if (s.own[i] >= 0) acc[s.own[i]] += value[s.pooled[i]] * factor[s.pooled[i]], cnt[s.own[i]] += 1;
+    for (int b = s.npooled; b < s.total; ++b) prior[b] = cnt[b] > 0 ? acc[b] / cnt[b] : 0.0;
+  }
+  for (int c = 0; c < 3; ++c)
+    if (s.offset[c] >= 0)
+      pool_towards(value, prior, se, held, s.offset[c], s.offset[c] + static_cast<int>(f.table.per_class[c].value.size()),
+                   factor);
+
+  // Write back: values x factor, and the factors and standard errors laid out like the table.
+  f.factor = f.table, f.se = f.table;
+  auto put = [&](BinnedTable& t, BinnedTable& ft, BinnedTable& st, int off) {
+    for (size_t b = 0; b < t.value.size(); ++b)
+      t.value[b] = prior[off + b] + factor[off + b] * (t.value[b] - prior[off + b]), ft.value[b] = factor[off + b],
+      st.value[b] = se[off + b];
+  };
+  put(f.table.pooled, f.factor.pooled, f.se.pooled, 0);
+  for (int c = 0; c < 3; ++c)
+    if (s.offset[c] >= 0) put(f.table.per_class[c], f.factor.per_class[c], f.se.per_class[c], s.offset[c]);
+  // The cell offsets against the shrunk table (backfit's rule: cells with >= 20 fit samples).
+  std::map<std::pair<int, int>, std::pair<double, long>> acc;
+  for (size_t i = 0; i < n; ++i) {
+    auto& a = acc[{cls[i], rb[i]}];
+    a.first += r[i] - f.table(cls[i], x[i]);
+    ++a.second;
+  }
+  f.d.clear();
+  for (const auto& [k, a] : acc)
+    if (a.second >= 20) f.d[k] = a.first / a.second;
 }
 
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,

@@ -4,6 +4,7 @@
 // model's own cells (backfitting), and the refitted KPI model that carries it as a
 // sensor::ConditionalTerm.
 #include <array>
+#include <cstdint>
 #include <map>
 #include <string>
 #include <utility>
@@ -33,6 +34,9 @@ ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<dou
 struct Refit {
   ClassTables table;
   std::map<std::pair<int, int>, double> d;
+  // After shrink_by_track_bootstrap: each bin's factor (fitted value x factor = the value kept) and
+  // its bootstrap standard error, laid out like `table`; empty value vectors when not shrunk.
+  ClassTables factor, se;
   double operator()(int cls, int rb, double x) const {
     const auto it = d.find({cls, rb});
     return (it == d.end() ? 0.0 : it->second) + table(cls, x);
@@ -52,6 +56,26 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
 // backfit with the window (pooled over classes) in place of the per-class tables.
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                      const std::vector<int>& rb, int fine_bins = 40);
+
+// Shrinks a fitted bias term (table or window) towards 0 by its own sampling uncertainty, so that
+// a bin carried by a few tracks is trusted less than one carried by hundreds. The bins' standard
+// errors come from a bootstrap over whole tracks of the fit data (`track`: one id per record;
+// frames of a track are not independent): each replicate draws the tracks with replacement and
+// refits the term's values with its edges kept (the same backfitting with the cell offsets as the
+// fit, weights = draw counts). Each table (pooled, per class) is then partially pooled towards 0
+// (empirical Bayes, normal prior of variance tau^2 on the bins): tau^2 = mean over the table's bins
+// of (value^2 - se^2), at least 0, and each bin x tau^2 / (tau^2 + se^2). A table whose bins are no
+// larger than their noise is shrunk to 0; a bin as large as many standard errors keeps nearly all
+// of it; for a window (one bin) this is max(0, 1 - se^2 / value^2). The cell offsets are refitted
+// against the shrunk table. towards_pooled: each class's own table is pooled towards the (shrunk)
+// pooled table instead of 0 (prior mean of a class bin = the pooled table's mean over the class's
+// records in it; tau^2 from the deviations), so a class with few tracks borrows the shape the
+// other classes show. `window`: f came from backfit_window (only its inside bin is a value).
+// Deterministic (fixed seed).
+void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
+                               const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
+                               bool window, bool towards_pooled = false, int replicates = 100,
+                               std::uint64_t seed = 7);
 
 // A mean term on an error explains part of the spread the base model's noise was fitted to carry:
 // without this the refitted model's errors come out too wide (term + the old noise). Per class,

@@ -99,14 +99,22 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                           const std::vector<sensor::CalibrationSequence>* detections = nullptr,
                           const sensor::FitOptions& opt = {});
 
+// How the loop's fitted bias terms are shrunk by their own track-bootstrap uncertainty on the fit
+// sequences (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md):
+// not at all, every table's bins towards 0, or the pooled table towards 0 and each class's own
+// table towards the pooled one.
+enum class TermShrink { Off, TowardsZero, TowardsPooled };
+
 // `lidar-qualify objects`: the model re-simulated on the ground truth vs the measured
 // detections; writes report.json, report.md and PNGs into out_dir. Returns the JSON.
 // With `nested`, the held-out table gets a second model column free of the loop's leak: for each
 // outer fold the loop (loop_objects, its own inner even/odd split) runs on that fold's fit
 // sequences only, and the model it writes is scored on the outer held-out sequences (the loop's
 // models and reports are written to out_dir/nested_fold_K_*).
+// shrink_terms, pool_track_spread: the recipe refitted on each half (and the nested loop) as LoopOptions's.
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
-                               const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false);
+                               const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
+                               TermShrink shrink_terms = TermShrink::Off, bool pool_track_spread = false);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
@@ -115,6 +123,12 @@ struct LoopOptions {
   std::filesystem::path out_model;  // where to write the refitted KPI model (empty: not written)
   std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
   int max_effects = 0;              // bias forms added per run, at most one per target (0: no limit)
+  // Bias terms shrunk towards 0 by their track-bootstrap uncertainty on the fit sequences
+  // (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md).
+  TermShrink shrink_terms = TermShrink::Off;
+  // The base model's per-track size constants partially pooled across classes (object_folds.h
+  // pool_track_spread; the sixth pass, qualify/README.md).
+  bool pool_track_spread = false;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the

@@ -129,6 +129,21 @@ TEST_F(QualifyCli, UnknownIntensityBaseModelIsOneClearError) {
   expect_one_error(run("loop intensity --semantickitti " + sk.string() + " --report r.json --base forest"), "forest");
 }
 
+TEST_F(QualifyCli, UnknownTermShrinkIsOneClearErrorAndTheShrinkModesRun) {
+  const fs::path kt = tracking();
+  expect_one_error(run("loop objects --kitti-tracking " + kt.string() + " --report r.json --term-shrink sometimes"),
+                   "--term-shrink");
+  // The sixth pass's options (qualify/README.md): the loop runs and reports the shrink factors.
+  const CliRun r = run("loop objects --kitti-tracking " + kt.string() + " --report " + (dir_ / "r.json").string() +
+                       " --term-shrink pooled --pool-track-spread");
+  ASSERT_EQ(r.code, 0) << r.out;
+  expect_loop_keys(dir_ / "r.json", "objects");
+  std::ifstream in(dir_ / "r.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_TRUE(j.contains("track_spread_pooling")) << j.dump().substr(0, 300);
+  for (const auto& e : j["added_effects"]) EXPECT_TRUE(e["shrink_per_fold"].is_array()) << e.dump().substr(0, 300);
+}
+
 TEST_F(QualifyCli, MissingTrackingFolderIsOneClearError) {
   expect_one_error(run("loop objects --kitti-tracking " + (dir_ / "nope").string() + " --report r.json"), "nope");
 }
