@@ -315,7 +315,7 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 }
 
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
-                              int bins, TermShrink shrink_terms, bool pool_track_spread) {
+                              int bins, TermShrink shrink_terms, bool pool_track_spread, std::uint64_t seed) {
   Fold fold;
   fold.pool_track_spread = pool_track_spread;
   make_fold(fold, data, fit_idx, {}, sensor::FitOptions{});
@@ -356,6 +356,9 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     m = with_fitted_fp_table(m, fold, c, bins);
     break;
   }
+  // And the false positives' persistence (ghost tracks), where the recipe has it.
+  for (const auto& [name, cm] : recipe.classes)
+    if (cm.fp_persistence.present()) return with_fp_persistence(m, data, fold.fit_idx, fold.fit_set, seed);
   return m;
 }
 

@@ -84,9 +84,10 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
 // scale, else a mean table; on detection: a rate table), each refitted on the same sequences with
 // the loop's forms (object_candidates.h), for the classes that carry it (a mean table with the
 // noise shrunk, object_terms.h with_term_and_noise). For held-out checks of a model that carries terms.
-// shrink_terms, pool_track_spread: as Fold's.
+// shrink_terms, pool_track_spread: as Fold's. A recipe with false-positive persistence gets it
+// refitted on the same sequences (its re-simulation drawn with `seed`).
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
                               int bins = 10, TermShrink shrink_terms = TermShrink::Off,
-                              bool pool_track_spread = false);
+                              bool pool_track_spread = false, std::uint64_t seed = 1);
 
 }  // namespace lidarsim::qualify::obj

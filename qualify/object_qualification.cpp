@@ -219,7 +219,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
       if (judge.empty()) continue;
       std::vector<sensor::CalibrationSequence> fit_seqs;
       for (int s : fit) fit_seqs.push_back(data.calib[s]);
-      const sensor::KpiModel fitted = obj::refit_recipe(data, fit, model, 10, shrink_terms, pool_track_spread);
+      const sensor::KpiModel fitted = obj::refit_recipe(data, fit, model, 10, shrink_terms, pool_track_spread, seed);
       const sensor::KpiModel gauss = sensor::gaussian_iid_model(fit_seqs, fopt);
       const bool run_nested = nested && fit.size() >= 2;
       sensor::KpiModel looped;
