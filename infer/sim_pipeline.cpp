@@ -1,5 +1,6 @@
 #include "infer/sim_pipeline.h"
 
+#include <cmath>
 #include <numbers>
 
 #include <algorithm>
@@ -160,6 +161,11 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   for (std::size_t i = 0; i < tracked_map_.size(); ++i) sensor::transform_object(sensor_from_map, tracked_map_[i], tracked_[i]);
   lap(SimStage::Tracking);
 
+  if (last_map_from_sensor_) {
+    const sensor::Pose step = sensor::compose(sensor::inverse(*last_map_from_sensor_), map_from_sensor);
+    kpi_.set_ego_motion(step.translation.head<2>(), std::atan2(step.rotation(1, 0), step.rotation(0, 0)));
+  }
+  last_map_from_sensor_ = map_from_sensor;
   kpi_.apply(tracked_, kpi_out_);
   out.reported.resize(kpi_out_.size());
   // The track of each reported object (ids are unique): the KPI manager keeps the tracks' order,
@@ -278,6 +284,12 @@ void write_untrained_checkpoint(const std::filesystem::path& path, int base, int
   meta.attributes["beam_layout"] = layout.to_json();
   meta.attributes["note"] = "untrained (He-initialised) weights for tests and benchmarks; not a model";
   nn::save_checkpoint(path, model, nullptr, meta);
+}
+
+bool SimPipeline::kpi_model_has_persistence() const {
+  for (const auto& [name, cm] : kpi_.model().classes)
+    if (cm.fp_persistence.present()) return true;
+  return false;
 }
 
 }  // namespace lidarsim::infer

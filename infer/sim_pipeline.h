@@ -96,6 +96,8 @@ class SimPipeline {
                                 const std::filesystem::path& intensity_checkpoint, SimOptions options = {});
 
   const sensor::Scenario& scenario() const { return scenario_; }
+  // True when some class's false positives persist over frames (KpiModel fp_persistence).
+  bool kpi_model_has_persistence() const;
   int frame_count() const { return scenario_.frame_count(); }
   const IntensityModel* intensity_model() const { return intensity_.get(); }
 
@@ -120,6 +122,9 @@ class SimPipeline {
   SimOptions options_;
   sensor::Tracker tracker_;
   sensor::KpiManager kpi_;
+  // The sensor's pose in the map at the last frame: the KPI manager's persistent false positives
+  // (ghost tracks) are held still in the world by the sensor's motion since then.
+  std::optional<sensor::Pose> last_map_from_sensor_;
   sensor::Occlusion occlusion_;
   sensor::PclGenerator pcl_;
   std::vector<std::string> extra_channels_;

@@ -12,6 +12,7 @@
 #include <fstream>
 #include <map>
 #include <numbers>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <string>
@@ -188,6 +189,46 @@ TEST_F(SimPipelineTest, TrackIdsStayTheSameOverConsecutiveFrames) {
     stable += ids.size() == 1;
   }
   EXPECT_GE(stable, 4);
+}
+
+// The bundled KPI model has persistent false positives (ghost tracks, fp_persistence): on KITTI
+// they stay put in the world while the car drives, so the pipeline passes the sensor's motion to
+// the KPI manager. A ghost seen in consecutive frames must keep its map position (within its
+// jitter) while the ego moves 0.8 m per frame; in the sensor frame it moves back by that much.
+TEST_F(SimPipelineTest, GhostFalsePositivesStayPutInTheWorldWhileTheEgoDrives) {
+  auto pipeline = make(5, true);
+  ASSERT_TRUE(pipeline.kpi_model_has_persistence());
+  infer::SimFrame frame;
+  std::map<int, Eigen::Vector3d> last_map, last_sensor;
+  std::vector<double> map_steps, sensor_steps, ego_steps;
+  std::optional<Eigen::Vector3d> last_ego;
+  for (int k = 0; k < 40; ++k) {
+    pipeline.run_frame(k, frame);
+    const sensor::Pose map_from_sensor = sensor::compose(frame.ego.ego_in_map, pipeline.scenario().sensor.mount);
+    if (last_ego) ego_steps.push_back((frame.ego.ego_in_map.translation - *last_ego).norm());
+    last_ego = frame.ego.ego_in_map.translation;
+    std::map<int, Eigen::Vector3d> now_map, now_sensor;
+    for (const auto& r : frame.reported) {
+      if (r.truth_id >= 0) continue;
+      const Eigen::Vector3d p = r.object.position;
+      const Eigen::Vector3d m = map_from_sensor.rotation * p + map_from_sensor.translation;
+      now_map[r.object.id] = m;
+      now_sensor[r.object.id] = p;
+      if (last_map.count(r.object.id)) {
+        map_steps.push_back((m - last_map[r.object.id]).head<2>().norm());
+        sensor_steps.push_back((p - last_sensor[r.object.id]).head<2>().norm());
+      }
+    }
+    last_map = now_map, last_sensor = now_sensor;
+  }
+  ASSERT_GE(map_steps.size(), 10u) << "too few ghosts seen twice";
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  EXPECT_GT(median(ego_steps), 0.5);
+  EXPECT_LT(median(map_steps), 0.45);  // the jitter: 0.09-0.2 m per axis
+  EXPECT_GT(median(sensor_steps), median(map_steps) + 0.3);
 }
 
 // The ego drives at 8 m/s behind the lead car (id 1, about 7.7 m/s): a tracker fed moving-sensor
