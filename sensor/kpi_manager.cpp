@@ -291,7 +291,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
       const FalsePositiveTable& table = cm.fp_table;
       const FalsePositivePersistence& pers = cm.fp_persistence;
       KpiRng& rng = fp_rng_[k];
-      auto report = [&](const Ghost& g) {
+      auto emit_object = [&](const Ghost& g, double score) {
         Object fp;
         fp.id = g.id;
         fp.cls = static_cast<ObjectClass>(k);
@@ -299,9 +299,11 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
         fp.size = cm.mean_size;
         fp.heading = g.heading;
         fp.visible_fraction = 1;
-        fp.score = quantile_at(g.score_q ? *g.score_q : kNone, 0.5,
-                               0.5 * std::erfc(-g.score_z / std::numbers::sqrt2));
+        fp.score = score;
         reported.push_back(fp);
+      };
+      auto report = [&](const Ghost& g) {
+        emit_object(g, quantile_at(g.score_q ? *g.score_q : kNone, 0.5, 0.5 * std::erfc(-g.score_z / std::numbers::sqrt2)));
       };
       // Persistence: last frame's false positives first, each surviving with its own draw (only
       // with the field, so without it the stream is drawn exactly as before).
@@ -352,16 +354,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
           g.heading = h(rng);
           const std::vector<double>& q = sq.empty() ? cm.fp_score_quantiles : sq;
           if (!pers.present()) {
-            // As before the persistence field: one uniform through the quantiles.
-            Object fp;
-            fp.id = g.id;
-            fp.cls = static_cast<ObjectClass>(k);
-            fp.position = Eigen::Vector3d(g.x, g.y, cm.fp_z);
-            fp.size = cm.mean_size;
-            fp.heading = g.heading;
-            fp.visible_fraction = 1;
-            fp.score = sample_quantiles(q, 0.5, rng);
-            reported.push_back(fp);
+            emit_object(g, sample_quantiles(q, 0.5, rng));  // as before the persistence field: one uniform through the quantiles
             continue;
           }
           // A normal score, so its AR(1) over the ghost's life keeps the quantiles' distribution.
