@@ -19,6 +19,23 @@ ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<dou
   return t;
 }
 
+namespace {
+// The (class, range bin) cell offsets: each cell's mean residual after the table, for cells with
+// at least 20 samples (fewer: no offset).
+void fit_cell_offsets(Refit& f, const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                      const std::vector<int>& rb) {
+  std::map<std::pair<int, int>, std::pair<double, long>> acc;
+  for (size_t i = 0; i < r.size(); ++i) {
+    auto& a = acc[{cls[i], rb[i]}];
+    a.first += r[i] - f.table(cls[i], x[i]);
+    ++a.second;
+  }
+  f.d.clear();
+  for (const auto& [k, a] : acc)
+    if (a.second >= 20) f.d[k] = a.first / a.second;
+}
+}  // namespace
+
 Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
               const std::vector<int>& rb, int bins) {
   Refit f;
@@ -29,15 +46,7 @@ Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const 
       y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
     }
     f.table = fit_class_tables(x, y, cls, bins);
-    std::map<std::pair<int, int>, std::pair<double, long>> acc;
-    for (size_t i = 0; i < r.size(); ++i) {
-      auto& a = acc[{cls[i], rb[i]}];
-      a.first += r[i] - f.table(cls[i], x[i]);
-      ++a.second;
-    }
-    f.d.clear();
-    for (const auto& [k, a] : acc)
-      if (a.second >= 20) f.d[k] = a.first / a.second;
+    fit_cell_offsets(f, x, r, cls, rb);
   }
   return f;
 }
@@ -89,15 +98,7 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
     }
     f.table = ClassTables{};
     f.table.pooled = fit_window(x, y, fine_bins);
-    std::map<std::pair<int, int>, std::pair<double, long>> acc;
-    for (size_t i = 0; i < r.size(); ++i) {
-      auto& a = acc[{cls[i], rb[i]}];
-      a.first += r[i] - f.table(cls[i], x[i]);
-      ++a.second;
-    }
-    f.d.clear();
-    for (const auto& [k, a] : acc)
-      if (a.second >= 20) f.d[k] = a.first / a.second;
+    fit_cell_offsets(f, x, r, cls, rb);
   }
   return f;
 }
@@ -294,16 +295,7 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
   put(f.table.pooled, f.factor.pooled, f.se.pooled, 0);
   for (int c = 0; c < 3; ++c)
     if (s.offset[c] >= 0) put(f.table.per_class[c], f.factor.per_class[c], f.se.per_class[c], s.offset[c]);
-  // The cell offsets against the shrunk table (backfit's rule: cells with >= 20 fit samples).
-  std::map<std::pair<int, int>, std::pair<double, long>> acc;
-  for (size_t i = 0; i < n; ++i) {
-    auto& a = acc[{cls[i], rb[i]}];
-    a.first += r[i] - f.table(cls[i], x[i]);
-    ++a.second;
-  }
-  f.d.clear();
-  for (const auto& [k, a] : acc)
-    if (a.second >= 20) f.d[k] = a.first / a.second;
+  fit_cell_offsets(f, x, r, cls, rb);  // against the shrunk table
 }
 
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
