@@ -163,6 +163,7 @@ int main(int argc, char** argv) {
       ("no-bf16", "leave out the bf16 inference rows (they need AVX-512 BF16)")
       ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
       ("bf16-only", "only the bf16 inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+      ("train-only", "only the training rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
       ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
       ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
       ("h,help", "show help");
@@ -210,6 +211,8 @@ int main(int argc, char** argv) {
       table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return r.train; }), table.end());
     if (opt.count("bf16-only"))
       table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.bf16; }), table.end());
+    if (opt.count("train-only"))
+      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.train; }), table.end());
     for (Row& row : table) {
       set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);
       const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
