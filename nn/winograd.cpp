@@ -23,6 +23,8 @@ bool winograd_available() { return false; }
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
 void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
+void winograd_transform_weights(float*, const float*, int, int, bool) {}
+std::size_t winograd_u_stride(int, int) { return 0; }
 #else
 
 bool winograd_available() { return true; }
@@ -149,50 +151,79 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
   }
 }
 
+// G = diag(1/4, -1/6, -1/6, 1/24, 1/24, 1) G' with the integer rows of G' (1 0 0), (1 1 1),
+// (1 -1 1), (1 2 4), (1 -2 4), (0 0 1): G' applied to 3 values (6 adds), exact in double for
+// float inputs. kGScale[a][b] = d_a d_b scales G' k G'^T into G k G^T with one rounding.
+inline void g6(__m512d x0, __m512d x1, __m512d x2, __m512d y[6]) {
+  const __m512d s = _mm512_add_pd(x0, x2), p = _mm512_fmadd_pd(_mm512_set1_pd(4.0), x2, x0);
+  const __m512d q = _mm512_add_pd(x1, x1);
+  y[0] = x0;
+  y[1] = _mm512_add_pd(s, x1);
+  y[2] = _mm512_sub_pd(s, x1);
+  y[3] = _mm512_add_pd(p, q);
+  y[4] = _mm512_sub_pd(p, q);
+  y[5] = x2;
+}
+constexpr double kGDiv[6] = {4, -6, -6, 24, 24, 1};
+struct GScale {
+  double s[6][6];
+  constexpr GScale() : s() {
+    for (int a = 0; a < 6; ++a)
+      for (int b = 0; b < 6; ++b) s[a][b] = 1.0 / (kGDiv[a] * kGDiv[b]);
+  }
+};
+constexpr GScale kGScale;
+
+// Floats per transform element of U: [co blocks][ci][kCB] and one cache line, so that the 36
+// slices (at power-of-two strides otherwise) do not all fall into one L1 set.
+inline std::size_t u_stride(int co, int ci) { return static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci + 16; }
+
 // U = G k G^T for each 3x3 kernel k, packed [36][co blocks][ci][kCB] (zeros past the last output
-// channel). The kCB kernels of a block ride in the 8 lanes of a double vector: the transform's
-// fractions (1/6, 1/24) are applied in double and round once, and each of the 36 results is
-// stored as kCB consecutive floats.
+// channel; element stride u_stride). The kCB kernels of a block ride in the 8 lanes of a double vector (gathered
+// straight from the weights: staging them through memory stalled on store forwarding); each of
+// the 36 results is rounded once to float and stored as kCB consecutive floats.
 void transform_weights(float* u, const float* w, int co, int ci, bool transpose_flip) {
-  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
-                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
-                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
-                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
-                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
-                                     {0, 0, 1}};
   static_assert(kCB == 8, "one double vector per block");
   const int blocks = (co + kCB - 1) / kCB;
-  const std::size_t per_e = static_cast<std::size_t>(blocks) * ci * kCB;
+  const std::size_t per_e = u_stride(co, ci);
   const bool par = static_cast<std::size_t>(co) * ci > 4096;
+  // Lane j's tap t: w[(o ci + c) 9 + t] or, flipped, w[(c co + o) 9 + 8 - t], with o = 8 b + j.
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  constexpr int kAhead = 4;  // tasks to prefetch ahead
+  const __m256i idx0 = _mm256_mullo_epi32(lane, _mm256_set1_epi32(transpose_flip ? 9 : 9 * ci));
 #pragma omp parallel for schedule(static) if (par)
   for (int bc = 0; bc < blocks * ci; ++bc) {
     const int b = bc / ci, c = bc % ci;
-    alignas(64) double k[9][kCB];
-    for (int j = 0; j < kCB; ++j) {
-      const int o = b * kCB + j;
-      for (int t = 0; t < 9; ++t)
-        k[t][j] = o >= co ? 0.0
-                  : transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (8 - t)]
-                                   : w[(static_cast<std::size_t>(o) * ci + c) * 9 + t];
+    if (bc + kAhead < blocks * ci) {  // the hardware prefetcher misses these jumps
+      const int pb = (bc + kAhead) / ci, pc = (bc + kAhead) % ci;
+      if (transpose_flip) {
+        const float* p = w + (static_cast<std::size_t>(pc) * co + pb * kCB) * 9;
+        for (int l = 0; l < 5; ++l) _mm_prefetch(reinterpret_cast<const char*>(p + 16 * l), _MM_HINT_T0);
+      } else {
+        for (int j = 0; j < kCB && pb * kCB + j < co; ++j) {
+          const float* p = w + ((static_cast<std::size_t>(pb) * kCB + j) * ci + pc) * 9;
+          _mm_prefetch(reinterpret_cast<const char*>(p), _MM_HINT_T0);
+          _mm_prefetch(reinterpret_cast<const char*>(p + 8), _MM_HINT_T0);
+        }
+      }
     }
-    __m512d kv[9];
-    for (int t = 0; t < 9; ++t) kv[t] = _mm512_load_pd(k[t]);
-    __m512d gk[6][3];  // G k: rows a, columns kw
-    for (int a = 0; a < 6; ++a)
-      for (int kw = 0; kw < 3; ++kw) {
-        __m512d acc = _mm512_setzero_pd();
-        for (int kh = 0; kh < 3; ++kh)
-          if (G[a][kh] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[a][kh]), kv[kh * 3 + kw], acc);
-        gk[a][kw] = acc;
-      }
+    const __mmask8 live = static_cast<__mmask8>(co - b * kCB >= kCB ? 0xff : (1u << (co - b * kCB)) - 1);
+    const float* base = transpose_flip ? w + (static_cast<std::size_t>(c) * co + b * kCB) * 9 + 8
+                                       : w + (static_cast<std::size_t>(b) * kCB * ci + c) * 9;
+    __m512d k[9];
+    for (int t = 0; t < 9; ++t) {
+      const __m256i idx = _mm256_add_epi32(idx0, _mm256_set1_epi32(transpose_flip ? -t : t));
+      k[t] = _mm512_cvtps_pd(_mm256_mmask_i32gather_ps(_mm256_setzero_ps(), live, idx, base, 4));
+    }
+    __m512d gk[3][6];  // G' k: [kw][a]
+    for (int kw = 0; kw < 3; ++kw) g6(k[kw], k[3 + kw], k[6 + kw], gk[kw]);
     float* dst = u + static_cast<std::size_t>(bc) * kCB;
-    for (int a = 0; a < 6; ++a)
-      for (int bb = 0; bb < 6; ++bb) {
-        __m512d acc = _mm512_setzero_pd();
-        for (int kw = 0; kw < 3; ++kw)
-          if (G[bb][kw] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[bb][kw]), gk[a][kw], acc);
-        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(acc));
-      }
+    for (int a = 0; a < 6; ++a) {
+      __m512d r[6];
+      g6(gk[0][a], gk[1][a], gk[2][a], r);
+      for (int bb = 0; bb < 6; ++bb)
+        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(_mm512_mul_pd(_mm512_set1_pd(kGScale.s[a][bb]), r[bb])));
+    }
   }
 }
 
@@ -308,7 +339,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
          bool relu) {
   const int co = out.ca + out.cb;
   const int co_blocks = (co + kCB - 1) / kCB;
-  const std::size_t u_e = static_cast<std::size_t>(co_blocks) * ci * kCB;
+  const std::size_t u_e = u_stride(co, ci);
   const int tiles_tasks = n * g.th * g.blocks;
   const int threads = omp_get_max_threads();
   // Few tile blocks (the deep layers): split the output channels too, each part repeating the
@@ -408,7 +439,7 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
   const int ci = in.ca + in.cb, co = out.ca + out.cb;
   float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
   to_phases(phases, in, mask, n, g);
-  float* u = g_u.get(36 * static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci);
+  float* u = g_u.get(36 * u_stride(co, ci));
   transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)
     run<3>(out, phases, n, ci, g, u, bias, relu);
@@ -416,6 +447,12 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
     run<2>(out, phases, n, ci, g, u, bias, relu);
   else
     run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+std::size_t winograd_u_stride(int co, int ci) { return u_stride(co, ci); }
+
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip) {
+  transform_weights(u, weight, co, ci, transpose_flip);
 }
 
 void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
