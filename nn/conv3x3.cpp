@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
 #ifdef __AVX512F__
@@ -334,8 +335,13 @@ void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int
   float* pin = g_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
   pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
-  float* wp = g_wpack.get(static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9);
-  pack_weights(wp, weight, co, ci, false);
+  const std::size_t wp_floats = static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9;
+  bool valid = false;
+  float* wp = weight_cache_active()
+                  ? static_cast<float*>(cached_weight_form(WeightForm::direct, weight, static_cast<std::size_t>(co) * ci * 9,
+                                                           co, ci, wp_floats * sizeof(float), &valid))
+                  : g_wpack.get(wp_floats);
+  if (!valid) pack_weights(wp, weight, co, ci, false);
   conv_padded(Cat<float>{out, co}, pin, n, ci, g, wp, bias, relu);
 }
 

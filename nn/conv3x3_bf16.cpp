@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
 #include <algorithm>
@@ -222,8 +223,14 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
     pad_pair(pin + t * g.stride, channel(img, 2 * p), 2 * p + 1 < ci ? channel(img, 2 * p + 1) : nullptr, g);
   }
   const int blocks = (co + kCB - 1) / kCB;
-  std::uint32_t* wp = g_wpack.get(static_cast<std::size_t>(blocks) * kCB * pairs * 9);
-  pack_weights(wp, weight, co, ci);
+  const std::size_t wp_lanes = static_cast<std::size_t>(blocks) * kCB * pairs * 9;
+  bool valid = false;
+  std::uint32_t* wp = weight_cache_active()
+                          ? static_cast<std::uint32_t*>(cached_weight_form(WeightForm::bf16, weight,
+                                                                           static_cast<std::size_t>(co) * ci * 9, co,
+                                                                           ci, wp_lanes * 4, &valid))
+                          : g_wpack.get(wp_lanes);
+  if (!valid) pack_weights(wp, weight, co, ci);
   const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
   const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;
   const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;

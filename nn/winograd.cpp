@@ -5,6 +5,8 @@
 #endif
 #include "nn/winograd.h"
 
+#include "nn/weight_cache.h"
+
 #include <omp.h>
 
 #include <algorithm>
@@ -25,6 +27,7 @@ void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, in
 void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
 void winograd_transform_weights(float*, const float*, int, int, bool) {}
 std::size_t winograd_u_stride(int, int) { return 0; }
+bool winograd_caches_weights() { return false; }
 #else
 
 bool winograd_available() { return true; }
@@ -32,6 +35,10 @@ bool winograd_available() { return true; }
 namespace {
 
 constexpr int kCB = 8;  // output channels per GEMM register block
+#ifndef LIDARSIM_CACHE_U
+#define LIDARSIM_CACHE_U 0
+#endif
+constexpr bool kCacheU = LIDARSIM_CACHE_U;  // keep U across predict calls (nn/weight_cache.h)
 
 // Grow-only, 64-byte aligned scratch.
 struct Buf {
@@ -439,8 +446,14 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
   const int ci = in.ca + in.cb, co = out.ca + out.cb;
   float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
   to_phases(phases, in, mask, n, g);
-  float* u = g_u.get(36 * u_stride(co, ci));
-  transform_weights(u, weight, co, ci, transpose_flip);
+  const std::size_t u_floats = 36 * u_stride(co, ci);
+  bool valid = false;
+  float* u = kCacheU && weight_cache_active()
+                 ? static_cast<float*>(cached_weight_form(transpose_flip ? WeightForm::winograd_flip : WeightForm::winograd,
+                                                          weight, static_cast<std::size_t>(co) * ci * 9, co, ci,
+                                                          u_floats * sizeof(float), &valid))
+                 : g_u.get(u_floats);
+  if (!valid) transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)
     run<3>(out, phases, n, ci, g, u, bias, relu);
   else if (g.nv == 2)
@@ -450,6 +463,7 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
 }
 
 std::size_t winograd_u_stride(int co, int ci) { return u_stride(co, ci); }
+bool winograd_caches_weights() { return kCacheU; }
 
 void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip) {
   transform_weights(u, weight, co, ci, transpose_flip);
