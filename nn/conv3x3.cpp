@@ -392,6 +392,11 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
+  if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
+    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
+                      h, w, weight, co);
+    return;
+  }
   if (wino_w) {
     winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
   } else if (d_weight) {

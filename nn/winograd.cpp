@@ -25,6 +25,8 @@ bool winograd_available() { return false; }
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
 void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
+void winograd_backward(const OutPlaneSet&, float*, const PlaneSet&, const float*, const float*, int, int, int,
+                       const float*, int) {}
 void winograd_transform_weights(float*, const float*, int, int, bool) {}
 std::size_t winograd_u_stride(int, int) { return 0; }
 bool winograd_caches_weights() { return false; }
@@ -440,12 +442,12 @@ inline void du_block(float* du, int du_stride, const float* dm, const float* v, 
 
 }  // namespace
 
-void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
-                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
-  const Geom g(h, w);
-  const int ci = in.ca + in.cb, co = out.ca + out.cb;
-  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
-  to_phases(phases, in, mask, n, g);
+namespace {
+
+// The conv of winograd_conv3x3 from the by-phase copy of its input (ci channels).
+void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
+                      bool transpose_flip, const float* bias, bool relu) {
+  const int co = out.ca + out.cb;
   const std::size_t u_floats = 36 * u_stride(co, ci);
   bool valid = false;
   float* u = kCacheU && weight_cache_active()
@@ -460,6 +462,19 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
     run<2>(out, phases, n, ci, g, u, bias, relu);
   else
     run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g);
+
+}  // namespace
+
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(phases, in, mask, n, g);
+  conv_from_phases(out, phases, ci, n, g, weight, transpose_flip, bias, relu);
 }
 
 std::size_t winograd_u_stride(int co, int ci) { return u_stride(co, ci); }
@@ -477,6 +492,24 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
   to_phases(pin, in, nullptr, n, g);
   float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
   to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+}
+
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(pin, in, nullptr, n, g);
+  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
+  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+  conv_from_phases(d_in, pg, co, n, g, weight, true, nullptr, false);
+}
+
+namespace {
+
+void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g) {
 
   // Every tile of every image, transformed: V [36][ci3][tiles], dM [36][co8][tiles] (channels
   // padded to the register block with zero rows; one cache line between elements).
@@ -546,6 +579,9 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
         }
     }
 }
+
+
+}  // namespace
 
 #endif
 

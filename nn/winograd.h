@@ -32,6 +32,12 @@ struct OutPlaneSet {
 void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
                       const float* weight, bool transpose_flip, const float* bias, bool relu);
 
+// Both gradients of that conv at once: adds the weight gradient to d_weight (winograd_weight_grad)
+// and writes the input gradient to d_in (winograd_conv3x3 with transpose_flip, weight
+// [co, ci, 3, 3]), bringing the masked d_out into the by-phase layout once for both.
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co);
+
 // The transformed weights U = G k G^T that winograd_conv3x3 multiplies with, for tests: packed
 // [36 transform elements][ceil(co / 8)][ci][8 output channels] (zeros past the last one), the
 // elements winograd_u_stride(co, ci) floats apart; u is 64-byte aligned.
