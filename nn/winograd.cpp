@@ -116,6 +116,11 @@ inline float hsum(__m512 v) {
   return _mm_cvtss_f32(b);
 }
 
+#ifndef LIDARSIM_PHASE_PREFETCH
+#define LIDARSIM_PHASE_PREFETCH 256
+#endif
+constexpr int kPhasePrefetch = LIDARSIM_PHASE_PREFETCH;  // source floats to prefetch ahead in to_phases (0: none)
+
 // Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
 // pixels (masked loads outside the row) are split into the 4 phases of 16 tiles by two permutes.
 void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
@@ -141,6 +146,13 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
       const float* s = src + static_cast<std::size_t>(y) * g.w;
       const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
       for (int tx = 0; tx < g.len; tx += 16) {
+        if (kPhasePrefetch) {
+          const char* ahead = reinterpret_cast<const char*>(s + 4 * tx + kPhasePrefetch);
+          for (int l = 0; l < 4; ++l) _mm_prefetch(ahead + 64 * l, _MM_HINT_T0);
+          if (mr)
+            for (int l = 0; l < 4; ++l)
+              _mm_prefetch(reinterpret_cast<const char*>(mr + 4 * tx + kPhasePrefetch) + 64 * l, _MM_HINT_T0);
+        }
         __m512 a[4];
         for (int q = 0; q < 4; ++q) {
           const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
