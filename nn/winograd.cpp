@@ -563,7 +563,9 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
              tiles, tiles);
   }
 
-  // d_weight += G^T dU G per kernel, in double.
+  // d_weight += G^T dU G per kernel, in double: 8 input channels in the lanes of a double vector
+  // (contiguous in dU), each lane doing the scalar sums in their order (multiply, then add; no
+  // FMA), so the result is the same bits as one kernel at a time.
   static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
                                      {-1.0 / 6, -1.0 / 6, -1.0 / 6},
                                      {-1.0 / 6, 1.0 / 6, -1.0 / 6},
@@ -571,25 +573,34 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6},
                                      {0, 0, 1}};
   const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
+  const int c_blocks = (ci + 7) / 8;
 #pragma omp parallel for schedule(static) if (par)
-  for (int o = 0; o < co; ++o)
-    for (int c = 0; c < ci; ++c) {
-      const float* d = du + static_cast<std::size_t>(o) * ci3 + c;
-      double t[6][3];  // dU G
-      for (int a = 0; a < 6; ++a)
-        for (int kw = 0; kw < 3; ++kw) {
-          double acc = 0;
-          for (int bb = 0; bb < 6; ++bb) acc += d[(a * 6 + bb) * du_e] * G[bb][kw];
-          t[a][kw] = acc;
-        }
-      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c) * 9;
-      for (int kh = 0; kh < 3; ++kh)
-        for (int kw = 0; kw < 3; ++kw) {
-          double acc = 0;
-          for (int a = 0; a < 6; ++a) acc += G[a][kh] * t[a][kw];
-          dw[kh * 3 + kw] += static_cast<float>(acc);
-        }
+  for (int oc = 0; oc < co * c_blocks; ++oc) {
+    const int o = oc / c_blocks, c0 = oc % c_blocks * 8, nc = std::min(8, ci - c0);
+    const __mmask8 live = static_cast<__mmask8>(nc == 8 ? 0xff : (1u << nc) - 1);
+    const float* d = du + static_cast<std::size_t>(o) * ci3 + c0;
+    __m512d t[6][3];  // dU G
+    for (int a = 0; a < 6; ++a) {
+      __m512d x[6];
+      for (int bb = 0; bb < 6; ++bb) x[bb] = _mm512_cvtps_pd(_mm256_maskz_loadu_ps(live, d + (a * 6 + bb) * du_e));
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int bb = 0; bb < 6; ++bb) acc = _mm512_add_pd(acc, _mm512_mul_pd(x[bb], _mm512_set1_pd(G[bb][kw])));
+        t[a][kw] = acc;
+      }
     }
+    alignas(64) double r[9][8];
+    for (int kh = 0; kh < 3; ++kh)
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int a = 0; a < 6; ++a) acc = _mm512_add_pd(acc, _mm512_mul_pd(_mm512_set1_pd(G[a][kh]), t[a][kw]));
+        _mm512_store_pd(r[kh * 3 + kw], acc);
+      }
+    for (int j = 0; j < nc; ++j) {
+      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c0 + j) * 9;
+      for (int k = 0; k < 9; ++k) dw[k] += static_cast<float>(r[k][j]);
+    }
+  }
 }
 
 
