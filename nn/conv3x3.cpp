@@ -231,18 +231,22 @@ void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int 
 void pack_weights(float* dst, const float* w, int co, int ci, bool transpose_flip) {
   const int out_c = transpose_flip ? ci : co, in_c = transpose_flip ? co : ci;
   const int blocks = (out_c + kCB - 1) / kCB;
-  for (int b = 0; b < blocks; ++b)
-    for (int c = 0; c < in_c; ++c)
-      for (int k = 0; k < 9; ++k)
-        for (int j = 0; j < kCB; ++j) {
-          const int o = b * kCB + j;
-          float v = 0.f;
-          if (o < out_c) {
-            v = transpose_flip ? w[(static_cast<std::size_t>(c) * ci + o) * 9 + (8 - k)]
-                               : w[(static_cast<std::size_t>(o) * ci + c) * 9 + k];
-          }
-          dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
+  // In parallel: a serial pack of the deepest layers' weights (590K values) left the other
+  // thread waiting.
+#pragma omp parallel for schedule(static) if (static_cast<std::size_t>(out_c) * in_c > 4096)
+  for (int bc = 0; bc < blocks * in_c; ++bc) {
+    const int b = bc / in_c, c = bc % in_c;
+    for (int k = 0; k < 9; ++k)
+      for (int j = 0; j < kCB; ++j) {
+        const int o = b * kCB + j;
+        float v = 0.f;
+        if (o < out_c) {
+          v = transpose_flip ? w[(static_cast<std::size_t>(c) * ci + o) * 9 + (8 - k)]
+                             : w[(static_cast<std::size_t>(o) * ci + c) * 9 + k];
         }
+        dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
+      }
+  }
 }
 
 // One strip: kCB output channels x kStrip pixels from index q of the padded input planes.
