@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
 #ifdef __AVX512F__
@@ -144,6 +145,63 @@ struct Buf {
 
 Buf g_pad_in, g_pad_g, g_wpack, g_sums;
 
+// col[x] lane k = r[k] lane x: the 16 x 16 transpose.
+inline void transpose16(const __m512 r[16], __m512 col[16]) {
+  __m512 t[16], u[16];
+  for (int i = 0; i < 8; ++i) {
+    t[2 * i] = _mm512_unpacklo_ps(r[2 * i], r[2 * i + 1]);
+    t[2 * i + 1] = _mm512_unpackhi_ps(r[2 * i], r[2 * i + 1]);
+  }
+  // u[4 q + j], 128-bit chunk L: rows 4 q .. 4 q + 3 of column 4 L + j.
+  for (int q = 0; q < 4; ++q) {
+    const __m512d a = _mm512_castps_pd(t[4 * q]), b = _mm512_castps_pd(t[4 * q + 2]);
+    const __m512d c = _mm512_castps_pd(t[4 * q + 1]), d = _mm512_castps_pd(t[4 * q + 3]);
+    u[4 * q] = _mm512_castpd_ps(_mm512_unpacklo_pd(a, b));
+    u[4 * q + 1] = _mm512_castpd_ps(_mm512_unpackhi_pd(a, b));
+    u[4 * q + 2] = _mm512_castpd_ps(_mm512_unpacklo_pd(c, d));
+    u[4 * q + 3] = _mm512_castpd_ps(_mm512_unpackhi_pd(c, d));
+  }
+  for (int j = 0; j < 4; ++j) {
+    const __m512 va = _mm512_shuffle_f32x4(u[j], u[4 + j], 0x88), vb = _mm512_shuffle_f32x4(u[j], u[4 + j], 0xDD);
+    const __m512 wa = _mm512_shuffle_f32x4(u[8 + j], u[12 + j], 0x88), wb = _mm512_shuffle_f32x4(u[8 + j], u[12 + j], 0xDD);
+    col[j] = _mm512_shuffle_f32x4(va, wa, 0x88);
+    col[8 + j] = _mm512_shuffle_f32x4(va, wa, 0xDD);
+    col[4 + j] = _mm512_shuffle_f32x4(vb, wb, 0x88);
+    col[12 + j] = _mm512_shuffle_f32x4(vb, wb, 0xDD);
+  }
+}
+
+// The sum of rows [0, rows) of a plane (row stride `stride`, w values each; only where mask > 0
+// when mask is given, same strides), for the bias gradient, in the order it has always been
+// summed: each row from x = 0 up, the row sums added from row 0 down. A row's sum is one chain of
+// dependent adds (4 cycles each), so 16 rows run side by side in the lanes of one vector, read
+// as transposed 16 x 16 blocks: the same bits as one row at a time.
+float plane_sum(const float* src, const float* mask, std::size_t stride, int rows, int w) {
+  const __m512 zero = _mm512_setzero_ps();
+  float total = 0.f;
+  for (int y0 = 0; y0 < rows; y0 += 16) {
+    const int nr = std::min(16, rows - y0);
+    __m512 acc = zero;
+    for (int x0 = 0; x0 < w; x0 += 16) {
+      const int valid = std::min(16, w - x0);
+      const __mmask16 lm = valid == 16 ? static_cast<__mmask16>(0xffff) : static_cast<__mmask16>((1u << valid) - 1);
+      __m512 r[16], col[16];
+      for (int k = 0; k < 16; ++k) {  // rows past the last repeat it (their lanes are dropped)
+        const std::size_t off = static_cast<std::size_t>(y0 + std::min(k, nr - 1)) * stride + x0;
+        const __m512 v = _mm512_maskz_loadu_ps(lm, src + off);
+        r[k] = mask ? _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(_mm512_maskz_loadu_ps(lm, mask + off), zero, _CMP_GT_OQ), v)
+                    : v;
+      }
+      transpose16(r, col);
+      for (int x = 0; x < valid; ++x) acc = _mm512_add_ps(acc, col[x]);
+    }
+    alignas(64) float rs[16];
+    _mm512_store_ps(rs, acc);
+    for (int k = 0; k < nr; ++k) total += rs[k];
+  }
+  return total;
+}
+
 // Copies the n images' planes [h, w] into the padded layout, zero borders and slack included. With mask,
 // copies src only where mask > 0 (the ReLU backward).
 // With sums, sums[ch] gets the plane's sum (of the masked values), for the bias gradient.
@@ -152,7 +210,6 @@ void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int 
   const int per_image = src.channels();
 #pragma omp parallel for schedule(static) if (parallel)
   for (int ch = 0; ch < n * per_image; ++ch) {
-    float total = 0.f;
     float* d = dst + ch * g.stride;
     const float* s = src.plane(ch / per_image, ch % per_image, static_cast<std::size_t>(g.h) * g.w);
     const float* m = mask ? mask + static_cast<std::size_t>(ch) * g.h * g.w : nullptr;
@@ -167,16 +224,11 @@ void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int 
       } else {
         std::memcpy(row, sr, sizeof(float) * g.w);
       }
-      if (sums) {
-        float rs = 0.f;
-        for (int x = 0; x < g.w; ++x) rs += row[x];
-        total += rs;
-      }
       row[g.w] = 0.f;
       row[g.w + 1] = 0.f;  // left border of the next row
     }
     std::fill(d + static_cast<std::size_t>(g.h + 1) * g.ws + 1, dst + (ch + 1) * g.stride, 0.f);
-    if (sums) sums[ch] = total;
+    if (sums) sums[ch] = plane_sum(d + g.ws + 1, nullptr, g.ws, g.h, g.w);  // the copy, still in cache
   }
 }
 
@@ -185,18 +237,22 @@ void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int 
 void pack_weights(float* dst, const float* w, int co, int ci, bool transpose_flip) {
   const int out_c = transpose_flip ? ci : co, in_c = transpose_flip ? co : ci;
   const int blocks = (out_c + kCB - 1) / kCB;
-  for (int b = 0; b < blocks; ++b)
-    for (int c = 0; c < in_c; ++c)
-      for (int k = 0; k < 9; ++k)
-        for (int j = 0; j < kCB; ++j) {
-          const int o = b * kCB + j;
-          float v = 0.f;
-          if (o < out_c) {
-            v = transpose_flip ? w[(static_cast<std::size_t>(c) * ci + o) * 9 + (8 - k)]
-                               : w[(static_cast<std::size_t>(o) * ci + c) * 9 + k];
-          }
-          dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
+  // In parallel: a serial pack of the deepest layers' weights (590K values) left the other
+  // thread waiting.
+#pragma omp parallel for schedule(static) if (static_cast<std::size_t>(out_c) * in_c > 4096)
+  for (int bc = 0; bc < blocks * in_c; ++bc) {
+    const int b = bc / in_c, c = bc % in_c;
+    for (int k = 0; k < 9; ++k)
+      for (int j = 0; j < kCB; ++j) {
+        const int o = b * kCB + j;
+        float v = 0.f;
+        if (o < out_c) {
+          v = transpose_flip ? w[(static_cast<std::size_t>(c) * ci + o) * 9 + (8 - k)]
+                             : w[(static_cast<std::size_t>(o) * ci + c) * 9 + k];
         }
+        dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
+      }
+  }
 }
 
 // One strip: kCB output channels x kStrip pixels from index q of the padded input planes.
@@ -340,8 +396,13 @@ void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int
   float* pin = g_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
   pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
-  float* wp = g_wpack.get(static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9);
-  pack_weights(wp, weight, co, ci, false);
+  const std::size_t wp_floats = static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9;
+  bool valid = false;
+  float* wp = weight_cache_active()
+                  ? static_cast<float*>(cached_weight_form(WeightForm::direct, weight, static_cast<std::size_t>(co) * ci * 9,
+                                                           co, ci, wp_floats * sizeof(float), &valid))
+                  : g_wpack.get(wp_floats);
+  if (!valid) pack_weights(wp, weight, co, ci, false);
   conv_padded(Cat<float>{out, co}, pin, n, ci, g, wp, bias, relu);
 }
 
@@ -369,18 +430,8 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     const float* mask = relu ? out : nullptr;
 #pragma omp parallel for schedule(static) if (par)
     for (int ch = 0; ch < n * co; ++ch) {
-      const float* s = d_out + static_cast<std::size_t>(ch) * h * w;
-      const float* m = mask ? mask + static_cast<std::size_t>(ch) * h * w : nullptr;
-      float total = 0.f;
-      for (int y = 0; y < h; ++y) {
-        float rs = 0.f;
-        for (int x = 0; x < w; ++x) {
-          const std::size_t i = static_cast<std::size_t>(y) * w + x;
-          rs += !m || m[i] > 0.f ? s[i] : 0.f;
-        }
-        total += rs;
-      }
-      sums[ch] = total;
+      const std::size_t off = static_cast<std::size_t>(ch) * h * w;
+      sums[ch] = plane_sum(d_out + off, mask ? mask + off : nullptr, w, h, w);
     }
   }
 
@@ -392,6 +443,11 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
+  if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
+    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
+                      h, w, weight, co);
+    return;
+  }
   if (wino_w) {
     winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
   } else if (d_weight) {

@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
 #include <algorithm>
@@ -62,6 +63,7 @@ constexpr int kChunkStrips = 8;   // strips per task (the staging tile stays in 
 constexpr int kTile = kStrip * kChunkStrips;
 constexpr int kFront = 16;     // zero lanes before each padded plane
 constexpr int kPrefetch = 48;  // lanes ahead to prefetch
+constexpr int kPadPrefetch = 256;  // source floats ahead to prefetch in pad_pair
 
 // The padded layout of conv3x3.cpp, in 32-bit lanes (one pixel of a channel pair each): rows of
 // ws = w + 2 lanes, h + 2 rows, kFront zeros before and slack after; index q = (y + 1) ws + x + 1.
@@ -134,6 +136,9 @@ LIDARSIM_BF16_TARGET void pad_pair(std::uint32_t* dst, const float* c0, const fl
     const float* r0 = c0 + static_cast<std::size_t>(y) * g.w;
     const float* r1 = c1 ? c1 + static_cast<std::size_t>(y) * g.w : nullptr;
     for (int x = 0; x < g.w; x += 16) {
+      // These loads stalled without (as in winograd.cpp's to_phases); a prefetch cannot fault.
+      _mm_prefetch(reinterpret_cast<const char*>(r0 + x + kPadPrefetch), _MM_HINT_T0);
+      if (r1) _mm_prefetch(reinterpret_cast<const char*>(r1 + x + kPadPrefetch), _MM_HINT_T0);
       const __mmask16 m = g.w - x >= 16 ? static_cast<__mmask16>(0xffff) : static_cast<__mmask16>((1u << (g.w - x)) - 1);
       const __m512 a = _mm512_maskz_loadu_ps(m, r0 + x);
       const __m512 b = r1 ? _mm512_maskz_loadu_ps(m, r1 + x) : _mm512_setzero_ps();
@@ -224,8 +229,14 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
     pad_pair(pin + t * g.stride, channel(img, 2 * p), 2 * p + 1 < ci ? channel(img, 2 * p + 1) : nullptr, g);
   }
   const int blocks = (co + kCB - 1) / kCB;
-  std::uint32_t* wp = g_wpack.get(static_cast<std::size_t>(blocks) * kCB * pairs * 9);
-  pack_weights(wp, weight, co, ci);
+  const std::size_t wp_lanes = static_cast<std::size_t>(blocks) * kCB * pairs * 9;
+  bool valid = false;
+  std::uint32_t* wp = weight_cache_active()
+                          ? static_cast<std::uint32_t*>(cached_weight_form(WeightForm::bf16, weight,
+                                                                           static_cast<std::size_t>(co) * ci * 9, co,
+                                                                           ci, wp_lanes * 4, &valid))
+                          : g_wpack.get(wp_lanes);
+  if (!valid) pack_weights(wp, weight, co, ci);
   const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
   const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;
   const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;

@@ -23,6 +23,7 @@ InferencePrecision& requested() {
 bool g_forced_unsupported = false;
 std::atomic<bool> g_warned{false};
 bool g_active = false;
+int g_predict_depth = 0;
 }  // namespace
 
 InferencePrecision parse_inference_precision(const std::string& text, const std::string& field) {
@@ -55,8 +56,15 @@ void force_bf16_unsupported(bool force) {
 
 namespace detail {
 bool bf16_convs_active() { return g_active; }
-Bf16ConvScope::Bf16ConvScope(bool on) : old(g_active) { g_active = on; }
-Bf16ConvScope::~Bf16ConvScope() { g_active = old; }
+bool predict_active() { return g_predict_depth > 0; }
+Bf16ConvScope::Bf16ConvScope(bool on) : old(g_active) {
+  g_active = on;
+  ++g_predict_depth;
+}
+Bf16ConvScope::~Bf16ConvScope() {
+  g_active = old;
+  --g_predict_depth;
+}
 }  // namespace detail
 
 }  // namespace lidarsim::nn

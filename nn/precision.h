@@ -34,6 +34,9 @@ void force_bf16_unsupported(bool force);
 namespace detail {
 // Set while UNet::predict runs in bf16: the 3x3 convolutions then take the bf16 kernel.
 bool bf16_convs_active();
+// Set while UNet::predict runs (any precision, by the same scope): the convolutions may keep
+// their derived weights (nn/weight_cache.h).
+bool predict_active();
 struct Bf16ConvScope {
   explicit Bf16ConvScope(bool on);
   ~Bf16ConvScope();

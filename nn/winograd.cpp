@@ -5,6 +5,8 @@
 #endif
 #include "nn/winograd.h"
 
+#include "nn/weight_cache.h"
+
 #include <omp.h>
 
 #include <algorithm>
@@ -23,6 +25,11 @@ bool winograd_available() { return false; }
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
 void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
+void winograd_backward(const OutPlaneSet&, float*, const PlaneSet&, const float*, const float*, int, int, int,
+                       const float*, int) {}
+void winograd_transform_weights(float*, const float*, int, int, bool) {}
+std::size_t winograd_u_stride(int, int) { return 0; }
+bool winograd_caches_weights() { return false; }
 #else
 
 bool winograd_available() { return true; }
@@ -30,6 +37,10 @@ bool winograd_available() { return true; }
 namespace {
 
 constexpr int kCB = 8;  // output channels per GEMM register block
+#ifndef LIDARSIM_CACHE_U
+#define LIDARSIM_CACHE_U 0
+#endif
+constexpr bool kCacheU = LIDARSIM_CACHE_U;  // keep U across predict calls (nn/weight_cache.h)
 
 // Grow-only, 64-byte aligned scratch.
 struct Buf {
@@ -105,6 +116,11 @@ inline float hsum(__m512 v) {
   return _mm_cvtss_f32(b);
 }
 
+#ifndef LIDARSIM_PHASE_PREFETCH
+#define LIDARSIM_PHASE_PREFETCH 256
+#endif
+constexpr int kPhasePrefetch = LIDARSIM_PHASE_PREFETCH;  // source floats to prefetch ahead in to_phases (0: none)
+
 // Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
 // pixels (masked loads outside the row) are split into the 4 phases of 16 tiles by two permutes.
 void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
@@ -130,6 +146,13 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
       const float* s = src + static_cast<std::size_t>(y) * g.w;
       const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
       for (int tx = 0; tx < g.len; tx += 16) {
+        if (kPhasePrefetch) {
+          const char* ahead = reinterpret_cast<const char*>(s + 4 * tx + kPhasePrefetch);
+          for (int l = 0; l < 4; ++l) _mm_prefetch(ahead + 64 * l, _MM_HINT_T0);
+          if (mr)
+            for (int l = 0; l < 4; ++l)
+              _mm_prefetch(reinterpret_cast<const char*>(mr + 4 * tx + kPhasePrefetch) + 64 * l, _MM_HINT_T0);
+        }
         __m512 a[4];
         for (int q = 0; q < 4; ++q) {
           const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
@@ -149,50 +172,79 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
   }
 }
 
+// G = diag(1/4, -1/6, -1/6, 1/24, 1/24, 1) G' with the integer rows of G' (1 0 0), (1 1 1),
+// (1 -1 1), (1 2 4), (1 -2 4), (0 0 1): G' applied to 3 values (6 adds), exact in double for
+// float inputs. kGScale[a][b] = d_a d_b scales G' k G'^T into G k G^T with one rounding.
+inline void g6(__m512d x0, __m512d x1, __m512d x2, __m512d y[6]) {
+  const __m512d s = _mm512_add_pd(x0, x2), p = _mm512_fmadd_pd(_mm512_set1_pd(4.0), x2, x0);
+  const __m512d q = _mm512_add_pd(x1, x1);
+  y[0] = x0;
+  y[1] = _mm512_add_pd(s, x1);
+  y[2] = _mm512_sub_pd(s, x1);
+  y[3] = _mm512_add_pd(p, q);
+  y[4] = _mm512_sub_pd(p, q);
+  y[5] = x2;
+}
+constexpr double kGDiv[6] = {4, -6, -6, 24, 24, 1};
+struct GScale {
+  double s[6][6];
+  constexpr GScale() : s() {
+    for (int a = 0; a < 6; ++a)
+      for (int b = 0; b < 6; ++b) s[a][b] = 1.0 / (kGDiv[a] * kGDiv[b]);
+  }
+};
+constexpr GScale kGScale;
+
+// Floats per transform element of U: [co blocks][ci][kCB] and one cache line, so that the 36
+// slices (at power-of-two strides otherwise) do not all fall into one L1 set.
+inline std::size_t u_stride(int co, int ci) { return static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci + 16; }
+
 // U = G k G^T for each 3x3 kernel k, packed [36][co blocks][ci][kCB] (zeros past the last output
-// channel). The kCB kernels of a block ride in the 8 lanes of a double vector: the transform's
-// fractions (1/6, 1/24) are applied in double and round once, and each of the 36 results is
-// stored as kCB consecutive floats.
+// channel; element stride u_stride). The kCB kernels of a block ride in the 8 lanes of a double vector (gathered
+// straight from the weights: staging them through memory stalled on store forwarding); each of
+// the 36 results is rounded once to float and stored as kCB consecutive floats.
 void transform_weights(float* u, const float* w, int co, int ci, bool transpose_flip) {
-  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
-                                     {-1.0 / 6, -1.0 / 6, -1.0 / 6},
-                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6},
-                                     {1.0 / 24, 1.0 / 12, 1.0 / 6},
-                                     {1.0 / 24, -1.0 / 12, 1.0 / 6},
-                                     {0, 0, 1}};
   static_assert(kCB == 8, "one double vector per block");
   const int blocks = (co + kCB - 1) / kCB;
-  const std::size_t per_e = static_cast<std::size_t>(blocks) * ci * kCB;
+  const std::size_t per_e = u_stride(co, ci);
   const bool par = static_cast<std::size_t>(co) * ci > 4096;
+  // Lane j's tap t: w[(o ci + c) 9 + t] or, flipped, w[(c co + o) 9 + 8 - t], with o = 8 b + j.
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  constexpr int kAhead = 4;  // tasks to prefetch ahead
+  const __m256i idx0 = _mm256_mullo_epi32(lane, _mm256_set1_epi32(transpose_flip ? 9 : 9 * ci));
 #pragma omp parallel for schedule(static) if (par)
   for (int bc = 0; bc < blocks * ci; ++bc) {
     const int b = bc / ci, c = bc % ci;
-    alignas(64) double k[9][kCB];
-    for (int j = 0; j < kCB; ++j) {
-      const int o = b * kCB + j;
-      for (int t = 0; t < 9; ++t)
-        k[t][j] = o >= co ? 0.0
-                  : transpose_flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + (8 - t)]
-                                   : w[(static_cast<std::size_t>(o) * ci + c) * 9 + t];
+    if (bc + kAhead < blocks * ci) {  // the hardware prefetcher misses these jumps
+      const int pb = (bc + kAhead) / ci, pc = (bc + kAhead) % ci;
+      if (transpose_flip) {
+        const float* p = w + (static_cast<std::size_t>(pc) * co + pb * kCB) * 9;
+        for (int l = 0; l < 5; ++l) _mm_prefetch(reinterpret_cast<const char*>(p + 16 * l), _MM_HINT_T0);
+      } else {
+        for (int j = 0; j < kCB && pb * kCB + j < co; ++j) {
+          const float* p = w + ((static_cast<std::size_t>(pb) * kCB + j) * ci + pc) * 9;
+          _mm_prefetch(reinterpret_cast<const char*>(p), _MM_HINT_T0);
+          _mm_prefetch(reinterpret_cast<const char*>(p + 8), _MM_HINT_T0);
+        }
+      }
     }
-    __m512d kv[9];
-    for (int t = 0; t < 9; ++t) kv[t] = _mm512_load_pd(k[t]);
-    __m512d gk[6][3];  // G k: rows a, columns kw
-    for (int a = 0; a < 6; ++a)
-      for (int kw = 0; kw < 3; ++kw) {
-        __m512d acc = _mm512_setzero_pd();
-        for (int kh = 0; kh < 3; ++kh)
-          if (G[a][kh] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[a][kh]), kv[kh * 3 + kw], acc);
-        gk[a][kw] = acc;
-      }
+    const __mmask8 live = static_cast<__mmask8>(co - b * kCB >= kCB ? 0xff : (1u << (co - b * kCB)) - 1);
+    const float* base = transpose_flip ? w + (static_cast<std::size_t>(c) * co + b * kCB) * 9 + 8
+                                       : w + (static_cast<std::size_t>(b) * kCB * ci + c) * 9;
+    __m512d k[9];
+    for (int t = 0; t < 9; ++t) {
+      const __m256i idx = _mm256_add_epi32(idx0, _mm256_set1_epi32(transpose_flip ? -t : t));
+      k[t] = _mm512_cvtps_pd(_mm256_mmask_i32gather_ps(_mm256_setzero_ps(), live, idx, base, 4));
+    }
+    __m512d gk[3][6];  // G' k: [kw][a]
+    for (int kw = 0; kw < 3; ++kw) g6(k[kw], k[3 + kw], k[6 + kw], gk[kw]);
     float* dst = u + static_cast<std::size_t>(bc) * kCB;
-    for (int a = 0; a < 6; ++a)
-      for (int bb = 0; bb < 6; ++bb) {
-        __m512d acc = _mm512_setzero_pd();
-        for (int kw = 0; kw < 3; ++kw)
-          if (G[bb][kw] != 0) acc = _mm512_fmadd_pd(_mm512_set1_pd(G[bb][kw]), gk[a][kw], acc);
-        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(acc));
-      }
+    for (int a = 0; a < 6; ++a) {
+      __m512d r[6];
+      g6(gk[0][a], gk[1][a], gk[2][a], r);
+      for (int bb = 0; bb < 6; ++bb)
+        _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(_mm512_mul_pd(_mm512_set1_pd(kGScale.s[a][bb]), r[bb])));
+    }
   }
 }
 
@@ -308,7 +360,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
          bool relu) {
   const int co = out.ca + out.cb;
   const int co_blocks = (co + kCB - 1) / kCB;
-  const std::size_t u_e = static_cast<std::size_t>(co_blocks) * ci * kCB;
+  const std::size_t u_e = u_stride(co, ci);
   const int tiles_tasks = n * g.th * g.blocks;
   const int threads = omp_get_max_threads();
   // Few tile blocks (the deep layers): split the output channels too, each part repeating the
@@ -402,20 +454,46 @@ inline void du_block(float* du, int du_stride, const float* dm, const float* v, 
 
 }  // namespace
 
-void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
-                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
-  const Geom g(h, w);
-  const int ci = in.ca + in.cb, co = out.ca + out.cb;
-  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
-  to_phases(phases, in, mask, n, g);
-  float* u = g_u.get(36 * static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci);
-  transform_weights(u, weight, co, ci, transpose_flip);
+namespace {
+
+// The conv of winograd_conv3x3 from the by-phase copy of its input (ci channels).
+void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
+                      bool transpose_flip, const float* bias, bool relu) {
+  const int co = out.ca + out.cb;
+  const std::size_t u_floats = 36 * u_stride(co, ci);
+  bool valid = false;
+  float* u = kCacheU && weight_cache_active()
+                 ? static_cast<float*>(cached_weight_form(transpose_flip ? WeightForm::winograd_flip : WeightForm::winograd,
+                                                          weight, static_cast<std::size_t>(co) * ci * 9, co, ci,
+                                                          u_floats * sizeof(float), &valid))
+                 : g_u.get(u_floats);
+  if (!valid) transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)
     run<3>(out, phases, n, ci, g, u, bias, relu);
   else if (g.nv == 2)
     run<2>(out, phases, n, ci, g, u, bias, relu);
   else
     run<1>(out, phases, n, ci, g, u, bias, relu);
+}
+
+void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g);
+
+}  // namespace
+
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(phases, in, mask, n, g);
+  conv_from_phases(out, phases, ci, n, g, weight, transpose_flip, bias, relu);
+}
+
+std::size_t winograd_u_stride(int co, int ci) { return u_stride(co, ci); }
+bool winograd_caches_weights() { return kCacheU; }
+
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip) {
+  transform_weights(u, weight, co, ci, transpose_flip);
 }
 
 void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
@@ -426,6 +504,24 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
   to_phases(pin, in, nullptr, n, g);
   float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
   to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+}
+
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co) {
+  const Geom g(h, w);
+  const int ci = in.ca + in.cb;
+  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  to_phases(pin, in, nullptr, n, g);
+  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
+  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+  conv_from_phases(d_in, pg, co, n, g, weight, true, nullptr, false);
+}
+
+namespace {
+
+void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g) {
 
   // Every tile of every image, transformed: V [36][ci3][tiles], dM [36][co8][tiles] (channels
   // padded to the register block with zero rows; one cache line between elements).
@@ -467,7 +563,9 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
              tiles, tiles);
   }
 
-  // d_weight += G^T dU G per kernel, in double.
+  // d_weight += G^T dU G per kernel, in double: 8 input channels in the lanes of a double vector
+  // (contiguous in dU), each lane doing the scalar sums in their order (multiply, then add; no
+  // FMA), so the result is the same bits as one kernel at a time.
   static constexpr double G[6][3] = {{1.0 / 4, 0, 0},
                                      {-1.0 / 6, -1.0 / 6, -1.0 / 6},
                                      {-1.0 / 6, 1.0 / 6, -1.0 / 6},
@@ -475,26 +573,38 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6},
                                      {0, 0, 1}};
   const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
+  const int c_blocks = (ci + 7) / 8;
 #pragma omp parallel for schedule(static) if (par)
-  for (int o = 0; o < co; ++o)
-    for (int c = 0; c < ci; ++c) {
-      const float* d = du + static_cast<std::size_t>(o) * ci3 + c;
-      double t[6][3];  // dU G
-      for (int a = 0; a < 6; ++a)
-        for (int kw = 0; kw < 3; ++kw) {
-          double acc = 0;
-          for (int bb = 0; bb < 6; ++bb) acc += d[(a * 6 + bb) * du_e] * G[bb][kw];
-          t[a][kw] = acc;
-        }
-      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c) * 9;
-      for (int kh = 0; kh < 3; ++kh)
-        for (int kw = 0; kw < 3; ++kw) {
-          double acc = 0;
-          for (int a = 0; a < 6; ++a) acc += G[a][kh] * t[a][kw];
-          dw[kh * 3 + kw] += static_cast<float>(acc);
-        }
+  for (int oc = 0; oc < co * c_blocks; ++oc) {
+    const int o = oc / c_blocks, c0 = oc % c_blocks * 8, nc = std::min(8, ci - c0);
+    const __mmask8 live = static_cast<__mmask8>(nc == 8 ? 0xff : (1u << nc) - 1);
+    const float* d = du + static_cast<std::size_t>(o) * ci3 + c0;
+    __m512d t[6][3];  // dU G
+    for (int a = 0; a < 6; ++a) {
+      __m512d x[6];
+      for (int bb = 0; bb < 6; ++bb) x[bb] = _mm512_cvtps_pd(_mm256_maskz_loadu_ps(live, d + (a * 6 + bb) * du_e));
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int bb = 0; bb < 6; ++bb) acc = _mm512_add_pd(acc, _mm512_mul_pd(x[bb], _mm512_set1_pd(G[bb][kw])));
+        t[a][kw] = acc;
+      }
     }
+    alignas(64) double r[9][8];
+    for (int kh = 0; kh < 3; ++kh)
+      for (int kw = 0; kw < 3; ++kw) {
+        __m512d acc = _mm512_setzero_pd();
+        for (int a = 0; a < 6; ++a) acc = _mm512_add_pd(acc, _mm512_mul_pd(_mm512_set1_pd(G[a][kh]), t[a][kw]));
+        _mm512_store_pd(r[kh * 3 + kw], acc);
+      }
+    for (int j = 0; j < nc; ++j) {
+      float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c0 + j) * 9;
+      for (int k = 0; k < 9; ++k) dw[k] += static_cast<float>(r[k][j]);
+    }
+  }
 }
+
+
+}  // namespace
 
 #endif
 

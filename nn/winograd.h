@@ -5,6 +5,8 @@
 // bias and the ReLU on the way out. Tiles sit in the AVX-512 lanes (16 horizontally adjacent
 // tiles of one tile row per vector), so the transforms are plain vector adds.
 // Its error against the direct kernel is measured in tests/nn/test_winograd.cpp.
+#include <cstddef>
+
 namespace lidarsim::nn::detail {
 
 bool winograd_available();
@@ -29,6 +31,20 @@ struct OutPlaneSet {
 // mask > 0 (the ReLU backward: mask is the forward output, same layout as in).
 void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
                       const float* weight, bool transpose_flip, const float* bias, bool relu);
+
+// Both gradients of that conv at once: adds the weight gradient to d_weight (winograd_weight_grad)
+// and writes the input gradient to d_in (winograd_conv3x3 with transpose_flip, weight
+// [co, ci, 3, 3]), bringing the masked d_out into the by-phase layout once for both.
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co);
+
+// The transformed weights U = G k G^T that winograd_conv3x3 multiplies with, for tests: packed
+// [36 transform elements][ceil(co / 8)][ci][8 output channels] (zeros past the last one), the
+// elements winograd_u_stride(co, ci) floats apart; u is 64-byte aligned.
+std::size_t winograd_u_stride(int co, int ci);
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip);
+// Whether UNet::predict keeps U across calls (nn/weight_cache.h; a build switch, off by default).
+bool winograd_caches_weights();
 
 // Adds the weight gradient of that conv (no flip) to d_weight [co, ci, 3, 3]: d_out [n, co, h, w]
 // (masked where mask > 0 when mask is given) against in [n, ci, h, w], through the transposed

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <random>
 #include <string>
@@ -141,6 +142,48 @@ TEST(Winograd, ConcatForwardAndSplitInputGradientMatchDirect) {
     EXPECT_LT(compare(wino.d_in, direct.d_in).rel(), kTol);
     EXPECT_LT(compare(db_wino, db_direct).rel(), kTol);
   }
+}
+
+// The transformed weights against G k G^T evaluated plainly in double (the matrix as fractions,
+// every product summed) and rounded to float: the factored transform must stay within 1 ulp,
+// for plain and flipped weights and a last block of output channels that is partly empty.
+TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  static constexpr double G[6][3] = {{1.0 / 4, 0, 0},         {-1.0 / 6, -1.0 / 6, -1.0 / 6},
+                                     {-1.0 / 6, 1.0 / 6, -1.0 / 6}, {1.0 / 24, 1.0 / 12, 1.0 / 6},
+                                     {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+  double worst_ulps = 0;
+  for (const bool flip : {false, true}) {
+    const int co = 13, ci = 5;  // of the conv that runs: flipped, the weight is [ci][co][3][3]
+    const std::vector<float> w = he_weights(flip ? ci : co, flip ? co : ci, 9);
+    const int blocks = (co + 7) / 8;
+    const std::size_t per_e = detail::winograd_u_stride(co, ci);
+    ASSERT_GE(per_e, static_cast<std::size_t>(blocks) * ci * 8);
+    std::vector<float> storage(36 * per_e + 16, -1.f);  // U is stored with aligned 32-byte stores
+    float* u = storage.data() + (16 - reinterpret_cast<std::uintptr_t>(storage.data()) / 4 % 16) % 16;
+    detail::winograd_transform_weights(u, w.data(), co, ci, flip);
+    for (int o = 0; o < blocks * 8; ++o)
+      for (int c = 0; c < ci; ++c) {
+        double k[3][3] = {};
+        for (int t = 0; t < 9 && o < co; ++t)
+          k[t / 3][t % 3] = flip ? w[(static_cast<std::size_t>(c) * co + o) * 9 + 8 - t]
+                                 : w[(static_cast<std::size_t>(o) * ci + c) * 9 + t];
+        for (int a = 0; a < 6; ++a)
+          for (int b = 0; b < 6; ++b) {
+            double ref = 0;
+            for (int i = 0; i < 3; ++i)
+              for (int j = 0; j < 3; ++j) ref += G[a][i] * k[i][j] * G[b][j];
+            const float want = static_cast<float>(ref);
+            const float got = u[(a * 6 + b) * per_e + (static_cast<std::size_t>(o / 8) * ci + c) * 8 + o % 8];
+            const double ulp = std::max(std::abs(std::nextafter(want, 2 * want + 1.f) - want), 1e-30f);
+            const double ulps = std::abs(static_cast<double>(got) - want) / ulp;
+            EXPECT_LE(ulps, 1.0) << "flip " << flip << " o " << o << " c " << c << " element " << a << "," << b
+                                 << ": " << got << " vs " << want;
+            worst_ulps = std::max(worst_ulps, ulps);
+          }
+      }
+  }
+  std::printf("[ measured ] transformed weights vs the plain double transform: max %.1f ulp\n", worst_ulps);
 }
 
 TEST(Winograd, ComparisonCanFail) {
