@@ -47,9 +47,12 @@ void Optimizer::step(ParamArena& params) {
   }
 
   // Per-element step factor: 1 except for parameters registered with an lr_scale (few values).
-  scale_.assign(n, 1.f);
-  for (const ParamInfo& info : params.infos())
-    if (info.lr_scale != 1.f) std::fill_n(scale_.begin() + static_cast<std::ptrdiff_t>(info.offset), info.shape.numel(), info.lr_scale);
+  // The arena's layout is fixed once built, so the table is filled on the first step only.
+  if (scale_.size() != n) {
+    scale_.assign(n, 1.f);
+    for (const ParamInfo& info : params.infos())
+      if (info.lr_scale != 1.f) std::fill_n(scale_.begin() + static_cast<std::ptrdiff_t>(info.offset), info.shape.numel(), info.lr_scale);
+  }
   const float* sc = scale_.data();
 
   float* m = m_.data();

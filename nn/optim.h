@@ -36,7 +36,7 @@ class Optimizer {
   OptimizerConfig config_;
   std::vector<float> m_, v_;
   std::int64_t steps_ = 0;
-  std::vector<float> scale_;  // per-element lr factor (ParamInfo::lr_scale), rebuilt each step
+  std::vector<float> scale_;  // per-element lr factor (ParamInfo::lr_scale), filled on the first step
 };
 
 }  // namespace lidarsim::nn
