@@ -26,6 +26,7 @@
 // rate; they are tested and reported, but the KPI model's fp_table is over a false positive's own
 // attribute, so only range, azimuth and score can be added.
 #include <array>
+#include <filesystem>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -192,5 +193,9 @@ sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& who
 
 nlohmann::json fp_json(const FpAnalysis& a, double threshold);
 std::string fp_markdown(const nlohmann::json& fp);
+// The persistence candidate's held-out track lengths as a PNG: per class, the share of false-positive
+// tracks lasting at least L frames, measured (bars) against the model before and after (marks).
+// `persistence` is fp_json's "persistence"; returns the picture's caption.
+std::string write_fp_tracks_png(const std::filesystem::path& path, const nlohmann::json& persistence);
 
 }  // namespace lidarsim::qualify::obj

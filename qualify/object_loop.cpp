@@ -489,6 +489,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   }
   j["candidates"] = cj;
   j["false_positives"] = fp_json(fpa, options.threshold);
+  if (!options.plots_dir.empty() && j["false_positives"].contains("persistence")) {
+    auto& p = j["false_positives"]["persistence"];
+    fs::create_directories(options.plots_dir);
+    p["plot_caption"] = write_fp_tracks_png(options.plots_dir / "fp_track_lengths.png", p);
+    p["plot"] = "fp_track_lengths.png";
+  }
   j["error_metric"] = t == kDetectionTarget ? "deviance per object" : "RMS residual";
   j["error_before"] = top.error_before;
   j["error_after"] = add ? top.error_after : top.error_before;

@@ -40,11 +40,6 @@ std::string file_stem(std::string s) {
   return s;
 }
 
-namespace {
-
-constexpr Rgb kMeasured{110, 160, 220}, kSimulated{225, 110, 0}, kOverflow{238, 238, 238}, kResidual{150, 150, 150};
-
-}  // namespace
 
 std::string feature_axis_label(const std::string& feature) {
   // Units of both loops' vocabularies (qualify/objects.h, qualify/intensity.h).

@@ -7,10 +7,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/image.h"
 #include "qualify/residual.h"
 #include "qualify/similarity.h"
 
 namespace lidarsim::qualify {
+
+// The report plots' colours: measured data, a model, shaded overflow, residuals.
+inline constexpr Rgb kMeasured{110, 160, 220}, kSimulated{225, 110, 0}, kOverflow{238, 238, 238},
+    kResidual{150, 150, 150};
 
 std::string fmt(double v, int precision = 3);
 nlohmann::json to_json(const Similarity& s);

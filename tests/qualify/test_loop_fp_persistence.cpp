@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <string>
 
@@ -21,6 +22,7 @@ namespace {
 struct LoopRun {
   nlohmann::json report;
   sensor::KpiModel model;
+  bool track_png_ok = false;  // plots_dir's fp_track_lengths.png is a PNG of a plausible size
 };
 
 LoopRun loop_on(double ghost_survival) {
@@ -38,9 +40,18 @@ LoopRun loop_on(double ghost_survival) {
   data::write_reference_tracking(dir, o);
   qualify::LoopOptions lo;
   lo.out_model = model;
+  lo.plots_dir = dir / "plots";
   LoopRun r;
   r.report = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   r.model = sensor::load_kpi_model(model);
+  // The track-length picture: a PNG (its signature) of a plausible size.
+  const fs::path png = lo.plots_dir / "fp_track_lengths.png";
+  if (fs::exists(png)) {
+    std::ifstream in(png, std::ios::binary);
+    char sig[8] = {};
+    in.read(sig, 8);
+    r.track_png_ok = std::string(sig + 1, 3) == "PNG" && fs::file_size(png) > 2000;
+  }
   fs::remove_all(dir);
   fs::remove(model);
   return r;
@@ -87,6 +98,9 @@ TEST(LoopFpPersistence, PlantedGhostsAreNamedCutTheHeldOutPersistenceErrorAndAre
   EXPECT_GT(p.score_ar1, 0.5);
   // The rate tables see nothing to add.
   EXPECT_TRUE(fp["added"].is_null());
+  // And the report shows the held-out track lengths as a picture.
+  EXPECT_EQ(fp["persistence"].value("plot", ""), "fp_track_lengths.png");
+  EXPECT_TRUE(run.track_png_ok);
 }
 
 TEST(LoopFpPersistence, ControlWithoutGhostsAddsNothing) {
