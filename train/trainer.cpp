@@ -163,7 +163,8 @@ void validate_settings(const TrainConfig& c) {
   if (c.inner_columns < 1 || c.inner_columns > 100000)
     refuse("inner-columns", "must be in [1, 100000]", std::to_string(c.inner_columns));
   if (c.shrink_residual && !(c.lookup_base && c.early_stop))
-    refuse("shrink-residual", "needs --lookup-base and --early-stop (the factor is chosen on the inner region)", "set");
+    refuse("shrink-residual", "needs --lookup-base and --early-stop (the factor is chosen on the inner region)",
+           c.lookup_base ? "no --early-stop" : "no --lookup-base");
   if (c.patience < 0 || c.patience > 1000000) refuse("patience", "must be in [0, 1000000] (0: every epoch)", std::to_string(c.patience));
 }
 

@@ -237,3 +237,34 @@ TEST(ShrinkResidual, NeedsALookupBaseAndEarlyStopping) {
   c.early_stop = false;
   EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);  // no inner region
 }
+
+// The mechanism alone, with a made-up inner MAE lowest at 0.3: the model must be left scaled by
+// the chosen factor (not by the last one tried, 0), the residual's layer and nothing else.
+TEST(ShrinkResidual, TheModelKeepsTheChosenFactorNotTheLastOneTried) {
+  train::TrainConfig c = config();
+  c.early_stop = false;
+  c.epochs = 1;
+  c.lookup_base = true;
+  const data::Dataset d = synthetic();
+  const train::TrainResult r = train::train_on(c, {&d}, {"synthetic"});
+  nn::ParamArena& p = r.model->params();
+  const int head = p.find("head/weight");
+  ASSERT_GE(head, 0);
+  const std::size_t n = p.info(head).shape.numel();
+  const std::vector<float> trained(p.value(head), p.value(head) + n);
+  const std::vector<float> all(p.values(), p.values() + p.size());
+  std::size_t k = 0;
+  for (std::size_t i = 1; i < n; ++i)
+    if (std::abs(trained[i]) > std::abs(trained[k])) k = i;
+  ASSERT_GT(std::abs(trained[k]), 1e-6f) << "the head learnt nothing to scale";
+  const auto made_up = [&] { return std::abs(p.value(head)[k] / trained[k] - 0.3); };
+  const train::ResidualShrink s = train::choose_residual_scale(*r.model, made_up);
+  EXPECT_DOUBLE_EQ(s.scale, 0.3);
+  for (std::size_t i = 0; i < n; ++i) EXPECT_FLOAT_EQ(p.value(head)[i], static_cast<float>(trained[i] * 0.3)) << i;
+  const int bias = p.find("head/bias");
+  const std::size_t b0 = p.info(bias).offset, b1 = b0 + p.info(bias).shape.numel();
+  for (std::size_t i = 0; i < p.size(); ++i)
+    if ((i < p.info(head).offset || i >= p.info(head).offset + n) && (i < b0 || i >= b1)) {
+      ASSERT_EQ(p.values()[i], all[i]) << "parameter " << i << " is not part of the residual's last layer";
+    }
+}
