@@ -19,6 +19,7 @@
 
 #include "common/error.h"
 #include "nn/weight_cache.h"
+#include "nn/staged_tile.h"
 #include "nn/winograd.h"
 
 #ifdef __AVX512F__
@@ -308,26 +309,9 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
       for (int s = s_begin; s < s_end; ++s)
         strip_kernel(stage + (s - s_begin) * kStrip, kTile, pimg + g.qa + s * kStrip, g.stride, wb, in_c, g.ws);
       // Write out the valid pixels of [qs, qe).
-      const int qs = g.qa + s_begin * kStrip, qe = g.qa + s_end * kStrip;
-      const int r_first = std::max(0, qs / g.ws - 1), r_last = std::min(g.h - 1, qe / g.ws);
-      for (int j = 0; j < kCB; ++j) {
-        const int o = b * kCB + j;
-        if (o >= out_c) break;
-        const float bo = bias ? bias[o] : 0.f;
-        float* op = out.plane(img, o, oplane);
-        const float* st = stage + j * kTile;
-        for (int r = r_first; r <= r_last; ++r) {
-          const int row_q = (r + 1) * g.ws + 1;
-          const int x0 = std::max(0, qs - row_q), x1 = std::min(g.w, qe - row_q);
-          if (x0 >= x1) continue;
-          float* orow = op + static_cast<std::size_t>(r) * g.w;
-          const float* srow = st + (row_q - qs);
-          if (relu)
-            for (int x = x0; x < x1; ++x) orow[x] = std::max(srow[x] + bo, 0.f);
-          else
-            for (int x = x0; x < x1; ++x) orow[x] = srow[x] + bo;
-        }
-      }
+      write_staged_tile([&](int o) { return out.plane(img, o, oplane); }, stage, kTile, b * kCB,
+                        std::min(kCB, out_c - b * kCB), bias, relu, g.qa + s_begin * kStrip, g.qa + s_end * kStrip,
+                        g.h, g.w, g.ws);
     }
   }
 }

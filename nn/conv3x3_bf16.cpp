@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/staged_tile.h"
 #include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
@@ -187,27 +188,9 @@ LIDARSIM_BF16_TARGET void conv_task(float* out, int co, const std::uint32_t* pim
   const int s_begin = chunk * kChunkStrips, s_end = std::min(strips, s_begin + kChunkStrips);
   for (int s = s_begin; s < s_end; ++s)
     strip_kernel(stage + (s - s_begin) * kStrip, pimg + g.qa + s * kStrip, g.stride, wb, pairs, g.ws);
-  const int qs = g.qa + s_begin * kStrip, qe = g.qa + s_end * kStrip;
-  const int r_first = std::max(0, qs / g.ws - 1), r_last = std::min(g.h - 1, qe / g.ws);
   const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
-  for (int j = 0; j < kCB; ++j) {
-    const int o = b * kCB + j;
-    if (o >= co) break;
-    const float bo = bias ? bias[o] : 0.f;
-    float* op = out + o * oplane;
-    const float* st = stage + j * kTile;
-    for (int r = r_first; r <= r_last; ++r) {
-      const int row_q = (r + 1) * g.ws + 1;
-      const int x0 = std::max(0, qs - row_q), x1 = std::min(g.w, qe - row_q);
-      if (x0 >= x1) continue;
-      float* orow = op + static_cast<std::size_t>(r) * g.w;
-      const float* srow = st + (row_q - qs);
-      if (relu)
-        for (int x = x0; x < x1; ++x) orow[x] = std::max(srow[x] + bo, 0.f);
-      else
-        for (int x = x0; x < x1; ++x) orow[x] = srow[x] + bo;
-    }
-  }
+  write_staged_tile([&](int o) { return out + o * oplane; }, stage, kTile, b * kCB, std::min(kCB, co - b * kCB), bias,
+                    relu, g.qa + s_begin * kStrip, g.qa + s_end * kStrip, g.h, g.w, g.ws);
 }
 
 }  // namespace

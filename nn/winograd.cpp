@@ -5,7 +5,6 @@
 #endif
 #include "nn/winograd.h"
 
-#include "nn/weight_cache.h"
 
 #include <omp.h>
 
@@ -29,7 +28,6 @@ void winograd_backward(const OutPlaneSet&, float*, const PlaneSet&, const float*
                        const float*, int) {}
 void winograd_transform_weights(float*, const float*, int, int, bool) {}
 std::size_t winograd_u_stride(int, int) { return 0; }
-bool winograd_caches_weights() { return false; }
 #else
 
 bool winograd_available() { return true; }
@@ -37,10 +35,6 @@ bool winograd_available() { return true; }
 namespace {
 
 constexpr int kCB = 8;  // output channels per GEMM register block
-#ifndef LIDARSIM_CACHE_U
-#define LIDARSIM_CACHE_U 0
-#endif
-constexpr bool kCacheU = LIDARSIM_CACHE_U;  // keep U across predict calls (nn/weight_cache.h)
 
 // Grow-only, 64-byte aligned scratch.
 struct Buf {
@@ -460,14 +454,10 @@ namespace {
 void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
                       bool transpose_flip, const float* bias, bool relu) {
   const int co = out.ca + out.cb;
-  const std::size_t u_floats = 36 * u_stride(co, ci);
-  bool valid = false;
-  float* u = kCacheU && weight_cache_active()
-                 ? static_cast<float*>(cached_weight_form(transpose_flip ? WeightForm::winograd_flip : WeightForm::winograd,
-                                                          weight, static_cast<std::size_t>(co) * ci * 9, co, ci,
-                                                          u_floats * sizeof(float), &valid))
-                 : g_u.get(u_floats);
-  if (!valid) transform_weights(u, weight, co, ci, transpose_flip);
+  // Per call, even in predict(): cached per layer (nn/weight_cache.h), four times the weights
+  // came back from memory at the cost the transform saved (tried, no gain).
+  float* u = g_u.get(36 * u_stride(co, ci));
+  transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)
     run<3>(out, phases, n, ci, g, u, bias, relu);
   else if (g.nv == 2)
@@ -490,32 +480,35 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
 }
 
 std::size_t winograd_u_stride(int co, int ci) { return u_stride(co, ci); }
-bool winograd_caches_weights() { return kCacheU; }
 
 void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip) {
   transform_weights(u, weight, co, ci, transpose_flip);
 }
 
-void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
-                          int w, int co) {
-  const Geom g(h, w);
+namespace {
+// The weight gradient from by-phase copies of the input and of the masked output gradient;
+// returns the latter, which the input gradient reads too.
+const float* weight_grad_via_phases(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n,
+                                    int co, const Geom& g) {
   const int ci = in.ca + in.cb;
   float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
   to_phases(pin, in, nullptr, n, g);
   float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
   to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
   weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+  return pg;
+}
+}  // namespace
+
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co) {
+  weight_grad_via_phases(d_weight, in, d_out, mask, n, co, Geom(h, w));
 }
 
 void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
                        const float* mask, int n, int h, int w, const float* weight, int co) {
   const Geom g(h, w);
-  const int ci = in.ca + in.cb;
-  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
-  to_phases(pin, in, nullptr, n, g);
-  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
-  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
-  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+  const float* pg = weight_grad_via_phases(d_weight, in, d_out, mask, n, co, g);
   conv_from_phases(d_in, pg, co, n, g, weight, true, nullptr, false);
 }
 

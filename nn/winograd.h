@@ -43,8 +43,6 @@ void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet&
 // elements winograd_u_stride(co, ci) floats apart; u is 64-byte aligned.
 std::size_t winograd_u_stride(int co, int ci);
 void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip);
-// Whether UNet::predict keeps U across calls (nn/weight_cache.h; a build switch, off by default).
-bool winograd_caches_weights();
 
 // Adds the weight gradient of that conv (no flip) to d_weight [co, ci, 3, 3]: d_out [n, co, h, w]
 // (masked where mask > 0 when mask is given) against in [n, ci, h, w], through the transposed
