@@ -164,6 +164,7 @@ int main(int argc, char** argv) {
       ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
       ("bf16-only", "only the bf16 inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
       ("train-only", "only the training rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+      ("batch", "only the rows of this batch size (0: all)", cxxopts::value<int>()->default_value("0"))
       ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
       ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
       ("h,help", "show help");
@@ -213,6 +214,9 @@ int main(int argc, char** argv) {
       table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.bf16; }), table.end());
     if (opt.count("train-only"))
       table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.train; }), table.end());
+    if (const int only = opt["batch"].as<int>(); only > 0)
+      table.erase(std::remove_if(table.begin(), table.end(), [only](const Row& r) { return r.batch != only; }),
+                  table.end());
     for (Row& row : table) {
       set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);
       const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));

@@ -7,8 +7,6 @@
 #endif
 #include "nn/conv3x3.h"
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cstddef>
 #include <cstdlib>
@@ -18,6 +16,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/parallel.h"
 #include "nn/weight_cache.h"
 #include "nn/staged_tile.h"
 #include "nn/winograd.h"
@@ -209,8 +208,7 @@ float plane_sum(const float* src, const float* mask, std::size_t stride, int row
 void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int n, const Geom& g, bool parallel,
                 float* sums = nullptr) {
   const int per_image = src.channels();
-#pragma omp parallel for schedule(static) if (parallel)
-  for (int ch = 0; ch < n * per_image; ++ch) {
+  parallel_for(n * per_image, parallel, [&](long ch) {
     float* d = dst + ch * g.stride;
     const float* s = src.plane(ch / per_image, ch % per_image, static_cast<std::size_t>(g.h) * g.w);
     const float* m = mask ? mask + static_cast<std::size_t>(ch) * g.h * g.w : nullptr;
@@ -230,7 +228,7 @@ void pad_planes(float* dst, const Cat<const float>& src, const float* mask, int 
     }
     std::fill(d + static_cast<std::size_t>(g.h + 1) * g.ws + 1, dst + (ch + 1) * g.stride, 0.f);
     if (sums) sums[ch] = plane_sum(d + g.ws + 1, nullptr, g.ws, g.h, g.w);  // the copy, still in cache
-  }
+  });
 }
 
 // Packs w [co, ci, 3, 3] into blocks [out_blocks][in][9][kCB], zero-filled past the last output
@@ -240,9 +238,8 @@ void pack_weights(float* dst, const float* w, int co, int ci, bool transpose_fli
   const int blocks = (out_c + kCB - 1) / kCB;
   // In parallel: a serial pack of the deepest layers' weights (590K values) left the other
   // thread waiting.
-#pragma omp parallel for schedule(static) if (static_cast<std::size_t>(out_c) * in_c > 4096)
-  for (int bc = 0; bc < blocks * in_c; ++bc) {
-    const int b = bc / in_c, c = bc % in_c;
+  parallel_for(blocks * in_c, static_cast<std::size_t>(out_c) * in_c > 4096, [&](long bc) {
+    const int b = static_cast<int>(bc / in_c), c = static_cast<int>(bc % in_c);
     for (int k = 0; k < 9; ++k)
       for (int j = 0; j < kCB; ++j) {
         const int o = b * kCB + j;
@@ -253,7 +250,7 @@ void pack_weights(float* dst, const float* w, int co, int ci, bool transpose_fli
         }
         dst[((static_cast<std::size_t>(b) * in_c + c) * 9 + k) * kCB + j] = v;
       }
-  }
+  });
 }
 
 // One strip: kCB output channels x kStrip pixels from index q of the padded input planes.
@@ -297,11 +294,10 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
   const double flops = 2.0 * n * (g.q_end - g.q0) * in_c * 9 * out_c;
   const bool par = flops > 2e6;
   const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
-#pragma omp parallel if (par)
-  {
+  parallel(par, [&](int tid, int nt) {
     alignas(64) float stage[kCB * kTile];
-#pragma omp for schedule(static)
-    for (int task = 0; task < n * chunks * blocks; ++task) {
+    const auto [t_begin, t_end] = static_range(static_cast<long>(n) * chunks * blocks, tid, nt);
+    for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
       const int img = task / (chunks * blocks), chunk = (task / blocks) % chunks, b = task % blocks;
       const float* pimg = pin + static_cast<std::size_t>(img) * in_c * g.stride + kFront;
       const float* wb = wpack + static_cast<std::size_t>(b) * in_c * 9 * kCB;
@@ -313,7 +309,7 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
                         std::min(kCB, out_c - b * kCB), bias, relu, g.qa + s_begin * kStrip, g.qa + s_end * kStrip,
                         g.h, g.w, g.ws);
     }
-  }
+  });
 }
 
 // Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
@@ -412,11 +408,10 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
   } else if (d_bias) {
     const float* mask = relu ? out : nullptr;
-#pragma omp parallel for schedule(static) if (par)
-    for (int ch = 0; ch < n * co; ++ch) {
+    parallel_for(n * co, par, [&](long ch) {
       const std::size_t off = static_cast<std::size_t>(ch) * h * w;
       sums[ch] = plane_sum(d_out + off, mask ? mask + off : nullptr, w, h, w);
-    }
+    });
   }
 
   if (d_bias) {
@@ -444,9 +439,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     // chunks in a fixed order, so the result does not depend on the thread count. Threads take
     // fixed task ranges and walk the chunks in step without barriers: one parallel region.
     const int tasks = blocks * ci * 3;
-#pragma omp parallel if (wpar)
-    {
-      const int nt = omp_get_num_threads(), tid = omp_get_thread_num();
+    parallel(wpar, [&](int tid, int nt) {
       const int t0 = static_cast<int>(static_cast<long>(tasks) * tid / nt);
       const int t1 = static_cast<int>(static_cast<long>(tasks) * (tid + 1) / nt);
       for (int img = 0; img < n; ++img) {
@@ -461,7 +454,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
           }
         }
       }
-    }
+    });
   }
 
   if (wino_d) {

@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/parallel.h"
 #include "nn/staged_tile.h"
 #include "nn/weight_cache.h"
 #include "nn/winograd.h"
@@ -206,11 +207,10 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
   };
   std::uint32_t* pin = g_pad.get(g.stride * pairs * n);
   const bool pad_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
-#pragma omp parallel for schedule(static) if (pad_par)
-  for (int t = 0; t < n * pairs; ++t) {
-    const int img = t / pairs, p = t % pairs;
+  parallel_for(n * pairs, pad_par, [&](long tl) {
+    const int t = static_cast<int>(tl), img = t / pairs, p = t % pairs;
     pad_pair(pin + t * g.stride, channel(img, 2 * p), 2 * p + 1 < ci ? channel(img, 2 * p + 1) : nullptr, g);
-  }
+  });
   const int blocks = (co + kCB - 1) / kCB;
   const std::size_t wp_lanes = static_cast<std::size_t>(blocks) * kCB * pairs * 9;
   bool valid = false;
@@ -223,13 +223,13 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
   const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
   const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;
   const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
-#pragma omp parallel for schedule(static) if (par)
-  for (int task = 0; task < n * chunks * blocks; ++task) {
+  parallel_for(n * chunks * blocks, par, [&](long tl) {
+    const int task = static_cast<int>(tl);
     const int img = task / (chunks * blocks), chunk = (task / blocks) % chunks, blk = task % blocks;
     conv_task(out + static_cast<std::size_t>(img) * co * plane, co,
               pin + static_cast<std::size_t>(img) * pairs * g.stride + kFront, pairs, g,
               wp + static_cast<std::size_t>(blk) * pairs * 9 * kCB, bias, relu, chunk, blk, strips);
-  }
+  });
 }
 
 #endif

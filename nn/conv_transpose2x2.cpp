@@ -6,13 +6,13 @@
 #endif
 #include "nn/conv_transpose2x2.h"
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cstddef>
 #include <vector>
 
 #include <Eigen/Core>
+
+#include "nn/parallel.h"
 
 #ifdef __AVX512F__
 #include <immintrin.h>
@@ -100,9 +100,8 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
     }
   const float* taps = g_taps.data();
   const bool par = 8.0 * n * hw * ci * co > kParallelFlops;
-#pragma omp parallel for schedule(static) if (par)
-  for (int task = 0; task < n * h; ++task) {
-    const int img = task / h, y = task % h;
+  parallel_for(n * h, par, [&](long task) {
+    const int img = static_cast<int>(task / h), y = static_cast<int>(task % h);
     const float* in_img = in + static_cast<std::size_t>(img) * ci * hw;
     float* out_img = out + static_cast<std::size_t>(img) * co * oplane;
     if (tl_pixels.size() < static_cast<std::size_t>(ci) * 32) tl_pixels.resize(static_cast<std::size_t>(ci) * 32);
@@ -130,7 +129,7 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
       }
       if (y == h - 1) std::fill(plane + static_cast<std::size_t>(2 * h) * out_w, plane + oplane, 0.f);
     }
-  }
+  });
 }
 
 #endif

@@ -7,8 +7,6 @@
 #endif
 #include "nn/layers.h"
 
-#include <omp.h>
-
 #ifdef __AVX512F__
 #include <immintrin.h>
 #endif
@@ -21,9 +19,15 @@
 #include "nn/conv3x3.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/conv_transpose2x2.h"
+#include "nn/parallel.h"
 #include "nn/precision.h"
 
 namespace lidarsim::nn {
+
+using detail::parallel;
+using detail::parallel_for;
+using detail::parallel_ranges;
+using detail::static_range;
 
 namespace testhook {
 Fault fault = Fault::none;
@@ -122,9 +126,8 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
   const std::size_t in_image = static_cast<std::size_t>(ci) * h * w;
   const std::size_t out_image = static_cast<std::size_t>(co) * hw;
   const bool par = 2.0 * n * hw * kdim * co > kParallelFlops;
-#pragma omp parallel for schedule(static) if (par)
-  for (int task = 0; task < n * tiles; ++task) {
-    const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
+  parallel_for(n * tiles, par, [&](long tl) {
+    const int task = static_cast<int>(tl), img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
     const float* src = in + img * in_image;
     Eigen::Index a_stride;
     const float* a_ptr = tile_operand(src, direct, ci, h, w, k, pad, wo, p0, len, kdim, a_stride);
@@ -142,7 +145,7 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
           for (int j = 0; j < len; ++j) col_o[j] += bo;
       }
     }
-  }
+  });
 }
 
 void check_finite_shape(const Tensor& t, const char* op, const char* field) {
@@ -198,23 +201,24 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     const float* o = out.data();
     const float* d = d_out.data();
     const std::size_t total = so.numel();
-#pragma omp parallel for simd schedule(static) if (total > kParallelElems)
-    for (std::size_t i = 0; i < total; ++i) m[i] = o[i] > 0.f ? d[i] : 0.f;
+    parallel_ranges(static_cast<long>(total), total > kParallelElems, [&](long b, long e) {
+#pragma omp simd
+      for (long i = b; i < e; ++i) m[i] = o[i] > 0.f ? d[i] : 0.f;
+    });
     g = m;
   }
   const std::size_t out_image = static_cast<std::size_t>(co) * hw;
 
   const bool par = 2.0 * n * hw * kdim * co > kParallelFlops;
   if (d_bias) {
-#pragma omp parallel for schedule(static) if (par)
-    for (int o = 0; o < co; ++o) {
+    parallel_for(co, par, [&](long o) {
       float acc = 0.f;
       for (int i = 0; i < n; ++i) {
         Eigen::Map<const Eigen::VectorXf> plane(g + i * out_image + static_cast<std::size_t>(o) * hw, hw);
         acc += plane.sum();
       }
       d_bias[o] += acc;
-    }
+    });
     if (fault(testhook::Fault::conv2d_bias) && co > 1) d_bias[1] = d_bias[0];
   }
 
@@ -223,16 +227,15 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     const bool direct = k == 1 && pad == 0;
     const int t = direct ? std::min(hw, 4096) : tile_pixels(kdim, hw);
     const int tiles = (hw + t - 1) / t;
-    const int threads = omp_get_max_threads();
+    const int threads = detail::team_threads();
     const std::size_t wsize = static_cast<std::size_t>(kdim) * co;
     float* parts = grow(g_partials, wsize * threads);
     std::fill(parts, parts + wsize * threads, 0.f);
     const std::size_t in_image = s.image();
-#pragma omp parallel if (par)
-    {
-      Mat part(parts + wsize * omp_get_thread_num(), kdim, co, Eigen::OuterStride<>(kdim));
-#pragma omp for schedule(static)
-      for (int task = 0; task < n * tiles; ++task) {
+    parallel(par, [&](int tid, int nt) {
+      Mat part(parts + wsize * tid, kdim, co, Eigen::OuterStride<>(kdim));
+      const auto [t_begin, t_end] = static_range(n * tiles, tid, nt);
+      for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
         const int img = task / tiles, p0 = (task % tiles) * t, len = std::min(t, hw - p0);
         const float* src = in.data() + img * in_image;
         Eigen::Index a_stride;
@@ -241,13 +244,15 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
         CMat gm(g + img * out_image + p0, len, co, Eigen::OuterStride<>(hw));
         part.noalias() += a.transpose() * gm;
       }
-    }
-#pragma omp parallel for simd schedule(static) if (wsize > kParallelElems)
-    for (std::size_t e = 0; e < wsize; ++e) {
-      float acc = 0.f;
-      for (int th = 0; th < threads; ++th) acc += parts[th * wsize + e];
-      d_weight[e] += acc;
-    }
+    });
+    parallel_ranges(static_cast<long>(wsize), wsize > kParallelElems, [&](long b, long end) {
+#pragma omp simd
+      for (long e = b; e < end; ++e) {
+        float acc = 0.f;
+        for (int th = 0; th < threads; ++th) acc += parts[th * wsize + e];
+        d_weight[e] += acc;
+      }
+    });
     if (fault(testhook::Fault::conv2d_weight) && wsize > 1) d_weight[wsize - 1] = d_weight[0];
   }
 
@@ -335,9 +340,8 @@ void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weigh
   const std::size_t oplane = static_cast<std::size_t>(out_h) * out_w;
   Eigen::Map<const RowMat> wm(weight, ci, co4);  // [Ci, Co 2 2]
   const bool par = 2.0 * s.n * hw * ci * co4 > kParallelFlops;
-#pragma omp parallel for schedule(static) if (par)
-  for (int task = 0; task < s.n * tiles; ++task) {
-    const int img = task / tiles, y0 = (task % tiles) * rows, y1 = std::min(h, y0 + rows);
+  parallel_for(s.n * tiles, par, [&](long task) {
+    const int img = static_cast<int>(task / tiles), y0 = static_cast<int>(task % tiles) * rows, y1 = std::min(h, y0 + rows);
     const int len = (y1 - y0) * w;
     float* y = grow(tl_col, static_cast<std::size_t>(len) * co4);
     CMat x(in.image(img) + y0 * w, len, ci, Eigen::OuterStride<>(hw));  // [len, Ci]
@@ -361,7 +365,7 @@ void conv_transpose2x2_forward(Tensor& out, const Tensor& in, const float* weigh
       if (y1 == h)  // the zero padding below the up-sampled map
         std::fill(plane + static_cast<std::size_t>(2 * h) * out_w, plane + oplane, 0.f);
     }
-  }
+  });
 }
 
 void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, const Tensor& d_out,
@@ -375,7 +379,7 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
   const std::size_t oplane = so.plane();
   const int rows = std::max(1, std::min((h + 3) / 4, 2048 / w));
   const int tiles = (h + rows - 1) / rows;
-  const int threads = omp_get_max_threads();
+  const int threads = detail::team_threads();
   const std::size_t wsize = static_cast<std::size_t>(ci) * co4;
   // Per-thread partials: weight gradient, then bias gradient.
   const std::size_t psize = wsize + co;
@@ -383,13 +387,12 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
   std::fill(parts, parts + psize * threads, 0.f);
   Eigen::Map<const RowMat> wm(weight, ci, co4);
   const bool par = 2.0 * n * hw * ci * co4 > kParallelFlops;
-#pragma omp parallel if (par)
-  {
-    float* part = parts + psize * omp_get_thread_num();
+  parallel(par, [&](int tid, int nt) {
+    float* part = parts + psize * tid;
     Eigen::Map<RowMat> dw(part, ci, co4);
     float* db = part + wsize;
-#pragma omp for schedule(static)
-    for (int task = 0; task < n * tiles; ++task) {
+    const auto [t_begin, t_end] = static_range(n * tiles, tid, nt);
+    for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
       const int img = task / tiles, y0 = (task % tiles) * rows, y1 = std::min(h, y0 + rows);
       const int len = (y1 - y0) * w;
       float* gy = grow(tl_col, static_cast<std::size_t>(len) * co4);
@@ -416,9 +419,9 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
       dx.noalias() = g * wm.transpose();
       dw.noalias() += x.transpose() * g;
     }
-  }
-#pragma omp parallel for schedule(static) if (psize > kParallelElems)
-  for (std::size_t e = 0; e < psize; ++e) {
+  });
+  parallel_for(static_cast<long>(psize), psize > kParallelElems, [&](long el) {
+    const std::size_t e = static_cast<std::size_t>(el);
     float acc = 0.f;
     for (int th = 0; th < threads; ++th) acc += parts[th * psize + e];
     if (e < wsize) {
@@ -426,7 +429,7 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
     } else if (d_bias) {
       d_bias[e - wsize] += acc;
     }
-  }
+  });
   if (fault(testhook::Fault::conv_transpose_weight) && d_weight && wsize > 2) d_weight[2] = d_weight[1];
   if (fault(testhook::Fault::conv_transpose_input) && d_in.numel() > 1) d_in.data()[d_in.numel() - 1] = d_in.data()[0];
 }
@@ -439,8 +442,7 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
   ensure(out, Shape{s.n, s.c, ho, wo});
   if (argmax.size() != out.numel()) argmax.resize(out.numel());
   const int planes = s.n * s.c;
-#pragma omp parallel for schedule(static) if (in.numel() > kParallelElems)
-  for (int p = 0; p < planes; ++p) {
+  parallel_for(planes, in.numel() > kParallelElems, [&](long p) {
     const float* src = in.data() + p * s.plane();
     float* dst = out.data() + p * out.shape().plane();
     std::int32_t* am = argmax.data() + p * out.shape().plane();
@@ -485,7 +487,7 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
         am[y * wo + x] = best;
       }
     }
-  }
+  });
 }
 
 void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax,
@@ -503,8 +505,7 @@ void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<s
   const int planes = so.n * so.c;
   const std::size_t ip = in_shape.plane(), op = so.plane();
   const bool broken = fault(testhook::Fault::max_pool);
-#pragma omp parallel for schedule(static) if (d_out.numel() > kParallelElems / 4)
-  for (int p = 0; p < planes; ++p) {
+  parallel_for(planes, d_out.numel() > kParallelElems / 4, [&](long p) {
     float* dst = d_in.data() + p * ip;
     if (!accumulate) std::fill(dst, dst + ip, 0.f);
     const float* src = d_out.data() + p * op;
@@ -514,7 +515,7 @@ void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<s
       dst[am[0]] -= src[0];
       dst[am[0] ^ 1] += src[0];
     }
-  }
+  });
 }
 
 void max_pool2x2_backward(Tensor& d_in, const Tensor& d_out, const std::vector<std::int32_t>& argmax) {
@@ -527,8 +528,10 @@ void relu_forward(Tensor& out, const Tensor& in) {
   const std::size_t n = in.numel();
   const float* x = in.data();
   float* y = out.data();
-#pragma omp parallel for simd schedule(static) if (n > kParallelElems)
-  for (std::size_t i = 0; i < n; ++i) y[i] = std::max(x[i], 0.f);
+  parallel_ranges(static_cast<long>(n), n > kParallelElems, [&](long b, long e) {
+#pragma omp simd
+    for (long i = b; i < e; ++i) y[i] = std::max(x[i], 0.f);
+  });
 }
 
 void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out) {
@@ -539,8 +542,10 @@ void relu_backward(Tensor& d_in, const Tensor& d_out, const Tensor& out) {
   const float* d = d_out.data();
   const float* y = out.data();
   float* dx = d_in.data();
-#pragma omp parallel for simd schedule(static) if (n > kParallelElems)
-  for (std::size_t i = 0; i < n; ++i) dx[i] = y[i] > 0.f ? d[i] : 0.f;
+  parallel_ranges(static_cast<long>(n), n > kParallelElems, [&](long b, long e) {
+#pragma omp simd
+    for (long i = b; i < e; ++i) dx[i] = y[i] > 0.f ? d[i] : 0.f;
+  });
   if (fault(testhook::Fault::relu) && n > 1) dx[1] = d[0];
 }
 
@@ -551,12 +556,11 @@ void concat_forward(Tensor& out, const Tensor& a, const Tensor& b) {
   ensure(out, Shape{sa.n, sa.c + sb.c, sa.h, sa.w});
   const int ct = sa.c + sb.c;
   const std::size_t plane = sa.plane();
-#pragma omp parallel for schedule(static) if (out.numel() > kParallelElems)
-  for (int p = 0; p < sa.n * ct; ++p) {
-    const int i = p / ct, c = p % ct;
+  parallel_for(sa.n * ct, out.numel() > kParallelElems, [&](long p) {
+    const int i = static_cast<int>(p / ct), c = static_cast<int>(p % ct);
     const float* src = c < sa.c ? a.channel(i, c) : b.channel(i, c - sa.c);
     std::copy(src, src + plane, out.channel(i, c));
-  }
+  });
 }
 
 void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool accumulate_a) {
@@ -571,9 +575,8 @@ void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool
   }
   ensure(d_b, sb);
   const std::size_t plane = s.plane();
-#pragma omp parallel for schedule(static) if (d_out.numel() > kParallelElems)
-  for (int p = 0; p < s.n * s.c; ++p) {
-    const int i = p / s.c, c = p % s.c;
+  parallel_for(s.n * s.c, d_out.numel() > kParallelElems, [&](long p) {
+    const int i = static_cast<int>(p / s.c), c = static_cast<int>(p % s.c);
     const float* src = d_out.channel(i, c);
     if (c >= ca) {
       std::copy(src, src + plane, d_b.channel(i, c - ca));
@@ -583,7 +586,7 @@ void concat_backward(Tensor& d_a, Tensor& d_b, const Tensor& d_out, int ca, bool
     } else {
       std::copy(src, src + plane, d_a.channel(i, c));
     }
-  }
+  });
   if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
 }
 
@@ -596,14 +599,13 @@ void row_affine_forward(Tensor& out, const Tensor& in, const float* gain, const 
   const Shape s = in.shape();
   ensure(out, s);
   const int rows = s.n * s.c * s.h;
-#pragma omp parallel for schedule(static)
-  for (int r = 0; r < rows; ++r) {
-    const int ch = r % (s.c * s.h);  // channel * H + row
+  parallel_for(rows, true, [&](long r) {
+    const int ch = static_cast<int>(r % (s.c * s.h));  // channel * H + row
     const float a = gain[ch], b = offset[ch];
     const float* x = in.data() + static_cast<std::size_t>(r) * s.w;
     float* y = out.data() + static_cast<std::size_t>(r) * s.w;
     for (int w = 0; w < s.w; ++w) y[w] = a * x[w] + b;
-  }
+  });
 }
 
 void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Tensor& d_out, const Tensor& in,
@@ -614,8 +616,7 @@ void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Ten
   ensure(d_in, s);
   const int per_image = s.c * s.h;
   // One (channel, row) per iteration, summed over the batch and the columns in a fixed order.
-#pragma omp parallel for schedule(static)
-  for (int ch = 0; ch < per_image; ++ch) {
+  parallel_for(per_image, true, [&](long ch) {
     double sg = 0, so = 0;
     for (int n = 0; n < s.n; ++n) {
       const std::size_t base = (static_cast<std::size_t>(n) * per_image + ch) * s.w;
@@ -630,7 +631,7 @@ void row_affine_backward(Tensor& d_in, float* d_gain, float* d_offset, const Ten
     }
     d_gain[ch] += static_cast<float>(sg);
     d_offset[ch] += static_cast<float>(so);
-  }
+  });
   if (fault(testhook::Fault::row_affine) && per_image > 1) d_gain[1] = d_gain[0];
 }
 
@@ -643,8 +644,8 @@ void lookup_base_keys(std::vector<std::int32_t>& keys, const Tensor& x, const Lo
                 std::to_string(c.range_channel) + ", " + std::to_string(c.rows) + " rows)");
   const std::size_t plane = static_cast<std::size_t>(s.h) * s.w;
   keys.resize(static_cast<std::size_t>(s.n) * plane);
-#pragma omp parallel for schedule(static)
-  for (int n = 0; n < s.n; ++n) {
+  parallel_for(s.n, true, [&](long nl) {
+    const int n = static_cast<int>(nl);
     const float* range = x.channel(n, c.range_channel);
     for (std::size_t i = 0; i < plane; ++i) {
       std::int32_t& k = keys[static_cast<std::size_t>(n) * plane + i];
@@ -661,7 +662,7 @@ void lookup_base_keys(std::vector<std::int32_t>& keys, const Tensor& x, const Lo
       const int b = std::clamp(static_cast<int>(std::floor(range[i] / c.bin_width)), 0, c.range_bins - 1);
       k = g * c.range_bins + b;
     }
-  }
+  });
 }
 
 void lookup_base_forward(Tensor& out, const Tensor& x, const LookupBaseConfig& c, const float* table,
@@ -672,11 +673,12 @@ void lookup_base_forward(Tensor& out, const Tensor& x, const LookupBaseConfig& c
   const Shape s = x.shape();
   ensure(out, Shape{s.n, 1, s.h, s.w});
   const std::size_t cells = keys.size();
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < cells; ++i) {
-    const int h = static_cast<int>(i / s.w % s.h);
-    out.data()[i] = keys[i] < 0 ? 0.f : table[keys[i]] + beam[h];
-  }
+  parallel_ranges(static_cast<long>(cells), true, [&](long b, long e) {
+    for (long i = b; i < e; ++i) {
+      const int h = static_cast<int>(i / s.w % s.h);
+      out.data()[i] = keys[i] < 0 ? 0.f : table[keys[i]] + beam[h];
+    }
+  });
 }
 
 void lookup_base_backward(float* d_table, float* d_beam, const Tensor& d_out, const Tensor& x,

@@ -1,9 +1,11 @@
 #include "nn/loss.h"
 
+#include <atomic>
 #include <cmath>
 #include <vector>
 
 #include "common/error.h"
+#include "nn/parallel.h"
 
 namespace lidarsim::nn {
 
@@ -52,21 +54,24 @@ double l2_penalty(ParamArena& params, float lambda, bool grads) {
   // Per-parameter sums in double, added in registration order: independent of thread count.
   const auto& infos = params.infos();
   std::vector<double> partial(infos.size(), 0.0);
-#pragma omp parallel for schedule(dynamic) if (params.size() > (1u << 15))
-  for (std::size_t i = 0; i < infos.size(); ++i) {
-    if (!infos[i].decays) continue;
-    const float* w = params.values() + infos[i].offset;
-    float* g = params.grads() + infos[i].offset;
-    const std::size_t n = infos[i].shape.numel();
-    const float c = infos[i].decay_center;
-    double s = 0;
-    for (std::size_t j = 0; j < n; ++j) s += static_cast<double>(w[j] - c) * (w[j] - c);
-    partial[i] = s;
-    if (grads) {
-      const float two_lambda = 2.f * lambda;
-      for (std::size_t j = 0; j < n; ++j) g[j] += two_lambda * (w[j] - c);
+  // Parameters differ in size by 1000x: threads take the next one from a shared counter.
+  std::atomic<long> next{0};
+  detail::parallel(params.size() > (1u << 15), [&](int, int) {
+    for (long i; (i = next.fetch_add(1, std::memory_order_relaxed)) < static_cast<long>(infos.size());) {
+      if (!infos[i].decays) continue;
+      const float* w = params.values() + infos[i].offset;
+      float* g = params.grads() + infos[i].offset;
+      const std::size_t n = infos[i].shape.numel();
+      const float c = infos[i].decay_center;
+      double s = 0;
+      for (std::size_t j = 0; j < n; ++j) s += static_cast<double>(w[j] - c) * (w[j] - c);
+      partial[i] = s;
+      if (grads) {
+        const float two_lambda = 2.f * lambda;
+        for (std::size_t j = 0; j < n; ++j) g[j] += two_lambda * (w[j] - c);
+      }
     }
-  }
+  });
   double total = 0;
   for (double s : partial) total += s;
   return lambda * total;

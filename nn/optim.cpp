@@ -3,8 +3,12 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "nn/parallel.h"
 
 namespace lidarsim::nn {
+
+using detail::parallel_for;
+using detail::parallel_ranges;
 
 Optimizer::Optimizer(const OptimizerConfig& config, std::size_t num_params) : config_(config) {
   if (config_.kind != "adam" && config_.kind != "sgd")
@@ -28,12 +32,11 @@ void Optimizer::step(ParamArena& params) {
     constexpr std::size_t kChunk = 1 << 14;
     const std::size_t chunks = (n + kChunk - 1) / kChunk;
     std::vector<double> partial(chunks, 0.0);
-#pragma omp parallel for schedule(static) if (n > (1u << 15))
-    for (std::size_t c = 0; c < chunks; ++c) {
+    parallel_for(static_cast<long>(chunks), n > (1u << 15), [&](long c) {
       double s = 0;
       for (std::size_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) s += double(g[i]) * g[i];
       partial[c] = s;
-    }
+    });
     double total = 0;
     for (double s : partial) total += s;
     const double norm = std::sqrt(total);
@@ -41,8 +44,10 @@ void Optimizer::step(ParamArena& params) {
     const double coef = config_.clip_norm / (norm + 1e-6);
     if (coef < 1.0) {
       const float c = static_cast<float>(coef);
-#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
-      for (std::size_t i = 0; i < n; ++i) g[i] *= c;
+      parallel_ranges(static_cast<long>(n), n > (1u << 15), [&](long b, long e) {
+#pragma omp simd
+        for (long i = b; i < e; ++i) g[i] *= c;
+      });
     }
   }
 
@@ -59,11 +64,13 @@ void Optimizer::step(ParamArena& params) {
   if (config_.kind == "sgd") {
     // torch.optim.SGD, dampening 0, no Nesterov: buf = momentum buf + g (buf = g at step 1).
     const float mu = config_.momentum, lr = config_.lr;
-#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
-    for (std::size_t i = 0; i < n; ++i) {
-      m[i] = mu * m[i] + g[i];
-      p[i] -= sc[i] * lr * m[i];
-    }
+    parallel_ranges(static_cast<long>(n), n > (1u << 15), [&](long b, long e) {
+#pragma omp simd
+      for (long i = b; i < e; ++i) {
+        m[i] = mu * m[i] + g[i];
+        p[i] -= sc[i] * lr * m[i];
+      }
+    });
     return;
   }
   // torch.optim.Adam (single-tensor path): scalars in double, tensor math in float.
@@ -75,13 +82,15 @@ void Optimizer::step(ParamArena& params) {
   const float bc2_sqrt = static_cast<float>(std::sqrt(bc2));
   const float b1 = config_.beta1, b2 = config_.beta2, eps = config_.eps;
   const float one_b1 = 1.f - b1, one_b2 = 1.f - b2;
-#pragma omp parallel for simd schedule(static) if (n > (1u << 15))
-  for (std::size_t i = 0; i < n; ++i) {
-    m[i] = b1 * m[i] + one_b1 * g[i];
-    v[i] = b2 * v[i] + one_b2 * g[i] * g[i];
-    const float denom = std::sqrt(v[i]) / bc2_sqrt + eps;
-    p[i] -= sc[i] * step_size * (m[i] / denom);
-  }
+  parallel_ranges(static_cast<long>(n), n > (1u << 15), [&](long b, long e) {
+#pragma omp simd
+    for (long i = b; i < e; ++i) {
+      m[i] = b1 * m[i] + one_b1 * g[i];
+      v[i] = b2 * v[i] + one_b2 * g[i] * g[i];
+      const float denom = std::sqrt(v[i]) / bc2_sqrt + eps;
+      p[i] -= sc[i] * step_size * (m[i] / denom);
+    }
+  });
 }
 
 }  // namespace lidarsim::nn

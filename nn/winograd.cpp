@@ -5,13 +5,12 @@
 #endif
 #include "nn/winograd.h"
 
-
-#include <omp.h>
-
 #include <algorithm>
 #include <cstddef>
 #include <cstdlib>
 #include <new>
+
+#include "nn/parallel.h"
 
 #ifdef __AVX512F__
 #include <immintrin.h>
@@ -124,9 +123,8 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
   const __m512i even = _mm512_set_epi32(30, 26, 22, 18, 14, 10, 6, 2, 28, 24, 20, 16, 12, 8, 4, 0);
   const __m512i odd = _mm512_set_epi32(31, 27, 23, 19, 15, 11, 7, 3, 29, 25, 21, 17, 13, 9, 5, 1);
   const __m512 zero = _mm512_setzero_ps();
-#pragma omp parallel for schedule(static) if (par)
-  for (int p = 0; p < n * ci; ++p) {
-    const int img = p / ci, ch = p % ci;
+  parallel_for(n * ci, par, [&](long p) {
+    const int img = static_cast<int>(p / ci), ch = static_cast<int>(p % ci);
     const float* src = plane_of(in, img, ch, hw);
     const float* m = mask ? mask + static_cast<std::size_t>(p) * hw : nullptr;
     float* d = dst + static_cast<std::size_t>(p) * g.plane;
@@ -163,7 +161,7 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
         _mm512_storeu_ps(line + 3 * g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0xEE));
       }
     }
-  }
+  });
 }
 
 // G = diag(1/4, -1/6, -1/6, 1/24, 1/24, 1) G' with the integer rows of G' (1 0 0), (1 1 1),
@@ -206,9 +204,8 @@ void transform_weights(float* u, const float* w, int co, int ci, bool transpose_
   const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
   constexpr int kAhead = 4;  // tasks to prefetch ahead
   const __m256i idx0 = _mm256_mullo_epi32(lane, _mm256_set1_epi32(transpose_flip ? 9 : 9 * ci));
-#pragma omp parallel for schedule(static) if (par)
-  for (int bc = 0; bc < blocks * ci; ++bc) {
-    const int b = bc / ci, c = bc % ci;
+  parallel_for(blocks * ci, par, [&](long bcl) {
+    const int bc = static_cast<int>(bcl), b = bc / ci, c = bc % ci;
     if (bc + kAhead < blocks * ci) {  // the hardware prefetcher misses these jumps
       const int pb = (bc + kAhead) / ci, pc = (bc + kAhead) % ci;
       if (transpose_flip) {
@@ -239,7 +236,7 @@ void transform_weights(float* u, const float* w, int co, int ci, bool transpose_
       for (int bb = 0; bb < 6; ++bb)
         _mm256_store_ps(dst + (a * 6 + bb) * per_e, _mm512_cvtpd_ps(_mm512_mul_pd(_mm512_set1_pd(kGScale.s[a][bb]), r[bb])));
     }
-  }
+  });
 }
 
 // B^T applied to 6 values: the input transform's 1-D step.
@@ -356,7 +353,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   const int co_blocks = (co + kCB - 1) / kCB;
   const std::size_t u_e = u_stride(co, ci);
   const int tiles_tasks = n * g.th * g.blocks;
-  const int threads = omp_get_max_threads();
+  const int threads = team_threads();
   // Few tile blocks (the deep layers): split the output channels too, each part repeating the
   // (cheap) input transform, so every thread has work.
   int parts = 1;
@@ -364,14 +361,13 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   const int tasks = tiles_tasks * parts;
   const double flops = 2.0 * tiles_tasks * g.tb * 36.0 * ci * co;
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
-#pragma omp parallel if (flops > 2e6)
-  {
+  parallel(flops > 2e6, [&](int tid, int nt) {
     // One cache line past each transform element's slice: power-of-two strides would put the 36
     // slices of a tile in one L1 set.
     const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb + 16;
     float* v = tl_v.get(36 * v_e);
-#pragma omp for schedule(static)
-    for (int task = 0; task < tasks; ++task) {
+    const auto [t_begin, t_end] = static_range(tasks, tid, nt);
+    for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
       const int part = task % parts, tt = task / parts;
       const int img = tt / (g.th * g.blocks), ty = (tt / g.blocks) % g.th, blk = tt % g.blocks;
       const int b0 = co_blocks * part / parts, b1 = co_blocks * (part + 1) / parts;
@@ -393,7 +389,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
           output_tile(op, mo + 16 * q, m_e, g, ty, blk * g.tb + 16 * q, bias ? bias[o] : 0.f, relu);
       }
     }
-  }
+  });
 }
 
 // A applied to 4 values (the transpose of at6): the output gradient's 1-D step.
@@ -526,15 +522,14 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
   const int vectors = static_cast<int>(tiles / 16);
   const double flops = 2.0 * 36 * tiles * ci * co;
   const bool par = flops > 2e6;
-#pragma omp parallel if (par)
-  {
-#pragma omp for schedule(static) nowait
-    for (int e = 0; e < 36; ++e) {
+  parallel(par, [&](int tid, int nt) {
+    const auto [e_begin, e_end] = static_range(36, tid, nt);
+    for (int e = static_cast<int>(e_begin); e < e_end; ++e) {
       for (int c = ci; c < ci3; ++c) std::fill(v + e * v_e + c * tiles, v + e * v_e + (c + 1) * tiles, 0.f);
       for (int o = co; o < co8; ++o) std::fill(m + e * m_e + o * tiles, m + e * m_e + (o + 1) * tiles, 0.f);
     }
-#pragma omp for schedule(static)
-    for (int q = 0; q < vectors; ++q) {
+    const auto [q_begin, q_end] = static_range(vectors, tid, nt);
+    for (int q = static_cast<int>(q_begin); q < q_end; ++q) {
       const int per_row = g.blocks * g.nv;  // vectors per tile row
       const int img = q / (g.th * per_row), ty = (q / per_row) % g.th, tx = (q % per_row) * 16;
       const std::size_t t0 = static_cast<std::size_t>(q) * 16;
@@ -543,18 +538,17 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
       for (int o = 0; o < co; ++o)
         grad_tile(m + o * tiles + t0, m_e, pg + (static_cast<std::size_t>(img) * co + o) * g.plane, g, ty, tx);
     }
-  }
+  });
 
   // dU [36][co8][ci3]: one task per (element, 8 outputs, 3 inputs), each summing all tiles.
   const int ob = co8 / kCB, cg = ci3 / 3;
   float* du = g_du.get(static_cast<std::size_t>(36) * co8 * ci3);
-#pragma omp parallel for schedule(static) if (par)
-  for (int task = 0; task < 36 * ob * cg; ++task) {
-    const int e = task / (ob * cg), b = (task / cg) % ob, c3 = task % cg;
+  parallel_for(36 * ob * cg, par, [&](long tl) {
+    const int task = static_cast<int>(tl), e = task / (ob * cg), b = (task / cg) % ob, c3 = task % cg;
     du_block(du + (static_cast<std::size_t>(e) * co8 + b * kCB) * ci3 + 3 * c3, ci3,
              m + e * m_e + static_cast<std::size_t>(b) * kCB * tiles, v + e * v_e + static_cast<std::size_t>(3 * c3) * tiles,
              tiles, tiles);
-  }
+  });
 
   // d_weight += G^T dU G per kernel, in double: 8 input channels in the lanes of a double vector
   // (contiguous in dU), each lane doing the scalar sums in their order (multiply, then add; no
@@ -567,9 +561,8 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
                                      {0, 0, 1}};
   const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
   const int c_blocks = (ci + 7) / 8;
-#pragma omp parallel for schedule(static) if (par)
-  for (int oc = 0; oc < co * c_blocks; ++oc) {
-    const int o = oc / c_blocks, c0 = oc % c_blocks * 8, nc = std::min(8, ci - c0);
+  parallel_for(co * c_blocks, par, [&](long ocl) {
+    const int oc = static_cast<int>(ocl), o = oc / c_blocks, c0 = oc % c_blocks * 8, nc = std::min(8, ci - c0);
     const __mmask8 live = static_cast<__mmask8>(nc == 8 ? 0xff : (1u << nc) - 1);
     const float* d = du + static_cast<std::size_t>(o) * ci3 + c0;
     __m512d t[6][3];  // dU G
@@ -593,7 +586,7 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
       float* dw = d_weight + (static_cast<std::size_t>(o) * ci + c0 + j) * 9;
       for (int k = 0; k < 9; ++k) dw[k] += static_cast<float>(r[k][j]);
     }
-  }
+  });
 }
 
 
