@@ -109,16 +109,17 @@ class Team {
 
  private:
   void work(int tid, std::uint32_t seen) {
-    for (;;) {
+    for (bool spin = true;;) {  // a worker left out of the last run (fewer threads now) sleeps at once
       std::uint32_t g = seen;
-      if (!spin_for([&] { return (g = gen_.load(std::memory_order_acquire)) != seen; }, spin_us_)) {
+      if (!spin_for([&] { return (g = gen_.load(std::memory_order_acquire)) != seen; }, spin ? spin_us_ : 0)) {
         sleepers_.fetch_add(1, std::memory_order_seq_cst);
         while ((g = gen_.load(std::memory_order_seq_cst)) == seen) gen_.wait(seen, std::memory_order_seq_cst);
         sleepers_.fetch_sub(1, std::memory_order_relaxed);
       }
       seen = g;
       if (stop_) return;
-      if (tid < nt_) {
+      spin = tid < nt_;
+      if (spin) {
         t_in_team = true;
         call_(ctx_, tid, nt_);  // an exception here ends the program, as in an OpenMP region
         t_in_team = false;
