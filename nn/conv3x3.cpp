@@ -294,10 +294,10 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
   const double flops = 2.0 * n * (g.q_end - g.q0) * in_c * 9 * out_c;
   const bool par = flops > 2e6;
   const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
-  parallel(par, [&](int tid, int nt) {
+  parallel_shared(static_cast<long>(n) * chunks * blocks, par, [&](int tid, int nt, Shares& shares) {
     alignas(64) float stage[kCB * kTile];
-    const auto [t_begin, t_end] = static_range(static_cast<long>(n) * chunks * blocks, tid, nt);
-    for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
+    shares.run(tid, nt, [&](long tl) {
+      const int task = static_cast<int>(tl);
       const int img = task / (chunks * blocks), chunk = (task / blocks) % chunks, b = task % blocks;
       const float* pimg = pin + static_cast<std::size_t>(img) * in_c * g.stride + kFront;
       const float* wb = wpack + static_cast<std::size_t>(b) * in_c * 9 * kCB;
@@ -308,7 +308,7 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
       write_staged_tile([&](int o) { return out.plane(img, o, oplane); }, stage, kTile, b * kCB,
                         std::min(kCB, out_c - b * kCB), bias, relu, g.qa + s_begin * kStrip, g.qa + s_end * kStrip,
                         g.h, g.w, g.ws);
-    }
+    });
   });
 }
 

@@ -71,13 +71,15 @@ class Team {
     for (std::thread& t : workers_) t.join();
   }
 
-  void run(void (*call)(void*, int, int), void* ctx, bool enable) {
+  void run(void (*call)(void*, int, int), void* ctx, bool enable, void (*prepare)(void*, int)) {
     const int nt = enable && !t_in_team && !omp_in_parallel() ? omp_get_max_threads() : 1;
     std::unique_lock<std::mutex> lock(caller_, std::defer_lock);
     if (nt <= 1 || !lock.try_lock()) {
+      if (prepare) prepare(ctx, 1);
       call(ctx, 0, 1);
       return;
     }
+    if (prepare) prepare(ctx, nt);
     while (static_cast<int>(workers_.size()) < nt - 1) {
       // A new worker starts from the current generation: the bump below is its first run.
       const int tid = static_cast<int>(workers_.size()) + 1;
@@ -149,7 +151,9 @@ Team& team() {
 
 }  // namespace
 
-void run_team(void (*call)(void*, int, int), void* ctx, bool enable) { team().run(call, ctx, enable); }
+void run_team(void (*call)(void*, int, int), void* ctx, bool enable, void (*prepare)(void*, int)) {
+  team().run(call, ctx, enable, prepare);
+}
 
 int team_threads() { return t_in_team || omp_in_parallel() ? 1 : omp_get_max_threads(); }
 

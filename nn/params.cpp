@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "nn/parallel.h"
 
 namespace lidarsim::nn {
 
@@ -31,6 +32,11 @@ int ParamArena::find(const std::string& name) const {
   return -1;
 }
 
-void ParamArena::zero_grads() { grads_.zero(); }
+// In parallel: unet-ref's 7.8 MB took the other thread's time at every step.
+void ParamArena::zero_grads() {
+  float* g = grads_.data();
+  detail::parallel_ranges(static_cast<long>(grads_.numel()), grads_.numel() > (1u << 15),
+                          [g](long b, long e) { std::fill(g + b, g + e, 0.f); });
+}
 
 }  // namespace lidarsim::nn

@@ -1,5 +1,6 @@
 #include "nn/unet.h"
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -11,6 +12,7 @@
 
 #include "common/error.h"
 #include "nn/layers.h"
+#include "nn/parallel.h"
 #include "nn/precision.h"
 
 namespace lidarsim::nn {
@@ -197,11 +199,25 @@ void UNet::forward(const Tensor& x, Tensor& y) {
   if (config_.lookup.classes > 0 && s.h != config_.lookup.rows)
     throw Error("UNet forward: input: the lookup base has " + std::to_string(config_.lookup.rows) +
                 " rows (one beam offset per laser), got shape " + s.str());
-  for (std::size_t i = 0; i < x.numel(); ++i)
-    if (!std::isfinite(x.data()[i]))
-      throw Error("UNet forward: input: non-finite value at flat index " + std::to_string(i));
-
   Workspace& ws = *ws_;
+  // The check (and the copy, without a lookup base) in parallel: at batch 4 they are 3 MB each.
+  const bool copy = ws_->table < 0;
+  if (copy && !(ws.x.shape() == s)) ws.x.resize(s);
+  std::atomic<bool> finite{true};
+  detail::parallel_ranges(static_cast<long>(x.numel()), x.numel() > (1u << 15), [&](long b, long e) {
+    const float* src = x.data();
+    bool ok = true;
+    for (long i = b; i < e; ++i) ok &= std::isfinite(src[i]);
+    if (copy) std::copy(src + b, src + e, ws.x.data() + b);
+    if (!ok) finite = false;
+  });
+  if (!finite) {
+    ws.have_forward = false;  // the copy no longer matches the activations
+    for (std::size_t i = 0; i < x.numel(); ++i)
+      if (!std::isfinite(x.data()[i]))
+        throw Error("UNet forward: input: non-finite value at flat index " + std::to_string(i));
+  }
+
   const float* pv = params_.values();
   const auto W = [&](int id) { return pv + params_.info(id).offset; };
   if (ws.table >= 0) {  // the network's input is [x, base]
@@ -214,8 +230,6 @@ void UNet::forward(const Tensor& x, Tensor& y) {
       std::copy(ws.base.image(n), ws.base.image(n) + plane, ws.x.channel(n, s.c));
     }
     ws.toc("fwd lookup");
-  } else {
-    ws.x = x;
   }
   const int depth = config_.depth;
   const Tensor* cur = &ws.x;

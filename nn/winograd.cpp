@@ -361,14 +361,13 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   const int tasks = tiles_tasks * parts;
   const double flops = 2.0 * tiles_tasks * g.tb * 36.0 * ci * co;
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
-  parallel(flops > 2e6, [&](int tid, int nt) {
+  parallel_shared(tasks, flops > 2e6, [&](int tid, int nt, Shares& shares) {
     // One cache line past each transform element's slice: power-of-two strides would put the 36
     // slices of a tile in one L1 set.
     const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb + 16;
     float* v = tl_v.get(36 * v_e);
-    const auto [t_begin, t_end] = static_range(tasks, tid, nt);
-    for (int task = static_cast<int>(t_begin); task < t_end; ++task) {
-      const int part = task % parts, tt = task / parts;
+    shares.run(tid, nt, [&](long tl) {
+      const int task = static_cast<int>(tl), part = task % parts, tt = task / parts;
       const int img = tt / (g.th * g.blocks), ty = (tt / g.blocks) % g.th, blk = tt % g.blocks;
       const int b0 = co_blocks * part / parts, b1 = co_blocks * (part + 1) / parts;
       const std::size_t m_e = static_cast<std::size_t>(b1 - b0) * kCB * g.tb + 16;
@@ -388,7 +387,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
         for (int q = 0; q < NV; ++q)
           output_tile(op, mo + 16 * q, m_e, g, ty, blk * g.tb + 16 * q, bias ? bias[o] : 0.f, relu);
       }
-    }
+    });
   });
 }
 

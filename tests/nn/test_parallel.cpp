@@ -1,11 +1,13 @@
 // The engine's thread team (nn/parallel.h): every index runs exactly once, each thread gets
-// OpenMP's schedule(static) share (per-thread partial sums depend on it), calls from inside a
+// OpenMP's schedule(static) share (per-thread partial sums depend on it), a thread that is done
+// takes the rest of a slower one's share (Shares), calls from inside a
 // task or from a second thread run serially instead of deadlocking, and an exception in the
 // caller's share reaches the caller after the workers are done.
 #include <gtest/gtest.h>
 #include <omp.h>
 
 #include <atomic>
+#include <chrono>
 #include <stdexcept>
 #include <thread>
 #include <vector>
@@ -49,6 +51,27 @@ TEST(Parallel, EveryIndexRunsOnceOnEveryThreadCount) {
       std::vector<std::atomic<int>> hits(static_cast<std::size_t>(n));
       parallel_for(n, true, [&](long i) { hits[static_cast<std::size_t>(i)].fetch_add(1); });
       for (long i = 0; i < n; ++i) ASSERT_EQ(hits[static_cast<std::size_t>(i)].load(), 1) << i << " of " << n;
+    }
+  }
+}
+
+TEST(Parallel, AFasterThreadTakesTheRestOfASlowerOnesShare) {
+  Threads threads(2);
+  for (long n : {1L, 2L, 33L, 64L, 1000L, 100000L}) {
+    std::vector<std::atomic<int>> hits(static_cast<std::size_t>(n));
+    std::vector<int> ran_by(static_cast<std::size_t>(n), -1);
+    detail::parallel_shared(n, true, [&](int tid, int nt, detail::Shares& shares) {
+      shares.run(tid, nt, [&](long i) {
+        if (tid == 0) std::this_thread::sleep_for(std::chrono::microseconds(n < 100 ? 200 : 0));
+        hits[static_cast<std::size_t>(i)].fetch_add(1);
+        ran_by[static_cast<std::size_t>(i)] = tid;
+      });
+    });
+    for (long i = 0; i < n; ++i) ASSERT_EQ(hits[static_cast<std::size_t>(i)].load(), 1) << i << " of " << n;
+    if (n == 64) {  // thread 0 sleeps on each of its 32 items: thread 1 must have taken some
+      int stolen = 0;
+      for (long i = 0; i < 32; ++i) stolen += ran_by[static_cast<std::size_t>(i)] == 1;
+      EXPECT_GT(stolen, 0);
     }
   }
 }
