@@ -438,7 +438,11 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     // Each (output block, input channel, kernel row) task owns its weights and sums its pixel
     // chunks in a fixed order, so the result does not depend on the thread count. Threads take
     // fixed task ranges and walk the chunks in step without barriers: one parallel region.
+    // Tasks run input-channel-major when there are at least as many inputs as outputs, else
+    // block-major: each thread then reads only its part of the larger of the two operands, and
+    // both read all of the smaller.
     const int tasks = blocks * ci * 3;
+    const bool c_major = ci >= co;
     parallel(wpar, [&](int tid, int nt) {
       const int t0 = static_cast<int>(static_cast<long>(tasks) * tid / nt);
       const int t1 = static_cast<int>(static_cast<long>(tasks) * (tid + 1) / nt);
@@ -448,7 +452,8 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
         for (int c0 = g.qa; c0 < q_stop; c0 += kWgChunk) {
           const int c1 = std::min(q_stop, c0 + kWgChunk);
           for (int task = t0; task < t1; ++task) {
-            const int b = task / (ci * 3), c = (task / 3) % ci, kh = task % 3;
+            const int b = c_major ? (task / 3) % blocks : task / (ci * 3);
+            const int c = c_major ? task / (blocks * 3) : (task / 3) % ci, kh = task % 3;
             const int o0 = b * kCB, cb = std::min(kCB, co - o0);
             kWgrad[cb](d_weight, gimg, pimg, g, ci, o0, c, kh, c0, c1);
           }
