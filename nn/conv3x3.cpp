@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/big_alloc.h"
 #include "nn/parallel.h"
 #include "nn/weight_cache.h"
 #include "nn/staged_tile.h"
@@ -134,8 +135,9 @@ struct Buf {
   float* get(std::size_t want) {
     if (want > n) {
       std::free(p);
-      p = static_cast<float*>(std::aligned_alloc(64, ((want * sizeof(float) + 63) / 64) * 64));
-      if (!p) throw std::bad_alloc();
+      p = nullptr;  // a throw below leaves an empty buffer
+      n = 0;
+      p = static_cast<float*>(aligned_storage(want * sizeof(float)));
       n = want;
     }
     return p;

@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/big_alloc.h"
 #include "nn/parallel.h"
 #include "nn/staged_tile.h"
 #include "nn/weight_cache.h"
@@ -88,8 +89,9 @@ struct Buf {
   std::uint32_t* get(std::size_t want) {
     if (want > n) {
       std::free(p);
-      p = static_cast<std::uint32_t*>(std::aligned_alloc(64, ((want * 4 + 63) / 64) * 64));
-      if (!p) throw std::bad_alloc();
+      p = nullptr;  // a throw below leaves an empty buffer
+      n = 0;
+      p = static_cast<std::uint32_t*>(aligned_storage(want * 4));
       n = want;
     }
     return p;

@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "nn/big_alloc.h"
+
 namespace lidarsim::nn {
 
 struct Shape {
@@ -50,9 +52,7 @@ class Tensor {
   // Reallocates only when the element count grows; contents are zeroed.
   void resize(Shape shape) {
     if (shape.numel() > capacity_) {
-      const std::size_t bytes = ((shape.numel() * sizeof(float) + 63) / 64) * 64;
-      data_.reset(static_cast<float*>(std::aligned_alloc(64, bytes ? bytes : 64)));
-      if (!data_) throw std::bad_alloc();
+      data_.reset(static_cast<float*>(detail::aligned_storage(shape.numel() * sizeof(float))));
       capacity_ = shape.numel();
     }
     shape_ = shape;
