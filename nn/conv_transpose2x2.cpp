@@ -92,12 +92,15 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
   // Taps by block: [o / 2][c][2 channels x 4 taps], then the odd channel out [c][4].
   g_taps.resize(static_cast<std::size_t>(ci) * co * 4);
   const int pairs = co / 2;
-  for (int c = 0; c < ci; ++c)
+  // On the team too: serially, the deepest layer's 131K taps kept the other thread waiting
+  // long enough to fall asleep.
+  parallel_for(ci, static_cast<std::size_t>(ci) * co > 4096, [&](long c) {
     for (int o = 0; o < co; ++o) {
       const std::size_t dst = o < 2 * pairs ? (static_cast<std::size_t>(o / 2) * ci + c) * 8 + (o % 2) * 4
                                             : (static_cast<std::size_t>(pairs) * ci * 2 + c) * 4;
       std::copy_n(weight + (static_cast<std::size_t>(c) * co + o) * 4, 4, g_taps.data() + dst);
     }
+  });
   const float* taps = g_taps.data();
   const bool par = 8.0 * n * hw * ci * co > kParallelFlops;
   parallel_for(n * h, par, [&](long task) {
