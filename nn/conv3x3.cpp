@@ -56,10 +56,15 @@ bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_gra
   // 64 x 1024, 1.2-2.3x at 32 x 512: the forward pass of enc1.conv1 and the input gradient of
   // dec0.conv1) and at 32 x 512 and below whatever the output (the input gradient of
   // enc1.conv1, 1.1-2.2x); with 16 outputs at 64 x 1024 direct stays (0.75-1.05x).
+  // Redone again with huge pages (nn/big_alloc.h), in the network (LIDARSIM_PROFILE=cpu, one
+  // thread, batch 4): the forward pass of dec0.conv1 (32 -> 16 at 64 x 1024) took 12.0 ms on
+  // Winograd against 14.6 ms direct, so 32 channels on either side now suffice. 16 -> 16 there
+  // stays direct: its forward gained 0.4 ms, but the input gradient lost 1.4-6 ms (the direct
+  // weight gradient then needs the padded copy as well as the phases).
   const long pixels = static_cast<long>(n) * h * w;
   if (std::min(ci, co) < 16 || pixels < 1024) return false;
   if (weight_grad) return std::min(ci, co) >= 32 && pixels < 65536;
-  return std::min(ci, co) >= 32 || co >= 32 || static_cast<long>(h) * w <= 32 * 512;
+  return std::max(ci, co) >= 32 || static_cast<long>(h) * w <= 32 * 512;
 }
 
 #ifndef __AVX512F__
