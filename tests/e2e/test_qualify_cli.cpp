@@ -197,11 +197,19 @@ TEST_F(QualifyCli, ObjectsNeedsItsModelFile) {
                    "m.json");
 }
 
+TEST_F(QualifyCli, ObjectsRefusesZeroHeldOutSeeds) {
+  const fs::path kt = tracking();
+  const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
+  expect_one_error(run("objects --held-out-seeds 0 --kitti-tracking " + kt.string() + " --model " + model.string() +
+                       " --out " + (dir_ / "out").string()),
+                   "--held-out-seeds");
+}
+
 TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
   const fs::path kt = tracking();
   const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
-  const CliRun r = run("objects --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
-                    (dir_ / "out").string());
+  const CliRun r = run("objects --held-out-seeds 8 --kitti-tracking " + kt.string() + " --model " + model.string() +
+                       " --out " + (dir_ / "out").string());
   ASSERT_EQ(r.code, 0) << r.out;
   std::ifstream in(dir_ / "out" / "report.json");
   const auto j = nlohmann::json::parse(in);
@@ -209,12 +217,24 @@ TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
   EXPECT_GE(j["overall"]["similarity"].get<double>(), 0.0);
   EXPECT_LE(j["overall"]["similarity"].get<double>(), 1.0);
   EXPECT_TRUE(fs::exists(dir_ / "out" / "report.md"));
+  // Held out: every KPI row says model - iid with its interval over held-out tracks.
+  const auto& held = j["held_out_errors"];
+  ASSERT_TRUE(held.contains("kpis")) << held.dump().substr(0, 300);
+  int sure = 0;
+  for (const auto& row : held["kpis"]) {
+    const auto& iv = row["model_minus_iid_interval95"];
+    EXPECT_LT(iv[0].get<double>(), iv[1].get<double>()) << row.dump();
+    EXPECT_GE(row["held_out_tracks"].get<int>(), 2) << row.dump();
+    EXPECT_NEAR(row["model_minus_iid"].get<double>(), row["model"].get<double>() - row["gaussian_iid"].get<double>(), 1e-12);
+    sure += iv[0].get<double>() > 0 || iv[1].get<double>() < 0;
+  }
+  EXPECT_EQ(sure, held["kpis_model_surely_better_than_iid"].get<int>() + held["kpis_model_surely_worse_than_iid"].get<int>());
 }
 
 TEST_F(QualifyCli, ObjectsNestedRunsTheLoopOnEachOuterFoldsFitSequencesOnly) {
   const fs::path kt = tracking(4);  // two per outer fold: the loop's inner split needs two
   const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
-  const CliRun r = run("objects --nested --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
+  const CliRun r = run("objects --nested --held-out-seeds 8 --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
                        (dir_ / "out").string());
   ASSERT_EQ(r.code, 0) << r.out;
   std::ifstream in(dir_ / "out" / "report.json");
