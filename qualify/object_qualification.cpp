@@ -200,7 +200,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
   // shipped model may have been fitted on the very sequences above.
   nlohmann::json held = nlohmann::json::object();
   if (nseq >= 2) {
-    const int kSeeds = held_out_seeds;
+    const int seeds_per_fold = held_out_seeds;
     std::vector<int> idx[2];
     for (int s = 0; s < nseq; ++s) idx[s % 2].push_back(s);
     const sensor::FitOptions fopt;
@@ -264,7 +264,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
         nested_folds.push_back({{"fit", obj::names_of(data, fit)}, {"judge", obj::names_of(data, judge)},
                                 {"terms", terms}});
       }
-      for (int q = 0; q < kSeeds; ++q) {
+      for (int q = 0; q < seeds_per_fold; ++q) {
         const std::uint64_t sd = seed + 1000 * q;
         const auto sm = sensor::resimulate(data.calib, fitted, sd), sg = sensor::resimulate(data.calib, gauss, sd);
         const ObjectSet om = collect_objects(data, judge, &sm, fopt), og = collect_objects(data, judge, &sg, fopt);
@@ -293,7 +293,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
     for (int s : idx[0]) md << " " << data.names[s];
     md << ", judge on";
     for (int s : idx[1]) md << " " << data.names[s];
-    md << ", and the other way round; " << kSeeds << " simulation seeds per fold)\n\n"
+    md << ", and the other way round; " << seeds_per_fold << " simulation seeds per fold)\n\n"
        << "| class | KPI | n measured | held-out tracks | calibrated model | Gaussian iid | model - iid [95%] | ceiling (even vs odd measured) | model / "
           "ceiling |"
        << (have_nested ? " nested loop model | nested - iid [95%] |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
@@ -340,7 +340,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
               {"ceiling", hc / hn},    {"ratio_to_ceiling", hc > 0 ? hs / hc : 0},
               {"kpis_model_beats_iid", beats}, {"kpis_at_0_9_ceiling", at_ceiling}, {"kpi_count", hn},
               {"kpis_model_surely_better_than_iid", surely_better}, {"kpis_model_surely_worse_than_iid", surely_worse},
-              {"seeds", kSeeds},       {"design", "two-fold cross-fit over sequences, both folds pooled"}};
+              {"seeds", seeds_per_fold},       {"design", "two-fold cross-fit over sequences, both folds pooled"}};
       // The mean row closes the table; the summaries follow it.
       md << "| mean | | | | **" << fmt(hs / hn) << "** | " << fmt(hg / hn) << " | | " << fmt(hc / hn) << " | "
          << fmt(hc > 0 ? hs / hc : 0) << " |" << (have_nested ? " " + fmt(hnest / hn) + " | |" : std::string()) << "\n\n"
