@@ -1,5 +1,6 @@
 // `lidar-qualify objects`: the KPI model's simulated detections against the measured ones.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <sstream>
 
@@ -244,6 +245,7 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
         LoopOptions lo;
         lo.shrink_terms = shrink_terms;
         lo.pool_track_spread = pool_track_spread;
+        lo.distribution_seeds = held_out_seeds;
         lo.out_model = out_dir / ("nested_fold_" + std::to_string(k + 1) + "_model.json");
         fs::create_directories(out_dir);
         const nlohmann::json lj = loop_objects(sub, lo);
@@ -264,19 +266,31 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
         nested_folds.push_back({{"fit", obj::names_of(data, fit)}, {"judge", obj::names_of(data, judge)},
                                 {"terms", terms}});
       }
-      for (int q = 0; q < seeds_per_fold; ++q) {
-        const std::uint64_t sd = seed + 1000 * q;
-        const auto sm = sensor::resimulate(data.calib, fitted, sd), sg = sensor::resimulate(data.calib, gauss, sd);
-        const ObjectSet om = collect_objects(data, judge, &sm, fopt), og = collect_objects(data, judge, &sg, fopt);
-        for (int c = 0; c < 3; ++c)
-          for (int t = 0; t < 6; ++t)
-            samples(om, c, t, sim_m[c][t], &track_m[c][t]), samples(og, c, t, sim_g[c][t], &track_g[c][t]);
-        if (run_nested) {
-          const auto sn = sensor::resimulate(data.calib, looped, sd);
-          const ObjectSet on = collect_objects(data, judge, &sn, fopt);
-          for (int c = 0; c < 3; ++c)
-            for (int t = 0; t < 6; ++t) samples(on, c, t, sim_n[c][t], &track_n[c][t]);
+      // Seeds simulated a few at a time in parallel and appended in seed order (the same samples
+      // for any thread count).
+      constexpr int kChunk = 8;
+      std::array<std::vector<ObjectSet>, 3> sets;  // model, iid, nested
+      for (auto& v : sets) v.resize(kChunk);
+      for (int q0 = 0; q0 < seeds_per_fold; q0 += kChunk) {
+        const int n = std::min(kChunk, seeds_per_fold - q0);
+#pragma omp parallel for schedule(dynamic)
+        for (int i = 0; i < n; ++i) {
+          const std::uint64_t sd = seed + 1000 * static_cast<std::uint64_t>(q0 + i);
+          const auto sm = sensor::resimulate(data.calib, fitted, sd), sg = sensor::resimulate(data.calib, gauss, sd);
+          sets[0][i] = collect_objects(data, judge, &sm, fopt);
+          sets[1][i] = collect_objects(data, judge, &sg, fopt);
+          if (run_nested) {
+            const auto sn = sensor::resimulate(data.calib, looped, sd);
+            sets[2][i] = collect_objects(data, judge, &sn, fopt);
+          }
         }
+        for (int i = 0; i < n; ++i)
+          for (int c = 0; c < 3; ++c)
+            for (int t = 0; t < 6; ++t) {
+              samples(sets[0][i], c, t, sim_m[c][t], &track_m[c][t]);
+              samples(sets[1][i], c, t, sim_g[c][t], &track_g[c][t]);
+              if (run_nested) samples(sets[2][i], c, t, sim_n[c][t], &track_n[c][t]);
+            }
       }
     }
     const bool have_nested = !nested_folds.empty();

@@ -136,6 +136,9 @@ struct LoopOptions {
   // The base model's per-track size constants partially pooled across classes (object_folds.h
   // pool_track_spread; the sixth pass, qualify/README.md).
   bool pool_track_spread = false;
+  // Seeds of the re-simulated distribution check that keeps a term per class
+  // (object_distribution.h); fewer is faster and biased against per-track terms.
+  int distribution_seeds = 256;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
