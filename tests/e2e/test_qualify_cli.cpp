@@ -229,6 +229,8 @@ TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
     sure += iv[0].get<double>() > 0 || iv[1].get<double>() < 0;
   }
   EXPECT_EQ(sure, held["kpis_model_surely_better_than_iid"].get<int>() + held["kpis_model_surely_worse_than_iid"].get<int>());
+  EXPECT_EQ(held["plot"], "held_out_vs_iid.png");
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "held_out_vs_iid.png"));
 }
 
 TEST_F(QualifyCli, ObjectsNestedRunsTheLoopOnEachOuterFoldsFitSequencesOnly) {
