@@ -24,7 +24,7 @@ namespace {
 
 const char* kUsage =
     "usage:\n"
-    "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R [--nested]  KPI model vs measured detections\n"
+    "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R [--nested] [--held-out-seeds N]  KPI model vs measured detections\n"
     "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup] [--out-model CK.h5]\n"
@@ -116,6 +116,7 @@ int run(int argc, char** argv) {
     ("rounds", "loop intensity --base lookup: add effects one after another, up to this many rounds", cxxopts::value<int>()->default_value("1"))
     ("min-gain", "loop intensity: smallest held-out MAE cut (share of before) for which an effect is added", cxxopts::value<double>()->default_value("0.05"))
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("held-out-seeds", "objects: simulation seeds per fold and model in the held-out table; loop objects: in its distribution check (fewer: faster, and a model with per-track errors pays Monte Carlo noise)", cxxopts::value<int>()->default_value("256"))
     ("h,help", "this help");
   const auto a = opts.parse(argc - shift, argv + shift);
   if (a.count("help")) {
@@ -124,6 +125,8 @@ int run(int argc, char** argv) {
   }
   if (!a.unmatched().empty()) throw Error("unexpected argument \"" + a.unmatched().front() + "\"");
   const std::uint64_t seed = a["seed"].as<std::uint64_t>();
+  const int held_out_seeds = a["held-out-seeds"].as<int>();
+  if (held_out_seeds < 1) throw Error("--held-out-seeds: expected >= 1, got " + std::to_string(held_out_seeds));
   const std::string shrink_arg = a["term-shrink"].as<std::string>();
   if (shrink_arg != "off" && shrink_arg != "zero" && shrink_arg != "pooled")
     throw Error("--term-shrink: expected off, zero or pooled, got \"" + shrink_arg + "\"");
@@ -136,7 +139,7 @@ int run(int argc, char** argv) {
     const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
     const fs::path out = need(a, "out", "the report folder");
     const auto j = qualify::qualify_objects(data, model, out, seed, a.count("nested") > 0, shrink_terms,
-                                              a.count("pool-track-spread") > 0);
+                                              a.count("pool-track-spread") > 0, held_out_seeds);
     std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
               << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
               << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";
@@ -165,6 +168,7 @@ int run(int argc, char** argv) {
       lo.seed = seed;
       lo.shrink_terms = shrink_terms;
       lo.pool_track_spread = a.count("pool-track-spread") > 0;
+      lo.distribution_seeds = held_out_seeds;
       const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
                                                a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
       j = qualify::loop_objects(data, lo);

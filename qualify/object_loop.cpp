@@ -190,8 +190,8 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       for (int k = 0; k < 2; ++k)
         after_models[k] = with_term_and_noise(current[k], J.refs[k], t, kObjectFeatures[f], nvis, folds[k].fit_r[t],
                                               folds[k].win[t]);
-      const auto before_i = held_out_intersections_all(data, folds, current, dist_seed);
-      const auto after_i = held_out_intersections_all(data, folds, after_models, dist_seed);
+      const auto before_i = held_out_intersections_all(data, folds, current, dist_seed, options.distribution_seeds);
+      const auto after_i = held_out_intersections_all(data, folds, after_models, dist_seed, options.distribution_seeds);
       J.dist_before = before_i[t], J.dist_after = after_i[t];
       // Pooled over both folds: on one fold alone a small class holds too few tracks to judge. The
       // class's own held-out residual must go down too: the re-simulated distribution carries
@@ -430,6 +430,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                     ? "the re-simulated held-out distribution of the KPI got worse for every class"
                     : "the refit did not lower the held-out RMS beyond the track-to-track noise"}};
   j["threshold"] = options.threshold;
+  j["distribution_seeds"] = options.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
       "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "
       "rate_window on detection; spread_table, spread_window on an error's sigma). Each is fitted on a fold's fit "

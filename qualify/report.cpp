@@ -116,6 +116,51 @@ std::string write_histogram_png(const std::filesystem::path& path, const std::ve
          ", plus an overflow bin at each end (grey bands, \"<\" and \">\").";
 }
 
+std::string write_interval_png(const std::filesystem::path& path, const std::vector<IntervalRow>& rows,
+                               const PlotLabels& labels, const std::string& second_name) {
+  const Rgb kBetter{40, 150, 60}, kWorse{200, 40, 40}, kUndecided{140, 140, 140};
+  const int n = static_cast<int>(rows.size());
+  double lo = 0, hi = 0;
+  for (const auto& r : rows) {
+    lo = std::min({lo, r.lo, r.value}), hi = std::max({hi, r.hi, r.value});
+    if (r.has_second) lo = std::min({lo, r.lo2, r.value2}), hi = std::max({hi, r.hi2, r.value2});
+  }
+  if (!(hi > lo)) hi = lo + 1;
+  ChartSpec spec;
+  spec.title = labels.title;
+  spec.x_label = labels.x_label;
+  spec.y_label = labels.y_label;
+  spec.width = 1120, spec.height = std::max(360, 140 + 34 * n);
+  spec.x_lo = lo - 0.05 * (hi - lo), spec.x_hi = hi + 1.1 * (hi - lo);  // room for the legend
+  spec.y_lo = -0.8, spec.y_hi = n - 0.2;
+  // Row i at y = n - 1 - i: the first row on top, as in the table.
+  for (int i = 0; i < n; ++i) spec.y_ticks.push_back({static_cast<double>(n - 1 - i), rows[i].label});
+  Chart chart(spec);
+  chart.line(0, spec.y_lo, 0, spec.y_hi, {0, 0, 0}, 2);
+  auto colour = [&](double a, double b) { return a > 0 ? kBetter : b < 0 ? kWorse : kUndecided; };
+  for (int i = 0; i < n; ++i) {
+    const IntervalRow& r = rows[i];
+    const double y = n - 1 - i;
+    chart.line(r.lo, y, r.hi, y, colour(r.lo, r.hi), 4);
+    chart.marker(r.value, y, colour(r.lo, r.hi), 6);
+    if (r.has_second) {
+      const double y2 = y - 0.3;
+      chart.line(r.lo2, y2, r.hi2, y2, colour(r.lo2, r.hi2), 2);
+      chart.marker(r.value2, y2, colour(r.lo2, r.hi2), 4);
+      chart.marker(r.value2, y2, {255, 255, 255}, 2);
+    }
+  }
+  std::vector<LegendEntry> legend{{"interval above 0", kBetter, Mark::line},
+                                  {"below 0", kWorse, Mark::line},
+                                  {"spans 0", kUndecided, Mark::line}};
+  if (!second_name.empty()) legend.push_back({"thin, open dot: " + second_name, kUndecided, Mark::none});
+  chart.legend(legend);
+  write_png(path, chart.image());
+  return "One row per item: the dot is the difference, the bar its 95% interval, the black line 0; green where the "
+         "interval lies above 0, red below, grey across it" +
+         (second_name.empty() ? std::string(".") : "; the thin bar with an open dot below each row: " + second_name + ".");
+}
+
 std::string write_residual_png(const std::filesystem::path& path, const BinnedTable& t, const std::vector<double>& x,
                                const std::vector<double>& r, const PlotLabels& labels) {
   const int n = static_cast<int>(t.value.size());

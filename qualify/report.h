@@ -40,6 +40,19 @@ std::string write_histogram_png(const std::filesystem::path& path, const std::ve
 std::string write_residual_png(const std::filesystem::path& path, const BinnedTable& table,
                                const std::vector<double>& x, const std::vector<double>& r, const PlotLabels& labels);
 
+// Differences with their intervals, one row per item (a forest plot), for "is A better than B on
+// each KPI": a dot at the difference, a bar over its interval, a line at 0; a row whose interval
+// lies above 0 is green, below 0 red, across 0 grey. Up to two series per row (e.g. a model and
+// its nested variant), the second drawn as an open marker just below the first. Returns the caption.
+struct IntervalRow {
+  std::string label;
+  double value = 0, lo = 0, hi = 0;
+  bool has_second = false;
+  double value2 = 0, lo2 = 0, hi2 = 0;
+};
+std::string write_interval_png(const std::filesystem::path& path, const std::vector<IntervalRow>& rows,
+                               const PlotLabels& labels, const std::string& second_name = "");
+
 // A loop feature as an axis label, with its unit where it has one: "size (box length, m)".
 std::string feature_axis_label(const std::string& feature);
 

@@ -40,6 +40,25 @@ struct Interval {
 Interval bootstrap_intersection(const std::vector<double>& a, const std::vector<double>& b, int bins = kDefaultBins,
                                 int reps = 200, std::uint64_t seed = 1);
 
+// Which of two simulations, a or b, is closer to the measured sample m, with the uncertainty that
+// m holds a finite set of groups (tracks, scans): each sample carries its group. The point
+// estimates are histogram_intersection(a, m) and (b, m), each on its own shared bins as there. The
+// interval is a basic bootstrap 95% interval of their difference over m's groups drawn with
+// replacement, a draw taking the group's measured samples and both simulations' samples for it
+// together (bins kept from the full samples); samples of groups m does not hold are dropped from
+// the resamples. An interval wholly above 0: a is closer on this data; one that spans 0: the
+// data cannot tell them apart. Fewer than two groups: the interval is the point difference.
+struct PairedDifference {
+  double a = 0, b = 0;  // intersections of a and of b with m
+  Interval interval;    // of a - b
+  long groups = 0;
+  double difference() const { return a - b; }
+};
+PairedDifference paired_group_difference(const std::vector<double>& a, const std::vector<long>& group_a,
+                                         const std::vector<double>& b, const std::vector<long>& group_b,
+                                         const std::vector<double>& m, const std::vector<long>& group_m,
+                                         int bins = kDefaultBins, int reps = 1000, std::uint64_t seed = 1);
+
 struct Similarity {
   long n_a = 0, n_b = 0;
   double intersection = 0;

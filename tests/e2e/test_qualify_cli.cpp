@@ -197,11 +197,19 @@ TEST_F(QualifyCli, ObjectsNeedsItsModelFile) {
                    "m.json");
 }
 
+TEST_F(QualifyCli, ObjectsRefusesZeroHeldOutSeeds) {
+  const fs::path kt = tracking();
+  const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
+  expect_one_error(run("objects --held-out-seeds 0 --kitti-tracking " + kt.string() + " --model " + model.string() +
+                       " --out " + (dir_ / "out").string()),
+                   "--held-out-seeds");
+}
+
 TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
   const fs::path kt = tracking();
   const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
-  const CliRun r = run("objects --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
-                    (dir_ / "out").string());
+  const CliRun r = run("objects --held-out-seeds 8 --kitti-tracking " + kt.string() + " --model " + model.string() +
+                       " --out " + (dir_ / "out").string());
   ASSERT_EQ(r.code, 0) << r.out;
   std::ifstream in(dir_ / "out" / "report.json");
   const auto j = nlohmann::json::parse(in);
@@ -209,12 +217,26 @@ TEST_F(QualifyCli, ObjectsReportOnReferenceDataHasOverallSimilarityAndCeiling) {
   EXPECT_GE(j["overall"]["similarity"].get<double>(), 0.0);
   EXPECT_LE(j["overall"]["similarity"].get<double>(), 1.0);
   EXPECT_TRUE(fs::exists(dir_ / "out" / "report.md"));
+  // Held out: every KPI row says model - iid with its interval over held-out tracks.
+  const auto& held = j["held_out_errors"];
+  ASSERT_TRUE(held.contains("kpis")) << held.dump().substr(0, 300);
+  int sure = 0;
+  for (const auto& row : held["kpis"]) {
+    const auto& iv = row["model_minus_iid_interval95"];
+    EXPECT_LT(iv[0].get<double>(), iv[1].get<double>()) << row.dump();
+    EXPECT_GE(row["held_out_tracks"].get<int>(), 2) << row.dump();
+    EXPECT_NEAR(row["model_minus_iid"].get<double>(), row["model"].get<double>() - row["gaussian_iid"].get<double>(), 1e-12);
+    sure += iv[0].get<double>() > 0 || iv[1].get<double>() < 0;
+  }
+  EXPECT_EQ(sure, held["kpis_model_surely_better_than_iid"].get<int>() + held["kpis_model_surely_worse_than_iid"].get<int>());
+  EXPECT_EQ(held["plot"], "held_out_vs_iid.png");
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "held_out_vs_iid.png"));
 }
 
 TEST_F(QualifyCli, ObjectsNestedRunsTheLoopOnEachOuterFoldsFitSequencesOnly) {
   const fs::path kt = tracking(4);  // two per outer fold: the loop's inner split needs two
   const fs::path model = lidarsim::testing::source_dir() / "data" / "models" / "kpi_pointrcnn.json";
-  const CliRun r = run("objects --nested --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
+  const CliRun r = run("objects --nested --held-out-seeds 8 --kitti-tracking " + kt.string() + " --model " + model.string() + " --out " +
                        (dir_ / "out").string());
   ASSERT_EQ(r.code, 0) << r.out;
   std::ifstream in(dir_ / "out" / "report.json");
@@ -242,7 +264,10 @@ TEST(QualifyRealData, BothLoopsRunOnTheMeasuredData) {
   LIDARSIM_REQUIRE_SHARED_DATA(sk, "semantickitti-seq00-sample");
   const fs::path out = fs::temp_directory_path() / ("lidarsim_qcli_real_" + std::to_string(::getpid()));
   fs::create_directories(out);
-  const CliRun a = run("loop objects --kitti-tracking " + kt.string() + " --report " + (out / "o.json").string());
+  // 16 seeds in the distribution check: this test asks that the loop runs and reports, not which
+  // terms it keeps (KpiCalibration's shipped-model test runs it with the default).
+  const CliRun a = run("loop objects --held-out-seeds 16 --kitti-tracking " + kt.string() + " --report " +
+                       (out / "o.json").string());
   ASSERT_EQ(a.code, 0) << a.out;
   expect_loop_keys(out / "o.json", "objects");
   // The lookup base (seconds); the UNet loop on these scans takes ~2 min (qualify/README.md).
