@@ -6,7 +6,10 @@
 // OpenBLAS's own choice of kernels. A 4096^3 fp32 GEMM through Eigen gives the machine's
 // practical peak for context. Where the CPU has AVX-512 BF16, also our bf16 inference
 // (nn/precision.h) at batch 1 and 4, against PyTorch's fp32 inference (the peer) and, as an
-// extra column, PyTorch's own bf16 (torch.autocast on the CPU).
+// extra column, PyTorch's own bf16 (torch.autocast on the CPU). The peer runs once per OpenMP
+// wait policy (--torch-wait-policies, default passive and active) and the fastest run counts per
+// row: our layers spin briefly between regions on their own (nn/parallel.h) whatever the policy
+// says, so the peer gets its best wait policy too.
 #include <omp.h>
 
 #include <Eigen/Core>
@@ -111,9 +114,11 @@ std::string shell_quote(const std::string& s) {
 
 // Runs the PyTorch peer and returns its JSON (the last line it prints on stdout).
 nlohmann::json run_torch(const std::string& python, const std::string& script, int threads, int rows, int cols,
-                         int reps, int warmup, float lambda, const std::string& settings, bool bf16) {
+                         int reps, int warmup, float lambda, const std::string& settings, bool bf16,
+                         const std::string& wait_policy) {
   std::ostringstream cmd;
-  cmd << "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OMP_NUM_THREADS=" << threads << " " << shell_quote(python)
+  cmd << "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OMP_NUM_THREADS=" << threads
+      << " OMP_WAIT_POLICY=" << shell_quote(wait_policy) << " " << shell_quote(python)
       << " " << shell_quote(script) << " --threads " << threads << " --rows " << rows << " --cols " << cols
       << " --reps " << reps << " --warmup " << warmup << " --lam " << lambda << " --settings " << shell_quote(settings)
       << (bf16 ? " --bf16" : "");
@@ -159,6 +164,8 @@ int main(int argc, char** argv) {
        cxxopts::value<std::string>()->default_value(LIDARSIM_SOURCE_DIR "/bench/torch_unet_bench.py"))
       ("torch-settings", "PyTorch settings to try, the fastest counts per row (default, no_onednn, channels_last)",
        cxxopts::value<std::string>()->default_value("default,no_onednn,channels_last"))
+      ("torch-wait-policies", "OMP_WAIT_POLICY values to run the PyTorch peer under, the fastest counts per row",
+       cxxopts::value<std::string>()->default_value("passive,active"))
       ("no-torch", "time only our engine")
       ("no-bf16", "leave out the bf16 inference rows (they need AVX-512 BF16)")
       ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
@@ -244,8 +251,35 @@ int main(int argc, char** argv) {
     nlohmann::json peer;
     const bool with_torch = !opt.count("no-torch");
     if (with_torch) {
-      peer = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads, rows, cols,
-                       reps, warmup, lambda, torch_settings, bf16);
+      // One peer run per wait policy; per row the fastest run's median, minimum and setting, the
+      // setting tagged with its policy (CPU time: the lowest, as across the script's settings).
+      std::stringstream policies(opt["torch-wait-policies"].as<std::string>());
+      std::string policy;
+      while (std::getline(policies, policy, ',')) {
+        if (policy != "passive" && policy != "active")
+          throw Error("--torch-wait-policies: expected passive and/or active, got \"" + policy + "\"");
+        nlohmann::json run = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads,
+                                       rows, cols, reps, warmup, lambda, torch_settings, bf16, policy);
+        const char* rows_of_peer[] = {"train_b1", "train_b4", "infer_b1", "infer_b4", "infer_b1_bf16", "infer_b4_bf16"};
+        for (const std::string k : rows_of_peer)
+          if (run.contains(k + "_setting") && run[k + "_setting"].is_string())
+            run[k + "_setting"] = run[k + "_setting"].get<std::string>() + ", " + policy;
+        if (peer.is_null()) {
+          peer = run;
+          continue;
+        }
+        for (const std::string k : rows_of_peer) {
+          if (!run.contains(k) || !run[k].is_number()) continue;
+          const bool faster = !peer.contains(k) || !peer[k].is_number() || run[k].get<double>() < peer[k].get<double>();
+          double cpu = run.value(k + "_cpu", 0.0);
+          if (peer.contains(k + "_cpu") && peer[k + "_cpu"].is_number()) cpu = std::min(cpu, peer[k + "_cpu"].get<double>());
+          if (faster)
+            for (const std::string& e : {k, k + "_min", k + "_setting"})
+              if (run.contains(e)) peer[e] = run[e];
+          peer[k + "_cpu"] = cpu;
+        }
+      }
+      if (peer.is_null()) throw Error("--torch-wait-policies: no policy given");
       for (Row& row : table) {
         const std::string peer_row = row.bf16 ? row.name.substr(0, row.name.size() - 5) : row.name;  // fp32 peer
         row.torch = {peer.at(peer_row).get<double>(), peer.at(peer_row + "_min").get<double>(),

@@ -96,7 +96,7 @@ lines = []
 lines.append(f"Measured by `scripts/bench.sh` on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC: "
              f"{cpu or 'unknown CPU'}, {ncpu} online CPUs, {u['threads']} threads, load average {load_before} before and "
              f"{load_after} after. Peer: PyTorch {torch.get('torch_version', '?')} in the same run (fastest of its "
-             f"settings per row; libblas.so.3 -> {blas}). Each figure is the median of {rounds} rounds; a round "
+             f"settings and OpenMP wait policies per row; libblas.so.3 -> {blas}). Each figure is the median of {rounds} rounds; a round "
              f"takes the median of {u['reps']} repetitions (engine) and {ps[0]['runs']} runs (pipeline). Ratios: the "
              f"median of the rounds' ratios (each round times ours and PyTorch back to back), their range in brackets.")
 lines.append("")
