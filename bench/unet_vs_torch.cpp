@@ -188,6 +188,17 @@ int main(int argc, char** argv) {
     if (threads < 1) throw Error("--threads: expected >= 1");
     if (rows < 16 || cols < 16) throw Error("--rows/--cols: expected >= 16 (depth 4 halves four times)");
     const std::string torch_settings = opt["torch-settings"].as<std::string>();
+    // Checked before anything is timed: a bad value must not cost a run.
+    std::vector<std::string> wait_policies;
+    {
+      std::stringstream list(opt["torch-wait-policies"].as<std::string>());
+      for (std::string p; std::getline(list, p, ',');) {
+        if (p != "passive" && p != "active")
+          throw Error("--torch-wait-policies: expected passive and/or active, got \"" + p + "\"");
+        wait_policies.push_back(p);
+      }
+      if (wait_policies.empty()) throw Error("--torch-wait-policies: no policy given");
+    }
     omp_set_num_threads(threads);
     const std::string load_before = loadavg();
 
@@ -253,11 +264,7 @@ int main(int argc, char** argv) {
     if (with_torch) {
       // One peer run per wait policy; per row the fastest run's median, minimum and setting, the
       // setting tagged with its policy (CPU time: the lowest, as across the script's settings).
-      std::stringstream policies(opt["torch-wait-policies"].as<std::string>());
-      std::string policy;
-      while (std::getline(policies, policy, ',')) {
-        if (policy != "passive" && policy != "active")
-          throw Error("--torch-wait-policies: expected passive and/or active, got \"" + policy + "\"");
+      for (const std::string& policy : wait_policies) {
         nlohmann::json run = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads,
                                        rows, cols, reps, warmup, lambda, torch_settings, bf16, policy);
         const char* rows_of_peer[] = {"train_b1", "train_b4", "infer_b1", "infer_b4", "infer_b1_bf16", "infer_b4_bf16"};
@@ -279,7 +286,6 @@ int main(int argc, char** argv) {
           peer[k + "_cpu"] = cpu;
         }
       }
-      if (peer.is_null()) throw Error("--torch-wait-policies: no policy given");
       for (Row& row : table) {
         const std::string peer_row = row.bf16 ? row.name.substr(0, row.name.size() - 5) : row.name;  // fp32 peer
         row.torch = {peer.at(peer_row).get<double>(), peer.at(peer_row + "_min").get<double>(),

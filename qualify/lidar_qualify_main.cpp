@@ -116,7 +116,7 @@ int run(int argc, char** argv) {
     ("rounds", "loop intensity --base lookup: add effects one after another, up to this many rounds", cxxopts::value<int>()->default_value("1"))
     ("min-gain", "loop intensity: smallest held-out MAE cut (share of before) for which an effect is added", cxxopts::value<double>()->default_value("0.05"))
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
-    ("held-out-seeds", "objects: simulation seeds per fold and model in the held-out table; loop objects: in its distribution check (fewer: faster, and a model with per-track errors pays Monte Carlo noise)", cxxopts::value<int>()->default_value("256"))
+    ("held-out-seeds", "objects: simulation seeds per fold and model in the held-out table; loop objects: in its distribution check (fewer: faster, and a model with per-track errors pays Monte Carlo noise)", cxxopts::value<int>()->default_value(std::to_string(qualify::kHeldOutSeeds)))
     ("h,help", "this help");
   const auto a = opts.parse(argc - shift, argv + shift);
   if (a.count("help")) {

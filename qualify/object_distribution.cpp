@@ -1,7 +1,5 @@
 #include "qualify/object_distribution.h"
 
-#include <algorithm>
-
 #include "qualify/similarity.h"
 
 namespace lidarsim::qualify::obj {
@@ -18,22 +16,17 @@ std::vector<std::array<double, 3>> held_out_intersections_all(const TrackingData
         for (int t = 0; t < nt; ++t) meas[k][t][r.cls].push_back(r.value[t]);
     opt.range_bin_edges = models[k].range_bin_edges;
     opt.visibility_bin_edges = models[k].visibility_bin_edges;
-    // Seeds are independent: simulated a few at a time in parallel, appended in seed order, so
-    // the samples (and the intersections) do not depend on the thread count.
-    constexpr int kChunk = 8;
-    std::vector<ObjectSet> chunk(kChunk);
-    for (int q0 = 0; q0 < seeds; q0 += kChunk) {
-      const int n = std::min(kChunk, seeds - q0);
-#pragma omp parallel for schedule(dynamic)
-      for (int i = 0; i < n; ++i) {
-        const auto simulated = sensor::resimulate(data.calib, models[k], seed + q0 + i);
-        chunk[i] = collect_objects(data, folds[k].held_idx, &simulated, opt);
-      }
-      for (int i = 0; i < n; ++i)
-        for (const ObjectRecord& r : chunk[i].records)
-          if (r.detected && r.cls >= 0 && r.cls < 3)
-            for (int t = 0; t < nt; ++t) sim[k][t][r.cls].push_back(r.value[t]);
-    }
+    in_seed_order(
+        seeds,
+        [&](int q) {
+          const auto simulated = sensor::resimulate(data.calib, models[k], seed + q);
+          return collect_objects(data, folds[k].held_idx, &simulated, opt);
+        },
+        [&](int, const ObjectSet& s) {
+          for (const ObjectRecord& r : s.records)
+            if (r.detected && r.cls >= 0 && r.cls < 3)
+              for (int t = 0; t < nt; ++t) sim[k][t][r.cls].push_back(r.value[t]);
+        });
   }
   std::vector<std::array<double, 3>> out(nt, {-1, -1, -1});
   for (int t = 0; t < nt; ++t)

@@ -7,6 +7,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "qualify/object_candidates.h"
+#include "qualify/object_distribution.h"
 #include "qualify/object_folds.h"
 #include "qualify/objects.h"
 #include "qualify/report.h"
@@ -266,32 +267,29 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
         nested_folds.push_back({{"fit", obj::names_of(data, fit)}, {"judge", obj::names_of(data, judge)},
                                 {"terms", terms}});
       }
-      // Seeds simulated a few at a time in parallel and appended in seed order (the same samples
-      // for any thread count).
-      constexpr int kChunk = 8;
-      std::array<std::vector<ObjectSet>, 3> sets;  // model, iid, nested
-      for (auto& v : sets) v.resize(kChunk);
-      for (int q0 = 0; q0 < seeds_per_fold; q0 += kChunk) {
-        const int n = std::min(kChunk, seeds_per_fold - q0);
-#pragma omp parallel for schedule(dynamic)
-        for (int i = 0; i < n; ++i) {
-          const std::uint64_t sd = seed + 1000 * static_cast<std::uint64_t>(q0 + i);
-          const auto sm = sensor::resimulate(data.calib, fitted, sd), sg = sensor::resimulate(data.calib, gauss, sd);
-          sets[0][i] = collect_objects(data, judge, &sm, fopt);
-          sets[1][i] = collect_objects(data, judge, &sg, fopt);
-          if (run_nested) {
-            const auto sn = sensor::resimulate(data.calib, looped, sd);
-            sets[2][i] = collect_objects(data, judge, &sn, fopt);
-          }
-        }
-        for (int i = 0; i < n; ++i)
-          for (int c = 0; c < 3; ++c)
-            for (int t = 0; t < 6; ++t) {
-              samples(sets[0][i], c, t, sim_m[c][t], &track_m[c][t]);
-              samples(sets[1][i], c, t, sim_g[c][t], &track_g[c][t]);
-              if (run_nested) samples(sets[2][i], c, t, sim_n[c][t], &track_n[c][t]);
+      // The same samples for any thread count (object_distribution.h in_seed_order).
+      obj::in_seed_order(
+          seeds_per_fold,
+          [&](int q) {
+            const std::uint64_t sd = seed + 1000 * static_cast<std::uint64_t>(q);
+            std::array<ObjectSet, 3> sets;  // model, iid, nested
+            const auto sm = sensor::resimulate(data.calib, fitted, sd), sg = sensor::resimulate(data.calib, gauss, sd);
+            sets[0] = collect_objects(data, judge, &sm, fopt);
+            sets[1] = collect_objects(data, judge, &sg, fopt);
+            if (run_nested) {
+              const auto sn = sensor::resimulate(data.calib, looped, sd);
+              sets[2] = collect_objects(data, judge, &sn, fopt);
             }
-      }
+            return sets;
+          },
+          [&](int, const std::array<ObjectSet, 3>& sets) {
+            for (int c = 0; c < 3; ++c)
+              for (int t = 0; t < 6; ++t) {
+                samples(sets[0], c, t, sim_m[c][t], &track_m[c][t]);
+                samples(sets[1], c, t, sim_g[c][t], &track_g[c][t]);
+                if (run_nested) samples(sets[2], c, t, sim_n[c][t], &track_n[c][t]);
+              }
+          });
     }
     const bool have_nested = !nested_folds.empty();
     double hs = 0, hc = 0, hg = 0, hnest = 0;

@@ -118,10 +118,11 @@ enum class TermShrink { Off, TowardsZero, TowardsPooled };
 // samples are all independent. With 32 seeds that alone cost Cyclist length (23 held-out tracks)
 // 0.03 against iid (0.880 -> 0.899 at 256 seeds, iid 0.911 -> 0.903); 256 makes it small beside
 // the held-out tracks' own uncertainty. Tests pass fewer.
+inline constexpr int kHeldOutSeeds = 256;
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
                                const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
                                TermShrink shrink_terms = TermShrink::Off, bool pool_track_spread = false,
-                               int held_out_seeds = 256);
+                               int held_out_seeds = kHeldOutSeeds);
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
@@ -138,7 +139,7 @@ struct LoopOptions {
   bool pool_track_spread = false;
   // Seeds of the re-simulated distribution check that keeps a term per class
   // (object_distribution.h); fewer is faster and biased against per-track terms.
-  int distribution_seeds = 256;
+  int distribution_seeds = kHeldOutSeeds;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
