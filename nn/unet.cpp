@@ -53,11 +53,13 @@ struct UNet::Workspace {
   ConvIds head;
 
   // LIDARSIM_PROFILE=1: wall time per layer and pass, printed to stderr when the model goes;
-  // LIDARSIM_PROFILE=cpu: process CPU time instead (steadier on a loaded machine, one thread).
+  // LIDARSIM_PROFILE=cpu: process CPU time instead (steadier on a loaded machine, one thread). Both
+  // leave out the first forward and backward pass, whose buffers are new.
   const char* profile_env = std::getenv("LIDARSIM_PROFILE");
   bool profile = profile_env != nullptr;
   bool profile_cpu = profile && std::string(profile_env) == "cpu";
   std::map<std::string, double> seconds;
+  int forwards = 0;  // the first forward and backward allocate (page faults): left out of the profile
   double t0 = 0;
   double now() const {
     if (profile_cpu) {
@@ -71,7 +73,7 @@ struct UNet::Workspace {
     if (profile) t0 = now();
   }
   void toc(const std::string& what) {
-    if (profile) seconds[what] += now() - t0;
+    if (profile && forwards > 1) seconds[what] += now() - t0;
   }
   ~Workspace() {
     if (!profile || seconds.empty()) return;
@@ -185,6 +187,7 @@ void UNet::init(std::uint64_t seed) {
 }
 
 void UNet::forward(const Tensor& x, Tensor& y) {
+  ++ws_->forwards;
   const Shape s = x.shape();
   const int min_size = 1 << config_.depth;
   if (s.c != config_.in_channels)
