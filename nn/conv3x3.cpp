@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "nn/avx512_util.h"
 #include "nn/big_alloc.h"
 #include "nn/parallel.h"
 #include "nn/weight_cache.h"
@@ -43,28 +44,17 @@ Conv3x3Path g_path = read_path_env();
 void set_conv3x3_path(Conv3x3Path path) { g_path = path; }
 Conv3x3Path conv3x3_path() { return g_path; }
 
-bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_grad) {
+bool conv3x3_takes_winograd(int ci, int co) {
   if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
   if (g_path == Conv3x3Path::winograd) return true;
-  // From bench_conv3x3 (unet-ref, batch 1 and 4, CPU time): with 16 channels or fewer on either
-  // side the transforms cost as much as the products they save (0.5-1.1x at 64 x 1024); with few
-  // tiles the 36 transformed weight planes outweigh them (4 x 64, batch 1: 0.35-0.75x); elsewhere
-  // Winograd took 1.2-2.5x less time (forward, input gradient) and 1.1-1.9x (weight gradient,
-  // which keeps every tile's transforms in memory: at 65,536 pixels and more it broke even).
-  // Redone 2026-11-26 with one thread at high priority (steadier than two threads on a loaded
-  // machine): with 16 input channels Winograd wins where the output has 32 or more (1.1-1.3x at
-  // 64 x 1024, 1.2-2.3x at 32 x 512: the forward pass of enc1.conv1 and the input gradient of
-  // dec0.conv1) and at 32 x 512 and below whatever the output (the input gradient of
-  // enc1.conv1, 1.1-2.2x); with 16 outputs at 64 x 1024 direct stays (0.75-1.05x).
-  // Redone again with huge pages (nn/big_alloc.h), in the network (LIDARSIM_PROFILE=cpu, one
-  // thread, batch 4): the forward pass of dec0.conv1 (32 -> 16 at 64 x 1024) took 12.0 ms on
-  // Winograd against 14.6 ms direct, so 32 channels on either side now suffice. 16 -> 16 there
-  // stays direct: its forward gained 0.4 ms, but the input gradient lost 1.4-6 ms (the direct
-  // weight gradient then needs the padded copy as well as the phases).
-  const long pixels = static_cast<long>(n) * h * w;
-  if (std::min(ci, co) < 16 || pixels < 1024) return false;
-  if (weight_grad) return std::min(ci, co) >= 32 && pixels < 65536;
-  return std::max(ci, co) >= 32 || static_cast<long>(h) * w <= 32 * 512;
+  // Measured in the network (LIDARSIM_PROFILE=cpu, one thread, batch 1 and 4), 2026-11-26,
+  // once the weight gradient streamed its tiles (nn/winograd.h): every conv with 16 or more
+  // channels on both sides took less time on Winograd in all its passes, the 64 x 1024 ones
+  // included (16 -> 16 there: forward 1.2-1.6x, backward 1.1-1.3x; the weight gradient alone
+  // 1.8x in bench_conv3x3), with one exception of under 1 % of a step (the 4 x 64 level at
+  // batch 4, 0.5 ms). With fewer channels (the first conv, 4 -> 16) the transforms cost more
+  // than they save (its weight gradient 0.7x).
+  return std::min(ci, co) >= 16;
 }
 
 #ifndef __AVX512F__
@@ -151,32 +141,6 @@ struct Buf {
 };
 
 Buf g_pad_in, g_pad_g, g_wpack, g_sums;
-
-// col[x] lane k = r[k] lane x: the 16 x 16 transpose.
-inline void transpose16(const __m512 r[16], __m512 col[16]) {
-  __m512 t[16], u[16];
-  for (int i = 0; i < 8; ++i) {
-    t[2 * i] = _mm512_unpacklo_ps(r[2 * i], r[2 * i + 1]);
-    t[2 * i + 1] = _mm512_unpackhi_ps(r[2 * i], r[2 * i + 1]);
-  }
-  // u[4 q + j], 128-bit chunk L: rows 4 q .. 4 q + 3 of column 4 L + j.
-  for (int q = 0; q < 4; ++q) {
-    const __m512d a = _mm512_castps_pd(t[4 * q]), b = _mm512_castps_pd(t[4 * q + 2]);
-    const __m512d c = _mm512_castps_pd(t[4 * q + 1]), d = _mm512_castps_pd(t[4 * q + 3]);
-    u[4 * q] = _mm512_castpd_ps(_mm512_unpacklo_pd(a, b));
-    u[4 * q + 1] = _mm512_castpd_ps(_mm512_unpackhi_pd(a, b));
-    u[4 * q + 2] = _mm512_castpd_ps(_mm512_unpacklo_pd(c, d));
-    u[4 * q + 3] = _mm512_castpd_ps(_mm512_unpackhi_pd(c, d));
-  }
-  for (int j = 0; j < 4; ++j) {
-    const __m512 va = _mm512_shuffle_f32x4(u[j], u[4 + j], 0x88), vb = _mm512_shuffle_f32x4(u[j], u[4 + j], 0xDD);
-    const __m512 wa = _mm512_shuffle_f32x4(u[8 + j], u[12 + j], 0x88), wb = _mm512_shuffle_f32x4(u[8 + j], u[12 + j], 0xDD);
-    col[j] = _mm512_shuffle_f32x4(va, wa, 0x88);
-    col[8 + j] = _mm512_shuffle_f32x4(va, wa, 0xDD);
-    col[4 + j] = _mm512_shuffle_f32x4(vb, wb, 0x88);
-    col[12 + j] = _mm512_shuffle_f32x4(vb, wb, 0xDD);
-  }
-}
 
 // The sum of rows [0, rows) of a plane (row stride `stride`, w values each; only where mask > 0
 // when mask is given, same strides), for the bias gradient, in the order it has always been
@@ -319,16 +283,6 @@ void conv_padded(const Cat<float>& out, const float* pin, int n, int in_c, const
   });
 }
 
-// Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
-inline float hsum(__m512 v) {
-  const __m512 t = _mm512_add_ps(v, _mm512_shuffle_f32x4(v, v, 0x4E));
-  const __m256 a = _mm512_castps512_ps256(t);
-  __m128 b = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
-  b = _mm_add_ps(b, _mm_movehl_ps(b, b));
-  b = _mm_add_ss(b, _mm_movehdup_ps(b));
-  return _mm_cvtss_f32(b);
-}
-
 // Weight gradient of CB output channels (from o0), input channel c, kernel row kh over the pixel
 // range [qa, qb): 3 CB dot products of g rows with the shifted input row.
 template <int CB>
@@ -375,7 +329,7 @@ void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, c
 void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
                          const float* weight, const float* bias, int co, bool relu) {
   const int ci = ca + cb;
-  if (conv3x3_takes_winograd(n, ci, co, h, w)) {
+  if (conv3x3_takes_winograd(ci, co)) {
     winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
     return;
   }
@@ -404,8 +358,8 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   const Geom g(h, w);
   const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
-  const bool wino_w = d_weight && conv3x3_takes_winograd(n, ci, co, h, w, true);
-  const bool wino_d = d_a && conv3x3_takes_winograd(n, co, ci, h, w);
+  const bool wino_w = d_weight && conv3x3_takes_winograd(ci, co);
+  const bool wino_d = d_a && conv3x3_takes_winograd(co, ci);
   // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
   // for the direct kernels; with only Winograd ones the bias needs just its sums (same order).
   float* gp = nullptr;

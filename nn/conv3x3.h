@@ -9,15 +9,15 @@ namespace lidarsim::nn::detail {
 bool conv3x3_available();
 
 // Which algorithm the forward pass, the input gradient and the weight gradient take. automatic:
-// Winograd F(4x4, 3x3) (nn/winograd.h) where the per-layer rule measured by bench_conv3x3 says
-// it is faster, direct elsewhere. The first use reads LIDARSIM_CONV3X3
+// Winograd F(4x4, 3x3) (nn/winograd.h) where the rule measured in the network says it is
+// faster, direct elsewhere. The first use reads LIDARSIM_CONV3X3
 // (direct, winograd or auto); tests set the path directly.
 enum class Conv3x3Path { automatic, direct, winograd };
 void set_conv3x3_path(Conv3x3Path path);
 Conv3x3Path conv3x3_path();
-// Whether a conv with ci inputs and co outputs on n images of h x w takes Winograd now, for its
-// forward pass and input gradient or (weight_grad) for its weight gradient.
-bool conv3x3_takes_winograd(int n, int ci, int co, int h, int w, bool weight_grad = false);
+// Whether a conv with ci inputs and co outputs takes Winograd now, in all its passes (its input
+// gradient is the conv co -> ci).
+bool conv3x3_takes_winograd(int ci, int co);
 
 // in [n, ci, h, w], weight [co, ci, 3, 3], bias [co] or null -> out [n, co, h, w].
 void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,

@@ -48,7 +48,7 @@ bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
   if (conv3x3_path() == Conv3x3Path::winograd && winograd_available()) return false;
   // The fp32 rule's 16-channel Winograd layers (enc1.conv1) run faster still in bf16 (1.2-1.3x at
   // batch 4, even at batch 1).
-  if (!conv3x3_takes_winograd(n, ci, co, h, w) || std::min(ci, co) < 32) return true;
+  if (!conv3x3_takes_winograd(ci, co) || std::min(ci, co) < 32) return true;
   // Where the fp32 rule takes Winograd, from bench_conv3x3 --forward-only (unet-ref, batch 1
   // and 4, CPU time): bf16 took 1.6-2.2x less time than the fp32 direct kernel on every layer,
   // and less than Winograd at 1,024 pixels per channel (1.1x, its few tiles) and at 65,536

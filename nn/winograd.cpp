@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <new>
 
+#include "nn/avx512_util.h"
 #include "nn/big_alloc.h"
 #include "nn/parallel.h"
 
@@ -53,8 +54,8 @@ struct Buf {
   ~Buf() { std::free(p); }
 };
 
-Buf g_phase, g_phase_grad, g_u, g_v_all, g_m_all, g_du;
-thread_local Buf tl_v, tl_m;
+Buf g_phase, g_phase_grad, g_u, g_du;
+thread_local Buf tl_v, tl_m, tl_rows;
 
 // Tile geometry. The input is kept "by phase": for each padded row (yy = y + 1) and phase r in
 // 0..3, entry tx holds pixel x = 4 tx + r - 1 (zero outside the image). Input tile (ty, tx)
@@ -99,16 +100,6 @@ inline __mmask16 lane_range(int lo, int hi) {
   hi = std::min(hi, 16);
   if (hi <= lo) return 0;
   return static_cast<__mmask16>(((1u << hi) - 1) & ~((1u << lo) - 1));
-}
-
-// Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
-inline float hsum(__m512 v) {
-  const __m512 t = _mm512_add_ps(v, _mm512_shuffle_f32x4(v, v, 0x4E));
-  const __m256 a = _mm512_castps512_ps256(t);
-  __m128 b = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
-  b = _mm_add_ps(b, _mm_movehl_ps(b, b));
-  b = _mm_add_ss(b, _mm_movehdup_ps(b));
-  return _mm_cvtss_f32(b);
 }
 
 #ifndef LIDARSIM_PHASE_PREFETCH
@@ -425,22 +416,78 @@ inline void grad_tile(float* m, std::size_t e_stride, const float* plane, const 
   }
 }
 
-// du[8][3] = sum over tiles of dM rows o0..o0+7 times V rows c0..c0+2 (lanes = tiles).
-inline void du_block(float* du, int du_stride, const float* dm, const float* v, std::size_t row, std::size_t tiles) {
-  __m512 acc[kCB][3];
-  for (int b = 0; b < kCB; ++b) acc[b][0] = acc[b][1] = acc[b][2] = _mm512_setzero_ps();
-  for (std::size_t t = 0; t < tiles; t += 16) {
-    const __m512 x0 = _mm512_load_ps(v + t), x1 = _mm512_load_ps(v + row + t), x2 = _mm512_load_ps(v + 2 * row + t);
-    for (int b = 0; b < kCB; ++b) {
-      __m512 gv = _mm512_load_ps(dm + b * row + t);
-      asm("" : "+v"(gv));  // one load, three FMAs (as in conv3x3.cpp's weight gradient)
-      acc[b][0] = _mm512_fmadd_ps(gv, x0, acc[b][0]);
-      acc[b][1] = _mm512_fmadd_ps(gv, x1, acc[b][1]);
-      acc[b][2] = _mm512_fmadd_ps(gv, x2, acc[b][2]);
+// The weight gradient streams the tiles in chunks (one image, one tile row, up to T tiles) whose
+// transforms stay in L2. The input tiles are transformed with 16 channels per vector, from a copy
+// of the chunk's 6 input rows with the channels interleaved ([channel group][row][column][16]);
+// the output-gradient tiles with 16 tiles per vector (grad_tile). Per transform element the
+// product is then a GEMM over the chunk's tiles whose result block stays in registers: no
+// horizontal sums and no full-size tile buffers.
+
+// rows [cgs][6][cols][16]: input rows 4 ty - 1 .. 4 ty + 4, columns 4 t0 - 1 + j (j < cols, a
+// multiple of 16), channel 16 group + lane; zeros outside the image and past the last channel.
+void interleave_rows(float* rows, int cols, const PlaneSet& in, int img, const Geom& g, int ty, int t0) {
+  const int ci = in.ca + in.cb, cgs = (ci + 15) / 16;
+  const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
+  const __m512 zero = _mm512_setzero_ps();
+  for (int cg = 0; cg < cgs; ++cg) {
+    const float* planes[16];
+    for (int l = 0; l < 16; ++l) planes[l] = 16 * cg + l < ci ? plane_of(in, img, 16 * cg + l, hw) : nullptr;
+    for (int i = 0; i < 6; ++i) {
+      float* dst = rows + (static_cast<std::size_t>(cg) * 6 + i) * cols * 16;
+      const int y = 4 * ty - 1 + i;
+      if (y < 0 || y >= g.h) {
+        std::fill(dst, dst + static_cast<std::size_t>(cols) * 16, 0.f);
+        continue;
+      }
+      for (int j0 = 0; j0 < cols; j0 += 16) {
+        const int x0 = 4 * t0 - 1 + j0;
+        const __mmask16 k = lane_range(-x0, g.w - x0);
+        __m512 r[16], col[16];
+        for (int l = 0; l < 16; ++l)
+          r[l] = planes[l] && k ? _mm512_maskz_loadu_ps(k, planes[l] + static_cast<std::size_t>(y) * g.w + x0) : zero;
+        transpose16(r, col);
+        for (int p = 0; p < 16; ++p) _mm512_store_ps(dst + static_cast<std::size_t>(j0 + p) * 16, col[p]);
+      }
     }
   }
-  for (int b = 0; b < kCB; ++b)
-    for (int k = 0; k < 3; ++k) du[b * du_stride + k] = hsum(acc[b][k]);
+}
+
+// V[e][16 channels] of chunk tile t from one channel group's interleaved rows (as input_tile,
+// with channels in the lanes instead of tiles).
+inline void input_tile_interleaved(float* v, std::size_t e_stride, const float* rows, int cols, int t) {
+  __m512 tr[6][6];
+  for (int i = 0; i < 6; ++i) {
+    const float* row = rows + (static_cast<std::size_t>(i) * cols + 4 * t) * 16;
+    __m512 x[6];
+    for (int k = 0; k < 6; ++k) x[k] = _mm512_load_ps(row + 16 * k);
+    bt6(x, tr[i]);
+  }
+  for (int bb = 0; bb < 6; ++bb) {
+    __m512 col[6], r[6];
+    for (int i = 0; i < 6; ++i) col[i] = tr[i][bb];
+    bt6(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
+  }
+}
+
+// du[OB rows][16 CV channels] += sum over tiles t < tiles of dm[row][t] v[t][channels]: the
+// OB x CV accumulators stay in registers while the tiles stream past.
+template <int OB, int CV>
+inline void du_block(float* du, std::size_t du_row, const float* dm, std::size_t dm_row, const float* v,
+                     std::size_t v_row, int tiles) {
+  __m512 acc[OB][CV];
+  for (int b = 0; b < OB; ++b)
+    for (int q = 0; q < CV; ++q) acc[b][q] = _mm512_load_ps(du + b * du_row + 16 * q);
+  for (int t = 0; t < tiles; ++t) {
+    __m512 x[CV];
+    for (int q = 0; q < CV; ++q) x[q] = _mm512_load_ps(v + t * v_row + 16 * q);
+    for (int b = 0; b < OB; ++b) {
+      const __m512 gv = _mm512_set1_ps(dm[b * dm_row + t]);
+      for (int q = 0; q < CV; ++q) acc[b][q] = _mm512_fmadd_ps(gv, x[q], acc[b][q]);
+    }
+  }
+  for (int b = 0; b < OB; ++b)
+    for (int q = 0; q < CV; ++q) _mm512_store_ps(du + b * du_row + 16 * q, acc[b][q]);
 }
 
 }  // namespace
@@ -463,7 +510,7 @@ void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n
     run<1>(out, phases, n, ci, g, u, bias, relu);
 }
 
-void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g);
+void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg, int co, int n, const Geom& g);
 
 }  // namespace
 
@@ -483,16 +530,13 @@ void winograd_transform_weights(float* u, const float* weight, int co, int ci, b
 }
 
 namespace {
-// The weight gradient from by-phase copies of the input and of the masked output gradient;
-// returns the latter, which the input gradient reads too.
+// The weight gradient from the input and a by-phase copy of the masked output gradient; returns
+// the latter, which the input gradient reads too.
 const float* weight_grad_via_phases(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n,
                                     int co, const Geom& g) {
-  const int ci = in.ca + in.cb;
-  float* pin = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
-  to_phases(pin, in, nullptr, n, g);
   float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
   to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
-  weight_grad_from_phases(d_weight, pin, ci, pg, co, n, g);
+  weight_grad_streaming(d_weight, in, pg, co, n, g);
   return pg;
 }
 }  // namespace
@@ -511,45 +555,85 @@ void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet&
 
 namespace {
 
-void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const float* pg, int co, int n, const Geom& g) {
+#ifndef LIDARSIM_WG_L2_FLOATS
+#define LIDARSIM_WG_L2_FLOATS 98304
+#endif
+constexpr int kChunkFloats = LIDARSIM_WG_L2_FLOATS;  // a chunk's transformed tiles (V and dM): 384 KB of L2
+constexpr int kMaxSlots = 8;                         // partial sums of the tiles, added in order at the end
+constexpr std::size_t kSlotFloats = std::size_t{1} << 22;  // all slots' partial sums: at most 16 MB
 
-  // Every tile of every image, transformed: V [36][ci3][tiles], dM [36][co8][tiles] (channels
-  // padded to the register block with zero rows; one cache line between elements).
-  const int co8 = (co + kCB - 1) / kCB * kCB, ci3 = (ci + 2) / 3 * 3;
-  const std::size_t tiles = static_cast<std::size_t>(n) * g.th * g.blocks * g.tb;
-  const std::size_t v_e = ci3 * tiles + 16, m_e = co8 * tiles + 16;
-  float* v = g_v_all.get(36 * v_e);
-  float* m = g_m_all.get(36 * m_e);
-  const int vectors = static_cast<int>(tiles / 16);
-  const double flops = 2.0 * 36 * tiles * ci * co;
+void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg, int co, int n, const Geom& g) {
+  const int ci = in.ca + in.cb, cgs = (ci + 15) / 16, ci16 = 16 * cgs;
+  const int co8 = (co + kCB - 1) / kCB * kCB, ob = co8 / kCB;
+  const int span = (g.tw + 15) / 16 * 16;  // tiles per tile row, whole 16-tile vectors
+  const int tile_cap = std::max(16, kChunkFloats / (36 * (ci16 + co8)) / 16 * 16);
+  const int chunk = std::min({span, tile_cap, 128});
+  const int per_row = (span + chunk - 1) / chunk;
+  const long chunks = static_cast<long>(n) * g.th * per_row;
+  // The slots (contiguous runs of chunks, each summed in order into its own partial dU) depend
+  // on the shapes only, so the result does not depend on the thread count. Output-channel parts
+  // (each repeating the cheap input transform) give the deep layers, with few tiles, more tasks.
+  const std::size_t du_floats = static_cast<std::size_t>(36) * co8 * ci16;
+  const int slots = static_cast<int>(
+      std::max<long>(1, std::min<long>({chunks, kMaxSlots, static_cast<long>(kSlotFloats / du_floats)})));
+  const int want = 4 * team_threads();
+  const int parts = slots >= want ? 1 : std::min(ob, (want + slots - 1) / slots);
+  const double flops = 2.0 * 36 * static_cast<double>(chunks) * chunk * ci * co;
+  float* du = g_du.get(slots * du_floats);
+  const int cols = (4 * chunk + 2 + 15) / 16 * 16;
+  const std::size_t v_e = static_cast<std::size_t>(chunk) * ci16 + 16;
+  parallel_shared(slots * parts, flops > 2e6, [&](int tid, int nt, Shares& shares) {
+    float* rows = tl_rows.get(static_cast<std::size_t>(cgs) * 6 * cols * 16);
+    float* v = tl_v.get(36 * v_e);
+    shares.run(tid, nt, [&](long task) {
+      const int s = static_cast<int>(task / parts), p = static_cast<int>(task % parts);
+      const int o0 = kCB * (ob * p / parts), o1 = kCB * (ob * (p + 1) / parts), orows = o1 - o0;
+      const std::size_t m_e = static_cast<std::size_t>(orows) * chunk + 16;
+      float* m = tl_m.get(36 * m_e);
+      float* dus = du + s * du_floats;
+      for (int e = 0; e < 36; ++e) {
+        std::fill(dus + (static_cast<std::size_t>(e) * co8 + o0) * ci16, dus + (static_cast<std::size_t>(e) * co8 + o1) * ci16,
+                  0.f);
+        for (int o = std::max(co, o0); o < o1; ++o)  // the block's rows past the last channel
+          std::fill(m + e * m_e + static_cast<std::size_t>(o - o0) * chunk,
+                    m + e * m_e + static_cast<std::size_t>(o - o0 + 1) * chunk, 0.f);
+      }
+      const long c_begin = chunks * s / slots, c_end = chunks * (s + 1) / slots;
+      for (long c = c_begin; c < c_end; ++c) {
+        const int img = static_cast<int>(c / (static_cast<long>(g.th) * per_row));
+        const int ty = static_cast<int>(c / per_row % g.th), t0 = static_cast<int>(c % per_row) * chunk;
+        const int tiles = std::min(chunk, span - t0);
+        interleave_rows(rows, cols, in, img, g, ty, t0);
+        for (int t = 0; t < tiles; ++t)
+          for (int cg = 0; cg < cgs; ++cg)
+            input_tile_interleaved(v + static_cast<std::size_t>(t) * ci16 + 16 * cg, v_e,
+                                   rows + static_cast<std::size_t>(cg) * 6 * cols * 16, cols, t);
+        for (int o = o0; o < std::min(co, o1); ++o)
+          for (int q = 0; q < tiles; q += 16)
+            grad_tile(m + static_cast<std::size_t>(o - o0) * chunk + q, m_e,
+                      pg + (static_cast<std::size_t>(img) * co + o) * g.plane, g, ty, t0 + q);
+        for (int e = 0; e < 36; ++e)
+          for (int o = o0; o < o1; o += kCB) {
+            float* d = dus + (static_cast<std::size_t>(e) * co8 + o) * ci16;
+            const float* dm = m + e * m_e + static_cast<std::size_t>(o - o0) * chunk;
+            const float* ve = v + e * v_e;
+            int c16 = 0;
+            for (; c16 + 32 <= ci16; c16 += 32) du_block<kCB, 2>(d + c16, ci16, dm, chunk, ve + c16, ci16, tiles);
+            if (c16 < ci16) du_block<kCB, 1>(d + c16, ci16, dm, chunk, ve + c16, ci16, tiles);
+          }
+      }
+    });
+  });
+  // dU = the slots' partial sums, added in slot order.
+  if (slots > 1)
+    parallel_for((du_floats + 1023) / 1024, flops > 2e6, [&](long blk) {
+      const std::size_t i0 = static_cast<std::size_t>(blk) * 1024, i1 = std::min(du_floats, i0 + 1024);
+      for (int s = 1; s < slots; ++s) {
+        const float* src = du + s * du_floats;
+        for (std::size_t i = i0; i < i1; ++i) du[i] += src[i];
+      }
+    });
   const bool par = flops > 2e6;
-  parallel(par, [&](int tid, int nt) {
-    const auto [e_begin, e_end] = static_range(36, tid, nt);
-    for (int e = static_cast<int>(e_begin); e < e_end; ++e) {
-      for (int c = ci; c < ci3; ++c) std::fill(v + e * v_e + c * tiles, v + e * v_e + (c + 1) * tiles, 0.f);
-      for (int o = co; o < co8; ++o) std::fill(m + e * m_e + o * tiles, m + e * m_e + (o + 1) * tiles, 0.f);
-    }
-    const auto [q_begin, q_end] = static_range(vectors, tid, nt);
-    for (int q = static_cast<int>(q_begin); q < q_end; ++q) {
-      const int per_row = g.blocks * g.nv;  // vectors per tile row
-      const int img = q / (g.th * per_row), ty = (q / per_row) % g.th, tx = (q % per_row) * 16;
-      const std::size_t t0 = static_cast<std::size_t>(q) * 16;
-      for (int c = 0; c < ci; ++c)
-        input_tile(v + c * tiles + t0, v_e, pin + (static_cast<std::size_t>(img) * ci + c) * g.plane, g, ty, tx);
-      for (int o = 0; o < co; ++o)
-        grad_tile(m + o * tiles + t0, m_e, pg + (static_cast<std::size_t>(img) * co + o) * g.plane, g, ty, tx);
-    }
-  });
-
-  // dU [36][co8][ci3]: one task per (element, 8 outputs, 3 inputs), each summing all tiles.
-  const int ob = co8 / kCB, cg = ci3 / 3;
-  float* du = g_du.get(static_cast<std::size_t>(36) * co8 * ci3);
-  parallel_for(36 * ob * cg, par, [&](long tl) {
-    const int task = static_cast<int>(tl), e = task / (ob * cg), b = (task / cg) % ob, c3 = task % cg;
-    du_block(du + (static_cast<std::size_t>(e) * co8 + b * kCB) * ci3 + 3 * c3, ci3,
-             m + e * m_e + static_cast<std::size_t>(b) * kCB * tiles, v + e * v_e + static_cast<std::size_t>(3 * c3) * tiles,
-             tiles, tiles);
-  });
 
   // d_weight += G^T dU G per kernel, in double: 8 input channels in the lanes of a double vector
   // (contiguous in dU), each lane doing the scalar sums in their order (multiply, then add; no
@@ -560,12 +644,12 @@ void weight_grad_from_phases(float* d_weight, const float* pin, int ci, const fl
                                      {1.0 / 24, 1.0 / 12, 1.0 / 6},
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6},
                                      {0, 0, 1}};
-  const std::size_t du_e = static_cast<std::size_t>(co8) * ci3;
+  const std::size_t du_e = static_cast<std::size_t>(co8) * ci16;
   const int c_blocks = (ci + 7) / 8;
   parallel_for(co * c_blocks, par, [&](long ocl) {
     const int oc = static_cast<int>(ocl), o = oc / c_blocks, c0 = oc % c_blocks * 8, nc = std::min(8, ci - c0);
     const __mmask8 live = static_cast<__mmask8>(nc == 8 ? 0xff : (1u << nc) - 1);
-    const float* d = du + static_cast<std::size_t>(o) * ci3 + c0;
+    const float* d = du + static_cast<std::size_t>(o) * ci16 + c0;
     __m512d t[6][3];  // dU G
     for (int a = 0; a < 6; ++a) {
       __m512d x[6];

@@ -11,9 +11,12 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
+
+#include <omp.h>
 
 #include "conv_path.h"
 #include "nn/layers.h"
@@ -84,7 +87,7 @@ struct Outputs {
 
 Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
   Conv3x3PathGuard guard(path);
-  EXPECT_EQ(detail::conv3x3_takes_winograd(c.n, c.ci, c.co, c.h, c.w), path == Conv3x3Path::winograd);
+  EXPECT_EQ(detail::conv3x3_takes_winograd(c.ci, c.co), path == Conv3x3Path::winograd);
   const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 1);
   const std::vector<float> w = he_weights(c.co, c.ci, 2);
   std::vector<float> b(static_cast<std::size_t>(c.co));
@@ -128,20 +131,56 @@ Outputs run_cat(const Case& c, int ca, Conv3x3Path path, Tensor* d_b) {
   Outputs r;
   conv2d_cat_forward(r.y, a, b, w.data(), bias.data(), c.co, true);
   const Tensor g = activations(r.y.shape(), 7);
-  conv2d_cat_backward(r.d_in, *d_b, nullptr, nullptr, g, r.y, a, b, w.data(), true);
+  r.d_w.assign(w.size(), 0.f);
+  conv2d_cat_backward(r.d_in, *d_b, r.d_w.data(), nullptr, g, r.y, a, b, w.data(), true);
   return r;
 }
 
-TEST(Winograd, ConcatForwardAndSplitInputGradientMatchDirect) {
+// The weight gradient's 16-channel groups straddle the two buffers when ca is not a multiple of 16.
+TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
   if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
-  for (const Case& c : {Case{2, 10, 6, 7, 9}, Case{1, 32, 16, 9, 66}}) {
+  for (const Case& c : {Case{2, 10, 6, 7, 9}, Case{1, 32, 16, 9, 66}, Case{2, 40, 24, 6, 70}}) {
     Tensor db_direct, db_wino;
     const Outputs direct = run_cat(c, c.ci / 2 - 1, Conv3x3Path::direct, &db_direct);
     const Outputs wino = run_cat(c, c.ci / 2 - 1, Conv3x3Path::winograd, &db_wino);
     EXPECT_LT(compare(wino.y, direct.y).rel(), kTol);
     EXPECT_LT(compare(wino.d_in, direct.d_in).rel(), kTol);
     EXPECT_LT(compare(db_wino, db_direct).rel(), kTol);
+    EXPECT_LT(compare(wino.d_w, direct.d_w).rel(), kTol);
   }
+}
+
+// The weight gradient sums its tiles in slots fixed by the shapes, so 1, 2 and 3 threads give the
+// same bits: on a map with more chunks than slots (and a partial last chunk per row), and on a
+// deep layer with few tiles, where the tasks also split the output channels.
+TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  const int saved = omp_get_max_threads();
+  for (const Case& c : {Case{2, 16, 16, 64, 700}, Case{2, 64, 72, 8, 20}}) {
+    SCOPED_TRACE("ci " + std::to_string(c.ci) + " co " + std::to_string(c.co));
+    const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 21);
+    const Tensor g = activations(Shape{c.n, c.co, c.h, c.w}, 22);
+    std::vector<float> first;
+    for (int threads : {1, 2, 3}) {
+      omp_set_num_threads(threads);
+      std::vector<float> dw(static_cast<std::size_t>(c.co) * c.ci * 9, 0.f);
+      detail::winograd_weight_grad(dw.data(), detail::PlaneSet{x.data(), c.ci}, g.data(), nullptr, c.n, c.h, c.w, c.co);
+      if (first.empty()) {
+        first = dw;
+        // and it is the gradient: against the direct kernel
+        Conv3x3PathGuard guard(Conv3x3Path::direct);
+        std::vector<float> ref(dw.size(), 0.f);
+        const std::vector<float> w = he_weights(c.co, c.ci, 23);
+        Tensor y;
+        conv2d_forward(y, x, w.data(), nullptr, c.co, 3, 1, false);
+        conv2d_backward(nullptr, ref.data(), nullptr, g, y, x, w.data(), 3, 1, false);
+        EXPECT_LT(compare(dw, ref).rel(), kTol);
+      } else {
+        EXPECT_EQ(std::memcmp(first.data(), dw.data(), dw.size() * sizeof(float)), 0) << threads << " threads";
+      }
+    }
+  }
+  omp_set_num_threads(saved);
 }
 
 // The transformed weights against G k G^T evaluated plainly in double (the matrix as fractions,
