@@ -361,13 +361,16 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   const bool wino_w = d_weight && conv3x3_takes_winograd(ci, co);
   const bool wino_d = d_a && conv3x3_takes_winograd(co, ci);
   // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
-  // for the direct kernels; with only Winograd ones the bias needs just its sums (same order).
+  // for the direct kernels; with only Winograd ones the bias needs just its sums (same order),
+  // which the by-phase copy for Winograd's weight gradient also gives.
   float* gp = nullptr;
   float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
-  if ((d_weight && !wino_w) || (d_a && !wino_d)) {
+  const bool needs_gp = (d_weight && !wino_w) || (d_a && !wino_d);
+  float* phase_sums = d_bias && wino_w && !needs_gp ? sums : nullptr;
+  if (needs_gp) {
     gp = g_pad_g.get(g.stride * co * n);
     pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
-  } else if (d_bias) {
+  } else if (d_bias && !phase_sums) {
     const float* mask = relu ? out : nullptr;
     parallel_for(n * co, par, [&](long ch) {
       const std::size_t off = static_cast<std::size_t>(ch) * h * w;
@@ -375,6 +378,12 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     });
   }
 
+  if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
+    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
+                      h, w, weight, co, phase_sums);
+  } else if (wino_w) {
+    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co, phase_sums);
+  }
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
       float acc = 0.f;
@@ -383,14 +392,8 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     }
   }
 
-  if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
-    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
-                      h, w, weight, co);
-    return;
-  }
-  if (wino_w) {
-    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co);
-  } else if (d_weight) {
+  if (wino_w && wino_d) return;
+  if (!wino_w && d_weight) {
     float* pin = g_pad_in.get(g.stride * ci * n);
     pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
     const int blocks = (co + kCB - 1) / kCB;

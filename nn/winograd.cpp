@@ -24,9 +24,9 @@ namespace lidarsim::nn::detail {
 bool winograd_available() { return false; }
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
-void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int) {}
+void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int, float*) {}
 void winograd_backward(const OutPlaneSet&, float*, const PlaneSet&, const float*, const float*, int, int, int,
-                       const float*, int) {}
+                       const float*, int, float*) {}
 void winograd_transform_weights(float*, const float*, int, int, bool) {}
 std::size_t winograd_u_stride(int, int) { return 0; }
 #else
@@ -107,20 +107,89 @@ inline __mmask16 lane_range(int lo, int hi) {
 #endif
 constexpr int kPhasePrefetch = LIDARSIM_PHASE_PREFETCH;  // source floats to prefetch ahead in to_phases (0: none)
 
-// Fills the by-phase layout of every (image, channel) plane, masked when mask is given: 64 source
-// pixels (masked loads outside the row) are split into the 4 phases of 16 tiles by two permutes.
-void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g) {
+// The 64 source pixels of one by-phase piece (row s, tiles tx .. tx + 15; zero outside the row
+// and, with mask, where mask <= 0) into a[4], 16 consecutive pixels each.
+inline void load_piece(__m512 a[4], const float* s, const float* mr, const Geom& g, int tx) {
+  const __m512 zero = _mm512_setzero_ps();
+  if (kPhasePrefetch) {
+    const char* ahead = reinterpret_cast<const char*>(s + 4 * tx + kPhasePrefetch);
+    for (int l = 0; l < 4; ++l) _mm_prefetch(ahead + 64 * l, _MM_HINT_T0);
+    if (mr)
+      for (int l = 0; l < 4; ++l)
+        _mm_prefetch(reinterpret_cast<const char*>(mr + 4 * tx + kPhasePrefetch) + 64 * l, _MM_HINT_T0);
+  }
+  for (int q = 0; q < 4; ++q) {
+    const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
+    __mmask16 k = lane_range(-x, g.w - x);
+    if (mr && k) k &= _mm512_cmp_ps_mask(_mm512_maskz_loadu_ps(k, mr + x), zero, _CMP_GT_OQ);
+    a[q] = k ? _mm512_maskz_loadu_ps(k, s + x) : zero;
+  }
+}
+
+// Splits a piece into the 4 phases of 16 tiles (two permutes) and stores them in a padded row.
+inline void store_phases(float* line, const Geom& g, int tx, const __m512 a[4]) {
+  const __m512i even = _mm512_set_epi32(30, 26, 22, 18, 14, 10, 6, 2, 28, 24, 20, 16, 12, 8, 4, 0);
+  const __m512i odd = _mm512_set_epi32(31, 27, 23, 19, 15, 11, 7, 3, 29, 25, 21, 17, 13, 9, 5, 1);
+  // Lanes 0..7 phase 0 (1), lanes 8..15 phase 2 (3), of pixels 0..31 and 32..63.
+  const __m512 e01 = _mm512_permutex2var_ps(a[0], even, a[1]), e23 = _mm512_permutex2var_ps(a[2], even, a[3]);
+  const __m512 o01 = _mm512_permutex2var_ps(a[0], odd, a[1]), o23 = _mm512_permutex2var_ps(a[2], odd, a[3]);
+  _mm512_storeu_ps(line + tx, _mm512_shuffle_f32x4(e01, e23, 0x44));
+  _mm512_storeu_ps(line + g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0x44));
+  _mm512_storeu_ps(line + 2 * g.len + tx, _mm512_shuffle_f32x4(e01, e23, 0xEE));
+  _mm512_storeu_ps(line + 3 * g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0xEE));
+}
+
+// One plane into the by-phase layout, and its sum (of the masked values) in the plain order of
+// the bias gradient (nn/conv3x3.cpp plane_sum: each row from x = 0 up, the row sums added from
+// y = 0 down; the zeros of the layout's borders change no sum). 16 rows are split side by side,
+// their pieces kept in L1 and transposed so that each row's chain of adds runs in one lane: the
+// plane is read once for both.
+float to_phases_with_sum(float* d, const float* src, const float* m, const Geom& g) {
+  std::fill(d, d + 4 * g.len, 0.f);  // padded row 0
+  std::fill(d + static_cast<std::size_t>(g.h + 1) * 4 * g.len, d + g.plane, 0.f);
+  float total = 0.f;
+  alignas(64) float piece[16][64];
+  for (int y0 = 0; y0 < g.h; y0 += 16) {
+    const int nr = std::min(16, g.h - y0);
+    if (nr < 16) std::fill(&piece[0][0], &piece[0][0] + 16 * 64, 0.f);  // lanes that are dropped
+    __m512 acc = _mm512_setzero_ps();
+    for (int tx = 0; tx < g.len; tx += 16) {
+      for (int r = 0; r < nr; ++r) {
+        const std::size_t y = static_cast<std::size_t>(y0 + r);
+        __m512 a[4];
+        load_piece(a, src + y * g.w, m ? m + y * g.w : nullptr, g, tx);
+        store_phases(d + (y + 1) * 4 * g.len, g, tx, a);
+        for (int q = 0; q < 4; ++q) _mm512_store_ps(piece[r] + 16 * q, a[q]);
+      }
+      for (int q = 0; q < 4; ++q) {
+        __m512 rows[16], col[16];
+        for (int k = 0; k < 16; ++k) rows[k] = _mm512_load_ps(piece[k] + 16 * q);
+        transpose16(rows, col);
+        for (int x = 0; x < 16; ++x) acc = _mm512_add_ps(acc, col[x]);
+      }
+    }
+    alignas(64) float rs[16];
+    _mm512_store_ps(rs, acc);
+    for (int k = 0; k < nr; ++k) total += rs[k];
+  }
+  return total;
+}
+
+// Fills the by-phase layout of every (image, channel) plane, masked when mask is given; with
+// sums, sums[plane] gets each plane's sum as well (to_phases_with_sum).
+void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g, float* sums = nullptr) {
   const int ci = in.ca + in.cb;
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
   const bool par = static_cast<std::size_t>(n) * ci * hw > (1u << 15);
-  const __m512i even = _mm512_set_epi32(30, 26, 22, 18, 14, 10, 6, 2, 28, 24, 20, 16, 12, 8, 4, 0);
-  const __m512i odd = _mm512_set_epi32(31, 27, 23, 19, 15, 11, 7, 3, 29, 25, 21, 17, 13, 9, 5, 1);
-  const __m512 zero = _mm512_setzero_ps();
   parallel_for(n * ci, par, [&](long p) {
     const int img = static_cast<int>(p / ci), ch = static_cast<int>(p % ci);
     const float* src = plane_of(in, img, ch, hw);
     const float* m = mask ? mask + static_cast<std::size_t>(p) * hw : nullptr;
     float* d = dst + static_cast<std::size_t>(p) * g.plane;
+    if (sums) {
+      sums[p] = to_phases_with_sum(d, src, m, g);
+      return;
+    }
     for (int yy = 0; yy < g.rows; ++yy) {
       float* line = d + static_cast<std::size_t>(yy) * 4 * g.len;
       const int y = yy - 1;
@@ -131,27 +200,9 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
       const float* s = src + static_cast<std::size_t>(y) * g.w;
       const float* mr = m ? m + static_cast<std::size_t>(y) * g.w : nullptr;
       for (int tx = 0; tx < g.len; tx += 16) {
-        if (kPhasePrefetch) {
-          const char* ahead = reinterpret_cast<const char*>(s + 4 * tx + kPhasePrefetch);
-          for (int l = 0; l < 4; ++l) _mm_prefetch(ahead + 64 * l, _MM_HINT_T0);
-          if (mr)
-            for (int l = 0; l < 4; ++l)
-              _mm_prefetch(reinterpret_cast<const char*>(mr + 4 * tx + kPhasePrefetch) + 64 * l, _MM_HINT_T0);
-        }
         __m512 a[4];
-        for (int q = 0; q < 4; ++q) {
-          const int x = 4 * tx - 1 + 16 * q;  // pixel of lane 0
-          __mmask16 k = lane_range(-x, g.w - x);
-          if (mr && k) k &= _mm512_cmp_ps_mask(_mm512_maskz_loadu_ps(k, mr + x), zero, _CMP_GT_OQ);
-          a[q] = k ? _mm512_maskz_loadu_ps(k, s + x) : zero;
-        }
-        // Lanes 0..7 phase 0 (1), lanes 8..15 phase 2 (3), of pixels 0..31 and 32..63.
-        const __m512 e01 = _mm512_permutex2var_ps(a[0], even, a[1]), e23 = _mm512_permutex2var_ps(a[2], even, a[3]);
-        const __m512 o01 = _mm512_permutex2var_ps(a[0], odd, a[1]), o23 = _mm512_permutex2var_ps(a[2], odd, a[3]);
-        _mm512_storeu_ps(line + tx, _mm512_shuffle_f32x4(e01, e23, 0x44));
-        _mm512_storeu_ps(line + g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0x44));
-        _mm512_storeu_ps(line + 2 * g.len + tx, _mm512_shuffle_f32x4(e01, e23, 0xEE));
-        _mm512_storeu_ps(line + 3 * g.len + tx, _mm512_shuffle_f32x4(o01, o23, 0xEE));
+        load_piece(a, s, mr, g, tx);
+        store_phases(line, g, tx, a);
       }
     }
   });
@@ -416,12 +467,11 @@ inline void grad_tile(float* m, std::size_t e_stride, const float* plane, const 
   }
 }
 
-// The weight gradient streams the tiles in chunks (one image, one tile row, up to T tiles) whose
-// transforms stay in L2. The input tiles are transformed with 16 channels per vector, from a copy
-// of the chunk's 6 input rows with the channels interleaved ([channel group][row][column][16]);
-// the output-gradient tiles with 16 tiles per vector (grad_tile). Per transform element the
-// product is then a GEMM over the chunk's tiles whose result block stays in registers: no
-// horizontal sums and no full-size tile buffers.
+// The weight gradient streams the tiles in chunks (one image, one tile row, up to 128 tiles): no
+// buffer holds every tile's transforms. The input tiles are transformed with 16 channels per
+// vector, from a copy of the chunk's 6 input rows with the channels interleaved; the
+// output-gradient tiles with 16 tiles per vector (grad_tile). Per transform element the product
+// is then a GEMM over the chunk's tiles whose result block stays in registers: no horizontal sums.
 
 // rows [cgs][6][cols][16]: input rows 4 ty - 1 .. 4 ty + 4, columns 4 t0 - 1 + j (j < cols, a
 // multiple of 16), channel 16 group + lane; zeros outside the image and past the last channel.
@@ -533,32 +583,36 @@ namespace {
 // The weight gradient from the input and a by-phase copy of the masked output gradient; returns
 // the latter, which the input gradient reads too.
 const float* weight_grad_via_phases(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n,
-                                    int co, const Geom& g) {
+                                    int co, const Geom& g, float* sums) {
   float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
-  to_phases(pg, PlaneSet{d_out, co}, mask, n, g);
+  to_phases(pg, PlaneSet{d_out, co}, mask, n, g, sums);
   weight_grad_streaming(d_weight, in, pg, co, n, g);
   return pg;
 }
 }  // namespace
 
 void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
-                          int w, int co) {
-  weight_grad_via_phases(d_weight, in, d_out, mask, n, co, Geom(h, w));
+                          int w, int co, float* sums) {
+  weight_grad_via_phases(d_weight, in, d_out, mask, n, co, Geom(h, w), sums);
 }
 
 void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
-                       const float* mask, int n, int h, int w, const float* weight, int co) {
+                       const float* mask, int n, int h, int w, const float* weight, int co, float* sums) {
   const Geom g(h, w);
-  const float* pg = weight_grad_via_phases(d_weight, in, d_out, mask, n, co, g);
+  const float* pg = weight_grad_via_phases(d_weight, in, d_out, mask, n, co, g, sums);
   conv_from_phases(d_in, pg, co, n, g, weight, true, nullptr, false);
 }
 
 namespace {
 
 #ifndef LIDARSIM_WG_L2_FLOATS
-#define LIDARSIM_WG_L2_FLOATS 98304
+#define LIDARSIM_WG_L2_FLOATS 393216
 #endif
-constexpr int kChunkFloats = LIDARSIM_WG_L2_FLOATS;  // a chunk's transformed tiles (V and dM): 384 KB of L2
+// A chunk's transformed tiles (V and dM) take up to 1.5 MB, more than L2: longer chunks cut the
+// traffic of the partial sums (read and written once per chunk) by more than the tiles' misses
+// cost. One thread, batch-4 step: 0.243-0.246 s with 384 KB, 0.234-0.244 s with 768 KB,
+// 0.231-0.239 s with 1.5 MB, the same with 3 MB.
+constexpr int kChunkFloats = LIDARSIM_WG_L2_FLOATS;
 constexpr int kMaxSlots = 8;                         // partial sums of the tiles, added in order at the end
 constexpr std::size_t kSlotFloats = std::size_t{1} << 22;  // all slots' partial sums: at most 16 MB
 

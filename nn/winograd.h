@@ -34,9 +34,10 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
 
 // Both gradients of that conv at once: adds the weight gradient to d_weight (winograd_weight_grad)
 // and writes the input gradient to d_in (winograd_conv3x3 with transpose_flip, weight
-// [co, ci, 3, 3]), bringing the masked d_out into the by-phase layout once for both.
+// [co, ci, 3, 3]), bringing the masked d_out into the by-phase layout once for both. sums as in
+// winograd_weight_grad.
 void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
-                       const float* mask, int n, int h, int w, const float* weight, int co);
+                       const float* mask, int n, int h, int w, const float* weight, int co, float* sums = nullptr);
 
 // The transformed weights U = G k G^T that winograd_conv3x3 multiplies with, for tests: packed
 // [36 transform elements][ceil(co / 8)][ci][8 output channels] (zeros past the last one), the
@@ -48,8 +49,10 @@ void winograd_transform_weights(float* u, const float* weight, int co, int ci, b
 // (masked where mask > 0 when mask is given) against in [n, ci, h, w], through the transposed
 // algorithm: the transformed output gradient (A dY A^T) times the transformed input tiles
 // (B^T d B), summed over all tiles per transform element, then G^T (.) G. The tile sums run in
-// a fixed order, so the result does not depend on the thread count.
+// a fixed order, so the result does not depend on the thread count. With sums, sums[img co + o]
+// also gets the sum of each (masked) d_out plane in the bias gradient's plain order (each row
+// from x = 0 up, the rows from y = 0 down), read in the same pass.
 void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
-                          int w, int co);
+                          int w, int co, float* sums = nullptr);
 
 }  // namespace lidarsim::nn::detail
