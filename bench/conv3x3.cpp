@@ -3,7 +3,8 @@
 // (ReLU-masked by the direct forward's output), median process CPU time per call over --reps (--wall: wall time),
 // with the CPU time of the whole run and the load average, and the largest
 // difference between the two paths relative to the largest output. The automatic rule in
-// nn/conv3x3.cpp (conv3x3_takes_winograd) comes from this table. Where the CPU has AVX-512 BF16,
+// nn/conv3x3.cpp (conv3x3_takes_winograd) came from this table, and from the same split measured
+// in the network (LIDARSIM_PROFILE=cpu). Where the CPU has AVX-512 BF16,
 // also the bf16 inference kernel's forward pass (nn/conv3x3_bf16.h): its time, its speed-up over
 // the fp32 direct and Winograd forward passes, and its difference from the direct output; the
 // rule conv3x3_takes_bf16 comes from these columns.

@@ -306,6 +306,17 @@ inline void at6(const __m512 m[6], __m512 y[4]) {
   y[3] = _mm512_add_ps(_mm512_fmadd_ps(_mm512_set1_ps(8.f), d34, d12), m[5]);
 }
 
+// The input transform's second step: B^T down the columns of the row-transformed tile t, each
+// of the 36 elements stored e_stride floats apart.
+inline void bt_columns_store(float* v, std::size_t e_stride, const __m512 t[6][6]) {
+  for (int bb = 0; bb < 6; ++bb) {
+    __m512 col[6], r[6];
+    for (int i = 0; i < 6; ++i) col[i] = t[i][bb];
+    bt6(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
+  }
+}
+
 // V[e][c][16 lanes] for one 16-tile vector of channel c: tile row ty, first tile tx.
 inline void input_tile(float* v, std::size_t e_stride, const float* plane, const Geom& g, int ty, int tx) {
   __m512 t[6][6];
@@ -315,12 +326,7 @@ inline void input_tile(float* v, std::size_t e_stride, const float* plane, const
     for (int k = 0; k < 6; ++k) x[k] = _mm512_loadu_ps(row + (k & 3) * g.len + (k >> 2));
     bt6(x, t[i]);
   }
-  for (int bb = 0; bb < 6; ++bb) {
-    __m512 col[6], r[6];
-    for (int i = 0; i < 6; ++i) col[i] = t[i][bb];
-    bt6(col, r);
-    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
-  }
+  bt_columns_store(v, e_stride, t);
 }
 
 // M[co block rows][tb] = U[block][ci][kCB]^T V[ci][tb] for one transform element.
@@ -512,12 +518,7 @@ inline void input_tile_interleaved(float* v, std::size_t e_stride, const float* 
     for (int k = 0; k < 6; ++k) x[k] = _mm512_load_ps(row + 16 * k);
     bt6(x, tr[i]);
   }
-  for (int bb = 0; bb < 6; ++bb) {
-    __m512 col[6], r[6];
-    for (int i = 0; i < 6; ++i) col[i] = tr[i][bb];
-    bt6(col, r);
-    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
-  }
+  bt_columns_store(v, e_stride, tr);
 }
 
 // du[OB rows][16 CV channels] += sum over tiles t < tiles of dm[row][t] v[t][channels]: the
