@@ -51,9 +51,9 @@ bool conv3x3_takes_winograd(int ci, int co) {
   // once the weight gradient streamed its tiles (nn/winograd.h): every conv with 16 or more
   // channels on both sides took less time on Winograd in all its passes, the 64 x 1024 ones
   // included (16 -> 16 there: forward 1.2-1.6x, backward 1.1-1.3x; the weight gradient alone
-  // 1.8x in bench_conv3x3), with one exception of under 1 % of a step (the 4 x 64 level at
-  // batch 4, 0.5 ms). With fewer channels (the first conv, 4 -> 16) the transforms cost more
-  // than they save (its weight gradient 0.7x).
+  // 1.6-1.8x in bench_conv3x3), with one exception of 0.5 % of a step (the 4 x 64 level at
+  // batch 4: 1.2 ms more of a 240 ms one-thread step). With fewer channels (the first conv,
+  // 4 -> 16) the transforms cost more than they save (its weight gradient 0.7x).
   return std::min(ci, co) >= 16;
 }
 
