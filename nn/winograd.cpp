@@ -634,10 +634,11 @@ void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg,
   const int want = 4 * team_threads();
   const int parts = slots >= want ? 1 : std::min(ob, (want + slots - 1) / slots);
   const double flops = 2.0 * 36 * static_cast<double>(chunks) * chunk * ci * co;
+  const bool par = flops > 2e6;
   float* du = g_du.get(slots * du_floats);
   const int cols = (4 * chunk + 2 + 15) / 16 * 16;
   const std::size_t v_e = static_cast<std::size_t>(chunk) * ci16 + 16;
-  parallel_shared(slots * parts, flops > 2e6, [&](int tid, int nt, Shares& shares) {
+  parallel_shared(slots * parts, par, [&](int tid, int nt, Shares& shares) {
     float* rows = tl_rows.get(static_cast<std::size_t>(cgs) * 6 * cols * 16);
     float* v = tl_v.get(36 * v_e);
     shares.run(tid, nt, [&](long task) {
@@ -681,14 +682,13 @@ void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg,
   });
   // dU = the slots' partial sums, added in slot order.
   if (slots > 1)
-    parallel_for((du_floats + 1023) / 1024, flops > 2e6, [&](long blk) {
+    parallel_for((du_floats + 1023) / 1024, par, [&](long blk) {
       const std::size_t i0 = static_cast<std::size_t>(blk) * 1024, i1 = std::min(du_floats, i0 + 1024);
       for (int s = 1; s < slots; ++s) {
         const float* src = du + s * du_floats;
         for (std::size_t i = i0; i < i1; ++i) du[i] += src[i];
       }
     });
-  const bool par = flops > 2e6;
 
   // d_weight += G^T dU G per kernel, in double: 8 input channels in the lanes of a double vector
   // (contiguous in dU), each lane doing the scalar sums in their order (multiply, then add; no

@@ -69,51 +69,60 @@ TEST(Similarity, BootstrapIntervalIsReproducibleAndBracketsTheEstimate) {
 }
 
 namespace {
-// Measured-style data: `groups` groups (tracks) of `per` samples, each group offset by its own
-// N(0, spread) draw plus N(0, 0.3) noise; returns values and group ids.
-void grouped(SplitMix& rng, int groups, int per, double spread, double shift, std::vector<double>& v,
-             std::vector<long>& g, long first_id = 0) {
+// Values with their group (track) ids.
+struct Grouped {
+  std::vector<double> v;
+  std::vector<long> g;
+};
+// Measured-style data: `groups` groups of `per` samples, each group offset by its own
+// N(0, spread) draw plus N(0, 0.3) noise, shifted by `shift`; appended to `out`.
+void add_groups(SplitMix& rng, int groups, int per, double spread, double shift, Grouped& out) {
   for (int k = 0; k < groups; ++k) {
     const double offset = spread * rng.normal();
-    for (int i = 0; i < per; ++i) v.push_back(shift + offset + 0.3 * rng.normal()), g.push_back(first_id + k);
+    for (int i = 0; i < per; ++i) out.v.push_back(shift + offset + 0.3 * rng.normal()), out.g.push_back(k);
   }
 }
+Grouped measured(SplitMix& rng, int groups, int per, double spread) {
+  Grouped m;
+  add_groups(rng, groups, per, spread, 0, m);
+  return m;
+}
 // A simulation for the same groups: `seeds` fresh draws of every group (ids 0..groups-1).
-void simulated(SplitMix& rng, int groups, int per, int seeds, double spread, double shift, std::vector<double>& v,
-               std::vector<long>& g) {
-  for (int s = 0; s < seeds; ++s) grouped(rng, groups, per, spread, shift, v, g);
+Grouped simulated(SplitMix& rng, int groups, int per, int seeds, double spread, double shift) {
+  Grouped s;
+  for (int q = 0; q < seeds; ++q) add_groups(rng, groups, per, spread, shift, s);
+  return s;
+}
+PairedDifference paired(const Grouped& a, const Grouped& b, const Grouped& m) {
+  return paired_group_difference(a.v, a.g, b.v, b.g, m.v, m.g);
 }
 }  // namespace
 
 TEST(Similarity, PairedGroupDifferenceKeepsTheIntersectionsAsPointEstimates) {
   SplitMix rng(21);
-  std::vector<double> a, b, m;
-  std::vector<long> ga, gb, gm;
-  grouped(rng, 20, 30, 0.5, 0, m, gm);
-  simulated(rng, 20, 30, 8, 0.5, 0, a, ga);
-  simulated(rng, 20, 30, 8, 0.5, 0.4, b, gb);
-  const PairedDifference d = paired_group_difference(a, ga, b, gb, m, gm);
-  EXPECT_DOUBLE_EQ(d.a, histogram_intersection(a, m));
-  EXPECT_DOUBLE_EQ(d.b, histogram_intersection(b, m));
+  const Grouped m = measured(rng, 20, 30, 0.5);
+  const Grouped a = simulated(rng, 20, 30, 8, 0.5, 0);
+  const Grouped b = simulated(rng, 20, 30, 8, 0.5, 0.4);
+  const PairedDifference d = paired(a, b, m);
+  EXPECT_DOUBLE_EQ(d.a, histogram_intersection(a.v, m.v));
+  EXPECT_DOUBLE_EQ(d.b, histogram_intersection(b.v, m.v));
   EXPECT_EQ(d.groups, 20);
-  const PairedDifference again = paired_group_difference(a, ga, b, gb, m, gm);
+  const PairedDifference again = paired(a, b, m);
   EXPECT_EQ(d.interval.lo, again.interval.lo);  // fixed seed: reproducible
   EXPECT_EQ(d.interval.hi, again.interval.hi);
-  const std::vector<long> short_ids(ga.begin(), ga.end() - 1);
-  EXPECT_THROW(paired_group_difference(a, short_ids, b, gb, m, gm), lidarsim::Error);
+  const std::vector<long> short_ids(a.g.begin(), a.g.end() - 1);
+  EXPECT_THROW(paired_group_difference(a.v, short_ids, b.v, b.g, m.v, m.g), lidarsim::Error);
 }
 
 TEST(Similarity, PairedGroupDifferenceIsSureOfAShiftAndNotOfTwoDrawsOfOneModel) {
   SplitMix rng(22);
-  std::vector<double> m, right, again, shifted;
-  std::vector<long> gm, gr, ga, gs;
-  grouped(rng, 40, 25, 0.5, 0, m, gm);
-  simulated(rng, 40, 25, 16, 0.5, 0, right, gr);
-  simulated(rng, 40, 25, 16, 0.5, 0, again, ga);
-  simulated(rng, 40, 25, 16, 0.5, 0.6, shifted, gs);
-  const PairedDifference sure = paired_group_difference(right, gr, shifted, gs, m, gm);
+  const Grouped m = measured(rng, 40, 25, 0.5);
+  const Grouped right = simulated(rng, 40, 25, 16, 0.5, 0);
+  const Grouped again = simulated(rng, 40, 25, 16, 0.5, 0);
+  const Grouped shifted = simulated(rng, 40, 25, 16, 0.5, 0.6);
+  const PairedDifference sure = paired(right, shifted, m);
   EXPECT_GT(sure.interval.lo, 0) << sure.difference();
-  const PairedDifference same = paired_group_difference(right, gr, again, ga, m, gm);
+  const PairedDifference same = paired(right, again, m);
   EXPECT_LT(same.interval.lo, 0);
   EXPECT_GT(same.interval.hi, 0);
 }
@@ -122,18 +131,17 @@ TEST(Similarity, PairedGroupDifferenceResamplesWholeGroups) {
   // The same measured values, once labelled by their 6 real groups and once each its own group:
   // with lumpy groups the group bootstrap must be the wider (fewer independent draws).
   SplitMix rng(23);
-  std::vector<double> m, a, b;
-  std::vector<long> gm, ga, gb;
-  grouped(rng, 6, 80, 0.8, 0, m, gm);
-  simulated(rng, 6, 80, 16, 0.8, 0, a, ga);
-  simulated(rng, 6, 80, 16, 0.8, 0.3, b, gb);
-  std::vector<long> own_m(m.size()), own_a(a.size()), own_b(b.size());
-  for (size_t i = 0; i < m.size(); ++i) own_m[i] = static_cast<long>(i);
-  // Simulated samples follow the measured sample at the same place in their group's block.
-  for (size_t i = 0; i < a.size(); ++i) own_a[i] = static_cast<long>(i % m.size());
-  for (size_t i = 0; i < b.size(); ++i) own_b[i] = static_cast<long>(i % m.size());
-  const PairedDifference by_group = paired_group_difference(a, ga, b, gb, m, gm);
-  const PairedDifference by_sample = paired_group_difference(a, own_a, b, own_b, m, own_m);
+  const Grouped m = measured(rng, 6, 80, 0.8);
+  const Grouped a = simulated(rng, 6, 80, 16, 0.8, 0);
+  const Grouped b = simulated(rng, 6, 80, 16, 0.8, 0.3);
+  // Each sample its own group; simulated samples follow the measured sample at the same place in
+  // their group's block.
+  Grouped own_m = m, own_a = a, own_b = b;
+  for (size_t i = 0; i < m.v.size(); ++i) own_m.g[i] = static_cast<long>(i);
+  for (size_t i = 0; i < a.v.size(); ++i) own_a.g[i] = static_cast<long>(i % m.v.size());
+  for (size_t i = 0; i < b.v.size(); ++i) own_b.g[i] = static_cast<long>(i % m.v.size());
+  const PairedDifference by_group = paired(a, b, m);
+  const PairedDifference by_sample = paired(own_a, own_b, own_m);
   EXPECT_DOUBLE_EQ(by_group.difference(), by_sample.difference());
   EXPECT_GT(by_group.interval.hi - by_group.interval.lo, 1.5 * (by_sample.interval.hi - by_sample.interval.lo));
 }
