@@ -14,11 +14,13 @@
 # default 5), --rounds N (default 3), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
 # --no-build (use the benches already built, e.g. while another build runs in the same tree);
 # anything after -- goes to bench_unet_vs_torch (e.g. -- --threads 2).
+# --long runs the statistical campaigns instead (the tests labelled long, tests/CMakeLists.txt:
+# minutes each, never part of scripts/test.sh; docs/testing.md) and nothing else.
 # Run on an otherwise idle machine: the numbers are medians, but a busy CPU still skews them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-reps=7 runs=5 rounds=3 growth=0 write_readme=0 build=1 out=""
+reps=7 runs=5 rounds=3 growth=0 write_readme=0 build=1 out="" long=0
 extra=()
 while (($#)); do
   case "$1" in
@@ -29,10 +31,16 @@ while (($#)); do
     --write-readme) write_readme=1; shift ;;
     --no-build) build=0; shift ;;
     --out) out=$2; shift 2 ;;
+    --long) long=1; shift ;;
     --) shift; extra=("$@"); break ;;
     *) echo "bench.sh: unknown option $1 (see the comment at the top)" >&2; exit 2 ;;
   esac
 done
+
+if ((long)); then
+  ((build)) && scripts/bootstrap.sh
+  exec ctest --test-dir "${LIDARSIM_BUILD_DIR:-build}" --output-on-failure -L long --timeout 3600
+fi
 
 packages=(python3-torch python3-h5py libopenblas0-openmp)
 missing=()

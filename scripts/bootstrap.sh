@@ -1,34 +1,59 @@
 #!/usr/bin/env bash
 # Install what lidarsim needs (Debian packages, only those missing), configure and build.
+#   scripts/bootstrap.sh                  install, configure, build everything
+#   scripts/bootstrap.sh --install        install only
+#   scripts/bootstrap.sh --build [T ...]  configure and build only; with targets, only those
+#                                         (and what they need), e.g. `--build lidar-infer`
 # Idempotent: a second run installs nothing and rebuilds only what changed.
+# LIDARSIM_BUILD_DIR picks the build folder (default build), LIDARSIM_CMAKE_ARGS adds settings
+# (e.g. the sanitizer build of scripts/test.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# openmpi-bin, libopenmpi-dev: optional, they turn on `mpirun -np N lidar-train` (LIDARSIM_MPI).
-packages=(cmake g++ make libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev libgmock-dev
-          nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev
-          openmpi-bin libopenmpi-dev)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  echo "bootstrap: installing ${missing[*]}" >&2
-  sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-  "${sudo_cmd[@]}" apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+install=1 build=1 targets=()
+case "${1:-}" in
+  --install) build=0; shift ;;
+  --build) install=0; shift; targets=("$@") ;;
+  "") ;;
+  *) echo "bootstrap.sh: unknown option $1 (see the comment at the top)" >&2; exit 2 ;;
+esac
+
+if ((install)); then
+  # ninja-build: schedules the build better than make and prints one progress line;
+  # ccache: a rebuild in another checkout of the same tree is nearly free (neither is required).
+  # openmpi-bin, libopenmpi-dev: optional, they turn on `mpirun -np N lidar-train` (LIDARSIM_MPI).
+  packages=(cmake g++ make ninja-build ccache libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev
+            libgmock-dev nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev
+            openmpi-bin libopenmpi-dev)
+  missing=()
+  for p in "${packages[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if ((${#missing[@]})); then
+    echo "bootstrap: installing ${missing[*]}" >&2
+    sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+    "${sudo_cmd[@]}" apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  fi
 fi
+((build)) || exit 0
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
-# ccache, where installed, makes rebuilds in other checkouts of the same tree nearly free.
-# Paths below the source folder enter ccache's keys relative to it (CCACHE_BASEDIR), so a clone
-# elsewhere (CI) gets hits too.
-launcher=()
-if command -v ccache >/dev/null; then
-  launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
-  export CCACHE_BASEDIR=$PWD
+settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release})
+# A folder configured before keeps its generator (CMake refuses to switch); a new one takes Ninja
+# where it is installed.
+if [ ! -f "$build_dir/CMakeCache.txt" ] && command -v ninja >/dev/null; then
+  settings+=(-G Ninja)
 fi
-# LIDARSIM_CMAKE_ARGS: extra settings, e.g. the sanitizer build of scripts/test.sh.
+if command -v ccache >/dev/null; then
+  settings+=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+  # Paths below the source folder enter ccache's keys relative to it, so a clone elsewhere (CI)
+  # gets hits too; the sloppiness lets ccache cache files compiled with a precompiled header.
+  export CCACHE_BASEDIR=$PWD
+  export CCACHE_SLOPPINESS=pch_defines,time_macros,include_file_mtime,include_file_ctime
+fi
 read -r -a extra <<< "${LIDARSIM_CMAKE_ARGS:-}"
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} "${launcher[@]}" "${extra[@]}" >/dev/null
-cmake --build "$build_dir" -j"$(nproc)"
+cmake -S . -B "$build_dir" "${settings[@]}" "${extra[@]}" >/dev/null
+target_args=()
+((${#targets[@]})) && target_args=(--target "${targets[@]}")
+cmake --build "$build_dir" -j"$(nproc)" "${target_args[@]}"

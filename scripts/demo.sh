@@ -4,7 +4,15 @@
 #   scripts/demo.sh [OUT_DIR]        (default out/demo; LIDARSIM_BUILD_DIR picks the build folder)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scripts/bootstrap.sh
+start=$(date +%s)
+scripts/bootstrap.sh --install
+installed=$(date +%s)
+# Only the command the demo runs and the libraries under it; scripts/test.sh builds the tests and
+# scripts/bench.sh the benchmarks. Ninja prints [done/total] per compiled file.
+echo "demo: building lidar-infer (the first time takes a few minutes on 2 cores)" >&2
+scripts/bootstrap.sh --build lidar-infer
+built=$(date +%s)
+echo "demo: packages $((installed - start)) s, build $((built - installed)) s" >&2
 build_dir=${LIDARSIM_BUILD_DIR:-build}
 out=${1:-out/demo}
 mkdir -p "$out"

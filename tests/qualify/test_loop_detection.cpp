@@ -86,7 +86,7 @@ std::array<double, 2> simulated_sector_rates(const qualify::TrackingData& data, 
 
 }  // namespace
 
-TEST(LoopDetection, NamesAzimuthDropoutOnDetectionAddsItToTheKpiModelAndReproducesTheSectorRate) {
+TEST(LoopDetectionStatistical, NamesAzimuthDropoutOnDetectionAddsItToTheKpiModelAndReproducesTheSectorRate) {
   const LoopRun run = loop_on(data::ObjectEffect::AzimuthDropout);
   const nlohmann::json& j = run.report;
   std::cout << "  ranking " << j["ranking"].dump().substr(0, 240) << "\n  before " << j["before"] << " after "
@@ -137,7 +137,7 @@ TEST(LoopDetection, NamesAzimuthDropoutOnDetectionAddsItToTheKpiModelAndReproduc
   EXPECT_NEAR(refitted[1], measured[1], 0.05);
 }
 
-TEST(LoopDetection, ControlWithoutHiddenEffectWritesNoTerm) {
+TEST(LoopDetectionStatistical, ControlWithoutHiddenEffectWritesNoTerm) {
   const LoopRun run = loop_on(data::ObjectEffect::None);
   const nlohmann::json& j = run.report;
   std::cout << "  control ranking " << j["ranking"].dump().substr(0, 160) << "\n";

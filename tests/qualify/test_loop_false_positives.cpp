@@ -69,7 +69,7 @@ bool any_fp_table(const sensor::KpiModel& m) {
 
 }  // namespace
 
-TEST(LoopFalsePositives, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsTheHeldOutRateErrorAndIsPlaced) {
+TEST(LoopFalsePositivesStatistical, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsTheHeldOutRateErrorAndIsPlaced) {
   const LoopRun run = loop_on(data::ObjectEffect::FalsePositiveHotspot, 4, 48, 0.6, true);
   const nlohmann::json& fp = run.report["false_positives"];
   print(fp);
@@ -105,14 +105,14 @@ TEST(LoopFalsePositives, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsTheHeldOutRa
   EXPECT_TRUE(run.report["added_effect"].is_null()) << run.report["ranking"].dump();
 }
 
-TEST(LoopFalsePositives, ControlWithoutHotspotAddsNoTable) {
+TEST(LoopFalsePositivesStatistical, ControlWithoutHotspotAddsNoTable) {
   const LoopRun run = loop_on(data::ObjectEffect::None, 4, 48, 0.6, true);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());
   EXPECT_FALSE(any_fp_table(run.model));
 }
 
-TEST(LoopFalsePositives, ControlWithTwoSequencesAddsNoTable) {
+TEST(LoopFalsePositivesStatistical, ControlWithTwoSequencesAddsNoTable) {
   const LoopRun run = loop_on(data::ObjectEffect::None, 2, 24, 0.2, false);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());
@@ -122,7 +122,7 @@ TEST(LoopFalsePositives, ControlWithTwoSequencesAddsNoTable) {
 // The default clutter (0.2 per frame, uniform in a rectangle ahead) as every other object test has it:
 // its small range-azimuth tie stays below the threshold, so the error and detection tests' runs add no
 // false-positive table either.
-TEST(LoopFalsePositives, DefaultClutterOfTheOtherTestsAddsNoTable) {
+TEST(LoopFalsePositivesStatistical, DefaultClutterOfTheOtherTestsAddsNoTable) {
   const LoopRun run = loop_on(data::ObjectEffect::None, 4, 48, 0.2, false);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());

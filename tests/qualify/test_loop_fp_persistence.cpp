@@ -73,7 +73,7 @@ void print(const nlohmann::json& fp) {
 
 }  // namespace
 
-TEST(LoopFpPersistence, PlantedGhostsAreNamedCutTheHeldOutPersistenceErrorAndAreWritten) {
+TEST(LoopFpPersistenceStatistical, PlantedGhostsAreNamedCutTheHeldOutPersistenceErrorAndAreWritten) {
   const LoopRun run = loop_on(0.8);
   const nlohmann::json& fp = run.report["false_positives"];
   print(fp);
@@ -103,7 +103,7 @@ TEST(LoopFpPersistence, PlantedGhostsAreNamedCutTheHeldOutPersistenceErrorAndAre
   EXPECT_TRUE(run.track_png_ok);
 }
 
-TEST(LoopFpPersistence, ControlWithoutGhostsAddsNothing) {
+TEST(LoopFpPersistenceStatistical, ControlWithoutGhostsAddsNothing) {
   const LoopRun run = loop_on(0);
   const nlohmann::json& fp = run.report["false_positives"];
   print(fp);

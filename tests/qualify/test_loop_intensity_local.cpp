@@ -84,7 +84,7 @@ TEST(LoopIntensityLocal, ControlAddsNothingAndStillListsWhatWasTested) {
 // row on the output (nn/unet.h, row_affine). A per-beam gain table on the base prediction is
 // measured beside it (reported only). The model the loop writes is one lidar-infer runs on a
 // recorded scan as it is: the row is all the layer needs.
-TEST(LoopIntensityUnetLocal, NamesPerLaserGainAsBeamRowAddsARowAffineLayerAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopIntensityUnetLocalStatistical, NamesPerLaserGainAsBeamRowAddsARowAffineLayerAndCutsHeldOutErrorBelow70Percent) {
   const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_local_unet_beam_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   data::ReferenceScanOptions o;

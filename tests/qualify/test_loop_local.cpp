@@ -72,7 +72,7 @@ void expect_nothing_added(const LoopRun& run) {
 
 }  // namespace
 
-TEST(LoopLocal, NamesAzimuthWindowOfDetectionDropoutAndCutsHeldOutDevianceBelow70Percent) {
+TEST(LoopLocalStatistical, NamesAzimuthWindowOfDetectionDropoutAndCutsHeldOutDevianceBelow70Percent) {
   const LoopRun run = loop_on(data::ObjectEffect::AzimuthWindowDropout, 4, 48);
   const nlohmann::json& j = run.report;
   print(j);
@@ -92,7 +92,7 @@ TEST(LoopLocal, NamesAzimuthWindowOfDetectionDropoutAndCutsHeldOutDevianceBelow7
   EXPECT_GT(ct.bias[ct.bin(data::kWindowAzimuthHi + 0.15)], -0.15) << "left of the window";
 }
 
-TEST(LoopLocal, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpreadErrorBelow70Percent) {
+TEST(LoopLocalStatistical, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpreadErrorBelow70Percent) {
   const LoopRun run = loop_on(data::ObjectEffect::AspectSpread, 4, 48);
   const nlohmann::json& j = run.report;
   print(j);
@@ -111,10 +111,10 @@ TEST(LoopLocal, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpreadErrorBelow7
   for (double b : ct.bias) EXPECT_EQ(b, 0.0);
 }
 
-TEST(LoopLocal, ControlWithoutHiddenEffectAddsNoLocalOrSpreadTerm) {
+TEST(LoopLocalStatistical, ControlWithoutHiddenEffectAddsNoLocalOrSpreadTerm) {
   expect_nothing_added(loop_on(data::ObjectEffect::None, 4, 48));
 }
 
-TEST(LoopLocal, ControlWithLittleDataAddsNothing) {
+TEST(LoopLocalStatistical, ControlWithLittleDataAddsNothing) {
   expect_nothing_added(loop_on(data::ObjectEffect::None, 2, 10, 120));
 }

@@ -95,7 +95,7 @@ void expect_simulated(const nlohmann::json& j) {
 
 }  // namespace
 
-TEST(LoopObjects, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopObjectsStatistical, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) {
   const fs::path model = fresh_dir("velocity_lag_model.json");
   const auto j = object_loop(data::ObjectEffect::VelocityLag, model);
   expect_found(j, "radial_velocity");
@@ -109,7 +109,7 @@ TEST(LoopObjects, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) {
   fs::remove(model);
 }
 
-TEST(LoopObjects, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopObjectsStatistical, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70Percent) {
   const fs::path model = fresh_dir("truncation_model.json");
   const auto j = object_loop(data::ObjectEffect::TruncationSize, model);
   expect_found(j, "truncation");
@@ -128,7 +128,7 @@ TEST(LoopObjects, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70Percent) {
   fs::remove(model);
 }
 
-TEST(LoopObjects, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {
   const auto j = object_loop(data::ObjectEffect::AspectAcross);
   expect_found(j, "heading_to_line_of_sight");
   expect_simulated(j);
@@ -137,7 +137,7 @@ TEST(LoopObjects, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Perce
 // Two effects on different errors planted together (length by truncation, across by aspect): the
 // loop adds the best accepted effect per target, so both become terms of the written model, each
 // cuts its own held-out error to <= 0.7, and the model re-simulated with both terms does so too.
-TEST(LoopObjects, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOutError) {
+TEST(LoopObjectsStatistical, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOutError) {
   const fs::path model = fresh_dir("two_effects_model.json");
   const auto j = object_loop(data::ObjectEffect::TruncationSize, model, 0.05, data::ObjectEffect::AspectAcross);
   std::cout << "  added " << j["added_effects"].dump() << "\n";
@@ -169,7 +169,7 @@ TEST(LoopObjects, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOut
   fs::remove(model);
 }
 
-TEST(LoopObjects, ControlWithoutHiddenEffectAddsNothing) {
+TEST(LoopObjectsStatistical, ControlWithoutHiddenEffectAddsNothing) {
   const auto j = object_loop(data::ObjectEffect::None);
   std::cout << "  control ranking " << j["ranking"].dump().substr(0, 160) << "\n";
   EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump();
@@ -185,7 +185,7 @@ TEST(LoopObjects, ControlWithoutHiddenEffectAddsNothing) {
 
 // With the threshold off, the control set's best feature is a candidate; the refit must not beat
 // the track-to-track noise, so the loop names it as rejected and adds nothing.
-TEST(LoopObjects, ControlCandidateIsRejectedByTheChangeTest) {
+TEST(LoopObjectsStatistical, ControlCandidateIsRejectedByTheChangeTest) {
   const auto j = object_loop(data::ObjectEffect::None, {}, -1.0);
   ASSERT_TRUE(j.contains("rejected_effect")) << j.dump().substr(0, 400);
   EXPECT_EQ(j["rejected_effect"]["feature"], j["ranking"][0]["feature"]);
@@ -215,18 +215,18 @@ TEST(LoopIntensity, ControlWithoutHiddenEffectAddsNothing) {
 }
 
 // The UNet loop: the hidden effect becomes a new PGM channel and the UNet is retrained with it.
-TEST(LoopIntensityUnet, NamesAzimuthGainAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopIntensityUnetStatistical, NamesAzimuthGainAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
   const auto j = intensity_loop(data::IntensityEffect::Azimuth, unet_base());
   expect_found(j, "azimuth");
   EXPECT_NE(j["method"].get<std::string>().find("\"azimuth\""), std::string::npos) << j["method"];
   EXPECT_LE(j["seeds_after"][0].get<double>(), 0.7 * j["seeds_before"][0].get<double>());
 }
 
-TEST(LoopIntensityUnet, NamesIncidenceFalloffAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
+TEST(LoopIntensityUnetStatistical, NamesIncidenceFalloffAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
   expect_found(intensity_loop(data::IntensityEffect::Incidence, unet_base()), "incidence_angle");
 }
 
-TEST(LoopIntensityUnet, ControlWithoutHiddenEffectAddsNothing) {
+TEST(LoopIntensityUnetStatistical, ControlWithoutHiddenEffectAddsNothing) {
   const auto j = intensity_loop(data::IntensityEffect::None, unet_base());
   std::cout << "  control ranking " << j["ranking"].dump().substr(0, 200) << "\n";
   if (j.contains("rejected_effect")) std::cout << "  tried and rejected " << j["rejected_effect"].dump() << "\n";

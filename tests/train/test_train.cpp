@@ -171,7 +171,7 @@ TEST(Train, MissingInputChannelNamesTheDatasetAndTheChannel) {
 // The CI smoke test on real data: one real SemanticKITTI scan, a small UNet, well under a minute;
 // the validation MAE on the guarded split (lidar-train's default) must end below the
 // per-class-mean baseline on the same cells.
-TEST(Train, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
+TEST(TrainStatistical, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
   LIDARSIM_REQUIRE_SHARED_DATA(scans, "semantickitti-seq00-sample");
   const fs::path dir = temp_dir("smoke");
   data::ImportOptions import;
