@@ -54,6 +54,7 @@ std::string to_string(ObjectEffect e) {
     case ObjectEffect::AzimuthWindowDropout: return "azimuth_window_dropout";
     case ObjectEffect::AspectSpread: return "aspect_spread";
     case ObjectEffect::FalsePositiveHotspot: return "fp_hotspot";
+    case ObjectEffect::OcclusionSize: return "occlusion_size";
     default: return "none";
   }
 }
@@ -76,6 +77,7 @@ std::string effect_feature(ObjectEffect e) {
     case ObjectEffect::AzimuthWindowDropout: return "azimuth";
     case ObjectEffect::AspectSpread: return "heading_to_line_of_sight";
     case ObjectEffect::FalsePositiveHotspot: return "azimuth";
+    case ObjectEffect::OcclusionSize: return "occlusion";
     default: return "";
   }
 }
@@ -175,6 +177,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
             break;
           }
           case ObjectEffect::TruncationSize: sz.x() -= 0.45 * t.truncated * t.size.x(); break;
+          case ObjectEffect::OcclusionSize: sz.x() -= kOcclusionSizeShare * t.occluded * t.size.x(); break;
           case ObjectEffect::AspectAcross: {
             double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
             if (rel > kPi / 2) rel = kPi - rel;

@@ -11,6 +11,10 @@
 //   velocity_lag      position error = -lag * velocity (a latency): along the line of sight
 //                     -lag * radial velocity
 //   truncation_size   length error = -0.45 * truncation * length (a truncated box is measured short)
+//   occlusion_size    length error = -kOcclusionSizeShare * occlusion level * length (an occluded box is
+//                     measured short; levels 0, 1, 2): a bias on an error's mean by the occlusion
+//                     annotation, which the KPI model conditions on only in detection and the errors'
+//                     spread (feature: occlusion)
 //   aspect_across     across error grows with the heading relative to the line of sight
 //   azimuth_dropout   a soiled left part of the sensor window (road spray the wiper does not
 //                     reach): detection probability x 0.2 for objects whose box centre lies at
@@ -45,7 +49,7 @@
 namespace lidarsim::data {
 
 enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, AzimuthDropout, AzimuthWindowDropout, AspectSpread,
-                          FalsePositiveHotspot };
+                          FalsePositiveHotspot, OcclusionSize };
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
 inline constexpr double kIntensityWindowAzimuthLo = 0.3, kIntensityWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
@@ -64,6 +68,8 @@ inline constexpr double kDropoutFactor = 0.2;
 // azimuth_window_dropout's window (rad): both edges inside the tracks' azimuth range.
 inline constexpr double kWindowAzimuthLo = -35 * 3.14159265358979323846 / 180;
 inline constexpr double kWindowAzimuthHi = -15 * 3.14159265358979323846 / 180;
+// occlusion_size: the share of the length lost per occlusion level.
+inline constexpr double kOcclusionSizeShare = 0.2;
 // aspect_spread: noise across the line of sight x (kSpreadBase + kSpreadPerAspect * aspect in [0, 1]).
 inline constexpr double kSpreadBase = 0.3;
 inline constexpr double kSpreadPerAspect = 2.4;

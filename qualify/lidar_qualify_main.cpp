@@ -218,7 +218,10 @@ int run(int argc, char** argv) {
     }
     md += "\nAlready used by the base model:";
     for (const auto& r : j["used_by_model"])
-      md += " " + r["feature"].get<std::string>() + " (" + std::to_string(r["score"].get<double>()) + ")";
+      md += " " + r["feature"].get<std::string>() +
+            (r.contains("target") ? " on " + r["target"].get<std::string>() + " " + r["kind"].get<std::string>()
+                                  : std::string()) +
+            " (" + std::to_string(r["score"].get<double>()) + ")";
     md += "\n\nAdded effect: **" + (j["added_effect"].is_null() ? std::string("none (no feature stands out)")
                                                                  : j["added_effect"].get<std::string>()) +
           "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +

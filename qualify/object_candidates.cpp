@@ -28,6 +28,29 @@ std::vector<Kind> kinds_for(int target) {
   return {Kind::MeanTable, Kind::MeanWindow, Kind::SpreadTable, Kind::SpreadWindow};
 }
 
+namespace {
+// Per feature the base KPI model conditions on: which of its parts do (sensor/kpi_model.h).
+struct ModelCondition {
+  const char* feature;
+  bool error_mean;      // ErrorModel::mean, on every error target (mean forms)
+  bool error_spread;    // ErrorModel::sigma and visibility_std_scale (spread forms)
+  bool detection_rate;  // ClassModel::detection_probability (rate forms)
+};
+constexpr ModelCondition kObjectModelConditions[] = {
+    {"class", true, true, true},       // one ClassModel per class
+    {"range", true, true, true},       // mean[range bin], sigma[range bin], detection_probability[range bin][.]
+    {"occlusion", false, true, true},  // visibility_std_scale[visibility bin], detection_probability[.][visibility bin]
+};
+}  // namespace
+
+bool used_by_model(const std::string& feature, int target, Kind kind) {
+  for (const ModelCondition& m : kObjectModelConditions)
+    if (feature == m.feature)
+      return target == kDetectionTarget ? m.detection_rate : is_spread(kind) ? m.error_spread : m.error_mean;
+  return false;
+}
+bool used_by_model(const Candidate& c) { return used_by_model(kObjectFeatures[c.feature], c.target, c.kind); }
+
 double Effect::mean(int cls, int cell) const {
   const auto it = cell_mean.find({cls, cell});
   return it == cell_mean.end() ? 0.0 : it->second;

@@ -32,6 +32,14 @@ bool is_spread(Kind k);
 bool is_window(Kind k);
 std::vector<Kind> kinds_for(int target);  // errors: mean and spread forms; detection: rate forms
 
+// Whether the base KPI model (sensor/kpi_model.h) already conditions target t on the feature in
+// the form `kind`, so the candidate would only refit what the model has (kObjectModelConditions):
+// class and range condition everything (a model per class; error mean and sigma per range bin,
+// detection probability per range bin); occlusion (the visibility bin) conditions detection
+// (probability per range x visibility bin) and the errors' spread (sigma x visibility_std_scale),
+// not an error's mean. Such candidates are judged and listed but never ranked or added.
+bool used_by_model(const std::string& feature, int target, Kind kind);
+
 struct Effect {
   Kind kind = Kind::MeanTable;
   int target = 0, feature = 0;
@@ -70,6 +78,7 @@ struct Candidate {
   std::string form;        // fold 1's fitted form, e.g. "window [-0.61, -0.26)" or "table, 10 bins"
   long n = 0;              // held-out objects over both folds
 };
+bool used_by_model(const Candidate& c);
 
 // Fits and judges one candidate on both folds; block[k][i] = the track block of fold k's i-th
 // held-out record of target t.

@@ -31,11 +31,6 @@ int feature_index(const std::string& name) {
   throw Error("object feature \"" + name + "\" is not in the vocabulary");
 }
 
-bool used_by_model(const std::string& f) {
-  return std::find(kObjectFeaturesUsedByModel.begin(), kObjectFeaturesUsedByModel.end(), f) !=
-         kObjectFeaturesUsedByModel.end();
-}
-
 // Unit of a residual target, for axis labels.
 std::string target_unit(const std::string& target) {
   return target == "heading" ? "(rad)" : target == "detection" ? "(detected 0/1)" : "(m)";

@@ -24,7 +24,6 @@ inline constexpr sensor::KpiParam kTargetParam[6] = {
 double wrap(double a);  // to [-pi, pi)
 int class_index(sensor::ObjectClass c);  // 0 Car, 1 Pedestrian, 2 Cyclist, else -1
 int feature_index(const std::string& name);  // in kObjectFeatures; throws when absent
-bool used_by_model(const std::string& feature);
 std::string target_unit(const std::string& target);  // for axis labels
 double rms(const std::vector<double>& v);
 

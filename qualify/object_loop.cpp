@@ -71,14 +71,15 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       for (Kind kind : kinds_for(t))
         cands.push_back(judge_candidate(folds, t, static_cast<int>(f), kind, nvis, options.bins, blocks_t, nblocks));
     }
-  // A feature's entry in a ranking: its best candidate of the forms asked for.
-  auto best_per_feature = [&](bool spread, bool model_features) {
+  // A feature's entry in a ranking: its best candidate of the forms asked for, among those the base
+  // model already conditions on (used) or among the others (ranked).
+  auto best_per_feature = [&](bool spread, bool used) {
     std::vector<const Candidate*> out;
     for (size_t f = 0; f < kObjectFeatures.size(); ++f) {
-      if (used_by_model(kObjectFeatures[f]) != model_features) continue;
       const Candidate* best = nullptr;
       for (const Candidate& c : cands)
-        if (c.feature == static_cast<int>(f) && is_spread(c.kind) == spread && (!best || c.score > best->score))
+        if (c.feature == static_cast<int>(f) && is_spread(c.kind) == spread && used_by_model(c) == used &&
+            (!best || c.score > best->score))
           best = &c;
       if (best) out.push_back(best);
     }
@@ -242,7 +243,8 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   if (term) add_to_current(top_j, t, top_feature);
 
   // Greedy over targets: with the top bias form added as a term, the best bias form of every other
-  // target (of the features the KPI manager can compute) is judged the same way, in order of
+  // target (of the features the KPI manager can compute, in a form the base model does not hold
+  // already: used_by_model) is judged the same way, in order of
   // score, at most one per target; each must clear the threshold and the block-bootstrap change
   // test on its own. A term on one target leaves the other targets' residuals unchanged, and the
   // KPI model holds one conditional term per target, so each is judged against the base alone.
@@ -256,7 +258,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   if (term) {
     std::array<const Candidate*, kObjectTargetCount> best_t{};
     for (const Candidate& c : cands)
-      if (!is_spread(c.kind) && c.target != t && !used_by_model(kObjectFeatures[c.feature]) &&
+      if (!is_spread(c.kind) && c.target != t && !used_by_model(c) &&
           in_manager(kObjectFeatures[c.feature]) && (!best_t[c.target] || c.score > best_t[c.target]->score))
         best_t[c.target] = &c;
     std::vector<const Candidate*> order;
@@ -468,9 +470,17 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     else if (&c == &top && top_j.distribution_rejected) decision = by_distribution;
     else if (add_spread && &c == sp) decision = "added";
     else if (&c == &top && candidate) decision = "rejected: the refit did not beat the track-to-track noise";
+    else if (used_by_model(c))
+      decision = "not ranked: the base KPI model already conditions " + kObjectTargets[c.target] + " on " +
+                 kObjectFeatures[c.feature] + " in this form";
     else if (c.score < options.threshold) decision = "ruled out: held-out score below the threshold";
     else if (c.interval[0] <= 0) decision = "ruled out: interval reaches 0";
     else if (is_spread(c.kind) && add) decision = "not tried: a bias form was added first";
+    else if (!is_spread(c.kind) && c.target != t && !in_manager(kObjectFeatures[c.feature]))
+      decision = "not added: the KPI manager cannot compute \"" + kObjectFeatures[c.feature] +
+                 "\" from a truth object, so it is added only as the top effect (without a model term)";
+    else if (!is_spread(c.kind) && c.target != t && !term)
+      decision = "not tried: further bias forms are tried only once the top one is a model term";
     else decision = "not added: at most one bias form per target is added per run, the best first";
     cj.push_back({{"target", kObjectTargets[c.target]},
                   {"feature", kObjectFeatures[c.feature]},

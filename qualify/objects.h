@@ -24,9 +24,11 @@
 //   size                     box length, m
 //   box_width, box_height    box width and height, m (width errors follow the true width)
 //   track_age                frames since the track's first appearance
-// The KPI model (sensor/kpi_model.h) already conditions on class, range bin and visibility
-// (occlusion level); the loop ranks the others, every one of which the KPI manager computes
-// (sensor::conditional_feature), so the top one can enter the model as a conditional term.
+// The KPI model (sensor/kpi_model.h) already conditions on class and range bin everywhere and on
+// the visibility bin (occlusion level) in detection and in the errors' spread, not in their mean;
+// the loop ranks every other feature x target x form (object_candidates.h used_by_model). Every
+// feature but occlusion and class is one the KPI manager computes (sensor::conditional_feature),
+// so the top one can enter the model as a conditional term.
 #include <array>
 #include <filesystem>
 #include <string>
@@ -45,7 +47,6 @@ inline const std::vector<std::string> kObjectFeatures = {
     "range",      "azimuth",    "radial_velocity", "speed", "longitudinal_velocity", "lateral_velocity",
     "acceleration", "heading_to_line_of_sight", "occlusion", "truncation", "class", "size", "box_width", "box_height",
     "track_age"};
-inline const std::vector<std::string> kObjectFeaturesUsedByModel = {"range", "occlusion", "class"};
 // Residual targets: errors of the matched detection, and detection itself (1 detected, 0 missed).
 inline const std::vector<std::string> kObjectTargets = {"position_along", "position_across", "length",
                                                         "width",          "height",          "heading",

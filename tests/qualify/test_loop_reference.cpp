@@ -128,6 +128,25 @@ TEST(LoopObjectsStatistical, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70P
   fs::remove(model);
 }
 
+// The KPI model conditions detection and the errors' spread on the visibility bin (occlusion), not
+// an error's mean: a length error by occlusion level must be ranked, named and cut like any other.
+TEST(LoopObjectsStatistical, NamesOcclusionSizeErrorAndCutsHeldOutErrorBelow70Percent) {
+  const auto j = object_loop(data::ObjectEffect::OcclusionSize);
+  expect_found(j, "occlusion");
+  EXPECT_EQ(j["ranking"][0]["target"], "length") << j["ranking"].dump();
+  if (j.contains("model_term_absent_because"))
+    std::cout << "  no model term: " << j["model_term_absent_because"] << "\n";
+  // What the model does condition on occlusion stays out of the ranking and is listed as used.
+  for (const auto& r : j["ranking"]) EXPECT_NE(r["target"], "detection") << r.dump();
+  bool listed = false;
+  for (const auto& r : j["used_by_model"]) listed |= r["feature"] == "occlusion" && r["target"] == "detection";
+  EXPECT_TRUE(listed) << j["used_by_model"].dump();
+  for (const auto& c : j["candidates"])
+    if (c["feature"] == "occlusion" && c["target"] == "length" &&
+        c["kind"].get<std::string>().rfind("spread", 0) == 0)
+      EXPECT_EQ(c["decision"].get<std::string>().rfind("not ranked", 0), 0u) << c.dump();
+}
+
 TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {
   const auto j = object_loop(data::ObjectEffect::AspectAcross);
   expect_found(j, "heading_to_line_of_sight");
