@@ -160,7 +160,7 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
         }
         if (planted(ObjectEffect::AzimuthWindowDropout)) {
           const double az = std::atan2(c.y(), c.x());
-          if (az >= kWindowAzimuthLo && az <= kWindowAzimuthHi) pd *= kDropoutFactor;
+          if (az >= o.window_azimuth_lo && az <= o.window_azimuth_hi) pd *= kDropoutFactor;
         }
         if (U(rng) > pd) continue;
         const Eigen::Vector2d bev = c.head<2>();

@@ -23,7 +23,8 @@
 //                     not on an error (feature: azimuth). One edge only: the loop's equal-count
 //                     bins blur a sharp edge, and the tracks thin out at large azimuth.
 //   azimuth_window_dropout  detection probability x 0.2 in a window of azimuth with two edges,
-//                     [kWindowAzimuthLo, kWindowAzimuthHi] (a patch of dirt on the front right of
+//                     [window_azimuth_lo, window_azimuth_hi] (default [kWindowAzimuthLo,
+//                     kWindowAzimuthHi]: a patch of dirt on the front right of
 //                     the window); elsewhere as without effect (feature: azimuth).
 //   aspect_spread     the error across the line of sight gets noisier the more the box is seen
 //                     side-on: its noise is multiplied by kSpreadBase + kSpreadPerAspect x the
@@ -101,6 +102,8 @@ struct ReferenceTrackingOptions {
   // again the next frame with this probability (same place up to kFpGhostJitter, same score), births at
   // kFpGhostRate x (1 - survival); 0: none. Drawn from a stream of its own, so nothing else moves.
   double ghost_survival = 0;
+  // azimuth_window_dropout's window (rad, atan2(y, x) in the sensor frame).
+  double window_azimuth_lo = kWindowAzimuthLo, window_azimuth_hi = kWindowAzimuthHi;
   std::uint64_t seed = 1;
 };
 void write_reference_tracking(const std::filesystem::path& dir, const ReferenceTrackingOptions& options);

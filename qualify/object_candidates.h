@@ -77,6 +77,10 @@ struct Candidate {
   double effect_size = 0;  // largest |bias| (mean, rate) or largest / smallest scale (spread), fold 1
   std::string form;        // fold 1's fitted form, e.g. "window [-0.61, -0.26)" or "table, 10 bins"
   long n = 0;              // held-out objects over both folds
+  int fold_set = 0;        // the folds it was judged on (object_loop.cpp: 0 sequences, 1 time blocks)
+  // Why the held-out data cannot decide on it (empty: it can), in words a user acts on; set when
+  // it is judged. Such a candidate may still be added when it passes, but is never "ruled out".
+  std::string undecided;
 };
 bool used_by_model(const Candidate& c);
 

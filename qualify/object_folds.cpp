@@ -159,4 +159,72 @@ std::vector<std::string> names_of(const TrackingData& data, const std::vector<in
   return out;
 }
 
+bool fixed_to_sensor(const std::string& feature) {
+  return std::find(kSensorFixedFeatures.begin(), kSensorFixedFeatures.end(), feature) != kSensorFixedFeatures.end();
+}
+
+TimeBlocks split_into_time_blocks(const TrackingData& data, int blocks, const sensor::FitOptions& opt) {
+  if (blocks < 2) throw Error("time blocks: need at least 2 blocks per sequence, got " + std::to_string(blocks));
+  auto modelled = [](const std::string& type) { return type == "Car" || type == "Pedestrian" || type == "Cyclist"; };
+  TimeBlocks out;
+  for (size_t s = 0; s < data.kitti.size(); ++s) {
+    const data::KittiTrackingSequence& ks = data.kitti[s];
+    const sensor::CalibrationSequence& cs = data.calib[s];
+    // Each track's first and last frame; the tracks by middle frame, cut into runs of equal count.
+    std::map<int, std::pair<int, int>> span;
+    for (size_t f = 0; f < ks.frames.size(); ++f)
+      for (const auto& o : ks.frames[f].truth)
+        if (modelled(o.type)) span.try_emplace(o.object.id, int(f), int(f)).first->second.second = int(f);
+    std::vector<std::pair<int, int>> order;  // (first + last, track)
+    for (const auto& [id, fl] : span) order.push_back({fl.first + fl.second, id});
+    std::sort(order.begin(), order.end());
+    std::map<int, int> block_of;
+    for (size_t i = 0; i < order.size(); ++i) block_of[order[i].second] = static_cast<int>(i * blocks / order.size());
+    // The whole sequence's matching: each truth keeps its own detection.
+    std::vector<std::vector<int>> match(cs.frames.size());
+    for (size_t f = 0; f < cs.frames.size(); ++f)
+      match[f] = sensor::match_truth_to_detections(cs.frames[f].truth, cs.frames[f].detections, opt.gate, opt.min_score);
+    for (int b = 0; b < blocks; ++b) {
+      data::KittiTrackingSequence kb;
+      kb.name = ks.name;
+      kb.calib = ks.calib;
+      kb.frames.resize(ks.frames.size());
+      for (size_t f = 0; f < ks.frames.size(); ++f) {
+        const data::KittiTrackingFrame& in = ks.frames[f];
+        data::KittiTrackingFrame& fr = kb.frames[f];
+        fr.frame = in.frame;
+        // owner[d]: the block of the truth detection d matched (-1: none).
+        std::vector<int> owner(in.detections.size(), -1);
+        size_t i = 0;  // index among the modelled truths (CalibrationFrame::truth)
+        for (const auto& o : in.truth) {
+          if (!modelled(o.type)) {
+            fr.truth.push_back(o);
+            continue;
+          }
+          const int ob = block_of.at(o.object.id);
+          if (f < match.size() && i < match[f].size() && match[f][i] >= 0) owner[match[f][i]] = ob;
+          if (ob == b) fr.truth.push_back(o);
+          ++i;
+        }
+        for (size_t d = 0; d < in.detections.size(); ++d)
+          if (owner[d] < 0 || owner[d] == b) fr.detections.push_back(in.detections[d]);
+      }
+      out.data.names.push_back(data.names[s] + " block " + std::to_string(b + 1) + "/" + std::to_string(blocks));
+      out.data.calib.push_back(data::to_calibration_sequence(kb));
+      out.data.calib.back().frame_dt = cs.frame_dt;
+      out.data.calib.back().name = cs.name;
+      out.data.kitti.push_back(std::move(kb));
+      out.origin.push_back(static_cast<int>(s));
+      out.block.push_back(b);
+    }
+  }
+  return out;
+}
+
+std::array<std::vector<int>, 2> time_block_sides(const TimeBlocks& tb) {
+  std::array<std::vector<int>, 2> sides;
+  for (size_t i = 0; i < tb.block.size(); ++i) sides[tb.block[i] % 2].push_back(static_cast<int>(i));
+  return sides;
+}
+
 }  // namespace lidarsim::qualify::obj

@@ -2,8 +2,8 @@
 // The object loop's cross-fit data (internal to qualify/): small helpers shared by the object
 // files, a target's residuals under a fold's base model, and the folds themselves (base model
 // fitted on the fold's fit sequences; residuals of every target on fit and held-out sequences).
-// A fold never mixes sequences: fit_idx and held_idx are disjoint sets of whole sequences, so a
-// track (which lives in one sequence) is always entirely on one side.
+// fit_idx and held_idx are disjoint sets of sequences (of the loop's data, or of its time blocks,
+// split_into_time_blocks, each a sequence of its own), so a track is always entirely on one side.
 #include <array>
 #include <limits>
 #include <string>
@@ -75,5 +75,36 @@ void make_fold(Fold& k, const TrackingData& data, std::vector<int> fit_idx, std:
                const sensor::FitOptions& opt);
 
 std::vector<std::string> names_of(const TrackingData& data, const std::vector<int>& idx);
+
+// Features fixed to the sensor: an effect on them (a soiled patch of the window, a weak laser)
+// is the same in every place and at every time, so folds may be blocks of time within a
+// sequence. Every other feature can depend on the place or the time (traffic, road, weather)
+// and is judged on folds of whole sequences. Range is fixed to the sensor too, but the base
+// model conditions on it already.
+inline const std::vector<std::string> kSensorFixedFeatures = {"azimuth"};
+bool fixed_to_sensor(const std::string& feature);
+
+// Time-block folds, used for the features fixed to the sensor when the data has at most
+// kTimeFoldsMaxSequences sequences (then one side of the even/odd split holds a single sequence,
+// and a local effect fitted on one sequence's tracks does not carry to another's).
+inline constexpr int kTimeFoldsMaxSequences = 3;
+inline constexpr int kTimeBlocks = 4;  // per sequence
+
+// Each sequence cut into `blocks` blocks of time, each a sequence of its own (block b of
+// sequence s at s * blocks + b). A track (of the three modelled classes) goes whole into one
+// block: tracks ordered by their middle frame, `blocks` contiguous runs of equal count. A block
+// keeps every frame of its sequence, its own tracks' truths with the detections matched to them
+// on the whole sequence (sensor::match_truth_to_detections, opt's gate and score), the other
+// ground truth (Van, ...) and the detections matched to no truth, so its records equal the
+// whole sequence's records of its tracks.
+struct TimeBlocks {
+  TrackingData data;        // names "<sequence> block <b + 1>/<blocks>"
+  std::vector<int> origin;  // per block: its sequence in the data it was cut from
+  std::vector<int> block;   // per block: 0 .. blocks - 1 (even blocks form one side, odd the other)
+};
+TimeBlocks split_into_time_blocks(const TrackingData& data, int blocks = kTimeBlocks,
+                                  const sensor::FitOptions& opt = {});
+// The two sides of the time-block cross-fit: the even blocks of every sequence, the odd ones.
+std::array<std::vector<int>, 2> time_block_sides(const TimeBlocks& tb);
 
 }  // namespace lidarsim::qualify::obj

@@ -2,7 +2,9 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <memory>
 #include <optional>
+#include <set>
 
 #include "common/error.h"
 #include "qualify/object_candidates.h"
@@ -21,6 +23,68 @@ namespace lidarsim::qualify {
 
 using namespace obj;
 
+namespace {
+
+// One way of cutting the data into the cross-fit's two folds, with what is judged on it: the
+// held-out tracks as bootstrap blocks, the truth motion the KPI manager re-simulates, and each
+// fold's model with the terms added so far. Built in place (the folds' Splits point into them).
+struct FoldSet {
+  std::string scheme;                  // "sequences" or "time blocks"
+  TimeBlocks time;                     // the time blocks, when the folds are made of them
+  const TrackingData* data = nullptr;  // what the folds' indices refer to: the loop's data or time.data
+  std::array<Fold, 2> folds;
+  std::array<std::vector<std::vector<int>>, 2> block;  // [fold][target][held record]: its track's block
+  size_t nblocks = 0;
+  std::vector<sensor::CalibrationSequence> motion;
+  std::array<sensor::KpiModel, 2> current;
+};
+
+// Below this many held-out tracks in a fold the block bootstrap has too few blocks to judge.
+constexpr int kMinHeldOutTracks = 10;
+
+void build_fold_set(FoldSet& S, const std::array<std::vector<int>, 2>& sides, const LoopOptions& options,
+                    const sensor::FitOptions& opt) {
+  for (Fold& k : S.folds) k.pool_track_spread = options.pool_track_spread;
+  make_fold(S.folds[0], *S.data, sides[0], sides[1], opt);
+  make_fold(S.folds[1], *S.data, sides[1], sides[0], opt);
+  for (Fold& k : S.folds) k.shrink_terms = options.shrink_terms;
+  // Held-out tracks are the bootstrap blocks: a track's errors are correlated frame to frame.
+  std::map<std::pair<int, int>, int> block_id;
+  for (int k = 0; k < 2; ++k)
+    for (int t = 0; t < kObjectTargetCount; ++t) {
+      S.block[k].emplace_back();
+      for (const ObjectRecord* r : S.folds[k].held_r[t].rec)
+        S.block[k][t].push_back(
+            block_id.try_emplace({r->seq, r->track}, static_cast<int>(block_id.size())).first->second);
+    }
+  S.nblocks = block_id.size();
+  S.motion = sensor::with_truth_motion(S.data->calib);
+  S.current = {S.folds[0].base, S.folds[1].base};
+}
+
+// Why the held-out data of S cannot decide on candidate c ("" when it can): a feature that can
+// depend on the place judged on single sequences cannot tell the feature from the place; any
+// candidate judged on few held-out tracks cannot tell an effect from the track-to-track spread.
+std::string cannot_decide(const FoldSet& S, const Candidate& c) {
+  if (S.scheme == "sequences" && !fixed_to_sensor(kObjectFeatures[c.feature])) {
+    size_t fewest = S.folds[0].fit_idx.size();
+    for (const Fold& k : S.folds) fewest = std::min({fewest, k.fit_idx.size(), k.held_idx.size()});
+    if (fewest < 2)
+      return std::to_string(fewest) + " sequence per fold; \"" + kObjectFeatures[c.feature] +
+             "\" can depend on the place, so it needs at least 2 sequences on each side (4 in all)";
+  }
+  for (int k = 0; k < 2; ++k) {
+    const auto& b = S.block[k][c.target];
+    const int tracks = static_cast<int>(std::set<int>(b.begin(), b.end()).size());
+    if (tracks < kMinHeldOutTracks)
+      return std::to_string(tracks) + " held-out tracks in fold " + std::to_string(k + 1) + " for " +
+             kObjectTargets[c.target] + "; at least " + std::to_string(kMinHeldOutTracks) + " are needed";
+  }
+  return "";
+}
+
+}  // namespace
+
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options) {
   const int nseq = static_cast<int>(data.calib.size());
   if (nseq < 2) throw Error("loop objects: need at least two sequences (one to fit, one held out), got " +
@@ -29,27 +93,29 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   // fold 2 the other way round, so every sequence is held out once and judged by a model that
   // never saw it. With few sequences one split judges on too few tracks to tell an effect from
   // the track-to-track spread (on KITTI: 107 tracks, 3 of which hold a third of the error).
+  // With at most kTimeFoldsMaxSequences sequences, the features fixed to the sensor are judged on
+  // a second cross-fit whose folds are blocks of time within each sequence (tracks kept whole):
+  // fold 1 fits the even blocks of every sequence and judges the odd ones, fold 2 the other way
+  // round. Every other feature, and the false positives, keep the folds of whole sequences.
   std::vector<int> even, odd, all;
   for (int s = 0; s < nseq; ++s) (s % 2 == 0 ? even : odd).push_back(s), all.push_back(s);
   const sensor::FitOptions opt;
-  std::array<Fold, 2> folds;
-  for (Fold& k : folds) k.pool_track_spread = options.pool_track_spread;
-  make_fold(folds[0], data, even, odd, opt);
-  make_fold(folds[1], data, odd, even, opt);
-  for (Fold& k : folds) k.shrink_terms = options.shrink_terms;
+  std::vector<std::unique_ptr<FoldSet>> sets;
+  sets.push_back(std::make_unique<FoldSet>());
+  sets[0]->scheme = "sequences";
+  sets[0]->data = &data;
+  build_fold_set(*sets[0], {even, odd}, options, opt);
+  if (nseq <= kTimeFoldsMaxSequences) {
+    sets.push_back(std::make_unique<FoldSet>());
+    FoldSet& T = *sets[1];
+    T.scheme = "time blocks";
+    T.time = split_into_time_blocks(data, kTimeBlocks, opt);
+    T.data = &T.time.data;
+    build_fold_set(T, time_block_sides(T.time), options, opt);
+  }
+  auto set_of = [&](int feature) { return sets.size() > 1 && fixed_to_sensor(kObjectFeatures[feature]) ? 1 : 0; };
+  const std::array<Fold, 2>& folds = sets[0]->folds;  // whole sequences: the false positives' folds
   const int nvis = folds[0].base.visibility_bins();
-
-  // Held-out tracks are the bootstrap blocks: a track's errors are correlated frame to frame.
-  std::map<std::pair<int, int>, int> block_id;
-  std::array<std::vector<std::vector<int>>, 2> block;  // [fold][target][held record]
-  for (int k = 0; k < 2; ++k)
-    for (int t = 0; t < kObjectTargetCount; ++t) {
-      block[k].emplace_back();
-      for (const ObjectRecord* r : folds[k].held_r[t].rec)
-        block[k][t].push_back(
-            block_id.try_emplace({r->seq, r->track}, static_cast<int>(block_id.size())).first->second);
-    }
-  const size_t nblocks = block_id.size();
   auto non_empty = [](const BlockSums& s) {
     BlockSums out;
     for (const auto& b : s)
@@ -64,12 +130,17 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   std::vector<Candidate> cands;
   for (size_t f = 0; f < kObjectFeatures.size(); ++f)
     for (int t = 0; t < kObjectTargetCount; ++t) {
+      const FoldSet& S = *sets[set_of(static_cast<int>(f))];
       bool enough = true;
-      for (const Fold& k : folds) enough &= k.fit_r[t].r.size() >= 20 && k.held_r[t].r.size() >= 20;
+      for (const Fold& k : S.folds) enough &= k.fit_r[t].r.size() >= 20 && k.held_r[t].r.size() >= 20;
       if (!enough) continue;
-      const std::array<std::vector<int>, 2> blocks_t = {block[0][t], block[1][t]};
-      for (Kind kind : kinds_for(t))
-        cands.push_back(judge_candidate(folds, t, static_cast<int>(f), kind, nvis, options.bins, blocks_t, nblocks));
+      const std::array<std::vector<int>, 2> blocks_t = {S.block[0][t], S.block[1][t]};
+      for (Kind kind : kinds_for(t)) {
+        Candidate c = judge_candidate(S.folds, t, static_cast<int>(f), kind, nvis, options.bins, blocks_t, S.nblocks);
+        c.fold_set = set_of(static_cast<int>(f));
+        c.undecided = cannot_decide(S, c);
+        cands.push_back(std::move(c));
+      }
     }
   // A feature's entry in a ranking: its best candidate of the forms asked for, among those the base
   // model already conditions on (used) or among the others (ranked).
@@ -118,14 +189,17 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     return std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), feature) !=
            sensor::kConditionalFeatures.end();
   };
-  // Each fold's model with the terms added so far, for the distribution check. Its seeds:
-  // seed + 100, + 101, ... (the qualification's held-out table uses seed + 1000 q).
-  const auto motion = sensor::with_truth_motion(data.calib);
-  std::array<sensor::KpiModel, 2> current = {folds[0].base, folds[1].base};
+  // Each fold's model with the terms added so far (FoldSet::current), for the distribution check.
+  // Its seeds: seed + 100, + 101, ... (the qualification's held-out table uses seed + 1000 q).
   const std::uint64_t dist_seed = options.seed + 100;
   auto judge_add = [&](const Candidate& c, bool distribution_decides) {
     Judged J;
     const int t = c.target, f = c.feature;
+    FoldSet& S = *sets[c.fold_set];
+    const std::array<Fold, 2>& folds = S.folds;
+    const auto& block = S.block;
+    const size_t nblocks = S.nblocks;
+    std::array<sensor::KpiModel, 2>& current = S.current;
     J.candidate = c.score >= options.threshold;
     J.refs = {fit_effect(folds[0], t, f, c.kind, nvis, options.bins).bias,
               fit_effect(folds[1], t, f, c.kind, nvis, options.bins).bias};
@@ -191,8 +265,9 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       for (int k = 0; k < 2; ++k)
         after_models[k] = with_term_and_noise(current[k], J.refs[k], t, kObjectFeatures[f], nvis, folds[k].fit_r[t],
                                               folds[k].win[t]);
-      const auto before_i = held_out_intersections_all(data, folds, current, dist_seed, options.distribution_seeds);
-      const auto after_i = held_out_intersections_all(data, folds, after_models, dist_seed, options.distribution_seeds);
+      const auto before_i = held_out_intersections_all(*S.data, folds, current, dist_seed, options.distribution_seeds);
+      const auto after_i =
+          held_out_intersections_all(*S.data, folds, after_models, dist_seed, options.distribution_seeds);
       J.dist_before = before_i[t], J.dist_after = after_i[t];
       // Pooled over both folds: on one fold alone a small class holds too few tracks to judge. The
       // class's own held-out residual must go down too: the re-simulated distribution carries
@@ -215,6 +290,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
 
   const Candidate& top = *ranking.front();
   const int t = top.target, f = top.feature;
+  const FoldSet& top_set = *sets[top.fold_set];
   const std::string top_feature = kObjectFeatures[f], top_target = kObjectTargets[t];
   Judged top_j = judge_add(top, false);
   const bool candidate = top_j.candidate, add = top_j.add;
@@ -233,14 +309,25 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
            sensor::kConditionalFeatures.end())
     not_in_model = "the KPI manager cannot compute \"" + top_feature + "\" from a truth object";
   const bool term = not_in_model.empty();
-  // An added term goes into each fold's current model (the noise refitted with it for an error).
-  auto add_to_current = [&](const Judged& J, int te, const std::string& fe) {
-    for (int k = 0; k < 2; ++k)
-      current[k] = te == kDetectionTarget ? with_term(current[k], J.refs[k], te, fe, nvis)
-                                          : with_term_and_noise(current[k], J.refs[k], te, fe, nvis, folds[k].fit_r[te],
-                                                                folds[k].win[te], J.classes);
+  // An added term goes into each fold's current model (the noise refitted with it for an error), in
+  // every fold set: refitted on that set's folds where it was judged on the other one.
+  auto add_to_current = [&](const Judged& J, const Candidate& c) {
+    const int te = c.target;
+    const std::string& fe = kObjectFeatures[c.feature];
+    for (size_t q = 0; q < sets.size(); ++q) {
+      FoldSet& S = *sets[q];
+      for (int k = 0; k < 2; ++k) {
+        const Refit r = static_cast<int>(q) == c.fold_set
+                            ? J.refs[k]
+                            : fit_effect(S.folds[k], te, c.feature, c.kind, nvis, options.bins).bias;
+        S.current[k] = te == kDetectionTarget
+                           ? with_term(S.current[k], r, te, fe, nvis)
+                           : with_term_and_noise(S.current[k], r, te, fe, nvis, S.folds[k].fit_r[te],
+                                                 S.folds[k].win[te], J.classes);
+      }
+    }
   };
-  if (term) add_to_current(top_j, t, top_feature);
+  if (term) add_to_current(top_j, top);
 
   // Greedy over targets: with the top bias form added as a term, the best bias form of every other
   // target (of the features the KPI manager can compute, in a form the base model does not hold
@@ -268,7 +355,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     for (const Candidate* c : order) {
       if (options.max_effects > 0 && 1 + static_cast<int>(extras.size()) >= options.max_effects) break;
       Judged J = judge_add(*c, true);
-      if (J.add) add_to_current(J, c->target, kObjectFeatures[c->feature]), extras.push_back({c, std::move(J)});
+      if (J.add) add_to_current(J, *c), extras.push_back({c, std::move(J)});
       else extra_rejected.push_back(c), extra_rejected_by_distribution.push_back(J.distribution_rejected);
     }
   }
@@ -287,9 +374,11 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     // model, centred on the base's conditional mean; measured errors centred the same way; both
     // winsorised at the fold's fit limits. Spread error of the draws against the measured errors.
     const int st = sp->target, sf = sp->feature;
+    const FoldSet& S = *sets[sp->fold_set];
+    const auto& motion = S.motion;
     std::vector<double> sx, sm, sb, sa;
     for (int k = 0; k < 2; ++k) {
-      const Fold& fd = folds[k];
+      const Fold& fd = S.folds[k];
       const Effect e = fit_effect(fd, st, sf, sp->kind, nvis, options.bins);
       const Losses L = held_losses(fd, e, nvis);
       spread_fold[k] = {spread_error(L.x, L.centred, L.sd_before), spread_error(L.x, L.centred, L.sd_after)};
@@ -315,16 +404,19 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   // conditional mean error (noise off) or the detection probability — with each fold's base and
   // refitted model; truth motion by differences, as the features the term was fitted on.
   // Every added term's target, re-simulated with the model that carries all of them.
-  std::vector<int> sim_targets{t};
-  for (const Extra& e : extras) sim_targets.push_back(e.c->target);
-  std::vector<double> sim_before(sim_targets.size(), kNaN), sim_after(sim_targets.size(), kNaN);
+  // Each on the fold set it was judged on.
+  std::vector<const Candidate*> sim_cands{&top};
+  for (const Extra& e : extras) sim_cands.push_back(e.c);
+  std::vector<double> sim_before(sim_cands.size(), kNaN), sim_after(sim_cands.size(), kNaN);
   {
-    std::vector<std::vector<double>> rb(sim_targets.size()), ra(sim_targets.size());
+    std::vector<std::vector<double>> rb(sim_cands.size()), ra(sim_cands.size());
     for (int k = 0; k < 2; ++k) {
-      const Fold& fd = folds[k];
-      const sensor::KpiModel& refitted = current[k];  // every added term
-      for (size_t q = 0; q < sim_targets.size(); ++q) {
-        const int tq = sim_targets[q];
+      for (size_t q = 0; q < sim_cands.size(); ++q) {
+        const FoldSet& S = *sets[sim_cands[q]->fold_set];
+        const auto& motion = S.motion;
+        const Fold& fd = S.folds[k];
+        const sensor::KpiModel& refitted = S.current[k];  // every added term
+        const int tq = sim_cands[q]->target;
         std::map<std::array<int, 3>, double> mb, ma;
         if (tq == kDetectionTarget) {
           mb = simulated_detection_probability(motion, fd.held_idx, fd.base, options.seed);
@@ -341,7 +433,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
         }
       }
     }
-    for (size_t q = 0; q < sim_targets.size(); ++q)
+    for (size_t q = 0; q < sim_cands.size(); ++q)
       if (!rb[q].empty()) sim_before[q] = rms(rb[q]), sim_after[q] = rms(ra[q]);
   }
   const double before_sim = sim_before[0], after_sim = sim_after[0];
@@ -384,7 +476,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     // Fold 1's held-out residuals against the table fitted on its fit sequences.
     plot = "residual_" + top_target + "_vs_" + top_feature + ".png";
     fs::create_directories(options.plots_dir);
-    const Split& h = folds[0].held_r[t];
+    const Split& h = top_set.folds[0].held_r[t];
     write_residual_png(options.plots_dir / plot, refs[0].table.pooled, h.column(f), h.r,
                        {"Held-out " + top_target + " residual vs " + top_feature + " (fold 1)",
                         feature_axis_label(top_feature),
@@ -428,9 +520,9 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
         {"target", top_target},
         {"held_out_after", candidate_after},
         {"change_interval95", change},
-        {"why", top_j.distribution_rejected
-                    ? "the re-simulated held-out distribution of the KPI got worse for every class"
-                    : "the refit did not lower the held-out RMS beyond the track-to-track noise"}};
+        {"why", top_j.distribution_rejected ? "the re-simulated held-out distribution of the KPI got worse for every class"
+                : top.undecided.empty()         ? "the refit did not lower the held-out RMS beyond the track-to-track noise"
+                                                : "the data cannot decide: " + top.undecided}};
   j["threshold"] = options.threshold;
   j["distribution_seeds"] = options.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
@@ -451,7 +543,12 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
       "the classes whose re-simulated held-out distribution (histogram intersection of the KPI manager's errors, "
       "32 seeds, against the measured held-out errors, both folds pooled) does not get worse and whose own held-out "
       "residual falls (rejected when no class keeps it); if no bias form is added, "
-      "the top spread form is added when its score is at least the threshold and its interval lies above 0";
+      "the top spread form is added when its score is at least the threshold and its interval lies above 0. "
+      "With at most 3 sequences the features fixed to the sensor (azimuth) are judged on folds of time blocks "
+      "instead: each sequence cut into 4 blocks of its tracks by middle frame, fit on the even blocks and judge the "
+      "odd ones, and the other way round. A candidate judged on one sequence per fold (a feature that can depend "
+      "on the place) or on fewer than 10 held-out tracks in a fold is reported as \"the data cannot decide\" "
+      "rather than ruled out or rejected";
   j["scores"] = matrix;
   j["spread_scores"] = spread_matrix;
   // Every candidate tested, with what became of it.
@@ -464,15 +561,20 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
     const bool extra_tried = tried != extra_rejected.end();
     const std::string by_distribution =
         "rejected: the re-simulated held-out distribution of the KPI got worse for every class";
+    // No evidence for an effect is evidence against it only where the held-out data can decide.
+    const std::string cannot = "the data cannot decide: " + c.undecided;
+    const std::string by_noise =
+        c.undecided.empty() ? "rejected: the refit did not beat the track-to-track noise" : cannot;
     if ((&c == &top && add) || extra_added) decision = "added";
     else if (extra_tried && extra_rejected_by_distribution[tried - extra_rejected.begin()]) decision = by_distribution;
-    else if (extra_tried) decision = "rejected: the refit did not beat the track-to-track noise";
+    else if (extra_tried) decision = by_noise;
     else if (&c == &top && top_j.distribution_rejected) decision = by_distribution;
     else if (add_spread && &c == sp) decision = "added";
-    else if (&c == &top && candidate) decision = "rejected: the refit did not beat the track-to-track noise";
+    else if (&c == &top && candidate) decision = by_noise;
     else if (used_by_model(c))
       decision = "not ranked: the base KPI model already conditions " + kObjectTargets[c.target] + " on " +
                  kObjectFeatures[c.feature] + " in this form";
+    else if (!c.undecided.empty() && (c.score < options.threshold || c.interval[0] <= 0)) decision = cannot;
     else if (c.score < options.threshold) decision = "ruled out: held-out score below the threshold";
     else if (c.interval[0] <= 0) decision = "ruled out: interval reaches 0";
     else if (is_spread(c.kind) && add) decision = "not tried: a bias form was added first";
@@ -496,6 +598,7 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
                   {"error_before", c.error_before},
                   {"error_after", c.error_after},
                   {"held_out_objects", c.n},
+                  {"folds", sets[c.fold_set]->scheme},
                   {"decision", decision}});
   }
   j["candidates"] = cj;
@@ -606,13 +709,20 @@ nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options
   j["added_effects"] = aj;
   nlohmann::json fj = nlohmann::json::array();
   for (int k = 0; k < 2; ++k)
-    fj.push_back({{"fit_sequences", names_of(data, folds[k].fit_idx)},
-                  {"held_out_sequences", names_of(data, folds[k].held_idx)},
+    fj.push_back({{"fit_sequences", names_of(*top_set.data, top_set.folds[k].fit_idx)},
+                  {"held_out_sequences", names_of(*top_set.data, top_set.folds[k].held_idx)},
                   {"before", fold_rms[k].first},
                   {"after", add ? fold_rms[k].second : fold_rms[k].first}});
   if (add_spread)
     for (int k = 0; k < 2; ++k) fj[k]["before"] = spread_fold[k].first, fj[k]["after"] = spread_fold[k].second;
-  j["folds"] = fj;
+  j["folds"] = fj;  // of the top effect's fold set
+  j["fold_scheme"] = top_set.scheme;
+  if (sets.size() > 1)
+    j["time_folds"] = {{"features", kSensorFixedFeatures},
+                       {"blocks_per_sequence", kTimeBlocks},
+                       {"why", std::to_string(nseq) + " sequences: the features fixed to the sensor are judged on blocks "
+                                                      "of time within each sequence (tracks kept whole), the others "
+                                                      "on whole sequences"}};
   j["held_out_samples"] = before_r.size();
   if (options.pool_track_spread) {
     nlohmann::json tj = nlohmann::json::object();  // track_std after / before, per class: length, width, height

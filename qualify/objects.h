@@ -145,7 +145,12 @@ struct LoopOptions {
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
 // even-indexed sequences and judges the odd-indexed ones, fold 2 the other way round, so every
-// sequence is held out once. Residuals (measured error - model's conditional mean; detected -
+// sequence is held out once. With at most 3 sequences, the features fixed to the sensor
+// (object_folds.h kSensorFixedFeatures: azimuth) are judged on a second cross-fit of the same
+// shape whose folds are blocks of time within each sequence, tracks kept whole
+// (object_folds.h split_into_time_blocks); a candidate the held-out data cannot judge (one
+// sequence per fold for a feature that can depend on the place, or fewer than 10 held-out tracks
+// in a fold) is reported as "the data cannot decide: <why>" instead of ruled out or rejected. Residuals (measured error - model's conditional mean; detected -
 // detection probability) on each fold's held-out sequences; features ranked by the pooled
 // held-out R^2 of a per-class binned-mean table fitted on the fold's fit sequences (best target per
 // feature; 95% interval by a block bootstrap over held-out tracks). The top one is added as a
