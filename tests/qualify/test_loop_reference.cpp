@@ -37,6 +37,9 @@ nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model 
   qualify::LoopOptions lo;
   lo.out_model = out_model;
   lo.threshold = threshold;
+  // 64 seeds in the per-class distribution check (the command's default is 256): the reference
+  // effects are large, and the check's decisions these tests read are the same; a quarter of the time.
+  lo.distribution_seeds = 64;
   const auto j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   if (!std::getenv("LIDARSIM_KEEP_REFERENCE")) fs::remove_all(dir);
   return j;
@@ -141,10 +144,12 @@ TEST(LoopObjectsStatistical, NamesOcclusionSizeErrorAndCutsHeldOutErrorBelow70Pe
   bool listed = false;
   for (const auto& r : j["used_by_model"]) listed |= r["feature"] == "occlusion" && r["target"] == "detection";
   EXPECT_TRUE(listed) << j["used_by_model"].dump();
-  for (const auto& c : j["candidates"])
-    if (c["feature"] == "occlusion" && c["target"] == "length" &&
-        c["kind"].get<std::string>().rfind("spread", 0) == 0)
-      EXPECT_EQ(c["decision"].get<std::string>().rfind("not ranked", 0), 0u) << c.dump();
+  for (const auto& c : j["candidates"]) {
+    const bool spread_of_length = c["feature"] == "occlusion" && c["target"] == "length" &&
+                                  c["kind"].get<std::string>().rfind("spread", 0) == 0;
+    if (!spread_of_length) continue;
+    EXPECT_EQ(c["decision"].get<std::string>().rfind("not ranked", 0), 0u) << c.dump();
+  }
 }
 
 TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {
