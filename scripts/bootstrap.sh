@@ -19,10 +19,10 @@ case "${1:-}" in
 esac
 
 if ((install)); then
-  # ninja-build: schedules the build better than make and prints one progress line;
-  # ccache: a rebuild in another checkout of the same tree is nearly free (neither is required).
+  # ninja-build: schedules the two cores better than make and prints [done/total] per file (not
+  # required: without it CMake's default generator builds the same).
   # openmpi-bin, libopenmpi-dev: optional, they turn on `mpirun -np N lidar-train` (LIDARSIM_MPI).
-  packages=(cmake g++ make ninja-build ccache libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev
+  packages=(cmake g++ make ninja-build libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev
             libgmock-dev nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev
             openmpi-bin libopenmpi-dev)
   missing=()
@@ -45,10 +45,12 @@ settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release})
 if [ ! -f "$build_dir/CMakeCache.txt" ] && command -v ninja >/dev/null; then
   settings+=(-G Ninja)
 fi
+# ccache, where installed: paths below the source folder enter its keys relative to it. A fresh
+# clone still misses on most files (measured: 1 in 5 hit), since the files compiled with a
+# precompiled header depend on a header compiled anew in each build folder: the precompiled
+# headers, not ccache, are what makes a cold build fast.
 if command -v ccache >/dev/null; then
   settings+=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
-  # Paths below the source folder enter ccache's keys relative to it, so a clone elsewhere (CI)
-  # gets hits too; the sloppiness lets ccache cache files compiled with a precompiled header.
   export CCACHE_BASEDIR=$PWD
   export CCACHE_SLOPPINESS=pch_defines,time_macros,include_file_mtime,include_file_ctime
 fi
