@@ -165,7 +165,9 @@ bool fixed_to_sensor(const std::string& feature) {
 
 TimeBlocks split_into_time_blocks(const TrackingData& data, int blocks, const sensor::FitOptions& opt) {
   if (blocks < 2) throw Error("time blocks: need at least 2 blocks per sequence, got " + std::to_string(blocks));
-  auto modelled = [](const std::string& type) { return type == "Car" || type == "Pedestrian" || type == "Cyclist"; };
+  auto modelled = [](const std::string& type) {
+    return std::find(kObjectClasses.begin(), kObjectClasses.end(), type) != kObjectClasses.end();
+  };
   TimeBlocks out;
   for (size_t s = 0; s < data.kitti.size(); ++s) {
     const data::KittiTrackingSequence& ks = data.kitti[s];

@@ -43,16 +43,7 @@ if ((long)); then
 fi
 
 packages=(python3-torch python3-h5py libopenblas0-openmp)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  echo "bench: installing ${missing[*]}" >&2
-  sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-  "${sudo_cmd[@]}" apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-fi
+scripts/install_packages.sh bench "${packages[@]}"
 # Say which BLAS torch will get (the alternative libopenblas0-openmp registers at priority 95).
 blas=unknown
 if command -v update-alternatives >/dev/null; then

@@ -25,16 +25,7 @@ if ((install)); then
   packages=(cmake g++ make ninja-build libeigen3-dev libhdf5-dev libcxxopts-dev libgtest-dev
             libgmock-dev nlohmann-json3-dev libpng-dev libprotobuf-dev protobuf-compiler libpcap-dev
             openmpi-bin libopenmpi-dev)
-  missing=()
-  for p in "${packages[@]}"; do
-    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-  done
-  if ((${#missing[@]})); then
-    echo "bootstrap: installing ${missing[*]}" >&2
-    sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-    "${sudo_cmd[@]}" apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-  fi
+  scripts/install_packages.sh bootstrap "${packages[@]}"
 fi
 ((build)) || exit 0
 

@@ -16,16 +16,7 @@ shared=${LIDARSIM_SHARED_DATA:-$root/../shared/data}
 build=${LIDARSIM_FUZZ_BUILD_DIR:-build-fuzz}
 
 packages=(clang libclang-rt-dev libomp-dev)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  echo "fuzz: installing ${missing[*]}" >&2
-  sudo_cmd=(); [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-  "${sudo_cmd[@]}" apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-fi
+scripts/install_packages.sh fuzz "${packages[@]}"
 
 targets=$(echo $(cat fuzz/targets.txt))
 (($#)) && targets="$*"
