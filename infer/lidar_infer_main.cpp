@@ -189,6 +189,7 @@ int run_sim(int argc, char** argv) {
     bar.update(k + 1, status);
   }
   const double writer_ms = writer ? writer->finish() : 0.0;
+  if (writer) stats.set_writer_ms(writer->frame_ms());
   const double loop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - loop0).count();
   bar.finish();
   infer::SimStats::Info info;

@@ -45,7 +45,11 @@ Image pgm_image(const SimFrame& frame);
 // Accumulates per-frame statistics and writes the summary.
 class SimStats {
  public:
+  // `output_ms`: the time the pipeline's thread spent writing this frame's outputs (0 when a
+  // writer thread writes them, or the frame is not written).
   void add(const SimFrame& frame, double output_ms = 0);
+  // The writer thread's milliseconds per written frame (FrameWriter::frame_ms), after it finished.
+  void set_writer_ms(std::vector<double> per_written_frame) { writer_ms_ = std::move(per_written_frame); }
 
   int frames() const { return static_cast<int>(total_ms_.size()); }
   double mean_ms(int stage) const;
@@ -73,6 +77,14 @@ class SimStats {
  private:
   std::array<std::vector<double>, kNumSimStages> stage_ms_;
   std::vector<double> total_ms_, output_ms_;
+  std::vector<double> writer_ms_;  // per written frame, on the writer thread
+  // Mean and p95 ms per written frame, and where they were spent ("writer thread" or "pipeline thread").
+  struct OutputTimes {
+    double mean = 0, p95 = 0;
+    int frames = 0;
+    const char* where = "pipeline thread";
+  };
+  OutputTimes output_times() const;
   long in_view_ = 0, occluded_ = 0, partly_occluded_ = 0, reported_ = 0, false_positives_ = 0, points_ = 0,
        existing_ = 0, lanes_ = 0;
   int intensity_skipped_ = 0;  // frames run without the UNet (nobody read their intensity)
