@@ -196,8 +196,9 @@ void settle_untried(ObjectLoopResult& R) {
                                                ") was added first, and a bias not yet in the model makes the spread "
                                                "look feature-dependent" + again};
       else
-        d = {DecisionKind::OneSpreadForm, "not tried: only the best spread form is tried per run, " +
-                                              name_of(R.candidates[R.spread_ranking.front()]) + again};
+        d = {DecisionKind::OneSpreadForm, "not tried: only the best spread form is tried per run, and " +
+                                              name_of(R.candidates[R.spread_ranking.front()]) + " ranks first" +
+                                              again};
     } else if (c.target != top.target && !in_manager(fn)) {
       d = {DecisionKind::NotInManager, "not added: the KPI manager cannot compute \"" + fn +
                                            "\" from a truth object, so it is added only as the top effect (without "
