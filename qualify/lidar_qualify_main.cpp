@@ -43,6 +43,11 @@ void print_loop(const nlohmann::json& j) {
               << (r.contains("target") ? "  (" + r["target"].get<std::string>() + ")" : std::string()) << "\n";
   std::cout << "added effect: " << (j["added_effect"].is_null() ? "none (no feature stands out)" : j["added_effect"].get<std::string>())
             << "\nbefore " << j["before"].get<double>() << "  after " << j["after"].get<double>() << "\n";
+  if (j.contains("candidates"))  // the object loop: why each added form was added
+    for (const auto& c : j["candidates"])
+      if (c["decision"] == "added" && c.contains("reason"))
+        std::cout << "  " << c["feature"].get<std::string>() << " " << c["kind"].get<std::string>() << " on "
+                  << c["target"].get<std::string>() << ": " << c["reason"].get<std::string>() << "\n";
   if (j.contains("rejected_effect"))
     std::cout << "tried and rejected " << j["rejected_effect"]["feature"].get<std::string>() << ": "
               << j["rejected_effect"]["why"].get<std::string>() << "\n";

@@ -174,6 +174,9 @@ struct LoopOptions {
 // shrunk for it, object_terms.h). "added_effects" lists each with
 // its own before -> after, "after_simulated" with the model carrying all of them. The single-effect
 // fields ("added_effect", "before", "after", ...) describe the top one.
+// "candidates" lists every feature x target x form with its "decision" and a "reason" in words a
+// user acts on, recorded when the decision is made (object_loop.h ObjectLoopResult, the typed
+// result the JSON is written from).
 nlohmann::json loop_objects(const TrackingData& data, const LoopOptions& options = {});
 
 }  // namespace lidarsim::qualify

@@ -218,7 +218,7 @@ std::string candidates_markdown(const nlohmann::json& candidates) {
   });
   std::string md = "\n## Every candidate tested (" + std::to_string(rows.size()) +
                    ")\n\n| target | feature | kind | form (fold 1) | effect size | held-out score [95%] | error | "
-                   "before | after | decision |\n|---|---|---|---|---|---|---|---|---|---|\n";
+                   "before | after | decision and why |\n|---|---|---|---|---|---|---|---|---|---|\n";
   for (const nlohmann::json* c : rows) {
     const auto& r = *c;
     md += "| " + r["target"].get<std::string>() + " | " + r["feature"].get<std::string>() + " | " +
@@ -226,7 +226,7 @@ std::string candidates_markdown(const nlohmann::json& candidates) {
           fmt(r["effect_size"].get<double>()) + " | " + fmt(r["score"].get<double>()) + " [" +
           fmt(r["interval95"][0].get<double>()) + ", " + fmt(r["interval95"][1].get<double>()) + "] | " +
           r["error_metric"].get<std::string>() + " | " + fmt(r["error_before"].get<double>(), 4) + " | " +
-          fmt(r["error_after"].get<double>(), 4) + " | " + r["decision"].get<std::string>() + " |\n";
+          fmt(r["error_after"].get<double>(), 4) + " | " + r.value("reason", r["decision"].get<std::string>()) + " |\n";
   }
   return md;
 }

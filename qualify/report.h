@@ -60,8 +60,8 @@ std::string feature_axis_label(const std::string& feature);
 std::string file_stem(std::string s);
 
 // The object loop's "candidates" (every feature x target x form tested) as a Markdown section:
-// kind, effect size, held-out score and interval, error before -> after and the decision, sorted
-// by score, so a reader sees what was ruled out as well as what was added.
+// kind, effect size, held-out score and interval, error before -> after and the decision with its
+// reason, sorted by score, so a reader sees what was ruled out as well as what was added.
 std::string candidates_markdown(const nlohmann::json& candidates);
 
 }  // namespace lidarsim::qualify
