@@ -6,6 +6,7 @@
 #include <random>
 
 #include "common/error.h"
+#include "data/baselines.h"
 #include "pgm/materials.h"
 
 namespace lidarsim::data {
@@ -162,7 +163,8 @@ std::string to_string(PlantedScoring s) {
 
 double HiddenIntensityBase::operator()(int class_id, double range_m) const {
   const double a = class_id >= 0 && class_id < static_cast<int>(albedo.size()) ? albedo[class_id] : albedo.at(0);
-  return a * std::exp(-range_m / attenuation_m);
+  const double r = binned ? (range_bin(range_m) + 0.5) * kRangeBinM : range_m;
+  return a * std::exp(-r / attenuation_m);
 }
 
 double PlantedEffect::gain_at(int row, double range_m, double azimuth_rad, double incidence_rad, int cls) const {
@@ -192,16 +194,18 @@ nlohmann::json PlantedDraw::to_json() const {
           {"feature", effect.feature.empty() ? nlohmann::json(nullptr) : nlohmann::json(effect.feature)},
           {"accepted", effect.accepted},
           {"parameters", effect.parameters},
-          {"hidden_base", {{"albedo", albedo}, {"attenuation_m", base.attenuation_m}, {"sigma", base.sigma}}}};
+          {"hidden_base", {{"albedo", albedo}, {"attenuation_m", base.attenuation_m}, {"sigma", base.sigma},
+                           {"fall_off_at", base.binned ? "5 m range-bin centre" : "range"}}}};
 }
 
-PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma) {
+PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma, bool binned) {
   if (!(sigma >= 0)) throw Error("planted scans: sigma: expected >= 0, got " + std::to_string(sigma));
   PlantedDraw d;
   d.family = family;
   d.seed = seed;
   Rng rng(mix(seed));
   d.base.sigma = sigma;
+  d.base.binned = binned;
   d.base.albedo.resize(pgm::cls::count);
   for (double& a : d.base.albedo) a = rng.uniform(0.15, 0.6);
   d.base.attenuation_m = rng.uniform(60, 150);
@@ -250,7 +254,7 @@ Dataset plant(const Dataset& geometry, const PlantedDraw& draw, bool noise) {
   return out;
 }
 
-PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop) {
+PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop, double floor) {
   for (const char* key : {"added_effect", "rmse_before", "rmse_after"})
     if (!loop.contains(key)) throw Error(std::string("planted scans: the loop's JSON has no \"") + key + "\"");
   PlantedScore s;
@@ -264,6 +268,13 @@ PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop) 
   s.cut = s.excess_after <= kPlantedErrorRatio * s.excess_before;
   s.false_add = !s.added.empty() && !s.named;
   s.hit = draw.effect.scoring == PlantedScoring::Detect ? s.named && s.cut : s.added.empty();
+  auto above = [&](double e) { return std::sqrt(std::max(0.0, e * e - floor * floor)); };
+  s.floor = floor;
+  s.above_floor_before = above(s.excess_before);
+  s.above_floor_after = above(s.excess_after);
+  s.hit_above_floor = draw.effect.scoring == PlantedScoring::Detect
+                          ? s.named && s.above_floor_after <= kPlantedErrorRatio * s.above_floor_before
+                          : s.added.empty();
   return s;
 }
 

@@ -6,11 +6,15 @@
 //   target = base(class, range) x gain(effect, cell) + N(0, sigma^2)
 //
 // base is a HIDDEN model drawn per draw: an albedo per class (uniform 0.15-0.6) times a range
-// fall-off exp(-range / L) (L uniform 60-150 m). It is a function of class and range only, so the
-// loop's lookup base (class x 5 m range bins) represents it up to the fall-off inside a bin (at
-// most 8 % relative over 5 m at L = 60 m, well under the noise). sigma is known, so the loop's
-// held-out RMSE can be turned into the error against the noise-free truth:
-// excess = sqrt(max(0, rmse^2 - sigma^2)).
+// fall-off exp(-r / L) (L uniform 60-150 m), with r the centre of the cell's 5 m range bin
+// (data::range_bin, the bins of the loop's lookup base). It is a function of class and range only,
+// and binned so that the loop's lookup base (class x 5 m range bins) can represent it exactly: with
+// the smooth fall-off (binned = false) the lookup leaves the fall-off inside each bin, up to 8 %
+// of the albedo at L = 60 m, which correlates with elevation on the ground and made the loop add
+// "elevation" on noise-free controls; the campaign tests the loop on planted effects, not the
+// lookup's bin width. sigma is known, so the loop's held-out RMSE can be turned into the error
+// against the noise-free truth: excess = sqrt(max(0, rmse^2 - sigma^2)). What excess remains on a
+// control is the lookup's own estimation error (class x bin keys with few or no fit cells).
 //
 // One planted effect per draw, parameters drawn at random from the draw's seed. Families and the
 // loop feature (qualify/intensity.h kIntensityFeatures) that names each:
@@ -61,6 +65,7 @@ struct HiddenIntensityBase {
   std::vector<double> albedo;  // per class id (pgm::cls)
   double attenuation_m = 100;  // range fall-off exp(-range / attenuation_m)
   double sigma = 0.03;         // Gaussian noise added to every return
+  bool binned = true;          // fall-off at the 5 m range bin's centre (see the top of the file)
   double operator()(int class_id, double range_m) const;
 };
 
@@ -91,7 +96,8 @@ struct PlantedDraw {
 
 // Draws the hidden base and one effect of `family` from `seed` (same seed, same draw). `geometry`
 // gives the row count and the class shares (class_gain picks among classes with >= 2 % of returns).
-PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma = 0.03);
+PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma = 0.03,
+                         bool binned_base = true);
 
 // `geometry` with its target replaced by the draw's intensity on every cell with a return (0
 // elsewhere); the noise comes from the draw's seed. Needs the range, class, azimuth and incidence
@@ -100,6 +106,14 @@ Dataset plant(const Dataset& geometry, const PlantedDraw& draw, bool noise = tru
 
 // One draw scored from the loop's JSON (qualify::loop_intensity: added_effect, rmse_before,
 // rmse_after). Excess errors are against the noise-free truth: sqrt(max(0, rmse^2 - sigma^2)).
+//
+// `floor` is the excess the loop's base leaves without any effect: the excess_before of the draw's
+// control twin (draw_planted(Control, same seed): the same hidden base and the same noise, no
+// effect). On the three SemanticKITTI scans it is 0.02-0.045, nearly all from classes found only
+// in the held-out regions (fence, other-structure), which the lookup can only give the global mean.
+// That error is the base's, in before and after alike, so the rule "after <= 0.7 x before" can fail
+// on a correct, complete correction. The score therefore also reports the excess above the floor,
+// sqrt(max(0, excess^2 - floor^2)), and the same rule on it (hit_above_floor).
 struct PlantedScore {
   std::string added;          // the loop's added_effect, empty when none
   bool named = false;         // added is one of the accepted names
@@ -107,8 +121,10 @@ struct PlantedScore {
   bool hit = false;           // Detect: named && cut; Absorbed: nothing added; Control: nothing added
   bool false_add = false;     // something added that is not the planted feature (any add on a control)
   double excess_before = 0, excess_after = 0;
+  double floor = 0, above_floor_before = 0, above_floor_after = 0;
+  bool hit_above_floor = false;  // as hit, with the 0.7 x rule on the excess above the floor
 };
 inline constexpr double kPlantedErrorRatio = 0.7;
-PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop);
+PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop, double floor = 0);
 
 }  // namespace lidarsim::data
