@@ -144,6 +144,43 @@ std::string named_list(const std::map<std::string, int>& named) {
   return s;
 }
 
+// The table per family on stdout (markdown) and the overall line; returns them as JSON.
+nlohmann::json print_table(const std::vector<data::PlantedFamily>& families, const std::vector<FamilyRows>& rows,
+                           const data::Dataset& geometry, double sigma) {
+  std::printf("| family | scoring | planted feature | draws | recall | recall above floor | false adds | median excess before | median excess after | median floor | median s | added effects |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  nlohmann::json table = nlohmann::json::array();
+  int detect_floor_hits = 0;
+  int detect_draws = 0, detect_hits = 0, absorbed_draws = 0, absorbed_hits = 0, control_draws = 0, control_adds = 0;
+  for (size_t f = 0; f < families.size(); ++f) {
+    const auto& r = rows[f];
+    const auto sample = data::draw_planted(families[f], 0, geometry, sigma).effect;
+    const std::string scoring = data::to_string(sample.scoring);
+    const double recall = r.draws ? static_cast<double>(r.hits) / r.draws : 0;
+    const bool control = sample.scoring == data::PlantedScoring::Control;
+    const std::string recall_s = control ? "-" : std::to_string(r.hits) + "/" + std::to_string(r.draws);
+    const std::string floor_s = control ? "-" : std::to_string(r.hits_above_floor) + "/" + std::to_string(r.draws);
+    std::printf("| %s | %s | %s | %d | %s | %s | %d | %.4f | %.4f | %.4f | %.1f | %s |\n", data::to_string(families[f]).c_str(),
+                scoring.c_str(), sample.feature.empty() ? "-" : sample.feature.c_str(), r.draws, recall_s.c_str(),
+                floor_s.c_str(), r.false_adds, median(r.before), median(r.after), median(r.floor), median(r.seconds),
+                named_list(r.named).c_str());
+    table.push_back({{"family", data::to_string(families[f])}, {"scoring", scoring}, {"feature", sample.feature},
+                     {"draws", r.draws}, {"hits", r.hits}, {"recall", recall}, {"hits_above_floor", r.hits_above_floor},
+                     {"false_adds", r.false_adds}, {"median_floor", median(r.floor)},
+                     {"median_excess_before", median(r.before)}, {"median_excess_after", median(r.after)},
+                     {"median_seconds", median(r.seconds)}, {"added_effects", r.named}});
+    if (sample.scoring == data::PlantedScoring::Detect) detect_draws += r.draws, detect_hits += r.hits, detect_floor_hits += r.hits_above_floor;
+    if (sample.scoring == data::PlantedScoring::Absorbed) absorbed_draws += r.draws, absorbed_hits += r.hits;
+    if (sample.scoring == data::PlantedScoring::Control) control_draws += r.draws, control_adds += r.false_adds;
+  }
+  std::printf("\noverall: recall %d/%d (detect families; above the base's floor %d/%d), absorbed correct %d/%d, control false adds %d/%d\n",
+              detect_hits, detect_draws, detect_floor_hits, detect_draws, absorbed_hits, absorbed_draws, control_adds, control_draws);
+  const nlohmann::json overall = {{"detect_hits", detect_hits}, {"detect_draws", detect_draws}, {"detect_hits_above_floor", detect_floor_hits},
+                                  {"absorbed_correct", absorbed_hits}, {"absorbed_draws", absorbed_draws},
+                                  {"control_false_adds", control_adds}, {"control_draws", control_draws}};
+  return {{"table", table}, {"overall", overall}};
+}
+
 }  // namespace
 
 int main(int argc, char** argv) try {
@@ -198,34 +235,9 @@ int main(int argc, char** argv) try {
               args["data"].as<std::string>().c_str(), loop_options.base_model.c_str(), draws,
               static_cast<unsigned long long>(seed), sigma);
   std::printf("Hidden base: albedo per class x exp(-range / L), %s. Excess error = sqrt(max(0, held-out RMSE^2 - sigma^2)):\nthe error against the hidden noise-free truth.\n\n", settings.binned_base ? "range at the 5 m bin centres" : "smooth in range");
-  std::printf("| family | scoring | planted feature | draws | recall | recall above floor | false adds | median excess before | median excess after | median floor | median s | added effects |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-  nlohmann::json table = nlohmann::json::array();
-  int detect_floor_hits = 0;
-  int detect_draws = 0, detect_hits = 0, absorbed_draws = 0, absorbed_hits = 0, control_draws = 0, control_adds = 0;
-  for (size_t f = 0; f < families.size(); ++f) {
-    const auto& r = rows[f];
-    const auto sample = data::draw_planted(families[f], 0, sources[0].geometry, sigma).effect;
-    const std::string scoring = data::to_string(sample.scoring);
-    const double recall = r.draws ? static_cast<double>(r.hits) / r.draws : 0;
-    const bool control = sample.scoring == data::PlantedScoring::Control;
-    const std::string recall_s = control ? "-" : std::to_string(r.hits) + "/" + std::to_string(r.draws);
-    const std::string floor_s = control ? "-" : std::to_string(r.hits_above_floor) + "/" + std::to_string(r.draws);
-    std::printf("| %s | %s | %s | %d | %s | %s | %d | %.4f | %.4f | %.4f | %.1f | %s |\n", data::to_string(families[f]).c_str(),
-                scoring.c_str(), sample.feature.empty() ? "-" : sample.feature.c_str(), r.draws, recall_s.c_str(),
-                floor_s.c_str(), r.false_adds, median(r.before), median(r.after), median(r.floor), median(r.seconds),
-                named_list(r.named).c_str());
-    table.push_back({{"family", data::to_string(families[f])}, {"scoring", scoring}, {"feature", sample.feature},
-                     {"draws", r.draws}, {"hits", r.hits}, {"recall", recall}, {"hits_above_floor", r.hits_above_floor},
-                     {"false_adds", r.false_adds}, {"median_floor", median(r.floor)},
-                     {"median_excess_before", median(r.before)}, {"median_excess_after", median(r.after)},
-                     {"median_seconds", median(r.seconds)}, {"added_effects", r.named}});
-    if (sample.scoring == data::PlantedScoring::Detect) detect_draws += r.draws, detect_hits += r.hits, detect_floor_hits += r.hits_above_floor;
-    if (sample.scoring == data::PlantedScoring::Absorbed) absorbed_draws += r.draws, absorbed_hits += r.hits;
-    if (sample.scoring == data::PlantedScoring::Control) control_draws += r.draws, control_adds += r.false_adds;
-  }
-  std::printf("\noverall: recall %d/%d (detect families; above the base's floor %d/%d), absorbed correct %d/%d, control false adds %d/%d, %.0f s for %zu draws\n",
-              detect_hits, detect_draws, detect_floor_hits, detect_draws, absorbed_hits, absorbed_draws, control_adds, control_draws, total_s, all.size());
+  nlohmann::json summary = print_table(families, rows, sources[0].geometry, sigma);
+  summary["overall"]["seconds"] = total_s;
+  std::printf("%.0f s for %zu draws (each with its control twin)\n", total_s, all.size());
   if (args.count("json")) {
     nlohmann::json out = {{"data", args["data"].as<std::string>()}, {"base", loop_options.base_model}, {"seed", seed},
                           {"draws_per_family", draws}, {"sigma", sigma},
@@ -234,11 +246,8 @@ int main(int argc, char** argv) try {
                           {"recall_rule", "added_effect in the accepted names and excess after <= 0.7 x before"},
                           {"floor", "excess_before of the draw's control twin (same seed: same hidden base and noise, no effect); "
                                     "above floor = sqrt(max(0, excess^2 - floor^2))"},
-                          {"overall", {{"detect_hits", detect_hits}, {"detect_draws", detect_draws}, {"detect_hits_above_floor", detect_floor_hits},
-                                       {"absorbed_correct", absorbed_hits}, {"absorbed_draws", absorbed_draws},
-                                       {"control_false_adds", control_adds}, {"control_draws", control_draws},
-                                       {"seconds", total_s}}},
-                          {"table", table}, {"draws", all}};
+                          {"seconds", "median_seconds: the draw's own loop run (its control twin's run not counted)"},
+                          {"overall", summary["overall"]}, {"table", summary["table"]}, {"draws", all}};
     write_file_atomically(args["json"].as<std::string>(), out.dump(1));
     std::fprintf(stderr, "wrote %s\n", args["json"].as<std::string>().c_str());
   }
