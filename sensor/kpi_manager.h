@@ -103,6 +103,25 @@ class KpiManager {
     const std::vector<double>* score_q = nullptr;  // the score quantiles it was born with (in model_)
   };
   static double quantile_at(const std::vector<double>& q, double fallback, double u);
+  // The steps of apply(): a modelled truth object (its track state, errors, miss, flip and, when
+  // detected, the reported object); the false positives of class k (its persistent ones first,
+  // then the births).
+  void report_modelled(const Object& o, int slot, KpiInjection& inj, std::vector<Object>& reported);
+  TrackState& advance_track(const Object& o, bool& fresh, int& gap);
+  void draw_errors(const Object& o, int slot, double range, TrackState& st, bool fresh, int gap, KpiInjection& inj);
+  struct Births {
+    double factor = 1;       // the births' share of the stationary rate
+    double ghost_share = 1;  // the share of births that become ghosts
+  };
+  void false_positives_of_class(int k, const ClassModel& cm, std::vector<Object>& reported);
+  Births carry_ghosts(int k, const ClassModel& cm, std::vector<Object>& reported);
+  void birth_false_positives(int k, const ClassModel& cm, const Births& births, double rate,
+                             const std::vector<double>& range_q, const std::vector<double>& azimuth_q,
+                             const std::vector<double>& score_q, std::vector<Object>& reported);
+  static void emit_false_positive(int k, const ClassModel& cm, const Ghost& g, double score,
+                                  std::vector<Object>& reported);
+  static void emit_ghost(int k, const ClassModel& cm, const Ghost& g, std::vector<Object>& reported);
+
   static double sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng);
   double detection_probability(int slot, int rb, int vb, const Object& o, double range, long track_age) const;
 
