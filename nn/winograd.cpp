@@ -252,8 +252,8 @@ namespace wino {
 void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
                       bool transpose_flip, const float* bias, bool relu) {
   const int co = out.ca + out.cb;
-  // Per call, even in predict(): cached per layer (nn/weight_cache.h), four times the weights
-  // came back from memory at the cost the transform saved (tried, no gain).
+  // Per call, even in predict(): a per-layer cache (nn/weight_cache.h) would bring four times
+  // the weights back from memory, costing what the transform saves.
   float* u = g_u.get(36 * u_stride(co, ci));
   transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)

@@ -15,7 +15,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   for (const auto& p : c.data) data.push_back(p.string());
   j["data"] = data;
   j["validation"] = c.validation ? c.validation->string() : "split " + c.split + " of --data";
-  if (!c.train_also.empty()) {  // absent when none: older checkpoints compare equal
+  if (!c.train_also.empty()) {  // absent when none: a checkpoint without the key compares equal
     std::vector<std::string> also;
     for (const auto& p : c.train_also) also.push_back(p.string());
     j["train_also"] = also;
@@ -23,7 +23,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   j["channels"] = c.encoder.channels;
   j["base"] = c.base;
   j["depth"] = c.depth;
-  if (c.row_affine) j["row_affine"] = true;  // absent when off: older checkpoints compare equal
+  if (c.row_affine) j["row_affine"] = true;  // absent when off: a checkpoint without the key compares equal
   if (c.lookup_base) j["lookup_base"] = true;
   if (c.lookup_base && c.lookup_form != "groups") j["lookup_form"] = c.lookup_form;
   if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};

@@ -38,7 +38,7 @@ struct TrainConfig {
   std::vector<std::filesystem::path> train_also;
   // Split of the training sets when there is no separate validation set (data/split.h): "guarded"
   // (guard bands of twice this model's receptive-field half-width), "guarded:<half-width>" (at
-  // least the model's), "interleaved" (the old split, leaks; for comparison), "frames:<id>,...".
+  // least the model's), "interleaved" (leaks across neighbouring columns; for comparison), "frames:<id>,...".
   std::string split = "guarded";
   pgm::EncoderConfig encoder;
   int base = 16, depth = 4;
