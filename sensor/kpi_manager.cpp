@@ -90,14 +90,14 @@ KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
     : model_(std::move(model)), options_(options), seed_(seed) {
   model_.validate();
   class_slot_.fill(-1);
-  for (int k = 0; k < 8; ++k) {
+  for (int k = 0; k < kNumObjectClasses; ++k) {
     const ClassModel* m = model_.find(static_cast<ObjectClass>(k));
     if (!m) continue;
     const auto it = std::find(class_models_.begin(), class_models_.end(), m);
     class_slot_[k] = static_cast<int>(it - class_models_.begin());
     if (it == class_models_.end()) class_models_.push_back(m);
   }
-  for (int k = 0; k < 8; ++k) fp_rng_[k] = KpiRng::stream(seed_, kFalsePositiveKey, k, kPurposeFalsePositives);
+  for (int k = 0; k < kNumObjectClasses; ++k) fp_rng_[k] = KpiRng::stream(seed_, kFalsePositiveKey, k, kPurposeFalsePositives);
   controllers_.assign(class_models_.size() * kNumKpiParams, RunningTargetController(model_.controller));
   for (const ClassModel* cm : class_models_) {
     for (const ErrorModel& em : cm->errors) {
@@ -108,7 +108,7 @@ KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
     detection_feature_.push_back(
         cm->detection_conditional.present() ? static_cast<int>(feature_of(cm->detection_conditional.feature)) : -1);
   }
-  for (int k = 0; k < 8; ++k) fp_own_model_[k] = model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) > 0;
+  for (int k = 0; k < kNumObjectClasses; ++k) fp_own_model_[k] = model_.classes.count(kpi_class_name(static_cast<ObjectClass>(k))) > 0;
 }
 
 const RunningTargetController& KpiManager::controller(ObjectClass cls, KpiParam p) const {
@@ -236,7 +236,7 @@ void KpiManager::apply(const std::vector<Object>& truth, std::vector<Object>& re
     report_modelled(o, slot, inj, reported);
   }
   if (options_.false_positives)
-    for (int k = 0; k < 8; ++k) {
+    for (int k = 0; k < kNumObjectClasses; ++k) {
       const int slot = class_slot_[k];
       // Each model once, under its own class (not again for the classes that fall back to it).
       if (slot >= 0 && fp_own_model_[k]) false_positives_of_class(k, *class_models_[slot], reported);

@@ -128,8 +128,8 @@ class KpiManager {
   KpiModel model_;
   KpiOptions options_;
   std::uint64_t seed_;
-  std::array<KpiRng, 8> fp_rng_;  // per class
-  std::array<int, 8> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
+  std::array<KpiRng, kNumObjectClasses> fp_rng_;  // per class
+  std::array<int, kNumObjectClasses> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
   std::vector<const ClassModel*> class_models_;
   std::vector<RunningTargetController> controllers_;  // slot * kNumKpiParams + param
   // Per slot * kNumKpiParams + param, worked out once: the innovation's constants,
@@ -138,13 +138,13 @@ class KpiManager {
   std::vector<double> ar1_root_;
   std::vector<int> error_feature_;
   std::vector<int> detection_feature_;  // per slot
-  std::array<bool, 8> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
+  std::array<bool, kNumObjectClasses> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
   std::unordered_map<int, int> slot_of_id_;
   std::vector<TrackState> states_;
   std::vector<int> free_states_;
   std::vector<KpiInjection> injections_;
-  std::array<std::vector<Ghost>, 8> ghosts_;  // per class
-  std::array<bool, 8> fp_started_{};
+  std::array<std::vector<Ghost>, kNumObjectClasses> ghosts_;  // per class
+  std::array<bool, kNumObjectClasses> fp_started_{};
   Eigen::Vector2d ego_xy_ = Eigen::Vector2d::Zero();
   double ego_yaw_ = 0;
   long frame_ = 0;
