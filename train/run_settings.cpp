@@ -9,6 +9,12 @@
 
 namespace lidarsim::train {
 
+LookupForm parse_lookup_form(const std::string& name) {
+  for (std::size_t i = 0; i < std::size(kLookupFormNames); ++i)
+    if (name == kLookupFormNames[i]) return static_cast<LookupForm>(i);
+  throw Error("lidar-train: --lookup-base: must be groups or classes, got \"" + name + "\"");
+}
+
 nlohmann::json run_settings(const TrainConfig& c) {
   nlohmann::json j;
   std::vector<std::string> data;
@@ -25,7 +31,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   j["depth"] = c.depth;
   if (c.row_affine) j["row_affine"] = true;  // absent when off: a checkpoint without the key compares equal
   if (c.lookup_base) j["lookup_base"] = true;
-  if (c.lookup_base && c.lookup_form != "groups") j["lookup_form"] = c.lookup_form;
+  if (c.lookup_base && parse_lookup_form(c.lookup_form) != LookupForm::groups) j["lookup_form"] = c.lookup_form;
   if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};
   if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
   if (c.shrink_residual) j["shrink_residual"] = true;
@@ -100,8 +106,7 @@ void validate_settings(const TrainConfig& c) {
   if (!(c.lambda >= 0) || !std::isfinite(c.lambda)) refuse("lambda", "must be a finite number >= 0", std::to_string(c.lambda));
   if (!(c.final_lr_fraction >= 0 && c.final_lr_fraction <= 1))
     refuse("final-lr-fraction", "must be in [0, 1]", std::to_string(c.final_lr_fraction));
-  if (c.lookup_form != "groups" && c.lookup_form != "classes")
-    refuse("lookup-base", "must be groups or classes", "\"" + c.lookup_form + "\"");
+  parse_lookup_form(c.lookup_form);  // refuses any other spelling
   if (c.inner_columns < 1 || c.inner_columns > 100000)
     refuse("inner-columns", "must be in [1, 100000]", std::to_string(c.inner_columns));
   if (c.shrink_residual && !(c.lookup_base && c.early_stop))

@@ -85,11 +85,12 @@ TrainResult train_frames(const TrainConfig& requested, const std::vector<const d
                          const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch) {
   Distributed& dist = Distributed::world();
   TrainConfig config = requested;
-  if (config.lookup_base && config.lookup_form == "classes") config.encoder.class_groups = one_group_per_class();
+  const LookupForm lookup_form = parse_lookup_form(config.lookup_form);
+  if (config.lookup_base && lookup_form == LookupForm::classes) config.encoder.class_groups = one_group_per_class();
   bool set_up = false;
-  if (!dist.active()) return train_on_ranks(config, train_sets, val_set, on_epoch, set_up);
+  if (!dist.active()) return train_on_ranks(config, lookup_form, train_sets, val_set, on_epoch, set_up);
   try {
-    return train_on_ranks(config, train_sets, val_set, on_epoch, set_up);
+    return train_on_ranks(config, lookup_form, train_sets, val_set, on_epoch, set_up);
   } catch (const AgreedError&) {
     throw;
   } catch (const std::exception& e) {

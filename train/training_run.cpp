@@ -71,8 +71,8 @@ struct Batch {
 // what the steps before it filled.
 class TrainingRun {
  public:
-  TrainingRun(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
-              const data::FrameSource* val_set);
+  TrainingRun(const TrainConfig& config, LookupForm lookup_form,
+              const std::vector<const data::FrameSource*>& train_sets, const data::FrameSource* val_set);
   void plan_early_stop();
   void plan_frames();
   void build_model();
@@ -93,6 +93,7 @@ class TrainingRun {
   EpochReport end_epoch(double epoch_loss, int epoch_steps, std::chrono::steady_clock::time_point epoch_start);
 
   const TrainConfig& config;
+  const LookupForm lookup_form;
   Distributed& dist = Distributed::world();
   const std::vector<const data::FrameSource*>& train_sets;
   const data::FrameSource* val_set;
@@ -130,9 +131,9 @@ class TrainingRun {
 };
 
 // --- data: headers now, frames when a step needs them ------------------------------------------
-TrainingRun::TrainingRun(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
-                         const data::FrameSource* val_set)
-    : config(config), train_sets(train_sets), val_set(val_set), stopper(config.patience) {
+TrainingRun::TrainingRun(const TrainConfig& config, LookupForm lookup_form,
+                         const std::vector<const data::FrameSource*>& train_sets, const data::FrameSource* val_set)
+    : config(config), lookup_form(lookup_form), train_sets(train_sets), val_set(val_set), stopper(config.patience) {
   if (train_sets.empty()) throw Error("lidar-train: no training data given");
   validate_settings(config);
   omp_set_num_threads(config.threads);
@@ -318,7 +319,7 @@ void TrainingRun::start_from_lookup_base() {
   const TrainingFrames table_frames(train_sets, config.encoder, sector_split ? std::optional(split) : std::nullopt,
                                     split_sets);
   const LookupFit fit = fit_lookup_base(arch.lookup, table_frames, cols,
-                                        config.lookup_form == "classes" ? BeamFit::loop : BeamFit::mean);
+                                        lookup_form == LookupForm::classes ? BeamFit::loop : BeamFit::mean);
   set_lookup_base(*model, fit);
   result.lookup_validation = validate();  // the head starts at 0: this is the table alone
   if (config.progress && dist.root())
@@ -479,10 +480,10 @@ TrainResult TrainingRun::finish() {
 
 }  // namespace
 
-TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
-                           const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
-                           bool& set_up) {
-  TrainingRun run(config, train_sets, val_set);
+TrainResult train_on_ranks(const TrainConfig& config, LookupForm lookup_form,
+                           const std::vector<const data::FrameSource*>& train_sets, const data::FrameSource* val_set,
+                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up) {
+  TrainingRun run(config, lookup_form, train_sets, val_set);
   run.plan_early_stop();
   run.plan_frames();
   run.build_model();

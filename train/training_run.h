@@ -10,10 +10,11 @@
 
 namespace lidarsim::train {
 
-// `set_up` turns true once every rank has read its data, built its model and agreed to start:
-// before that a failing rank has made no collective call, after it the others may be waiting in one.
-TrainResult train_on_ranks(const TrainConfig& config, const std::vector<const data::FrameSource*>& train_sets,
-                           const data::FrameSource* val_set, const std::function<void(const EpochReport&)>& on_epoch,
-                           bool& set_up);
+// `lookup_form` is config.lookup_form parsed. `set_up` turns true once every rank has read its
+// data, built its model and agreed to start: before that a failing rank has made no collective
+// call, after it the others may be waiting in one.
+TrainResult train_on_ranks(const TrainConfig& config, LookupForm lookup_form,
+                           const std::vector<const data::FrameSource*>& train_sets, const data::FrameSource* val_set,
+                           const std::function<void(const EpochReport&)>& on_epoch, bool& set_up);
 
 }  // namespace lidarsim::train
