@@ -221,31 +221,39 @@ Innovation fit_innovation(std::vector<double> eps) {
   return in;
 }
 
-// Fits one parameter of one class from recs[begin, end).
-ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int p, const FitOptions& opt,
-                     bool per_track_constant) {
-  const int nr = static_cast<int>(opt.range_bin_edges.size()), nv = static_cast<int>(opt.visibility_bin_edges.size());
+// The steps of fit_error, on one parameter p of recs[begin, end).
+struct ErrorFit {
+  const std::vector<Rec>& recs;
+  size_t begin, end;
+  int p;
+  const FitOptions& opt;
   ErrorModel em;
-  auto val = [&](const Rec& r) { return r.e[p]; };
-  const ErrorStats pooled = error_stats(recs, begin, end, val);
-  const double pooled_std = pooled.n > 1 && pooled.std > 0 ? pooled.std : 1e-3;
-  em.mean.assign(nr, pooled.mean);
-  // Range-bin means first.
-  std::vector<double> sum(nr, 0), sum2(nr, 0);
-  std::vector<long> n(nr, 0);
-  for (size_t i = begin; i < end; ++i) {
-    const double v = val(recs[i]);
-    if (std::isnan(v)) continue;
-    sum[recs[i].rb] += v;
-    ++n[recs[i].rb];
+  std::vector<double> offset;  // per record: its track's constant (sizes), else 0
+
+  double val(size_t i) const { return recs[i].e[p]; }
+  double resid(size_t i) const { return val(i) - em.mean[recs[i].rb] - offset[i - begin]; }
+  double z_of(size_t i) const { return resid(i) / (em.sigma[recs[i].rb] * em.visibility_std_scale[recs[i].vb]); }
+
+  // Range-bin means (the pooled mean where a bin has too few samples).
+  void fit_means(double pooled_mean) {
+    const int nr = static_cast<int>(opt.range_bin_edges.size());
+    em.mean.assign(nr, pooled_mean);
+    std::vector<double> sum(nr, 0);
+    std::vector<long> n(nr, 0);
+    for (size_t i = begin; i < end; ++i) {
+      const double v = val(i);
+      if (std::isnan(v)) continue;
+      sum[recs[i].rb] += v;
+      ++n[recs[i].rb];
+    }
+    for (int r = 0; r < nr; ++r)
+      if (n[r] >= opt.min_samples) em.mean[r] = sum[r] / n[r];
   }
-  for (int r = 0; r < nr; ++r)
-    if (n[r] >= opt.min_samples) em.mean[r] = sum[r] / n[r];
-  // Per-track constant (sizes): offset of each track's mean from the bin means.
-  std::vector<double> offset(end - begin, 0.0);
-  if (per_track_constant) {
-    // Weighted by track length, so between + within variance adds up to the total (short
-    // tracks' noisy means would otherwise inflate the per-track spread).
+
+  // Per-track constant (sizes): offset of each track's mean from the bin means, weighted by track
+  // length, so between + within variance adds up to the total (short tracks' noisy means would
+  // otherwise inflate the per-track spread).
+  void fit_track_offsets() {
     double wsum = 0, wmean = 0, wvar = 0;
     std::vector<std::pair<double, long>> offsets;
     for (size_t i = begin; i < end;) {
@@ -253,7 +261,7 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
       double s = 0;
       long k = 0;
       while (j < end && recs[j].seq == recs[i].seq && recs[j].track == recs[i].track) {
-        if (!std::isnan(val(recs[j]))) s += val(recs[j]) - em.mean[recs[j].rb], ++k;
+        if (!std::isnan(val(j))) s += val(j) - em.mean[recs[j].rb], ++k;
         ++j;
       }
       if (k >= 3) {
@@ -270,26 +278,32 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
       em.track_std = std::sqrt(wvar / wsum);
     }
   }
-  auto resid = [&](size_t i) { return val(recs[i]) - em.mean[recs[i].rb] - offset[i - begin]; };
-  std::fill(sum2.begin(), sum2.end(), 0.0);
-  std::fill(n.begin(), n.end(), 0);
-  double all2 = 0;
-  long all_n = 0;
-  for (size_t i = begin; i < end; ++i) {
-    const double v = resid(i);
-    if (std::isnan(v)) continue;
-    sum2[recs[i].rb] += v * v;
-    ++n[recs[i].rb];
-    all2 += v * v;
-    ++all_n;
+
+  // Range-bin sigmas of the residual (the residual's overall std where a bin has too few).
+  void fit_sigmas(double pooled_std) {
+    const int nr = static_cast<int>(opt.range_bin_edges.size());
+    std::vector<double> sum2(nr, 0);
+    std::vector<long> n(nr, 0);
+    double all2 = 0;
+    long all_n = 0;
+    for (size_t i = begin; i < end; ++i) {
+      const double v = resid(i);
+      if (std::isnan(v)) continue;
+      sum2[recs[i].rb] += v * v;
+      ++n[recs[i].rb];
+      all2 += v * v;
+      ++all_n;
+    }
+    const double all_std = all_n > 1 ? std::sqrt(all2 / all_n) : pooled_std;
+    em.sigma.assign(nr, all_std);
+    for (int r = 0; r < nr; ++r)
+      if (n[r] >= opt.min_samples) em.sigma[r] = std::max(1e-4, std::sqrt(sum2[r] / n[r]));
   }
-  const double all_std = all_n > 1 ? std::sqrt(all2 / all_n) : pooled_std;
-  em.sigma.assign(nr, all_std);
-  for (int r = 0; r < nr; ++r)
-    if (n[r] >= opt.min_samples) em.sigma[r] = std::max(1e-4, std::sqrt(sum2[r] / n[r]));
+
   // Visibility: scale of the range-standardized residual per visibility bin.
-  em.visibility_std_scale.assign(nv, 1.0);
-  {
+  void fit_visibility_scale() {
+    const int nv = static_cast<int>(opt.visibility_bin_edges.size());
+    em.visibility_std_scale.assign(nv, 1.0);
     std::vector<double> s2(nv, 0);
     std::vector<long> k(nv, 0);
     for (size_t i = begin; i < end; ++i) {
@@ -302,30 +316,43 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
     for (int b = 0; b < nv; ++b)
       if (k[b] >= opt.min_samples) em.visibility_std_scale[b] = std::max(0.05, std::sqrt(s2[b] / k[b]));
   }
-  auto z_of = [&](size_t i) {
-    return resid(i) / (em.sigma[recs[i].rb] * em.visibility_std_scale[recs[i].vb]);
-  };
+
   // Lag-1 autocorrelation of z along tracks, then the innovations it implies.
-  double cross = 0, a2 = 0, b2 = 0;
-  for (size_t i = begin + 1; i < end; ++i) {
-    if (!consecutive(recs[i - 1], recs[i])) continue;
-    const double a = z_of(i), b = z_of(i - 1);
-    if (std::isnan(a) || std::isnan(b)) continue;
-    cross += a * b;
-    a2 += a * a;
-    b2 += b * b;
+  void fit_ar1_and_innovation() {
+    double cross = 0, a2 = 0, b2 = 0;
+    for (size_t i = begin + 1; i < end; ++i) {
+      if (!consecutive(recs[i - 1], recs[i])) continue;
+      const double a = z_of(i), b = z_of(i - 1);
+      if (std::isnan(a) || std::isnan(b)) continue;
+      cross += a * b;
+      a2 += a * a;
+      b2 += b * b;
+    }
+    em.ar1 = a2 > 0 && b2 > 0 ? std::clamp(cross / std::sqrt(a2 * b2), -0.9, 0.98) : 0.0;
+    std::vector<double> eps;
+    const double norm = std::sqrt(1 - em.ar1 * em.ar1);
+    for (size_t i = begin + 1; i < end; ++i) {
+      if (!consecutive(recs[i - 1], recs[i])) continue;
+      const double a = z_of(i), b = z_of(i - 1);
+      if (std::isnan(a) || std::isnan(b)) continue;
+      eps.push_back((a - em.ar1 * b) / norm);
+    }
+    em.innovation = fit_innovation(std::move(eps));
   }
-  em.ar1 = a2 > 0 && b2 > 0 ? std::clamp(cross / std::sqrt(a2 * b2), -0.9, 0.98) : 0.0;
-  std::vector<double> eps;
-  const double norm = std::sqrt(1 - em.ar1 * em.ar1);
-  for (size_t i = begin + 1; i < end; ++i) {
-    if (!consecutive(recs[i - 1], recs[i])) continue;
-    const double a = z_of(i), b = z_of(i - 1);
-    if (std::isnan(a) || std::isnan(b)) continue;
-    eps.push_back((a - em.ar1 * b) / norm);
-  }
-  em.innovation = fit_innovation(std::move(eps));
-  return em;
+};
+
+// Fits one parameter of one class from recs[begin, end).
+ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int p, const FitOptions& opt,
+                     bool per_track_constant) {
+  ErrorFit fit{recs, begin, end, p, opt, ErrorModel{}, std::vector<double>(end - begin, 0.0)};
+  const ErrorStats pooled = error_stats(recs, begin, end, [&](const Rec& r) { return r.e[p]; });
+  const double pooled_std = pooled.n > 1 && pooled.std > 0 ? pooled.std : 1e-3;
+  fit.fit_means(pooled.mean);
+  if (per_track_constant) fit.fit_track_offsets();
+  fit.fit_sigmas(pooled_std);
+  fit.fit_visibility_scale();
+  fit.fit_ar1_and_innovation();
+  return fit.em;
 }
 
 // Mean length of runs of `flag` over consecutive frames of a track, and the share of flagged
