@@ -446,8 +446,7 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
-      // Only when present: a model without the layer writes no trace of it (the reader takes
-      // the absence as no layer).
+      // Only when present: a model without the layer writes no trace of it (read back as no layer).
       if (model.config().row_affine_rows > 0)
         w.attr(config.get(), "config", "unet.row_affine_rows", std::int64_t{model.config().row_affine_rows});
       if (const LookupBaseConfig& lk = model.config().lookup; lk.classes > 0) {
