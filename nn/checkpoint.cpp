@@ -401,12 +401,12 @@ int positive_int_attr(const Reader& r, const std::string& name) {
   return static_cast<int>(v);
 }
 
-// Checkpoints from before the per-row affine layer have no attribute: no layer.
+// No attribute: no per-row affine layer.
 int row_affine_rows(const Reader& r) {
   return r.has_attr("config", "unet.row_affine_rows") ? positive_int_attr(r, "unet.row_affine_rows") : 0;
 }
 
-// The lookup base's config (nn/unet.h): absent in files without it (and in older ones) = none.
+// The lookup base's config (nn/unet.h): absent = none.
 LookupBaseConfig lookup_config(const Reader& r) {
   LookupBaseConfig c;
   if (!r.has_attr("config", "unet.lookup.classes")) return c;
@@ -446,7 +446,7 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
-      // Only when present, so a model without the layer is saved exactly as before it existed.
+      // Only when present: a model without the layer writes no trace of it (read back as no layer).
       if (model.config().row_affine_rows > 0)
         w.attr(config.get(), "config", "unet.row_affine_rows", std::int64_t{model.config().row_affine_rows});
       if (const LookupBaseConfig& lk = model.config().lookup; lk.classes > 0) {

@@ -2,7 +2,7 @@
 // HDF5 checkpoints, readable with h5py:
 //   /config          attributes: unet.in_channels, unet.out_channels, unet.base, unet.depth,
 //                    unet.row_affine_rows (only when the model has the per-row affine layer;
-//                    absent in older files = no layer, so they still load),
+//                    absent = no layer, so files without it load),
 //                    unet.lookup.{classes, class_channel, range_channel, range_bins, rows,
 //                    bin_width} (only with a lookup base; its table is under /params/lookup),
 //                    optimizer.* and every entry of Checkpoint::attributes (string values;

@@ -47,8 +47,8 @@ Conv3x3Path conv3x3_path() { return g_path; }
 bool conv3x3_takes_winograd(int ci, int co) {
   if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
   if (g_path == Conv3x3Path::winograd) return true;
-  // Measured in the network (LIDARSIM_PROFILE=cpu, one thread, batch 1 and 4), 2026-11-26,
-  // once the weight gradient streamed its tiles (nn/winograd.h): every conv with 16 or more
+  // Measured in the network (LIDARSIM_PROFILE=cpu, one thread, batch 1 and 4), with the weight
+  // gradient streaming its tiles (nn/winograd.h): every conv with 16 or more
   // channels on both sides took less time on Winograd in all its passes, the 64 x 1024 ones
   // included (16 -> 16 there: forward 1.2-1.6x, backward 1.1-1.3x; the weight gradient alone
   // 1.6-1.8x in bench_conv3x3), with one exception of 0.5 % of a step (the 4 x 64 level at

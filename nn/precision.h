@@ -1,5 +1,5 @@
 #pragma once
-// Inference precision of the UNet (issue 16): fp32 (default) or bf16, where the 3x3
+// Inference precision of the UNet: fp32 (default) or bf16, where the 3x3
 // convolutions of UNet::predict take bf16 inputs and weights with fp32 accumulation
 // (nn/conv3x3_bf16.h). Training (forward/backward) is always fp32. The first use reads
 // LIDARSIM_INFER_PRECISION (fp32 or bf16); commands may set it from a --precision flag.

@@ -188,7 +188,14 @@ void UNet::init(std::uint64_t seed) {
 
 void UNet::forward(const Tensor& x, Tensor& y) {
   ++ws_->forwards;
-  const Shape s = x.shape();
+  check_input(x.shape());
+  take_input(x);
+  const Tensor& below = forward_decoder(forward_encoder());
+  forward_head(below, y);
+  ws_->have_forward = true;
+}
+
+void UNet::check_input(const Shape& s) const {
   const int min_size = 1 << config_.depth;
   if (s.c != config_.in_channels)
     throw Error("UNet forward: input: expected " + std::to_string(config_.in_channels) + " channels, got shape " +
@@ -202,6 +209,12 @@ void UNet::forward(const Tensor& x, Tensor& y) {
   if (config_.lookup.classes > 0 && s.h != config_.lookup.rows)
     throw Error("UNet forward: input: the lookup base has " + std::to_string(config_.lookup.rows) +
                 " rows (one beam offset per laser), got shape " + s.str());
+}
+
+// The network's input in the workspace: x checked for non-finite values and copied, or, with a
+// lookup base, [x, base].
+void UNet::take_input(const Tensor& x) {
+  const Shape s = x.shape();
   Workspace& ws = *ws_;
   // The check (and the copy, without a lookup base) in parallel: at batch 4 they are 3 MB each.
   const bool copy = ws_->table < 0;
@@ -234,6 +247,14 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     }
     ws.toc("fwd lookup");
   }
+}
+
+// Encoder: two 3x3 convolutions per level, a 2x2 max pool between levels; returns the deepest
+// level's output.
+const Tensor& UNet::forward_encoder() {
+  Workspace& ws = *ws_;
+  const float* pv = params_.values();
+  const auto W = [&](int id) { return pv + params_.info(id).offset; };
   const int depth = config_.depth;
   const Tensor* cur = &ws.x;
   for (int l = 0; l <= depth; ++l) {
@@ -255,7 +276,16 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     conv2d_forward(L.a2, L.a1, W(ws.enc2[l].w), W(ws.enc2[l].b), c, 3, 1, true);
     ws.toc("fwd enc" + std::to_string(l) + ".conv2");
   }
-  const Tensor* below = &ws.levels[depth].a2;
+  return ws.levels[depth].a2;
+}
+
+// Decoder: per level up-convolution, a 3x3 convolution on [skip, up] and another 3x3.
+const Tensor& UNet::forward_decoder(const Tensor& deepest) {
+  Workspace& ws = *ws_;
+  const float* pv = params_.values();
+  const auto W = [&](int id) { return pv + params_.info(id).offset; };
+  const int depth = config_.depth;
+  const Tensor* below = &deepest;
   for (int l = depth - 1; l >= 0; --l) {
     auto& L = ws.levels[l];
     const int c = channels(config_, l);
@@ -271,20 +301,27 @@ void UNet::forward(const Tensor& x, Tensor& y) {
     ws.toc("fwd " + d + ".conv2");
     below = &L.d2;
   }
+  return *below;
+}
+
+// The 1x1 head (then the row affine, when the model has it) and the lookup base added back.
+void UNet::forward_head(const Tensor& below, Tensor& y) {
+  Workspace& ws = *ws_;
+  const float* pv = params_.values();
+  const auto W = [&](int id) { return pv + params_.info(id).offset; };
   ws.tic();
   if (ws.gain >= 0) {
-    conv2d_forward(ws.head_out, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    conv2d_forward(ws.head_out, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
     ws.toc("fwd head");
     ws.tic();
     row_affine_forward(y, ws.head_out, W(ws.gain), W(ws.offset));
     ws.toc("fwd row_affine");
   } else {
-    conv2d_forward(y, *below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    conv2d_forward(y, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
     ws.toc("fwd head");
   }
   if (ws.table >= 0)  // out_channels is 1: y and the base have the same layout
     for (std::size_t i = 0; i < y.numel(); ++i) y.data()[i] += ws.base.data()[i];
-  ws.have_forward = true;
 }
 
 void UNet::predict(const Tensor& x, Tensor& y) {

@@ -74,6 +74,12 @@ class UNet {
   ParamArena params_;
   struct Workspace;  // activations, caches, argmax indices; reused across calls
   std::unique_ptr<Workspace> ws_;
+  // The steps of forward().
+  void check_input(const Shape& s) const;
+  void take_input(const Tensor& x);
+  const Tensor& forward_encoder();
+  const Tensor& forward_decoder(const Tensor& deepest);
+  void forward_head(const Tensor& below, Tensor& y);
 };
 
 }  // namespace lidarsim::nn

@@ -2,15 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <iomanip>
 #include <limits>
 #include <numbers>
 #include <numeric>
-#include <sstream>
 
 #include "common/error.h"
 #include "sensor/hungarian.h"
-#include "sensor/kpi_manager.h"
 
 namespace lidarsim::sensor {
 
@@ -224,31 +221,39 @@ Innovation fit_innovation(std::vector<double> eps) {
   return in;
 }
 
-// Fits one parameter of one class from recs[begin, end).
-ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int p, const FitOptions& opt,
-                     bool per_track_constant) {
-  const int nr = static_cast<int>(opt.range_bin_edges.size()), nv = static_cast<int>(opt.visibility_bin_edges.size());
+// The steps of fit_error, on one parameter p of recs[begin, end).
+struct ErrorFit {
+  const std::vector<Rec>& recs;
+  size_t begin, end;
+  int p;
+  const FitOptions& opt;
   ErrorModel em;
-  auto val = [&](const Rec& r) { return r.e[p]; };
-  const ErrorStats pooled = error_stats(recs, begin, end, val);
-  const double pooled_std = pooled.n > 1 && pooled.std > 0 ? pooled.std : 1e-3;
-  em.mean.assign(nr, pooled.mean);
-  // Range-bin means first.
-  std::vector<double> sum(nr, 0), sum2(nr, 0);
-  std::vector<long> n(nr, 0);
-  for (size_t i = begin; i < end; ++i) {
-    const double v = val(recs[i]);
-    if (std::isnan(v)) continue;
-    sum[recs[i].rb] += v;
-    ++n[recs[i].rb];
+  std::vector<double> offset;  // per record: its track's constant (sizes), else 0
+
+  double val(size_t i) const { return recs[i].e[p]; }
+  double resid(size_t i) const { return val(i) - em.mean[recs[i].rb] - offset[i - begin]; }
+  double z_of(size_t i) const { return resid(i) / (em.sigma[recs[i].rb] * em.visibility_std_scale[recs[i].vb]); }
+
+  // Range-bin means (the pooled mean where a bin has too few samples).
+  void fit_means(double pooled_mean) {
+    const int nr = static_cast<int>(opt.range_bin_edges.size());
+    em.mean.assign(nr, pooled_mean);
+    std::vector<double> sum(nr, 0);
+    std::vector<long> n(nr, 0);
+    for (size_t i = begin; i < end; ++i) {
+      const double v = val(i);
+      if (std::isnan(v)) continue;
+      sum[recs[i].rb] += v;
+      ++n[recs[i].rb];
+    }
+    for (int r = 0; r < nr; ++r)
+      if (n[r] >= opt.min_samples) em.mean[r] = sum[r] / n[r];
   }
-  for (int r = 0; r < nr; ++r)
-    if (n[r] >= opt.min_samples) em.mean[r] = sum[r] / n[r];
-  // Per-track constant (sizes): offset of each track's mean from the bin means.
-  std::vector<double> offset(end - begin, 0.0);
-  if (per_track_constant) {
-    // Weighted by track length, so between + within variance adds up to the total (short
-    // tracks' noisy means would otherwise inflate the per-track spread).
+
+  // Per-track constant (sizes): offset of each track's mean from the bin means, weighted by track
+  // length, so between + within variance adds up to the total (short tracks' noisy means would
+  // otherwise inflate the per-track spread).
+  void fit_track_offsets() {
     double wsum = 0, wmean = 0, wvar = 0;
     std::vector<std::pair<double, long>> offsets;
     for (size_t i = begin; i < end;) {
@@ -256,7 +261,7 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
       double s = 0;
       long k = 0;
       while (j < end && recs[j].seq == recs[i].seq && recs[j].track == recs[i].track) {
-        if (!std::isnan(val(recs[j]))) s += val(recs[j]) - em.mean[recs[j].rb], ++k;
+        if (!std::isnan(val(j))) s += val(j) - em.mean[recs[j].rb], ++k;
         ++j;
       }
       if (k >= 3) {
@@ -273,26 +278,32 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
       em.track_std = std::sqrt(wvar / wsum);
     }
   }
-  auto resid = [&](size_t i) { return val(recs[i]) - em.mean[recs[i].rb] - offset[i - begin]; };
-  std::fill(sum2.begin(), sum2.end(), 0.0);
-  std::fill(n.begin(), n.end(), 0);
-  double all2 = 0;
-  long all_n = 0;
-  for (size_t i = begin; i < end; ++i) {
-    const double v = resid(i);
-    if (std::isnan(v)) continue;
-    sum2[recs[i].rb] += v * v;
-    ++n[recs[i].rb];
-    all2 += v * v;
-    ++all_n;
+
+  // Range-bin sigmas of the residual (the residual's overall std where a bin has too few).
+  void fit_sigmas(double pooled_std) {
+    const int nr = static_cast<int>(opt.range_bin_edges.size());
+    std::vector<double> sum2(nr, 0);
+    std::vector<long> n(nr, 0);
+    double all2 = 0;
+    long all_n = 0;
+    for (size_t i = begin; i < end; ++i) {
+      const double v = resid(i);
+      if (std::isnan(v)) continue;
+      sum2[recs[i].rb] += v * v;
+      ++n[recs[i].rb];
+      all2 += v * v;
+      ++all_n;
+    }
+    const double all_std = all_n > 1 ? std::sqrt(all2 / all_n) : pooled_std;
+    em.sigma.assign(nr, all_std);
+    for (int r = 0; r < nr; ++r)
+      if (n[r] >= opt.min_samples) em.sigma[r] = std::max(1e-4, std::sqrt(sum2[r] / n[r]));
   }
-  const double all_std = all_n > 1 ? std::sqrt(all2 / all_n) : pooled_std;
-  em.sigma.assign(nr, all_std);
-  for (int r = 0; r < nr; ++r)
-    if (n[r] >= opt.min_samples) em.sigma[r] = std::max(1e-4, std::sqrt(sum2[r] / n[r]));
+
   // Visibility: scale of the range-standardized residual per visibility bin.
-  em.visibility_std_scale.assign(nv, 1.0);
-  {
+  void fit_visibility_scale() {
+    const int nv = static_cast<int>(opt.visibility_bin_edges.size());
+    em.visibility_std_scale.assign(nv, 1.0);
     std::vector<double> s2(nv, 0);
     std::vector<long> k(nv, 0);
     for (size_t i = begin; i < end; ++i) {
@@ -305,30 +316,43 @@ ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int
     for (int b = 0; b < nv; ++b)
       if (k[b] >= opt.min_samples) em.visibility_std_scale[b] = std::max(0.05, std::sqrt(s2[b] / k[b]));
   }
-  auto z_of = [&](size_t i) {
-    return resid(i) / (em.sigma[recs[i].rb] * em.visibility_std_scale[recs[i].vb]);
-  };
+
   // Lag-1 autocorrelation of z along tracks, then the innovations it implies.
-  double cross = 0, a2 = 0, b2 = 0;
-  for (size_t i = begin + 1; i < end; ++i) {
-    if (!consecutive(recs[i - 1], recs[i])) continue;
-    const double a = z_of(i), b = z_of(i - 1);
-    if (std::isnan(a) || std::isnan(b)) continue;
-    cross += a * b;
-    a2 += a * a;
-    b2 += b * b;
+  void fit_ar1_and_innovation() {
+    double cross = 0, a2 = 0, b2 = 0;
+    for (size_t i = begin + 1; i < end; ++i) {
+      if (!consecutive(recs[i - 1], recs[i])) continue;
+      const double a = z_of(i), b = z_of(i - 1);
+      if (std::isnan(a) || std::isnan(b)) continue;
+      cross += a * b;
+      a2 += a * a;
+      b2 += b * b;
+    }
+    em.ar1 = a2 > 0 && b2 > 0 ? std::clamp(cross / std::sqrt(a2 * b2), -0.9, 0.98) : 0.0;
+    std::vector<double> eps;
+    const double norm = std::sqrt(1 - em.ar1 * em.ar1);
+    for (size_t i = begin + 1; i < end; ++i) {
+      if (!consecutive(recs[i - 1], recs[i])) continue;
+      const double a = z_of(i), b = z_of(i - 1);
+      if (std::isnan(a) || std::isnan(b)) continue;
+      eps.push_back((a - em.ar1 * b) / norm);
+    }
+    em.innovation = fit_innovation(std::move(eps));
   }
-  em.ar1 = a2 > 0 && b2 > 0 ? std::clamp(cross / std::sqrt(a2 * b2), -0.9, 0.98) : 0.0;
-  std::vector<double> eps;
-  const double norm = std::sqrt(1 - em.ar1 * em.ar1);
-  for (size_t i = begin + 1; i < end; ++i) {
-    if (!consecutive(recs[i - 1], recs[i])) continue;
-    const double a = z_of(i), b = z_of(i - 1);
-    if (std::isnan(a) || std::isnan(b)) continue;
-    eps.push_back((a - em.ar1 * b) / norm);
-  }
-  em.innovation = fit_innovation(std::move(eps));
-  return em;
+};
+
+// Fits one parameter of one class from recs[begin, end).
+ErrorModel fit_error(const std::vector<Rec>& recs, size_t begin, size_t end, int p, const FitOptions& opt,
+                     bool per_track_constant) {
+  ErrorFit fit{recs, begin, end, p, opt, ErrorModel{}, std::vector<double>(end - begin, 0.0)};
+  const ErrorStats pooled = error_stats(recs, begin, end, [&](const Rec& r) { return r.e[p]; });
+  const double pooled_std = pooled.n > 1 && pooled.std > 0 ? pooled.std : 1e-3;
+  fit.fit_means(pooled.mean);
+  if (per_track_constant) fit.fit_track_offsets();
+  fit.fit_sigmas(pooled_std);
+  fit.fit_visibility_scale();
+  fit.fit_ar1_and_innovation();
+  return fit.em;
 }
 
 // Mean length of runs of `flag` over consecutive frames of a track, and the share of flagged
@@ -502,122 +526,6 @@ KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const 
   m.controller.enabled = false;
   m.source = "Gaussian iid baseline";
   return m;
-}
-
-double histogram_intersection(const std::vector<double>& ref, const std::vector<double>& other, int bins) {
-  if (ref.size() < 2 || other.empty() || bins < 1) return 0;
-  std::vector<double> sorted = ref;
-  std::sort(sorted.begin(), sorted.end());
-  const double lo = sorted[static_cast<size_t>(0.01 * (sorted.size() - 1))];
-  const double hi = sorted[static_cast<size_t>(0.99 * (sorted.size() - 1))];
-  const double width = hi > lo ? (hi - lo) / bins : 1.0;
-  auto hist = [&](const std::vector<double>& v) {
-    std::vector<double> h(bins + 2, 0.0);
-    for (double x : v) {
-      const int k = x < lo ? 0 : x >= hi ? bins + 1 : 1 + std::min(bins - 1, static_cast<int>((x - lo) / width));
-      h[k] += 1.0 / v.size();
-    }
-    return h;
-  };
-  const auto a = hist(ref), b = hist(other);
-  double s = 0;
-  for (int k = 0; k < bins + 2; ++k) s += std::min(a[k], b[k]);
-  return s;
-}
-
-std::vector<CalibrationSequence> with_truth_motion(std::vector<CalibrationSequence> seqs) {
-  for (auto& cs : seqs) {
-    const double dt = cs.frame_dt;
-    std::map<int, std::map<int, Eigen::Vector3d>> pos;
-    for (size_t f = 0; f < cs.frames.size(); ++f)
-      for (const auto& o : cs.frames[f].truth) pos[o.id][static_cast<int>(f)] = o.position;
-    for (size_t f = 0; f < cs.frames.size(); ++f)
-      for (auto& o : cs.frames[f].truth) {
-        const auto& tp = pos[o.id];
-        const int fi = static_cast<int>(f);
-        const auto prev = tp.find(fi - 1), next = tp.find(fi + 1);
-        o.velocity.setZero();
-        o.acceleration.setZero();
-        if (prev != tp.end() && next != tp.end()) {
-          o.velocity = (next->second - prev->second) / (2 * dt);
-          o.acceleration = (next->second - 2 * o.position + prev->second) / (dt * dt);
-        } else if (next != tp.end()) {
-          o.velocity = (next->second - o.position) / dt;
-        } else if (prev != tp.end()) {
-          o.velocity = (o.position - prev->second) / dt;
-        }
-      }
-  }
-  return seqs;
-}
-
-std::vector<CalibrationSequence> resimulate(const std::vector<CalibrationSequence>& seqs, const KpiModel& model,
-                                            std::uint64_t seed) {
-  KpiManager kpi(model, seed);
-  std::vector<CalibrationSequence> out = with_truth_motion(seqs);
-  std::vector<Object> truth, reported;
-  for (size_t s = 0; s < out.size(); ++s) {
-    for (CalibrationFrame& fr : out[s].frames) {
-      truth = fr.truth;
-      // Ids unique across sequences, so each track keeps its own noise state.
-      for (Object& o : truth) o.id = static_cast<int>(s) * 100000 + o.id;
-      kpi.apply(truth, reported);
-      fr.detections = reported;
-    }
-  }
-  return out;
-}
-
-std::string format_comparison(const CalibrationStats& meas, const CalibrationStats& sim) {
-  std::ostringstream o;
-  o << std::fixed;
-  const auto& edges = meas.range_bin_edges;
-  auto bin_name = [&](size_t r) {
-    std::ostringstream b;
-    b << int(edges[r]) << "-";
-    if (r + 1 < edges.size()) b << int(edges[r + 1]);
-    b << " m";
-    return b.str();
-  };
-  for (const auto& [name, mc] : meas.classes) {
-    const auto it = sim.classes.find(name);
-    if (it == sim.classes.end() || mc.truth == 0) continue;
-    const ClassStats& sc = it->second;
-    o << "\n### " << name << " (" << mc.truth << " ground-truth boxes)\n\n";
-    o << "| range | GT boxes | measured detection rate | simulated detection rate |\n|---|---|---|---|\n";
-    for (size_t r = 0; r < mc.truth_by_range.size(); ++r) {
-      if (mc.truth_by_range[r] == 0) continue;
-      o << "| " << bin_name(r) << " | " << mc.truth_by_range[r] << " | " << std::setprecision(3)
-        << double(mc.detected_by_range[r]) / mc.truth_by_range[r] << " | "
-        << (sc.truth_by_range[r] ? double(sc.detected_by_range[r]) / sc.truth_by_range[r] : 0.0) << " |\n";
-    }
-    o << "| all | " << mc.truth << " | " << mc.recall() << " | " << sc.recall() << " |\n";
-    o << "| > 50 m | " << mc.truth_beyond_50 << " | " << mc.recall_beyond_50() << " | " << sc.recall_beyond_50()
-      << " |\n";
-    static const char* occ_names[4] = {"occlusion 0 (visible)", "occlusion 1 (partly)", "occlusion 2 (largely)",
-                                       "occlusion 3 (unknown)"};
-    for (int k = 0; k < 4; ++k) {
-      if (mc.truth_by_occlusion[k] == 0) continue;
-      o << "| " << occ_names[k] << " | " << mc.truth_by_occlusion[k] << " | "
-        << double(mc.detected_by_occlusion[k]) / mc.truth_by_occlusion[k] << " | "
-        << (sc.truth_by_occlusion[k] ? double(sc.detected_by_occlusion[k]) / sc.truth_by_occlusion[k] : 0.0) << " |\n";
-    }
-    o << "\n| statistic | measured | simulated |\n|---|---|---|\n";
-    o << "| mean miss-run length (frames) | " << mc.miss_burst_mean << " | " << sc.miss_burst_mean << " |\n";
-    o << "| share of misses in runs >= 2 | " << mc.misses_in_bursts << " | " << sc.misses_in_bursts << " |\n";
-    o << "| false positives per frame | " << double(mc.false_positives) / std::max(1L, meas.frames) << " | "
-      << double(sc.false_positives) / std::max(1L, sim.frames) << " |\n";
-    o << "| heading flip rate | " << mc.flip_rate << " | " << sc.flip_rate << " |\n";
-    o << "| mean score of matches | " << mc.score_mean << " | " << sc.score_mean << " |\n";
-    for (int p = 0; p < kNumKpiParams; ++p) {
-      const ErrorStats &a = mc.errors[p], &b = sc.errors[p];
-      o << "| " << to_string(static_cast<KpiParam>(p)) << " mean / std / lag-1 / excess kurtosis | "
-        << std::setprecision(3) << a.mean << " / " << a.std << " / " << a.lag1 << " / " << std::setprecision(1)
-        << a.excess_kurtosis << " | " << std::setprecision(3) << b.mean << " / " << b.std << " / " << b.lag1 << " / "
-        << std::setprecision(1) << b.excess_kurtosis << " |\n";
-    }
-  }
-  return o.str();
 }
 
 }  // namespace lidarsim::sensor

@@ -103,14 +103,33 @@ class KpiManager {
     const std::vector<double>* score_q = nullptr;  // the score quantiles it was born with (in model_)
   };
   static double quantile_at(const std::vector<double>& q, double fallback, double u);
+  // The steps of apply(): a modelled truth object (its track state, errors, miss, flip and, when
+  // detected, the reported object); the false positives of class k (its persistent ones first,
+  // then the births).
+  void report_modelled(const Object& o, int slot, KpiInjection& inj, std::vector<Object>& reported);
+  TrackState& advance_track(const Object& o, bool& fresh, int& gap);
+  void draw_errors(const Object& o, int slot, double range, TrackState& st, bool fresh, int gap, KpiInjection& inj);
+  struct Births {
+    double factor = 1;       // the births' share of the stationary rate
+    double ghost_share = 1;  // the share of births that become ghosts
+  };
+  void false_positives_of_class(int k, const ClassModel& cm, std::vector<Object>& reported);
+  Births carry_ghosts(int k, const ClassModel& cm, std::vector<Object>& reported);
+  void birth_false_positives(int k, const ClassModel& cm, const Births& births, double rate,
+                             const std::vector<double>& range_q, const std::vector<double>& azimuth_q,
+                             const std::vector<double>& score_q, std::vector<Object>& reported);
+  static void emit_false_positive(int k, const ClassModel& cm, const Ghost& g, double score,
+                                  std::vector<Object>& reported);
+  static void emit_ghost(int k, const ClassModel& cm, const Ghost& g, std::vector<Object>& reported);
+
   static double sample_quantiles(const std::vector<double>& q, double fallback, KpiRng& rng);
   double detection_probability(int slot, int rb, int vb, const Object& o, double range, long track_age) const;
 
   KpiModel model_;
   KpiOptions options_;
   std::uint64_t seed_;
-  std::array<KpiRng, 8> fp_rng_;  // per class
-  std::array<int, 8> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
+  std::array<KpiRng, kNumObjectClasses> fp_rng_;  // per class
+  std::array<int, kNumObjectClasses> class_slot_{};                // ObjectClass -> slot in class_models_, -1 none
   std::vector<const ClassModel*> class_models_;
   std::vector<RunningTargetController> controllers_;  // slot * kNumKpiParams + param
   // Per slot * kNumKpiParams + param, worked out once: the innovation's constants,
@@ -119,13 +138,13 @@ class KpiManager {
   std::vector<double> ar1_root_;
   std::vector<int> error_feature_;
   std::vector<int> detection_feature_;  // per slot
-  std::array<bool, 8> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
+  std::array<bool, kNumObjectClasses> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
   std::unordered_map<int, int> slot_of_id_;
   std::vector<TrackState> states_;
   std::vector<int> free_states_;
   std::vector<KpiInjection> injections_;
-  std::array<std::vector<Ghost>, 8> ghosts_;  // per class
-  std::array<bool, 8> fp_started_{};
+  std::array<std::vector<Ghost>, kNumObjectClasses> ghosts_;  // per class
+  std::array<bool, kNumObjectClasses> fp_started_{};
   Eigen::Vector2d ego_xy_ = Eigen::Vector2d::Zero();
   double ego_yaw_ = 0;
   long frame_ = 0;

@@ -483,7 +483,7 @@ std::string kpi_model_to_json(const KpiModel& m) {
       cj["errors"][to_string(static_cast<KpiParam>(p))] = {
           {"mean", e.mean}, {"std", e.sigma}, {"visibility_std_scale", e.visibility_std_scale},
           {"ar1", e.ar1}, {"track_std", e.track_std}, {"innovation", write_innovation(e.innovation)}};
-      if (e.conditional.present())  // absent: the file is as before the term existed
+      if (e.conditional.present())  // absent: a model without the term writes no key for it
         cj["errors"][to_string(static_cast<KpiParam>(p))]["conditional"] = write_conditional(e.conditional);
     }
     cj["detection_probability"] = c.detection_probability;
@@ -497,7 +497,7 @@ std::string kpi_model_to_json(const KpiModel& m) {
     cj["fp_azimuth_quantiles"] = c.fp_azimuth_quantiles;
     cj["fp_score_quantiles"] = c.fp_score_quantiles;
     cj["fp_z"] = c.fp_z;
-    if (c.fp_table.present()) cj["fp_table"] = write_fp_table(c.fp_table);  // absent: the file is as before
+    if (c.fp_table.present()) cj["fp_table"] = write_fp_table(c.fp_table);  // absent: no key
     if (c.fp_persistence.present())
       cj["fp_persistence"] = {{"survival", c.fp_persistence.survival},
                               {"ghost_share", c.fp_persistence.ghost_share},

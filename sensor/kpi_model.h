@@ -44,7 +44,7 @@ struct Innovation {
   double excess_kurtosis() const;  // of the unit-variance innovation (inf for t with dof <= 4)
 };
 
-// Optional conditional term (issue 5: the object loop's added effect): in the bin of a
+// Optional conditional term (an effect the object loop can add): in the bin of a
 // per-object feature, `bias` is added to the error's mean and `scale` multiplies its sigma.
 // Feature names are the object loop's vocabulary (qualify/objects.h) that the KPI manager can
 // compute from a truth object: kConditionalFeatures. The same shape serves as the class's
@@ -63,7 +63,7 @@ inline const std::vector<std::string> kConditionalFeatures = {
     "acceleration", "size", "box_width", "box_height", "heading_to_line_of_sight", "truncation", "visibility",
     "track_age"};
 
-// Optional false-positive table of a class ("fp_table" in the file; issue 11, the object loop's
+// Optional false-positive table of a class ("fp_table" in the file; the object loop's
 // false-positive effect): the class's false positives as a table over bins of one of their own
 // attributes (kFalsePositiveFeatures), each bin with its own Poisson rate per frame and its own
 // quantiles of range, azimuth and score to place its false positives by (an empty entry: the
@@ -81,7 +81,7 @@ struct FalsePositiveTable {
 };
 inline const std::vector<std::string> kFalsePositiveFeatures = {"range", "azimuth", "score"};
 
-// Optional persistence of a class's false positives ("fp_persistence" in the file; issue 11): on KITTI
+// Optional persistence of a class's false positives ("fp_persistence" in the file): on KITTI
 // 36 % of PointRCNN's false positives have one of the same class within 1.5 m in the previous frame
 // (ghost tracks), while most others last one frame. A share `ghost_share` of the false positives are
 // ghosts: reported again the next frame with probability `survival` (a geometric lifetime, mean

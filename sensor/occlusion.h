@@ -14,8 +14,8 @@
 // and only the columns whose azimuth meets the footprint and the rows between its lowest and
 // highest elevation are visited. Boxes are drawn nearest first and wins are counted as they
 // happen (a cell taken from a farther box is given back), so nothing walks the grid afterwards
-// and the next frame clears only the runs of cells that were written. tests/sensor/occlusion_reference.h keeps the per-cell 3-D
-// raster this replaced (issue 16); tests/sensor/test_occlusion_reference.cpp holds them equal.
+// and the next frame clears only the runs of cells that were written. tests/sensor/occlusion_reference.h keeps a per-cell 3-D
+// raster as the reference; tests/sensor/test_occlusion_reference.cpp holds them equal.
 #include <utility>
 #include <vector>
 

@@ -20,8 +20,8 @@ namespace {
 
 using nlohmann::json;
 constexpr double kDeg = std::numbers::pi / 180.0;
-// Limits that keep a scenario within what a simulation can hold (issue 13: 1e8 columns or
-// 10,000 objects ended in bad_alloc or minutes of work, without naming the field).
+// Limits that keep a scenario within what a simulation can hold (1e8 columns or 10,000 objects
+// would end in bad_alloc or minutes of work): beyond them the reader refuses, naming the field.
 constexpr std::size_t kMaxObjects = 2000;
 constexpr int kMaxFrames = 1000000;
 constexpr double kMaxLaneLength = 100000;  // m

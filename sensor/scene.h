@@ -10,6 +10,9 @@
 namespace lidarsim::sensor {
 
 enum class ObjectClass { Car, Truck, Van, Bus, Pedestrian, Cyclist, Motorcycle, Misc };
+// The number of ObjectClass values (tables indexed by class have this many entries).
+inline constexpr int kNumObjectClasses = 8;
+static_assert(static_cast<int>(ObjectClass::Misc) + 1 == kNumObjectClasses, "kNumObjectClasses: one per ObjectClass");
 std::string to_string(ObjectClass c);
 ObjectClass object_class_from_string(const std::string& name);  // throws lidarsim::Error
 

@@ -33,18 +33,8 @@ std::vector<std::string> split_list(const std::string& text) {
   return out;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  using namespace lidarsim;
-  // Every frame read allocates HDF5's decompression buffers (a few MB) on the prefetching thread;
-  // with glibc's defaults its arena hands them back to the system and faults them in again on
-  // every read (sys time was a third of a step). Keep freed memory up to 128 MB for reuse.
-  mallopt(M_MMAP_THRESHOLD, 32 << 20);
-  mallopt(M_TRIM_THRESHOLD, 128 << 20);
-  // Under mpirun -np N: N ranks train one model, --batch is split between them (README).
-  const train::Distributed::Session mpi(&argc, &argv);
-  train::Distributed& dist = train::Distributed::world();
+// The command line: every option with its help and default.
+cxxopts::Options command_line() {
   cxxopts::Options options("lidar-train",
                            "Train the intensity UNet (masked MSE + L2 on the weights) on Polar Grid Map datasets.\n"
                            "Without --val, validation holds out the cells of --split (data/split.h): by default\n"
@@ -57,7 +47,7 @@ int main(int argc, char** argv) {
     ("data", "training dataset(s), HDF5 from lidar-data import (comma-separated)", cxxopts::value<std::string>())
     ("train-also", "more training datasets (comma-separated), trained on in every cell and never scored: scans of OTHER places than --data", cxxopts::value<std::string>())
     ("val", "separate validation dataset (default: --split of --data)", cxxopts::value<std::string>())
-    ("split", "guarded | guarded:<half-width> | interleaved (old, leaks) | frames:<id>,...", cxxopts::value<std::string>()->default_value("guarded"))
+    ("split", "guarded | guarded:<half-width> | interleaved (leaks; for comparison) | frames:<id>,...", cxxopts::value<std::string>()->default_value("guarded"))
     ("channels", "input channels of the PGM, comma-separated", cxxopts::value<std::string>()->default_value("range,class,material"))
     ("epochs", "epochs", cxxopts::value<int>()->default_value("100"))
     ("steps-per-epoch", "steps per epoch (0: one pass over the frames)", cxxopts::value<int>()->default_value("0"))
@@ -95,65 +85,122 @@ int main(int argc, char** argv) {
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
+  return options;
+}
+
+// The run as the command line asks for it (TrainConfig checks the values themselves).
+lidarsim::train::TrainConfig config_from(const cxxopts::ParseResult& args) {
+  lidarsim::train::TrainConfig config;
+  for (const auto& p : split_list(args["data"].as<std::string>())) config.data.emplace_back(p);
+  if (args.count("train-also"))
+    for (const auto& p : split_list(args["train-also"].as<std::string>())) config.train_also.emplace_back(p);
+  if (args.count("val")) config.validation = args["val"].as<std::string>();
+  config.encoder.channels = split_list(args["channels"].as<std::string>());
+  config.epochs = args["epochs"].as<int>();
+  config.steps_per_epoch = args["steps-per-epoch"].as<int>();
+  config.batch = args["batch"].as<int>();
+  config.crop_columns = args["crop"].as<int>();
+  config.lr = args["lr"].as<float>();
+  config.lambda = args["lambda"].as<float>();
+  config.base = args["base"].as<int>();
+  config.depth = args["depth"].as<int>();
+  config.row_affine = args.count("row-affine") > 0;
+  config.lookup_base = args.count("lookup-base") > 0;
+  if (config.lookup_base) config.lookup_form = args["lookup-base"].as<std::string>();
+  config.early_stop = args.count("early-stop") > 0;
+  config.inner_columns = args["inner-columns"].as<int>();
+  config.patience = args["patience"].as<int>();
+  if (args.count("inner-frames")) config.inner_frames = split_list(args["inner-frames"].as<std::string>());
+  config.shrink_residual = args.count("shrink-residual") > 0;
+  if (!config.early_stop && (args.count("inner-columns") || args.count("patience") || args.count("inner-frames")))
+    throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
+  config.seed = args["seed"].as<std::uint64_t>();
+  config.threads = args["threads"].as<int>();
+  config.augment_roll = config.augment_mirror = !args.count("no-augment");
+  config.out = args["out"].as<std::string>();
+  config.resume = args.count("resume") > 0;
+  if (args.count("override")) config.resume_overrides = split_list(args["override"].as<std::string>());
+  if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
+  config.progress = !args.count("quiet");
+  config.cache_mb = args["cache-mb"].as<int>();
+  config.prefetch = !args.count("no-prefetch");
+  config.split = args["split"].as<std::string>();
+  return config;
+}
+
+// One trainer per output: a second one is refused instead of silently overwriting it. Under
+// MPI rank 0 alone writes, so it alone holds the lock.
+void lock_outputs(std::optional<lidarsim::OutputLock>& lock, const lidarsim::train::TrainConfig& config,
+                  const std::string& log) {
+  lidarsim::train::Distributed& dist = lidarsim::train::Distributed::world();
+  std::string lock_error;
+  try {
+    if (dist.root()) {
+      lock.emplace(config.out);
+      for (const auto& path : {config.out, config.export_weights.value_or(""), std::filesystem::path(log)})
+        if (!path.empty()) lidarsim::remove_stale_temp_files(path);  // left by a run that was killed while writing
+    }
+  } catch (const std::exception& e) {
+    if (!dist.active()) throw;
+    lock_error = e.what();
+  }
+  dist.agree(lock_error);
+}
+
+// Rank 0's summary of a finished run on stdout: the residual scale, the chosen epoch, the final figures.
+void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::train::TrainConfig& config,
+                   int half_width) {
+  if (result.residual_scale) {
+    std::string tried;
+    for (const auto& [factor, mae] : result.residual_scale_inner_mae) {
+      char item[40];
+      std::snprintf(item, sizeof item, "%s%.2f: %.4f", tried.empty() ? "" : ", ", factor, mae);
+      tried += item;
+    }
+    std::printf("residual scale: %.2f (inner MAE by factor: %s); validation of the chosen epoch unscaled: MAE %.4f RMSE %.4f\n",
+                *result.residual_scale, tried.c_str(), result.unscaled_validation->mae, result.unscaled_validation->rmse);
+  }
+  if (result.chosen_validation) {
+    const auto& chosen = result.epochs[static_cast<std::size_t>(result.chosen_epoch - 1)];
+    std::printf("early stopping: %s; chosen epoch %d of %zu run (inner MAE %.4f); its weights kept\n"
+                "final: val MAE %.4f RMSE %.4f over %ld cells (chosen epoch %d, scored once); checkpoint %s; "
+                "receptive field half-width %d columns; split %s\n",
+                result.inner_region.c_str(), result.chosen_epoch, result.epochs.size(), chosen.inner->mae,
+                result.chosen_validation->mae, result.chosen_validation->rmse, result.chosen_validation->cells,
+                result.chosen_epoch, config.out.c_str(), half_width, config.split.c_str());
+  } else if (!result.epochs.empty()) {
+    const auto& last = result.epochs.back();
+    std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s; receptive field half-width %d columns; "
+                "split %s\n",
+                last.validation.mae, last.validation.rmse, last.validation.cells, config.out.c_str(), half_width,
+                config.validation ? "--val" : config.split.c_str());
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace lidarsim;
+  // Every frame read allocates HDF5's decompression buffers (a few MB) on the prefetching thread;
+  // with glibc's defaults its arena hands them back to the system and faults them in again on
+  // every read (sys time was a third of a step). Keep freed memory up to 128 MB for reuse.
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, 128 << 20);
+  // Under mpirun -np N: N ranks train one model, --batch is split between them (README).
+  const train::Distributed::Session mpi(&argc, &argv);
+  train::Distributed& dist = train::Distributed::world();
+  cxxopts::Options options = command_line();
   try {
     const auto args = options.parse(argc, argv);
     if (args.count("help") || !args.count("data")) {
       if (dist.root()) std::cout << options.help() << "\n";
       return args.count("help") ? 0 : 2;
     }
-    train::TrainConfig config;
-    for (const auto& p : split_list(args["data"].as<std::string>())) config.data.emplace_back(p);
-    if (args.count("train-also"))
-      for (const auto& p : split_list(args["train-also"].as<std::string>())) config.train_also.emplace_back(p);
-    if (args.count("val")) config.validation = args["val"].as<std::string>();
-    config.encoder.channels = split_list(args["channels"].as<std::string>());
-    config.epochs = args["epochs"].as<int>();
-    config.steps_per_epoch = args["steps-per-epoch"].as<int>();
-    config.batch = args["batch"].as<int>();
-    config.crop_columns = args["crop"].as<int>();
-    config.lr = args["lr"].as<float>();
-    config.lambda = args["lambda"].as<float>();
-    config.base = args["base"].as<int>();
-    config.depth = args["depth"].as<int>();
-    config.row_affine = args.count("row-affine") > 0;
-    config.lookup_base = args.count("lookup-base") > 0;
-    if (config.lookup_base) config.lookup_form = args["lookup-base"].as<std::string>();
-    config.early_stop = args.count("early-stop") > 0;
-    config.inner_columns = args["inner-columns"].as<int>();
-    config.patience = args["patience"].as<int>();
-    if (args.count("inner-frames")) config.inner_frames = split_list(args["inner-frames"].as<std::string>());
-    config.shrink_residual = args.count("shrink-residual") > 0;
-    if (!config.early_stop && (args.count("inner-columns") || args.count("patience") || args.count("inner-frames")))
-      throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
-    config.seed = args["seed"].as<std::uint64_t>();
-    config.threads = args["threads"].as<int>();
-    config.augment_roll = config.augment_mirror = !args.count("no-augment");
-    config.out = args["out"].as<std::string>();
-    config.resume = args.count("resume") > 0;
-    if (args.count("override")) config.resume_overrides = split_list(args["override"].as<std::string>());
-    if (args.count("export-weights")) config.export_weights = args["export-weights"].as<std::string>();
-    config.progress = !args.count("quiet");
-    config.cache_mb = args["cache-mb"].as<int>();
-    config.prefetch = !args.count("no-prefetch");
-    config.split = args["split"].as<std::string>();
+    const train::TrainConfig config = config_from(args);
     const int half_width = nn::receptive_field_half_width({1, 1, config.base, config.depth});
 
-    // One trainer per output: a second one is refused instead of silently overwriting it. Under
-    // MPI rank 0 alone writes, so it alone holds the lock.
     std::optional<OutputLock> lock;
-    std::string lock_error;
-    try {
-      if (dist.root()) {
-        lock.emplace(config.out);
-        for (const auto& path : {config.out, config.export_weights.value_or(""),
-                                 std::filesystem::path(args.count("log") ? args["log"].as<std::string>() : "")})
-          if (!path.empty()) remove_stale_temp_files(path);  // left by a run that was killed while writing
-      }
-    } catch (const std::exception& e) {
-      if (!dist.active()) throw;
-      lock_error = e.what();
-    }
-    dist.agree(lock_error);
+    lock_outputs(lock, config, args.count("log") ? args["log"].as<std::string>() : "");
 
     // With --early-stop the epochs are measured on the inner region only (the scored regions once, at the end).
     std::string csv = config.early_stop ? "epoch,step,train_loss,inner_mae,inner_rmse,inner_cells\n"
@@ -177,31 +224,7 @@ int main(int argc, char** argv) {
                    static_cast<long long>(result.steps), config.out.c_str());
       return 130;
     }
-    if (result.residual_scale) {
-      std::string tried;
-      for (const auto& [factor, mae] : result.residual_scale_inner_mae) {
-        char item[40];
-        std::snprintf(item, sizeof item, "%s%.2f: %.4f", tried.empty() ? "" : ", ", factor, mae);
-        tried += item;
-      }
-      std::printf("residual scale: %.2f (inner MAE by factor: %s); validation of the chosen epoch unscaled: MAE %.4f RMSE %.4f\n",
-                  *result.residual_scale, tried.c_str(), result.unscaled_validation->mae, result.unscaled_validation->rmse);
-    }
-    if (result.chosen_validation) {
-      const auto& chosen = result.epochs[static_cast<std::size_t>(result.chosen_epoch - 1)];
-      std::printf("early stopping: %s; chosen epoch %d of %zu run (inner MAE %.4f); its weights kept\n"
-                  "final: val MAE %.4f RMSE %.4f over %ld cells (chosen epoch %d, scored once); checkpoint %s; "
-                  "receptive field half-width %d columns; split %s\n",
-                  result.inner_region.c_str(), result.chosen_epoch, result.epochs.size(), chosen.inner->mae,
-                  result.chosen_validation->mae, result.chosen_validation->rmse, result.chosen_validation->cells,
-                  result.chosen_epoch, config.out.c_str(), half_width, config.split.c_str());
-    } else if (!result.epochs.empty()) {
-      const auto& last = result.epochs.back();
-      std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s; receptive field half-width %d columns; "
-                  "split %s\n",
-                  last.validation.mae, last.validation.rmse, last.validation.cells, config.out.c_str(), half_width,
-                  config.validation ? "--val" : config.split.c_str());
-    }
+    print_summary(result, config, half_width);
     return 0;
   } catch (const cxxopts::exceptions::exception& e) {
     if (dist.root()) std::fprintf(stderr, "error: %s (see --help)\n", e.what());

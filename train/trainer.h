@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <iterator>
 #include <memory>
 #include <optional>
 #include <string>
@@ -29,6 +30,17 @@
 
 namespace lidarsim::train {
 
+// The lookup base's form (TrainConfig::lookup_form), by its spelling on the command line and in
+// train_config: "groups" or "classes".
+enum class LookupForm { groups, classes };
+inline constexpr const char* kLookupFormNames[] = {"groups", "classes"};
+static_assert(std::size(kLookupFormNames) == static_cast<std::size_t>(LookupForm::classes) + 1,
+              "kLookupFormNames: one name per LookupForm");
+// The form a spelling names; anything else throws lidarsim::Error
+// "lidar-train: --lookup-base: must be groups or classes, got \"<name>\"".
+LookupForm parse_lookup_form(const std::string& name);
+inline const char* to_string(LookupForm f) { return kLookupFormNames[static_cast<int>(f)]; }
+
 struct TrainConfig {
   std::vector<std::filesystem::path> data;         // training datasets (HDF5)
   std::optional<std::filesystem::path> validation;  // separate validation dataset; else `split` of the data
@@ -38,7 +50,7 @@ struct TrainConfig {
   std::vector<std::filesystem::path> train_also;
   // Split of the training sets when there is no separate validation set (data/split.h): "guarded"
   // (guard bands of twice this model's receptive-field half-width), "guarded:<half-width>" (at
-  // least the model's), "interleaved" (the old split, leaks; for comparison), "frames:<id>,...".
+  // least the model's), "interleaved" (leaks across neighbouring columns; for comparison), "frames:<id>,...".
   std::string split = "guarded";
   pgm::EncoderConfig encoder;
   int base = 16, depth = 4;
@@ -52,7 +64,8 @@ struct TrainConfig {
   // The lookup base's form: "groups" (the encoder's class groups, plain per-row mean offsets) or
   // "classes" (the intensity loop's best lookup: one group per class id, per-beam offsets fitted as
   // the loop fits them; train/lookup_fit.h). "classes" replaces the encoder's class groups with
-  // one_group_per_class(), so the network's class input is one-hot over every class too.
+  // one_group_per_class(), so the network's class input is one-hot over every class too. Kept as
+  // its spelling (callers outside train/ set it so); train_frames parses it once (parse_lookup_form).
   std::string lookup_form = "groups";
   // Early stopping that cannot leak (data/split.h inner_split, train/early_stop.h): the network
   // does not train on an inner region of `inner_columns` columns and its guard band; the epoch

@@ -1,10 +1,9 @@
 // The simulation pipeline (`lidar-infer sim`) end to end on the bundled demo scenario, with a
-// tiny untrained intensity UNet (base 4, depth 2) written by the test: outputs exist and parse,
-// the object list obeys the field of view and keeps track ids, the PGM has returns, stages are
-// timed; the CLI names the bad file and exits non-zero.
+// tiny untrained intensity UNet written by the test (tests/e2e/sim_pipeline_fixture.h): outputs
+// exist and parse, the object list obeys the field of view and keeps track ids, the PGM has
+// returns, stages are timed. The command line is tested in test_sim_cli.cpp, the pictures in
+// test_sim_pictures.cpp.
 #include <gtest/gtest.h>
-
-#include <unistd.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -20,7 +19,6 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.h"
-#include "common/plot.h"
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
 #include "pgm/materials.h"
@@ -28,48 +26,15 @@
 #include "sensor/frames.h"
 #include "sensor/occlusion.h"
 #include "sensor/scenario.h"
+#include "tests/e2e/sim_pipeline_fixture.h"
 #include "tests/support/shared_data.h"
-#include "tests/support/image_checks.h"
 
 namespace lidarsim {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-class SimPipelineTest : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    dir_ = fs::temp_directory_path() / ("lidarsim_test_sim_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    infer::write_untrained_checkpoint(checkpoint(), 4, 2, 7, pgm::BeamLayout::hdl64e());
-  }
-  static void TearDownTestSuite() { fs::remove_all(dir_); }
-  static fs::path checkpoint() { return dir_ / "tiny_unet.h5"; }
-  static fs::path scenario() { return testing::source_dir() / "data/scenarios/demo_urban.json"; }
-  static fs::path kpi() { return testing::source_dir() / "data/models/kpi_pointrcnn.json"; }
-  // objects_only: the object-level model without PCL generator and UNet (fast, same object list).
-  static infer::SimPipeline make(std::uint64_t seed = 1, bool objects_only = false) {
-    infer::SimOptions o;
-    o.seed = seed;
-    o.point_cloud = !objects_only;
-    return infer::SimPipeline::from_files(scenario(), kpi(), checkpoint(), o);
-  }
-  static int run_cli(const std::string& args, std::string& err) {
-    const fs::path exe = testing::binary_dir() / "infer/lidar-infer";
-    const fs::path err_file = dir_ / "stderr.txt";
-    const int rc = std::system((exe.string() + " sim " + args + " >/dev/null 2>" + err_file.string()).c_str());
-    err = read_text(err_file);
-    return rc;
-  }
-  static inline fs::path dir_;
-};
+using sim_test::read_text;
+using sim_test::SimPipelineTest;
 
 TEST_F(SimPipelineTest, OutputsOfEachFrameExistAndParse) {
   auto pipeline = make();
@@ -377,32 +342,6 @@ TEST_F(SimPipelineTest, SameSeedGivesTheSameReportedObjects) {
   }
 }
 
-TEST_F(SimPipelineTest, CliRunsAFewFramesAndWritesTheSummary) {
-  std::string err;
-  const fs::path out = dir_ / "cli";
-  const int rc = run_cli("--model " + checkpoint().string() + " --frames 2 --format ply --quiet --out " + out.string(), err);
-  ASSERT_EQ(rc, 0) << err;
-  EXPECT_TRUE(fs::exists(out / "cloud_0001.ply"));
-  EXPECT_TRUE(fs::exists(out / "summary.md"));
-  EXPECT_EQ(nlohmann::json::parse(read_text(out / "summary.json"))["frames"], 2);
-}
-
-TEST_F(SimPipelineTest, CliEveryWritesOnlyEveryNthFrameThroughTheWriterThread) {
-  std::string err;
-  const fs::path out = dir_ / "every";
-  const int rc = run_cli("--model " + checkpoint().string() + " --frames 5 --every 2 --no-images --quiet --out " +
-                             out.string(), err);
-  ASSERT_EQ(rc, 0) << err;
-  for (int k = 0; k < 5; ++k) {
-    char name[32];
-    std::snprintf(name, sizeof name, "cloud_%04d.pcd", k);
-    EXPECT_EQ(fs::exists(out / name), k % 2 == 0) << name;
-  }
-  const auto summary = nlohmann::json::parse(read_text(out / "summary.json"));
-  EXPECT_EQ(summary["frames"], 5);
-  EXPECT_EQ(summary["frames_without_intensity"], 2) << "the UNet runs on the written frames 0, 2, 4 only";
-}
-
 TEST_F(SimPipelineTest, SkippingTheIntensityOfAFrameChangesNothingElseNowOrLater) {
   // Frames 1 and 3 without the UNet: every other number of every frame is the same as with it,
   // and the frames that do run it predict the same intensity (the UNet carries no state).
@@ -475,143 +414,6 @@ TEST_F(SimPipelineTest, SensorLayoutFileSetsTheGridAndTheVerticalFieldOfView) {
   const float* mask = frame.pgm.channel("mask");
   for (int c = 0; c < 1024; ++c) road += mask[31 * 1024 + c] > 0;
   EXPECT_GT(road, 500);
-}
-
-// One line on stderr, naming the file, and a non-zero exit.
-void expect_one_error_line(int rc, const std::string& err, const std::string& file) {
-  EXPECT_NE(rc, 0);
-  EXPECT_EQ(err.rfind("error: ", 0), 0u) << err;
-  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
-  EXPECT_NE(err.find(file), std::string::npos) << err;
-}
-
-TEST_F(SimPipelineTest, CliMissingScenarioNamesTheFile) {
-  std::string err;
-  const std::string missing = (dir_ / "no_such_scenario.json").string();
-  const int rc = run_cli("--scenario " + missing + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
-  expect_one_error_line(rc, err, missing);
-}
-
-TEST_F(SimPipelineTest, CliUnreadableModelNamesTheFile) {
-  std::string err;
-  const fs::path bad = dir_ / "not_a_checkpoint.h5";
-  std::ofstream(bad) << "this is not HDF5\n";
-  const int rc = run_cli("--model " + bad.string() + " --out " + (dir_ / "x").string(), err);
-  expect_one_error_line(rc, err, bad.string());
-}
-
-TEST_F(SimPipelineTest, CliBadKpiModelNamesTheFile) {
-  std::string err;
-  const fs::path bad = dir_ / "bad_kpi.json";
-  std::ofstream(bad) << "{\"range_bin_edges\": [0, 20], \"classes\": 3}\n";
-  const int rc = run_cli("--kpi " + bad.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
-  expect_one_error_line(rc, err, bad.string());
-}
-
-// The bundled scenario with one field broken, through the CLI: the error names file and field.
-TEST_F(SimPipelineTest, CliBadScenarioFieldsNameTheFileAndTheField) {
-  const auto base = nlohmann::json::parse(read_text(scenario()));
-  struct Case {
-    const char* name;
-    const char* field;
-    void (*edit)(nlohmann::json&);
-  };
-  const Case cases[] = {
-      {"negative_size", "objects[0].size[0]", [](nlohmann::json& j) { j["objects"][0]["size"][0] = -4.5; }},
-      {"unknown_class", "objects[2].class", [](nlohmann::json& j) { j["objects"][2]["class"] = "Spaceship"; }},
-      {"missing_field", "sensor", [](nlohmann::json& j) { j.erase("sensor"); }},
-  };
-  for (const auto& c : cases) {
-    nlohmann::json j = base;
-    c.edit(j);
-    const fs::path file = dir_ / (std::string(c.name) + ".json");
-    std::ofstream(file) << j.dump();
-    std::string err;
-    const int rc = run_cli("--scenario " + file.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
-    expect_one_error_line(rc, err, file.string());
-    EXPECT_NE(err.find(c.field), std::string::npos) << c.name << ": " << err;
-  }
-  // Python's json writes NaN as a bare token: the reader must refuse it, naming the path.
-  std::string text = base.dump();
-  const std::string key = "\"duration\":";
-  const auto at = text.find(key);
-  ASSERT_NE(at, std::string::npos);
-  const auto end = text.find(',', at);
-  text.replace(at + key.size(), end - at - key.size(), "NaN");
-  const fs::path nan_file = dir_ / "nan.json";
-  std::ofstream(nan_file) << text;
-  std::string err;
-  const int rc = run_cli("--scenario " + nan_file.string() + " --model " + checkpoint().string() + " --out " + (dir_ / "x").string(), err);
-  expect_one_error_line(rc, err, nan_file.string());
-}
-
-// The pictures explain themselves: text in bands and a panel added around the data, which stays as it was.
-using test::count_colour;
-
-// Built by hand (no pipeline run): road returns on beam 5, a car on beam 3, one object reported.
-infer::SimFrame hand_made_frame() {
-  infer::SimFrame f;
-  f.index = 3;
-  f.time = 0.3;
-  f.pgm = pgm::PolarGridMap(pgm::BeamLayout::uniform(8, 2, -24, 1024), {"range", "class", "material", "intensity", "mask"});
-  for (int col = 0; col < 512; ++col) {
-    const bool car = col < 100;
-    const int row = car ? 3 : 5;
-    f.pgm.at(f.pgm.channel_index("mask"), row, col) = 1;
-    f.pgm.at(f.pgm.channel_index("range"), row, col) = car ? 10 : 20;
-    f.pgm.at(f.pgm.channel_index("class"), row, col) = car ? pgm::cls::car : pgm::cls::road;
-    f.pgm.at(f.pgm.channel_index("material"), row, col) = car ? pgm::material::car_paint : pgm::material::asphalt;
-    f.pgm.at(f.pgm.channel_index("intensity"), row, col) = 0.5f;
-  }
-  sensor::Object o;
-  o.position = {10, 0, 0};
-  o.size = {4, 2, 1.5};
-  f.sensor.objects = {o};
-  f.reported = {{o, 0, false}};
-  return f;
-}
-
-TEST(SimPictures, BevHasAHeaderAndALegendPanelBesideTheUntouchedMap) {
-  const Image im = infer::bev_image(hand_made_frame(), 40);
-  const int band = band_height(2), map = 800;
-  ASSERT_EQ(im.height, band + map);
-  ASSERT_GT(im.width, map + 200);  // the legend panel
-  const Rgb ink{225, 225, 225};
-  EXPECT_GT(count_colour(im, 0, 0, map, band, ink), 200) << "header: frame and time";
-  // One swatch per kind of mark, in the map's colours, and their labels.
-  for (Rgb c : {Rgb{60, 200, 60}, Rgb{30, 100, 30}, Rgb{230, 50, 50}, Rgb{255, 160, 0}, Rgb{230, 60, 230}})
-    EXPECT_GT(count_colour(im, map, band, im.width, band + 300, c), 50) << int(c.r) << "," << int(c.g);
-  EXPECT_GT(count_colour(im, map, band, im.width, band + 300, ink), 1000) << "legend labels";
-  EXPECT_GT(count_colour(im, map, im.height - 60, im.width, im.height, ink), 100) << "scale bar";
-  // The map, moved down by the band: the sensor's white cross and the object's boxes are in it.
-  EXPECT_GT(count_colour(im, 380, band + 380, 420, band + 420, {255, 255, 255}), 30);
-  EXPECT_GT(count_colour(im, 0, band, map, band + map, {230, 50, 50}), 50);
-}
-
-TEST(SimPictures, PgmRowsHaveCaptionsWithTheirScaleOrKeyBelowAHeader) {
-  const infer::SimFrame f = hand_made_frame();
-  const Image im = infer::pgm_image(f);
-  const int band = band_height(2), row = 128, gap = 4;  // 8 beams, 16 px each
-  ASSERT_EQ(im.width, 1024);
-  ASSERT_EQ(im.height, band + 4 * (band + row) + 3 * gap);
-  EXPECT_GT(count_colour(im, 0, 0, 1024, band, {0, 0, 0}), 200) << "header";
-  const TextStyle style;
-  for (int k = 0; k < 4; ++k) {
-    const int top = band + k * (band + row + gap);
-    EXPECT_GT(count_colour(im, 0, top, 300, top + band, style.ink), 100) << "caption of row " << k;
-  }
-  auto band_of = [&](int k, Rgb c) {
-    const int top = band + k * (band + row + gap);
-    return count_colour(im, 0, top, 1024, top + band, c);
-  };
-  // Range and intensity: a colour scale; class and material: a swatch for each id present.
-  for (int k : {0, 3}) EXPECT_GT(band_of(k, colormap_viridis(0)), 5) << k;
-  EXPECT_GT(band_of(1, colormap_category(pgm::cls::car)), 50);
-  EXPECT_GT(band_of(1, colormap_category(pgm::cls::road)), 50);
-  EXPECT_GT(band_of(2, colormap_category(pgm::material::car_paint)), 50);
-  // The data: road returns at 20 m (the range scale's top) on beam 5 of the first row.
-  const int range_top = 2 * band;
-  EXPECT_EQ(count_colour(im, 100, range_top + 5 * 16, 512, range_top + 6 * 16, colormap_viridis(1)), 412 * 16);
 }
 
 }  // namespace

@@ -379,7 +379,7 @@ TEST_F(CheckpointTest, HdfFileThatIsNotACheckpointNamesTheMissingAttribute) {
 }
 
 // The per-row affine layer (nn/unet.h) travels with its row count; a model without it is saved
-// with no such attribute, exactly as before the layer existed, so older files still load.
+// with no such attribute, and a file without the attribute loads as a model without the layer.
 TEST_F(CheckpointTest, RowAffineLayerRoundTripsWithItsRowCountAndPredictions) {
   const UNetConfig with_rows{3, 1, 4, 2, 12};
   UNet model(with_rows);

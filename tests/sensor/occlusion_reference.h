@@ -1,6 +1,6 @@
 #pragma once
-// The occlusion raster as it was before issue 16 (one 3-D slab test per cell of a conservative
-// angular rectangle), kept as the reference that sensor::Occlusion must agree with. Objects
+// A plain occlusion raster (one 3-D slab test per cell of a conservative angular rectangle),
+// kept as the reference that sensor::Occlusion must agree with. Objects
 // only: the visible fractions and per-object cell counts; lanes are checked by their own tests.
 #include <algorithm>
 #include <cmath>

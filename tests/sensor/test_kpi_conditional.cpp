@@ -1,5 +1,5 @@
-// The KPI model's optional conditional term (issue 5 follow-up): a bias (and sigma scale) per bin
-// of a per-object feature, applied by the KPI manager; the file's parse errors; absent = as before.
+// The KPI model's optional conditional term: a bias (and sigma scale) per bin
+// of a per-object feature, applied by the KPI manager; the file's parse errors; absent = no term.
 // Also its twin on detection probability (ClassModel::detection_conditional).
 #include <gtest/gtest.h>
 

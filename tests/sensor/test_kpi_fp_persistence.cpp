@@ -1,7 +1,7 @@
-// The KPI model's optional false-positive persistence (ClassModel::fp_persistence, issue 11): a false
+// The KPI model's optional false-positive persistence (ClassModel::fp_persistence): a false
 // positive survives to the next frame with a probability (ghost tracks, as PointRCNN's on KITTI), keeps
 // its id and class, moves by a jitter, its score follows a copula AR(1); births at rate x (1 - survival)
-// keep the mean count. Absent, every draw is as before the field existed.
+// keep the mean count. Absent, every draw is that of a model without persistence.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -62,8 +62,9 @@ std::uint64_t digest_of(const KpiModel& m, std::uint64_t seed, int frames) {
   return d.h;
 }
 
-// The digest of 300 frames of the default model (seed 7), taken with the KPI manager as it was before
-// the persistence field existed (commit 2dbf72f): without the field the draws must stay bit for bit.
+// The digest of 300 frames of the default model (seed 7, no persistence field), a golden value
+// taken from the KPI manager without persistence (commit 2dbf72f): without the field the draws must
+// stay these bits.
 TEST(KpiFpPersistence, WithoutTheFieldEveryDrawIsAsBefore) {
   EXPECT_EQ(digest_of(default_kpi_model(), 7, 300), 0x443333e3f269ed28ull);
   KpiModel table = default_kpi_model();

@@ -1,6 +1,6 @@
-// The KPI model's optional false-positive table (ClassModel::fp_table, issue 11): per bin its own
+// The KPI model's optional false-positive table (ClassModel::fp_table): per bin its own
 // Poisson rate and placement quantiles, drawn by the KPI manager from the class's own stream; absent,
-// the file and every draw are as before.
+// the file and every draw are those of a model without the table.
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -1,4 +1,4 @@
-// The per-column occlusion raster (issue 16) against the per-cell raster it replaced
+// The per-column occlusion raster against the per-cell reference raster
 // (occlusion_reference.h): the same visible fractions within 1 % on crowded random scenes.
 #include <gtest/gtest.h>
 
@@ -33,7 +33,7 @@ std::vector<Object> crowd(int n, unsigned seed, bool odd) {
                          : Eigen::Vector3d(1.8, 0.6, 1.7);
     // Heights vary by a few cm: two intersecting boxes with roofs in one plane tie exactly in
     // depth on the rays through both roofs, and which one a raster gives a tied cell to is
-    // arbitrary (the old one decided it by rounding the stored depth to float).
+    // arbitrary (the reference decides it by rounding the stored depth to float).
     o.size.z() += 0.1 * (u(rng) - 0.5);
     const double r = std::sqrt(36 + (3600 - 36) * u(rng)), a = 2 * std::numbers::pi * u(rng);
     o.position = {r * std::cos(a), r * std::sin(a), -1.73 + o.size.z() / 2};

@@ -186,8 +186,8 @@ TEST(Tracker, RejectsTimeGoingBackwardsAndNonFiniteInput) {
 namespace lidarsim::sensor {
 namespace {
 
-// The association of issue 16 (gated candidates from detections sorted by x, the Hungarian
-// solver per connected group) against the whole-matrix Hungarian it replaced, recomputed here
+// The gated association (candidates from detections sorted by x, the Hungarian solver per
+// connected group) against the whole-matrix Hungarian, recomputed here
 // from the tracks before each update: same number of associations and the same total distance
 // on crowded frames, where groups of several tracks and detections compete.
 TEST(Tracker, GroupedAssociationEqualsWholeMatrixHungarianOnCrowdedFrames) {

@@ -1,5 +1,5 @@
-// Lazy training (issue 12): frames read per step from the file with a prefetching thread give the
-// run that training on the dataset in memory gives, bit for bit; old files train too; a damaged
+// Lazy training: frames read per step from the file with a prefetching thread give the
+// run that training on the dataset in memory gives, bit for bit; files in the first dataset layout train too; a damaged
 // frame is named; the prefetcher stops on Ctrl-C; memory does not grow with the frame count.
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -190,8 +190,8 @@ void write_contiguous(hid_t file, const char* name, hid_t type, std::vector<hsiz
   H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values);
   H5Dclose(ds), H5Sclose(space);
 }
-// The same frames as files before issue 12/13 held them: contiguous arrays, variable-length
-// strings, row modes in an attribute.
+// The same frames in the first dataset layout: contiguous arrays, variable-length strings, row
+// modes in an attribute.
 void write_old_format(const fs::path& path, const data::Dataset& d) {
   const hsize_t n = d.size(), c = d.channels.size(), h = d.rows(), w = d.cols();
   hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);

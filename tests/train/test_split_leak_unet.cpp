@@ -1,10 +1,10 @@
-// The old interleaved split leaks for a network too, the guarded one does not (data/split.h): a
+// The interleaved split leaks for a network too, the guarded one does not (data/split.h): a
 // tiny UNet on a target that depends on the scenery only. 16 scenery regions of 16 columns (phase
-// 8: every old validation sector is half of two regions that reach into training sectors), each
+// 8: every interleaved validation sector is half of two regions that reach into training sectors), each
 // seen through its own one-hot input channel, each with an intensity drawn independently of
-// everything. On the old split the network predicts the held-out cells from the same scenery on
+// everything. On the interleaved split the network predicts the held-out cells from the same scenery on
 // the training side; on the guarded split (guard 2 x 9 columns >= a region) it cannot, and its
-// error is that of the honest guess or worse (measured: 0.041 old, 0.294 guarded, guess 0.234).
+// error is that of the honest guess or worse (measured: 0.041 interleaved, 0.294 guarded, guess 0.234).
 #include <gtest/gtest.h>
 
 #include <random>

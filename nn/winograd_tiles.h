@@ -1,0 +1,119 @@
+#pragma once
+// The pieces the Winograd forward pass (nn/winograd.cpp) and its weight gradient
+// (nn/winograd_weight_grad.cpp) share: the tile geometry, the by-phase layout of the planes
+// (nn/winograd_phases.cpp), the input transform and the scratch buffers. Internal to nn/.
+#include <algorithm>
+#include <cstddef>
+#include <cstdlib>
+
+#include "nn/big_alloc.h"
+#include "nn/winograd.h"
+
+#ifdef __AVX512F__
+#include <immintrin.h>
+
+namespace lidarsim::nn::detail::wino {
+
+constexpr int kCB = 8;  // output channels per GEMM register block
+
+// Grow-only, 64-byte aligned scratch.
+struct Buf {
+  float* p = nullptr;
+  std::size_t n = 0;
+  float* get(std::size_t want) {
+    if (want > n) {
+      std::free(p);
+      p = nullptr;  // a throw below leaves an empty buffer
+      n = 0;
+      p = static_cast<float*>(aligned_storage(want * sizeof(float)));
+      n = want;
+    }
+    return p;
+  }
+  ~Buf() { std::free(p); }
+};
+
+// Per-thread transform scratch, shared by the forward pass and the weight gradient (they never
+// run at the same time on one thread).
+extern thread_local Buf tl_v, tl_m;
+
+// Tile geometry. The input is kept "by phase": for each padded row (yy = y + 1) and phase r in
+// 0..3, entry tx holds pixel x = 4 tx + r - 1 (zero outside the image). Input tile (ty, tx)
+// covers rows 4 ty - 1 .. 4 ty + 4 and columns 4 tx - 1 .. 4 tx + 4, i.e. phases 0..3 of tile
+// tx and phases 0, 1 of tile tx + 1: 16 adjacent tiles load as one unaligned vector each.
+struct Geom {
+  int h, w, th, tw;
+  int nv;         // 16-tile vectors per block (1..3)
+  int tb;         // tiles per block = 16 nv
+  int blocks;     // blocks per tile row
+  int len;        // floats per (row, phase) line: blocks * tb + 16
+  int rows;       // padded rows: 4 th + 2
+  std::size_t plane;  // floats per channel: rows * 4 * len
+  Geom(int h_, int w_) : h(h_), w(w_), th((h_ + 3) / 4), tw((w_ + 3) / 4) {
+    // Fewest junk tiles at the row end; ties go to the longer block (fewer weight reloads).
+    int best = 3, best_waste = 1 << 30;
+    for (int v = 3; v >= 1; --v) {
+      const int t = 16 * v, waste = (tw + t - 1) / t * t - tw;
+      if (waste < best_waste) best = v, best_waste = waste;
+    }
+    nv = best;
+    tb = 16 * nv;
+    blocks = (tw + tb - 1) / tb;
+    len = blocks * tb + 16;
+    rows = 4 * th + 2;
+    plane = static_cast<std::size_t>(rows) * 4 * len;
+  }
+};
+
+inline const float* plane_of(const PlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+inline float* plane_of(const OutPlaneSet& s, int img, int ch, std::size_t hw) {
+  return ch < s.ca ? s.a + (static_cast<std::size_t>(img) * s.ca + ch) * hw
+                   : s.b + (static_cast<std::size_t>(img) * s.cb + (ch - s.ca)) * hw;
+}
+
+// Bits [lo, hi) of a 16-lane mask, clamped to 0..16.
+inline __mmask16 lane_range(int lo, int hi) {
+  lo = std::max(lo, 0);
+  hi = std::min(hi, 16);
+  if (hi <= lo) return 0;
+  return static_cast<__mmask16>(((1u << hi) - 1) & ~((1u << lo) - 1));
+}
+
+// B^T applied to 6 values: the input transform's 1-D step.
+inline void bt6(const __m512 x[6], __m512 r[6]) {
+  const __m512 four = _mm512_set1_ps(4.f), five = _mm512_set1_ps(5.f), two = _mm512_set1_ps(2.f);
+  r[0] = _mm512_fnmadd_ps(five, x[2], _mm512_fmadd_ps(four, x[0], x[4]));
+  const __m512 s12 = _mm512_add_ps(x[1], x[2]), d12 = _mm512_sub_ps(x[1], x[2]);
+  r[1] = _mm512_fnmadd_ps(four, s12, _mm512_add_ps(x[4], x[3]));
+  r[2] = _mm512_fmadd_ps(four, d12, _mm512_sub_ps(x[4], x[3]));
+  const __m512 d42 = _mm512_sub_ps(x[4], x[2]), d31 = _mm512_sub_ps(x[3], x[1]);
+  r[3] = _mm512_fmadd_ps(two, d31, d42);
+  r[4] = _mm512_fnmadd_ps(two, d31, d42);
+  r[5] = _mm512_fnmadd_ps(five, x[3], _mm512_fmadd_ps(four, x[1], x[5]));
+}
+
+// The input transform's second step: B^T down the columns of the row-transformed tile t, each
+// of the 36 elements stored e_stride floats apart.
+inline void bt_columns_store(float* v, std::size_t e_stride, const __m512 t[6][6]) {
+  for (int bb = 0; bb < 6; ++bb) {
+    __m512 col[6], r[6];
+    for (int i = 0; i < 6; ++i) col[i] = t[i][bb];
+    bt6(col, r);
+    for (int a = 0; a < 6; ++a) _mm512_store_ps(v + (a * 6 + bb) * e_stride, r[a]);
+  }
+}
+
+// Fills the by-phase layout of every (image, channel) plane, masked when mask is given; with
+// sums, sums[plane] gets each plane's sum as well (in the bias gradient's plain order).
+void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const Geom& g, float* sums = nullptr);
+
+// The conv of winograd_conv3x3 from the by-phase copy of its input (ci channels).
+void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
+                      bool transpose_flip, const float* bias, bool relu);
+
+}  // namespace lidarsim::nn::detail::wino
+
+#endif
