@@ -64,7 +64,7 @@ struct DrawScore {
   bool recalled = false;   // named and after <= kRecallRatio x before
   bool other_add = false;  // something else added (on a control: a false add)
   double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
-  nlohmann::json best_candidate;  // the planted feature x target's best candidate, with its decision
+  nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
 };
 
 inline bool names_planted(const data::PlantedEffect& e, const AddedEffect& a) {
@@ -74,26 +74,29 @@ inline bool names_planted(const data::PlantedEffect& e, const AddedEffect& a) {
   return false;
 }
 
-// The planted feature x target's best-scoring candidate (fp_cell: of the false positives' candidates).
-inline nlohmann::json best_planted_candidate(const data::PlantedEffect& e, const nlohmann::json& j) {
+// The planted feature x target's candidates (fp_cell: of the false positives' candidates), each
+// with its form, score and the loop's decision, best score first.
+inline nlohmann::json planted_candidates(const data::PlantedEffect& e, const nlohmann::json& j) {
   const bool fp = e.target == data::kFalsePositivesTarget;
   const nlohmann::json* list = nullptr;
   if (fp && j.contains("false_positives") && j["false_positives"].contains("candidates"))
     list = &j["false_positives"]["candidates"];
   else if (!fp && j.contains("candidates"))
     list = &j["candidates"];
-  nlohmann::json best;
-  if (!list) return best;
-  for (const auto& c : *list) {
-    if (!fp && c.value("target", "") != e.target) continue;
-    if (std::find(e.features.begin(), e.features.end(), c.value("feature", "")) == e.features.end()) continue;
-    if (best.is_null() || number_or_nan(c, "score") > number_or_nan(best, "score")) best = c;
-  }
-  if (best.is_null()) return best;
-  nlohmann::json out;
-  for (const char* k : {"feature", "target", "kind", "score", "interval95", "error_before", "error_after", "decision"})
-    if (best.contains(k)) out[k] = best[k];
-  return out;
+  std::vector<nlohmann::json> found;
+  if (list)
+    for (const auto& c : *list) {
+      if (!fp && c.value("target", "") != e.target) continue;
+      if (std::find(e.features.begin(), e.features.end(), c.value("feature", "")) == e.features.end()) continue;
+      nlohmann::json k;
+      for (const char* key : {"feature", "target", "kind", "score", "interval95", "error_before", "error_after", "decision"})
+        if (c.contains(key)) k[key] = c[key];
+      found.push_back(k);
+    }
+  std::sort(found.begin(), found.end(), [](const nlohmann::json& a, const nlohmann::json& b) {
+    return number_or_nan(a, "score") > number_or_nan(b, "score");
+  });
+  return found;
 }
 
 inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& j) {
@@ -106,7 +109,7 @@ inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& 
       s.other_add = true;
     }
   }
-  if (!e.feature.empty()) s.best_candidate = best_planted_candidate(e, j);
+  if (!e.feature.empty()) s.candidates = planted_candidates(e, j);
   return s;
 }
 
@@ -142,7 +145,7 @@ inline nlohmann::json to_json(const DrawResult& r) {
           {"before", num(r.score.before)},     {"after", num(r.score.after)},
           {"seconds", r.seconds},              {"error", r.error},
           {"added", r.added},                  {"loop_top", r.top},
-          {"planted_candidate", r.score.best_candidate}};
+          {"planted_candidates", r.score.candidates}};
 }
 
 // One draw in work/<family>_<seed> (removed afterwards unless keep).
