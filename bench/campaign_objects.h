@@ -120,6 +120,7 @@ struct DrawResult {
   std::string error;       // the loop or the generator threw (the draw counts as missed)
   nlohmann::json added;    // what the loop added
   nlohmann::json top;      // the loop's ranking[0]
+  data::PlantedStats ideal;  // what an ideal refit of the planted effect could reach
 };
 
 inline nlohmann::json to_json(const data::PlantedDraw& d) {
@@ -145,7 +146,8 @@ inline nlohmann::json to_json(const DrawResult& r) {
           {"before", num(r.score.before)},     {"after", num(r.score.after)},
           {"seconds", r.seconds},              {"error", r.error},
           {"added", r.added},                  {"loop_top", r.top},
-          {"planted_candidates", r.score.candidates}};
+          {"planted_candidates", r.score.candidates},
+          {"ideal_before", num(r.ideal.ideal_before)}, {"ideal_after", num(r.ideal.ideal_after)}};
 }
 
 // One draw in work/<family>_<seed> (removed afterwards unless keep).
@@ -157,7 +159,7 @@ inline DrawResult run_draw(data::PlantedFamily family, const data::PlantedTracki
   try {
     r.draw = data::plan_planted_tracking(family, o);
     std::filesystem::remove_all(dir);
-    data::write_planted_tracking(dir, r.draw);
+    r.ideal = data::write_planted_tracking(dir, r.draw);
     const nlohmann::json j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
     r.score = score_draw(r.draw.effect, j);
     r.added = nlohmann::json::array();

@@ -41,6 +41,7 @@ std::uint64_t draw_seed(std::uint64_t seed, int family, int draw) {
 
 struct FamilyRow {
   int draws = 0, recalled = 0, named = 0, other_adds = 0, errors = 0;
+  int reachable = 0;  // draws whose ideal refit reaches after <= 0.7 x before (data/planted_tracking.h PlantedStats)
   std::vector<double> before, after, seconds;
 };
 
@@ -49,6 +50,7 @@ nlohmann::json row_json(const FamilyRow& r, bool control) {
   return {{"draws", r.draws},
           {"recall", control ? nlohmann::json(nullptr) : nlohmann::json(r.draws ? double(r.recalled) / r.draws : 0.0)},
           {"named", r.named},
+          {"ideal_reachable", r.reachable},
           {"other_add_rate", r.draws ? double(r.other_adds) / r.draws : 0.0},
           {"errors", r.errors},
           {"median_before", num(median(r.before))},
@@ -59,16 +61,16 @@ nlohmann::json row_json(const FamilyRow& r, bool control) {
 std::string table(const std::vector<std::string>& names, const std::map<std::string, FamilyRow>& rows) {
   std::ostringstream out;
   char line[256];
-  std::snprintf(line, sizeof line, "%-16s %5s %7s %6s %10s %6s %9s %9s %8s\n", "family", "draws", "recall", "named",
-                "other_adds", "errors", "med_bef", "med_aft", "med_s");
+  std::snprintf(line, sizeof line, "%-16s %5s %7s %6s %9s %10s %6s %9s %9s %8s\n", "family", "draws", "recall", "named",
+                "reachable", "other_adds", "errors", "med_bef", "med_aft", "med_s");
   out << line;
   int eff = 0, rec = 0, ctl = 0, fa = 0;
   for (const std::string& n : names) {
     const FamilyRow& r = rows.at(n);
     const bool control = n == "control";
-    std::snprintf(line, sizeof line, "%-16s %5d %7s %6d %10.2f %6d %9.4f %9.4f %8.1f\n", n.c_str(), r.draws,
+    std::snprintf(line, sizeof line, "%-16s %5d %7s %6d %9d %10.2f %6d %9.4f %9.4f %8.1f\n", n.c_str(), r.draws,
                   control ? "-" : (std::to_string(r.draws ? double(r.recalled) / r.draws : 0.0).substr(0, 4)).c_str(),
-                  r.named, r.draws ? double(r.other_adds) / r.draws : 0.0, r.errors, median(r.before),
+                  r.named, r.reachable, r.draws ? double(r.other_adds) / r.draws : 0.0, r.errors, median(r.before),
                   median(r.after), median(r.seconds));
     out << line;
     if (control) ctl += r.draws, fa += r.other_adds;
@@ -137,10 +139,12 @@ int main(int argc, char** argv) {
         ++row.draws;
         row.recalled += r.score.recalled, row.named += r.score.named, row.other_adds += r.score.other_add;
         row.errors += !r.error.empty();
+        row.reachable += r.ideal.ideal_after <= bench::kRecallRatio * r.ideal.ideal_before;
         row.before.push_back(r.score.before), row.after.push_back(r.score.after), row.seconds.push_back(r.seconds);
         std::cerr << "[" << data::to_string(fam) << " " << d + 1 << "/" << draws << "] " << o.sequences << " seq, "
                   << (r.error.empty() ? "" : "ERROR " + r.error + ", ") << (r.score.recalled ? "recalled" : "missed")
-                  << (r.score.other_add ? ", other add" : "") << ", added " << r.added.dump() << ", " << r.seconds
+                  << (r.score.other_add ? ", other add" : "") << ", ideal " << r.ideal.ideal_after / r.ideal.ideal_before
+                  << ", added " << r.added.dump() << ", " << r.seconds
                   << " s\n";
         nlohmann::json dj = bench::to_json(r);
         dj["draw"] = d;

@@ -264,7 +264,17 @@ double class_bias_x(const PlantedDraw& d, const Truth& t) {
 struct Errors {
   double along = 0, across = 0, heading = 0, score = 0, u = 0;
   Eigen::Vector3d size = Eigen::Vector3d::Zero();  // length, width, height
+  double planted = 0;  // the effect's part of the planted target's error
 };
+
+double target_error(const Errors& e, const std::string& target) {
+  if (target == "position_along") return e.along;
+  if (target == "position_across") return e.across;
+  if (target == "length") return e.size.x();
+  if (target == "width") return e.size.y();
+  if (target == "height") return e.size.z();
+  return e.heading;
+}
 
 Errors draw_errors(const PlantedDraw& d, const Truth& t, Rng& rng) {
   const PlantedBaseModel& b = d.base;
@@ -281,6 +291,7 @@ Errors draw_errors(const PlantedDraw& d, const Truth& t, Rng& rng) {
   e.along = sa * gauss(rng), e.across = sc * gauss(rng);
   e.size = {b.length[c] * gauss(rng), b.width[c] * gauss(rng), b.height[c] * gauss(rng)};
   e.heading = b.heading[c] * gauss(rng);
+  const Errors base = e;
   const Eigen::Vector3d& size = t.o->object.size;
   auto size_index = [&](const std::string& target) { return target == "length" ? 0 : target == "width" ? 1 : 2; };
   if (fam == PlantedFamily::Lag) {
@@ -301,6 +312,7 @@ Errors draw_errors(const PlantedDraw& d, const Truth& t, Rng& rng) {
     else if (tg == "heading") e.heading += bias;
     else e.size[size_index(tg)] += bias;
   }
+  e.planted = target_error(e, d.effect.target) - target_error(base, d.effect.target);
   return e;
 }
 
@@ -341,7 +353,30 @@ std::string window_labels(const fs::path& source, const PlantedSequence& w) {
   return out;
 }
 
-void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng, Rng& cell_rng) {
+// What an ideal refit of the planted effect could reach: per class (detection: per class and
+// occlusion level) the planted target's error centred on its mean, with and without the effect's part.
+struct IdealSums {
+  std::map<int, std::vector<std::array<double, 2>>> groups;  // group: (with effect, without) per object
+  void add(int group, double with, double without) { groups[group].push_back({with, without}); }
+  PlantedStats stats(bool detection) const {
+    double before = 0, after = 0, n = 0;
+    for (const auto& [g, v] : groups) {
+      double mean_with = 0, mean_without = 0;
+      for (const auto& x : v) mean_with += x[0] / v.size(), mean_without += x[1] / v.size();
+      for (const auto& x : v) {
+        before += (x[0] - mean_with) * (x[0] - mean_with);
+        // Detection: x = (detected, probability with the effect); errors: the base error centred.
+        after += detection ? (x[0] - x[1]) * (x[0] - x[1]) : (x[1] - mean_without) * (x[1] - mean_without);
+        n += 1;
+      }
+    }
+    PlantedStats out;
+    if (n > 0) out.ideal_before = std::sqrt(before / n), out.ideal_after = std::sqrt(after / n);
+    return out;
+  }
+};
+
+void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng, Rng& cell_rng, IdealSums& ideal) {
   fill_truth(w);
   const KittiBoxConverter conv(w.seq.calib);
   std::array<std::string, 3> dets;
@@ -351,7 +386,12 @@ void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng
     for (; next < w.truth.size() && w.truth[next].frame == f; ++next) {
       const Truth& t = w.truth[next];
       const Errors e = draw_errors(d, t, rng);
-      if (e.u > detection_probability(d, t)) continue;
+      const double pd = detection_probability(d, t);
+      if (d.effect.target == "detection") ideal.add(t.cls * 4 + std::min(t.o->occluded, 3), e.u <= pd, pd);
+      if (e.u > pd) continue;
+      if (d.effect.family != PlantedFamily::Spread && !d.effect.target.empty() && d.effect.target != "detection" &&
+          d.effect.target != kFalsePositivesTarget)
+        ideal.add(t.cls, target_error(e, d.effect.target), target_error(e, d.effect.target) - e.planted);
       const Eigen::Vector2d bev = t.bev + e.along * t.u + e.across * t.left;
       const Eigen::Vector3d centre(bev.x(), bev.y(), t.o->object.position.z());
       const Eigen::Vector3d size = (t.o->object.size + e.size).cwiseMax(0.1);
@@ -414,13 +454,14 @@ PlantedDraw plan_planted_tracking(PlantedFamily family, const PlantedTrackingOpt
   return d;
 }
 
-void write_planted_tracking(const fs::path& dir, const PlantedDraw& d) {
+PlantedStats write_planted_tracking(const fs::path& dir, const PlantedDraw& d) {
   for (const char* sub : {"label_02", "calib", "detection/pointrcnn_Car_val", "detection/pointrcnn_Pedestrian_val",
                           "detection/pointrcnn_Cyclist_val"})
     fs::create_directories(dir / sub);
   // Streams of their own: the base noise (the same for every family at one seed) and the fp cell's.
   Rng rng(d.seed ^ 0x9a7e5eed0b1ec75ULL), cell_rng(d.seed ^ 0xfce11c0ffee5ULL);
   std::string seqmap;
+  IdealSums ideal;
   for (const PlantedSequence& where : d.sequences) {
     Window w;
     w.where = where;
@@ -428,12 +469,13 @@ void write_planted_tracking(const fs::path& dir, const PlantedDraw& d) {
     if (where.first_frame + where.frames > static_cast<int>(w.seq.frames.size()))
       throw Error("planted tracking: " + (d.source / "label_02" / (where.name + ".txt")).string() +
                   ": has fewer frames than the window asks");
-    write_window(dir, d, w, rng, cell_rng);
+    write_window(dir, d, w, rng, cell_rng, ideal);
     char line[64];
     std::snprintf(line, sizeof line, "%s empty 000000 %06d\n", where.name.c_str(), where.frames);
     seqmap += line;
   }
   write_file_atomically(dir / "evaluate_tracking.seqmap.val", seqmap);
+  return ideal.stats(d.effect.target == "detection");
 }
 
 }  // namespace lidarsim::data

@@ -145,6 +145,21 @@ TEST(PlantedTracking, WritesTheReadersFormatWithTheSourceTruthAndDetectionsNearI
   }
 }
 
+// The ideal refit's error: lower than before for an effect on an error and on detection, none for a control.
+TEST(PlantedTracking, IdealRefitLowersThePlantedTargetsErrorAndIsAbsentForAControl) {
+  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
+  for (PlantedFamily fam : {PlantedFamily::AspectSize, PlantedFamily::AzimuthDropout, PlantedFamily::Control}) {
+    const PlantedStats s = write_planted_tracking(testing::temp_path("planted_ideal_" + to_string(fam)),
+                                                  plan_planted_tracking(fam, small(source, 5)));
+    if (fam == PlantedFamily::Control) {
+      EXPECT_TRUE(std::isnan(s.ideal_before) && std::isnan(s.ideal_after));
+    } else {
+      EXPECT_LT(s.ideal_after, s.ideal_before) << to_string(fam);
+      EXPECT_GT(s.ideal_after, 0) << to_string(fam);
+    }
+  }
+}
+
 TEST(PlantedTracking, TooFewUsableSequencesIsAnErrorNamingTheFolder) {
   LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
   PlantedTrackingOptions o = small(source, 1, 40);
