@@ -1,0 +1,179 @@
+#pragma once
+// The objects half of the campaign of random planted effects (issue 26), shared by
+// bench_loop_campaign_objects and its smoke test (tests/qualify/test_campaign_objects.cpp).
+// One draw: plan and write a planted set (data/planted_tracking.h), run `lidar-qualify loop
+// objects` blind on it (qualify::loop_objects with the command's default options), score it:
+//   recalled   the planted feature is named among the added effects, on the planted target, and
+//              that effect's held-out error after <= 0.7 x before;
+//   other add  anything added that is not the planted effect (on a control: a false add).
+// Everything added is read from the loop's JSON: "added_effects" (bias terms: feature, target,
+// before, after), the spread form ("added_kind" spread_*, "effect".target, "before", "after"), the
+// false positives' table ("false_positives"."added": feature, error_before, error_after) and their
+// persistence ("false_positives"."persistence"."added").
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "data/planted_tracking.h"
+#include "qualify/objects.h"
+
+namespace lidarsim::bench {
+
+inline constexpr double kRecallRatio = 0.7;  // held-out error after / before for a recall
+
+struct AddedEffect {
+  std::string feature, target, kind;
+  double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
+};
+
+inline double number_or_nan(const nlohmann::json& j, const char* key) {
+  return j.contains(key) && j[key].is_number() ? j[key].get<double>() : std::numeric_limits<double>::quiet_NaN();
+}
+
+// Everything the loop added, from its report.
+inline std::vector<AddedEffect> loop_added_effects(const nlohmann::json& j) {
+  std::vector<AddedEffect> out;
+  if (j.contains("added_effects"))
+    for (const auto& e : j["added_effects"])
+      out.push_back({e.value("feature", ""), e.value("target", ""), e.value("kind", ""), number_or_nan(e, "before"),
+                     number_or_nan(e, "after")});
+  const std::string kind = j.contains("added_kind") && j["added_kind"].is_string() ? j["added_kind"].get<std::string>() : "";
+  if (kind.rfind("spread", 0) == 0 && j.contains("effect"))
+    out.push_back({j["effect"].value("feature", ""), j["effect"].value("target", ""), kind, number_or_nan(j, "before"),
+                   number_or_nan(j, "after")});
+  if (j.contains("false_positives")) {
+    const auto& fp = j["false_positives"];
+    if (fp.contains("added") && fp["added"].is_object())
+      out.push_back({fp["added"].value("feature", ""), data::kFalsePositivesTarget, fp["added"].value("kind", ""),
+                     number_or_nan(fp["added"], "error_before"), number_or_nan(fp["added"], "error_after")});
+    if (fp.contains("persistence") && fp["persistence"].value("added", false))
+      out.push_back({"previous_frame", data::kFalsePositivesTarget, "fp_persistence",
+                     number_or_nan(fp["persistence"], "error_before"), number_or_nan(fp["persistence"], "error_after")});
+  }
+  return out;
+}
+
+struct DrawScore {
+  bool named = false;      // the planted feature added on the planted target
+  bool recalled = false;   // named and after <= kRecallRatio x before
+  bool other_add = false;  // something else added (on a control: a false add)
+  double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
+  nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
+};
+
+inline bool names_planted(const data::PlantedEffect& e, const AddedEffect& a) {
+  if (e.feature.empty() || a.target != e.target) return false;
+  for (const std::string& f : e.features)
+    if (a.feature == f) return true;
+  return false;
+}
+
+// The planted feature x target's candidates (fp_cell: of the false positives' candidates), each
+// with its form, score and the loop's decision, best score first.
+inline nlohmann::json planted_candidates(const data::PlantedEffect& e, const nlohmann::json& j) {
+  const bool fp = e.target == data::kFalsePositivesTarget;
+  const nlohmann::json* list = nullptr;
+  if (fp && j.contains("false_positives") && j["false_positives"].contains("candidates"))
+    list = &j["false_positives"]["candidates"];
+  else if (!fp && j.contains("candidates"))
+    list = &j["candidates"];
+  std::vector<nlohmann::json> found;
+  if (list)
+    for (const auto& c : *list) {
+      if (!fp && c.value("target", "") != e.target) continue;
+      if (std::find(e.features.begin(), e.features.end(), c.value("feature", "")) == e.features.end()) continue;
+      nlohmann::json k;
+      for (const char* key : {"feature", "target", "kind", "score", "interval95", "error_before", "error_after", "decision"})
+        if (c.contains(key)) k[key] = c[key];
+      found.push_back(k);
+    }
+  std::sort(found.begin(), found.end(), [](const nlohmann::json& a, const nlohmann::json& b) {
+    return number_or_nan(a, "score") > number_or_nan(b, "score");
+  });
+  return found;
+}
+
+inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& j) {
+  DrawScore s;
+  for (const AddedEffect& a : loop_added_effects(j)) {
+    if (names_planted(e, a) && !s.named) {
+      s.named = true, s.before = a.before, s.after = a.after;
+      s.recalled = a.after <= kRecallRatio * a.before;
+    } else {
+      s.other_add = true;
+    }
+  }
+  if (!e.feature.empty()) s.candidates = planted_candidates(e, j);
+  return s;
+}
+
+struct DrawResult {
+  data::PlantedDraw draw;
+  DrawScore score;
+  double seconds = 0;      // write + load + loop
+  std::string error;       // the loop or the generator threw (the draw counts as missed)
+  nlohmann::json added;    // what the loop added
+  nlohmann::json top;      // the loop's ranking[0]
+  data::PlantedStats ideal;  // what an ideal refit of the planted effect could reach
+};
+
+inline nlohmann::json to_json(const data::PlantedDraw& d) {
+  nlohmann::json seqs = nlohmann::json::array();
+  for (const auto& s : d.sequences) seqs.push_back({{"name", s.name}, {"first_frame", s.first_frame}, {"frames", s.frames}});
+  const auto& b = d.base;
+  return {{"family", data::to_string(d.effect.family)},
+          {"seed", d.seed},
+          {"feature", d.effect.feature},
+          {"features", d.effect.features},
+          {"target", d.effect.target},
+          {"params", d.effect.params},
+          {"sequences", seqs},
+          {"base", {{"sigma_along", b.along}, {"sigma_across", b.across}, {"sigma_length", b.length},
+                    {"sigma_width", b.width}, {"sigma_height", b.height}, {"sigma_heading", b.heading},
+                    {"detection", b.detection}, {"occlusion_loss", b.occlusion_loss}, {"fp_rate", b.fp_rate}}}};
+}
+
+inline nlohmann::json to_json(const DrawResult& r) {
+  auto num = [](double v) { return std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(v); };
+  return {{"truth", to_json(r.draw)},          {"recalled", r.score.recalled},
+          {"named", r.score.named},            {"other_add", r.score.other_add},
+          {"before", num(r.score.before)},     {"after", num(r.score.after)},
+          {"seconds", r.seconds},              {"error", r.error},
+          {"added", r.added},                  {"loop_top", r.top},
+          {"planted_candidates", r.score.candidates},
+          {"ideal_before", num(r.ideal.ideal_before)}, {"ideal_after", num(r.ideal.ideal_after)}};
+}
+
+// One draw in work/<family>_<seed> (removed afterwards unless keep).
+inline DrawResult run_draw(data::PlantedFamily family, const data::PlantedTrackingOptions& o,
+                           const std::filesystem::path& work, const qualify::LoopOptions& lo = {}, bool keep = false) {
+  DrawResult r;
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::filesystem::path dir = work / (data::to_string(family) + "_" + std::to_string(o.seed));
+  try {
+    r.draw = data::plan_planted_tracking(family, o);
+    std::filesystem::remove_all(dir);
+    r.ideal = data::write_planted_tracking(dir, r.draw);
+    const nlohmann::json j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
+    r.score = score_draw(r.draw.effect, j);
+    r.added = nlohmann::json::array();
+    for (const AddedEffect& a : loop_added_effects(j))
+      r.added.push_back({{"feature", a.feature}, {"target", a.target}, {"kind", a.kind}, {"before", a.before},
+                         {"after", a.after}});
+    if (j.contains("ranking") && !j["ranking"].empty()) r.top = j["ranking"][0];
+  } catch (const std::exception& e) {
+    r.error = e.what();
+    r.draw.effect.family = family;
+  }
+  if (!keep) std::filesystem::remove_all(dir);
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+}  // namespace lidarsim::bench

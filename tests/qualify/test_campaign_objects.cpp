@@ -1,0 +1,181 @@
+// Smoke run of the objects campaign (bench/loop_campaign_objects.cpp): the planted structure is in
+// what the loop reads (a lag shifts the position errors by -lag x radial velocity; a dropout window
+// empties its azimuths), every family's draw runs through the campaign code with its result
+// recorded, and the control adds nothing. One fixed-seed draw per family on 2 short sequences.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <iostream>
+
+#include "bench/campaign_objects.h"
+#include "qualify/objects.h"
+#include "tests/support/shared_data.h"
+#include "tests/support/temp_path.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+
+namespace {
+
+data::PlantedTrackingOptions smoke(const fs::path& source, std::uint64_t seed) {
+  data::PlantedTrackingOptions o;
+  o.source = source, o.seed = seed, o.sequences = 2, o.max_frames = 150;
+  return o;
+}
+
+qualify::ObjectSet records(const data::PlantedDraw& d, const std::string& name) {
+  const fs::path dir = lidarsim::testing::temp_path("campaign_" + name);
+  data::write_planted_tracking(dir, d);
+  const auto data = qualify::load_tracking(dir, "", "pointrcnn", 2);
+  return qualify::collect_objects(data, {0, 1});
+}
+
+int feature_index(const std::string& name) {
+  return static_cast<int>(std::find(qualify::kObjectFeatures.begin(), qualify::kObjectFeatures.end(), name) -
+                          qualify::kObjectFeatures.begin());
+}
+
+// Least-squares slope of the along error on the radial velocity, over matched records with
+// |radial velocity| <= vmax (a lag shifts a faster object beyond the 2 m matching gate).
+double lag_slope(const qualify::ObjectSet& s, double vmax) {
+  const int f = feature_index("radial_velocity");
+  double sx = 0, sy = 0, sxx = 0, sxy = 0, n = 0;
+  for (const auto& r : s.records) {
+    if (!r.detected) continue;
+    const double x = r.feature[f], y = r.value[0];
+    if (std::abs(x) > vmax) continue;
+    sx += x, sy += y, sxx += x * x, sxy += x * y, n += 1;
+  }
+  return (n * sxy - sx * sy) / (n * sxx - sx * sx);
+}
+
+}  // namespace
+
+// Every family's feature and target are words of the loop's vocabulary.
+TEST(CampaignObjectsStatistical, PlantedFeaturesAndTargetsAreTheLoopsWords) {
+  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
+  for (int k = 0; k < data::kPlantedFamilies - 1; ++k) {
+    const auto d = data::plan_planted_tracking(static_cast<data::PlantedFamily>(k), smoke(source, 5));
+    for (const auto& f : d.effect.features)
+      EXPECT_NE(feature_index(f), static_cast<int>(qualify::kObjectFeatures.size())) << f;
+    const bool target_known = std::find(qualify::kObjectTargets.begin(), qualify::kObjectTargets.end(),
+                                        d.effect.target) != qualify::kObjectTargets.end();
+    EXPECT_TRUE(target_known || d.effect.target == data::kFalsePositivesTarget) << d.effect.target;
+  }
+}
+
+// Same seed, lag vs control: the same windows, base model and draws, so the along error's slope on
+// the radial velocity moves by -lag.
+TEST(CampaignObjectsStatistical, PlantedLagShiftsPositionsAndDropoutEmptiesItsWindow) {
+  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
+  const auto lag = data::plan_planted_tracking(data::PlantedFamily::Lag, smoke(source, 11));
+  const auto control = data::plan_planted_tracking(data::PlantedFamily::Control, smoke(source, 11));
+  ASSERT_EQ(lag.sequences[0].name, control.sequences[0].name);
+  const double lag_s = lag.effect.params.at("lag_s");
+  // Within 1 m of shift: on KITTI the ego's own speed (~10 m/s) moves static objects too, and a lag
+  // of 0.3 s shifts them by 3 m, beyond the gate (those become misses and false positives).
+  const double vmax = 1.0 / lag_s;
+  const double with = lag_slope(records(lag, "lag"), vmax), without = lag_slope(records(control, "control"), vmax);
+  std::cout << "  lag " << lag_s << " s: slope " << with << " (control " << without << ")\n";
+  EXPECT_NEAR(with - without, -lag_s, 0.15 * lag_s);
+  EXPECT_NEAR(without, 0, 0.05);
+
+  const auto drop = data::plan_planted_tracking(data::PlantedFamily::AzimuthDropout, smoke(source, 11));
+  const auto s = records(drop, "dropout");
+  const double lo = drop.effect.params.at("azimuth_lo_deg") * std::numbers::pi / 180, hi = drop.effect.params.at("azimuth_hi_deg") * std::numbers::pi / 180;
+  const int az = feature_index("azimuth");
+  double in = 0, in_det = 0, out = 0, out_det = 0;
+  for (const auto& r : s.records) {
+    const bool inside = r.feature[az] >= lo && r.feature[az] <= hi;
+    (inside ? in : out) += 1, (inside ? in_det : out_det) += r.detected;
+  }
+  std::cout << "  dropout x" << drop.effect.params.at("factor") << ": detected " << in_det << "/" << in << " inside, "
+            << out_det << "/" << out << " outside\n";
+  ASSERT_GT(in, 20);
+  EXPECT_LT(in_det / in, drop.effect.params.at("factor") + 0.15);
+  EXPECT_GT(out_det / out, 0.6);
+}
+
+// Extra false positives of one class in a range x azimuth cell are counted as false positives there.
+TEST(CampaignObjectsStatistical, PlantedFalsePositivesFillTheirCell) {
+  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
+  const auto cell = data::plan_planted_tracking(data::PlantedFamily::FpCell, smoke(source, 13));
+  const auto control = data::plan_planted_tracking(data::PlantedFamily::Control, smoke(source, 13));
+  const auto& p = cell.effect.params;
+  auto inside = [&](const qualify::ObjectSet& s) {
+    int n = 0;
+    for (const auto& f : s.fp_records)
+      n += f.cls == static_cast<int>(p.at("class")) && f.range >= p.at("range_lo_m") && f.range <= p.at("range_hi_m") &&
+           f.azimuth >= p.at("azimuth_lo_deg") * std::numbers::pi / 180 &&
+           f.azimuth <= p.at("azimuth_hi_deg") * std::numbers::pi / 180;
+    return n;
+  };
+  const auto with = records(cell, "fp_cell"), without = records(control, "fp_control");
+  const double expected = p.at("rate_per_frame") * static_cast<double>(with.frame_seq.size());
+  std::cout << "  fp cell: " << inside(with) << " false positives inside (control " << inside(without) << "), "
+            << expected << " planted\n";
+  EXPECT_GT(inside(with) - inside(without), 0.7 * expected);
+  EXPECT_LT(inside(with) - inside(without), 1.2 * expected);
+}
+
+// One draw per family through the campaign code: it runs, its result is recorded, and the control
+// adds nothing. Recall itself is the bench's to measure (bench_loop_campaign_objects).
+TEST(CampaignObjectsStatistical, OneDrawPerFamilyRunsAndTheControlAddsNothing) {
+  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
+  const fs::path work = lidarsim::testing::temp_path("campaign_work");
+  qualify::LoopOptions lo;
+  lo.distribution_seeds = 32;  // the smoke run's budget; the bench uses the command's default
+  for (int k = 0; k < data::kPlantedFamilies; ++k) {
+    const auto fam = static_cast<data::PlantedFamily>(k);
+    const bench::DrawResult r = bench::run_draw(fam, smoke(source, 21), work, lo);
+    const nlohmann::json j = bench::to_json(r);
+    std::cout << "  " << data::to_string(fam) << ": " << (r.score.recalled ? "recalled" : "missed") << ", added "
+              << r.added.dump() << ", " << r.seconds << " s\n";
+    EXPECT_TRUE(r.error.empty()) << data::to_string(fam) << ": " << r.error;
+    EXPECT_EQ(j["truth"]["family"], data::to_string(fam));
+    EXPECT_TRUE(j.contains("recalled") && j.contains("planted_candidates"));
+    if (fam == data::PlantedFamily::Control) {
+      EXPECT_TRUE(r.added.empty()) << r.added.dump();
+      EXPECT_FALSE(r.score.other_add);
+    } else {
+      EXPECT_FALSE(j["planted_candidates"].empty()) << "the planted feature x target is among the candidates";
+    }
+  }
+}
+
+// The scoring reads every kind of addition from the loop's JSON.
+TEST(CampaignObjects, ScoresAddedEffectsSpreadAndFalsePositivesFromTheLoopsJson) {
+  data::PlantedEffect lag;
+  lag.family = data::PlantedFamily::Lag, lag.feature = "radial_velocity", lag.features = {"radial_velocity"};
+  lag.target = "position_along";
+  nlohmann::json j = {{"added_effects", {{{"feature", "radial_velocity"}, {"target", "position_along"}, {"before", 1.0},
+                                          {"after", 0.6}}}},
+                      {"false_positives", {{"added", nullptr}, {"persistence", {{"added", false}}}}}};
+  auto s = bench::score_draw(lag, j);
+  EXPECT_TRUE(s.named && s.recalled && !s.other_add);
+  j["added_effects"][0]["after"] = 0.8;
+  s = bench::score_draw(lag, j);
+  EXPECT_TRUE(s.named && !s.recalled);
+  j["added_effects"][0]["target"] = "position_across";
+  s = bench::score_draw(lag, j);
+  EXPECT_TRUE(!s.named && s.other_add) << "the right feature on the wrong target is not the planted effect";
+  // A spread form and a false-positive table.
+  data::PlantedEffect spread = lag, cell;
+  spread.feature = "speed", spread.features = {"speed"};
+  cell.feature = "azimuth", cell.features = {"range", "azimuth"}, cell.target = data::kFalsePositivesTarget;
+  const nlohmann::json k = {{"added_effects", nlohmann::json::array()},
+                            {"added_kind", "spread_table"},
+                            {"effect", {{"feature", "speed"}, {"target", "position_along"}}},
+                            {"before", 0.5},
+                            {"after", 0.1},
+                            {"false_positives",
+                             {{"added", {{"feature", "range"}, {"error_before", 0.2}, {"error_after", 0.1}}},
+                              {"persistence", {{"added", false}}}}}};
+  s = bench::score_draw(spread, k);
+  EXPECT_TRUE(s.recalled && s.other_add);
+  s = bench::score_draw(cell, k);
+  EXPECT_TRUE(s.recalled && s.other_add);
+  EXPECT_EQ(bench::loop_added_effects(k).size(), 2u);
+}
