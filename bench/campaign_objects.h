@@ -5,6 +5,11 @@
 // objects` blind on it (qualify::loop_objects with the command's default options), score it:
 //   recalled   the planted feature is named among the added effects, on the planted target, and
 //              that effect's held-out error after <= 0.7 x before;
+//   absorbed   the planted feature's candidate on the planted target, in the planted form (a
+//              rate for a dropout, a spread form for a spread), is "not ranked: the base KPI model
+//              already conditions ..." : the KPI model, fitted to the data before the loop starts,
+//              holds the effect (a dropout beyond a range is the detection rate's range bins), so
+//              there is nothing to add. Counted apart from recall: the table shows both.
 //   other add  anything added that is not the planted effect (on a control: a false add).
 // Everything added is read from the loop's JSON: "added_effects" (bias terms: feature, target,
 // before, after), the spread form ("added_kind" spread_*, "effect".target, "before", "after"), the
@@ -63,6 +68,7 @@ struct DrawScore {
   bool named = false;      // the planted feature added on the planted target
   bool recalled = false;   // named and after <= kRecallRatio x before
   bool other_add = false;  // something else added (on a control: a false add)
+  bool absorbed = false;   // the base KPI model holds the planted form already (see above)
   double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
   nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
 };
@@ -110,6 +116,13 @@ inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& 
     }
   }
   if (!e.feature.empty()) s.candidates = planted_candidates(e, j);
+  const bool spread = e.family == data::PlantedFamily::Spread;
+  for (const auto& c : s.candidates) {
+    const std::string kind = c.value("kind", ""), decision = c.value("decision", "");
+    const bool spread_form = kind.rfind("spread", 0) == 0;
+    if (spread_form == spread && decision.rfind("not ranked: the base KPI model already conditions", 0) == 0)
+      s.absorbed = !s.other_add;
+  }
   return s;
 }
 
@@ -143,6 +156,7 @@ inline nlohmann::json to_json(const DrawResult& r) {
   auto num = [](double v) { return std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(v); };
   return {{"truth", to_json(r.draw)},          {"recalled", r.score.recalled},
           {"named", r.score.named},            {"other_add", r.score.other_add},
+          {"absorbed", r.score.absorbed},
           {"before", num(r.score.before)},     {"after", num(r.score.after)},
           {"seconds", r.seconds},              {"error", r.error},
           {"added", r.added},                  {"loop_top", r.top},
