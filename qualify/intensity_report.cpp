@@ -53,7 +53,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
   j["domain"] = "intensity";
   j["metric"] = "held-out MAE of intensity (validation regions of the split, every scan; pooled over the folds)";
   j["split"] = r.split;
-  j["folds"] = r.folds;
+  j["validation_folds"] = r.folds;  // not "folds": the object loop's list of sequence folds
   j["cross_fit"] = "candidate forms fitted on the pooled held-out residual of the other groups, by " + r.group_by;
   j["scenery_correlation_between_scans"] = r.scenery_correlation;
   j["receptive_field_half_width"] = r.half_width;

@@ -57,7 +57,7 @@ TEST(LoopIntensityFolds, AzimuthWindowInsideTheTrainingColumnsIsNamedAndCutOnlyW
   EXPECT_NE(fixed["added_effect"], "azimuth") << "the fixed regions cannot see it: the test would prove nothing";
 
   const auto rotated = run(ds, 4);
-  EXPECT_EQ(rotated["folds"], 4);
+  EXPECT_EQ(rotated["validation_folds"], 4);
   EXPECT_EQ(rotated["ranking"][0]["feature"], "azimuth") << rotated["ranking"].dump();
   EXPECT_EQ(rotated["added_effect"], "azimuth");
   EXPECT_LE(rotated["after"].get<double>(), 0.7 * rotated["before"].get<double>());
