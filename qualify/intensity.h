@@ -6,7 +6,9 @@
 // rows) with the effect channels; the guarded split (data/split.h) gives the held-out cells (two
 // azimuth regions of 128 columns in every scan), the fit cells, and the guard bands between them
 // (twice the loop UNet's receptive-field half-width; neither fitted nor scored, so the held-out
-// error cannot come from scenery the fit saw). Lookup and UNet are scored on the same cells.
+// error cannot come from scenery the fit saw). Lookup and UNet are scored on the same cells. The
+// loop can rotate those regions over 4 folds (IntensityLoopOptions::folds), so that every column
+// is held out once, with the same guard bands.
 //
 // Feature vocabulary, per cell with a return:
 //   range                 m

@@ -259,8 +259,8 @@ void decide(RoundResult& r, const Context& cx, const std::vector<double>& after)
       k.reason = "not tried: the " + r.top_form + " form ranks higher; the UNet's refit (" + r.method + ") is one per feature";
     } else {
       k.decision = Decision::Tried;
-      k.reason = "tried: held-out MAE " + num(k.score.mae_after) + " with it; the " + chosen_form +
-                 " form's refit is lower (" + num(r.tried.mae) + ")";
+      k.reason = "tried: held-out MAE " + num(k.score.mae_after) + " with it; the refit \"" + r.method +
+                 "\" is lower (" + num(r.tried.mae) + ")";
     }
   }
 }
