@@ -88,6 +88,8 @@ FittedForm fit_affine(const std::vector<double>& edges, const std::vector<double
   return f;
 }
 
+bool is_window(Form f) { return f == Form::Window || f == Form::WindowGain; }
+
 // The form without the feature (one bin): a constant, a global gain, a global gain and offset. A
 // form's score is what the feature adds to it, so that a base model's global miscalibration (its
 // residual growing with its prediction everywhere) does not pass for an effect of every feature.
@@ -138,7 +140,11 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
     const FittedForm f = fit_form(form, edges, fine, x, rc, p.base, fit);
     const FittedForm one = fit_form(one_bin(form), {}, {}, x, rc, p.base, fit);
     for (size_t i : apply) {
-      const double d = f.ok() ? f.delta(x[i], p.base[i]) : 0.0, d0 = one.delta(x[i], p.base[i]);
+      // A bin without fit cells (a range of the feature only this group has: azimuths another
+      // fold holds out) has no level of its own; the one-bin form stands in for it.
+      const double d0 = one.delta(x[i], p.base[i]);
+      const bool known = f.ok() && (is_window(form) || f.table.count[f.table.bin(x[i])] > 0);
+      const double d = known ? f.delta(x[i], p.base[i]) : d0;
       s.corrected[i] = p.base[i] + d;
       auto& b = blocks[p.block[i]];
       b[0] += (rc[i] - d) * (rc[i] - d);
