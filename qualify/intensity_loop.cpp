@@ -328,11 +328,18 @@ nlohmann::json loop_intensity(const fs::path& dir, const IntensityLoopOptions& o
 
 nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options) {
   check_loop_options(options);
-  Context cx{ds, options, parse_base(options.base_model), intensity_split(ds, options.split, options.unet.depth)};
-  cx.half_width = nn::receptive_field_half_width({1, 1, options.unet.base, options.unet.depth});
-  cx.folds = make_folds(ds, cx.split, default_folds(options));
-  cx.pool = pool(cx.folds, ds.cols(), scenery_correlation(ds));
-  cx.count.total = 2 * options.unet.seeds * static_cast<int>(cx.folds.size());
+  const data::SectorSplit split = intensity_split(ds, options.split, options.unet.depth);
+  std::vector<Fold> folds = make_folds(ds, split, default_folds(options));
+  Pooled pooled = pool(folds, ds.cols(), scenery_correlation(ds));
+  const int trainings = 2 * options.unet.seeds * static_cast<int>(folds.size());
+  Context cx{ds,
+             options,
+             parse_base(options.base_model),
+             split,
+             nn::receptive_field_half_width({1, 1, options.unet.base, options.unet.depth}),
+             std::move(folds),
+             std::move(pooled),
+             {0, trainings}};
   std::vector<double> after;
   const RoundResult first = loop_round(cx, {}, nullptr, after);
   nlohmann::json j = to_json(first, options);
