@@ -139,11 +139,18 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
     if (fit.empty() || apply.empty()) continue;
     const FittedForm f = fit_form(form, edges, fine, x, rc, p.base, fit);
     const FittedForm one = fit_form(one_bin(form), {}, {}, x, rc, p.base, fit);
+    // Fit cells per fine bin: a window's level is known only where its fine bins had fit cells
+    // (its edges may span azimuths another group holds out).
+    BinnedTable fine_bins;
+    fine_bins.edges = fine;
+    std::vector<long> fine_count(fine.size() + 1, 0);
+    for (size_t i : fit) ++fine_count[fine_bins.bin(x[i])];
     for (size_t i : apply) {
       // A bin without fit cells (a range of the feature only this group has: azimuths another
       // fold holds out) has no level of its own; the one-bin form stands in for it.
       const double d0 = one.delta(x[i], p.base[i]);
-      const bool known = f.ok() && (is_window(form) || f.table.count[f.table.bin(x[i])] > 0);
+      const bool known = f.ok() && (is_window(form) ? fine_count[fine_bins.bin(x[i])] > 0
+                                                    : f.table.count[f.table.bin(x[i])] > 0);
       const double d = known ? f.delta(x[i], p.base[i]) : d0;
       s.corrected[i] = p.base[i] + d;
       auto& b = blocks[p.block[i]];
