@@ -264,14 +264,14 @@ void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOption
   write_file_atomically(dir / "evaluate_tracking.seqmap.val", seqmap);
 }
 
-double reference_beam_gain(int row) {
+double reference_beam_gain(int row, double spread) {
   // A fixed pseudo-random u in [-1, 1) per laser (splitmix64 of the row).
   std::uint64_t x = static_cast<std::uint64_t>(row) + 0x9e3779b97f4a7c15ULL;
   x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
   x ^= x >> 31;
   const double u = static_cast<double>(x >> 11) * 0x1.0p-53 * 2 - 1;
-  return 1 + 0.4 * u;
+  return 1 + spread * u;
 }
 
 void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptions& o) {
@@ -342,8 +342,10 @@ void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptio
           case IntensityEffect::Incidence: gain = std::cos(incidence); break;
           case IntensityEffect::Height: gain = 0.6 + 0.3 * (z + sensor_h); break;
           case IntensityEffect::Azimuth: gain = 1 + 0.5 * std::sin(az); break;
-          case IntensityEffect::BeamGain: gain = reference_beam_gain(row); break;
-          case IntensityEffect::AzimuthWindow: gain = az >= kIntensityWindowAzimuthLo && az <= kIntensityWindowAzimuthHi ? 0.5 : 1.0; break;
+          case IntensityEffect::BeamGain: gain = reference_beam_gain(row, o.beam_gain_spread); break;
+          case IntensityEffect::AzimuthWindow:
+            gain = az >= o.window_azimuth_lo && az <= o.window_azimuth_hi ? o.window_gain : 1.0;
+            break;
           case IntensityEffect::None: break;
         }
         const double intensity = std::clamp(albedo * gain + o.noise * N01(rng), 0.0, 1.0);

@@ -37,10 +37,11 @@
 //   incidence   x cos(incidence angle) (true facet normal)
 //   height      x (0.6 + 0.3 (z + sensor height))
 //   azimuth     x (1 + 0.5 sin(azimuth))
-//   beam_gain   x a gain per laser (beam row): 1 + 0.4 u, u in [-1, 1] fixed per laser (a
-//               per-laser calibration error)
-//   azimuth_window  x 0.5 for azimuth in [kIntensityWindowAzimuthLo, kIntensityWindowAzimuthHi] (a window of the
-//               split variable itself: it covers one guarded validation region, its guard and a
+//   beam_gain   x a gain per laser (beam row): 1 + beam_gain_spread u, u in [-1, 1] fixed per
+//               laser (a per-laser calibration error; spread 0.4 by default)
+//   azimuth_window  x window_gain (0.5) for azimuth in [window_azimuth_lo, window_azimuth_hi]
+//               (default [kIntensityWindowAzimuthLo, kIntensityWindowAzimuthHi]: a window of the
+//               split variable itself that covers one guarded validation region, its guard and a
 //               strip of training columns on one side)
 // "none" is the control: no hidden effect in either domain.
 #include <cstdint>
@@ -54,7 +55,7 @@ enum class ObjectEffect { None, VelocityLag, TruncationSize, AspectAcross, Azimu
 enum class IntensityEffect { None, Incidence, Height, Azimuth, BeamGain, AzimuthWindow };
 inline constexpr double kIntensityWindowAzimuthLo = 0.3, kIntensityWindowAzimuthHi = 2.2;  // rad, atan2(y, x)
 // beam_gain's gain of laser `row`.
-double reference_beam_gain(int row);
+double reference_beam_gain(int row, double spread = 0.4);
 
 std::string to_string(ObjectEffect e);     // "none", "velocity_lag", ...
 std::string to_string(IntensityEffect e);  // "none", "incidence", ...
@@ -113,6 +114,10 @@ struct ReferenceScanOptions {
   int scans = 3;
   int columns = 1024;  // azimuth steps per ring
   double noise = 0.02;
+  double beam_gain_spread = 0.4;  // beam_gain: gain 1 + spread u per laser
+  // azimuth_window: the window (rad, atan2(y, x)) and the gain inside it.
+  double window_azimuth_lo = kIntensityWindowAzimuthLo, window_azimuth_hi = kIntensityWindowAzimuthHi;
+  double window_gain = 0.5;
   std::uint64_t seed = 1;
 };
 void write_reference_semantickitti(const std::filesystem::path& dir, const ReferenceScanOptions& options);

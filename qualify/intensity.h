@@ -6,7 +6,9 @@
 // rows) with the effect channels; the guarded split (data/split.h) gives the held-out cells (two
 // azimuth regions of 128 columns in every scan), the fit cells, and the guard bands between them
 // (twice the loop UNet's receptive-field half-width; neither fitted nor scored, so the held-out
-// error cannot come from scenery the fit saw). Lookup and UNet are scored on the same cells.
+// error cannot come from scenery the fit saw). Lookup and UNet are scored on the same cells. The
+// loop can rotate those regions over 4 folds (IntensityLoopOptions::folds), so that every column
+// is held out once, with the same guard bands.
 //
 // Feature vocabulary, per cell with a return:
 //   range                 m
@@ -107,24 +109,34 @@ struct IntensityLoopOptions {
   int rounds = 1;
   int bins = 16;
   std::filesystem::path plots_dir;
-  std::string base_model = "unet";  // or "lookup"
+  // "unet", "lookup" (class x 5 m range), or "lookup-beam" (that lookup + an offset per beam row,
+  // the untrained lidar-train --lookup-base=classes model: a base that has already learnt each
+  // laser's level, so what is left of a per-laser gain scales with the prediction).
+  std::string base_model = "unet";
   std::string split = "guarded";    // data::parse_split spec; guard of the loop UNet's receptive field
+  // Folds of the guarded split: 1 = its two regions as they are; 4 = the regions rotated by an
+  // eighth of the circle per fold, so that every column is validated once (an effect in today's
+  // training azimuths is then scored too), the base fitted per fold and the held-out residuals
+  // pooled. 0 = 4 for a lookup base on a guarded split, else 1 (a UNet base trains 4 x the UNets).
+  int folds = 0;
   LoopTraining unet;
   std::filesystem::path out_model;  // unet: the model the loop ends with (first seed), as a checkpoint
                                     // (with a beam_row effect: its per-row affine layer; lidar-infer runs it)
   bool progress = false;            // one line per training and the trainer's progress bar, on stderr
 };
 
-// `lidar-qualify loop intensity`. Base model fitted on the fit cells (UNets trained on the fit
-// sectors, or the lookup); residual = measured - base; features the base does not use ranked by
-// held-out R^2 of a binned-mean table of the residual fitted on the fit cells; the top one (if
-// above the threshold) refitted: for the UNet as a new PGM input channel (beam_row: a learned
-// per-row gain and offset on the output, nn/unet.h) and the UNets retrained
-// with the same seeds; for the lookup in the way the held-out MAE favours among an additive
-// correction table, a multiplicative gain table, or the lookup refitted with the feature as an
-// extra key. The effect is added only if the held-out MAE falls by at least min_relative_gain
-// with a block-bootstrap 95% interval of the change (blocks = 16-column strips) below 0; else it is reported as
-// rejected_effect and after = before. Held-out MAE before and after, per seed for the UNet.
+// `lidar-qualify loop intensity`. Base model fitted per fold on its fit cells (UNets trained on the
+// fit sectors, or a lookup); residual = measured - base on the held-out cells pooled over the
+// folds; every feature x form (additive, gain and affine tables, additive and gain windows;
+// qualify/intensity_forms.cpp) scored by the held-out R^2 of the correction it implies,
+// cross-fitted over scans; the best form per feature the base does not carry is ranked. The top
+// feature (if above the threshold) is refitted: for the UNet as a new PGM input channel (beam_row:
+// a learned per-row gain and offset on the output, nn/unet.h) and the UNets retrained per fold with
+// the same seeds; for a lookup as the form (or the lookup refitted with the feature as an extra
+// key) with the lowest pooled held-out MAE. The effect is added only if the pooled held-out MAE
+// falls by at least min_relative_gain with a block-bootstrap 95% interval of the change (blocks =
+// 16-column strips) below 0; else it is reported as rejected_effect and after = before. Every
+// candidate carries its decision and the reason. Works for any rows x columns.
 nlohmann::json loop_intensity(const std::filesystem::path& dir, const IntensityLoopOptions& options = {});
 nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options = {});
 

@@ -27,7 +27,7 @@ const char* kUsage =
     "  lidar-qualify objects   --kitti-tracking DIR --model M.json --out R [--nested] [--held-out-seeds N]  KPI model vs measured detections\n"
     "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
-    "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup] [--out-model CK.h5]\n"
+    "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup|lookup-beam] [--folds 1|4] [--out-model CK.h5]\n"
     "add --help after a command for its options\n";
 
 std::string need(const cxxopts::ParseResult& a, const std::string& key, const std::string& what) {
@@ -110,7 +110,8 @@ int run(int argc, char** argv) {
     ("term-shrink", "objects, loop objects: shrink the loop's bias terms by their track-bootstrap uncertainty on the fit sequences: off | zero (every table towards 0) | pooled (the pooled table towards 0, each class's towards it)", cxxopts::value<std::string>()->default_value("off"))
     ("pool-track-spread", "objects, loop objects: the base model's per-track size constants partially pooled across classes (a class with few tracks borrows the others' ratio to the within-track noise)")
     ("nested", "objects: also score the loop's model nested (the loop run on each outer fold's fit sequences only)")
-    ("base", "loop intensity: base model, unet (retrained with the effect as a new channel) or lookup", cxxopts::value<std::string>()->default_value("unet"))
+    ("base", "loop intensity: base model, unet (retrained with the effect as a new channel), lookup (class x 5 m range) or lookup-beam (+ an offset per beam row)", cxxopts::value<std::string>()->default_value("unet"))
+    ("folds", "loop intensity: 1 (the guarded split's regions) or 4 (rotated so every column is validated once); default 4 for a lookup base, 1 for unet", cxxopts::value<int>()->default_value("0"))
     ("steps", "loop intensity: training steps per UNet", cxxopts::value<int>()->default_value("1000"))
     ("lookup-base", "loop intensity --base unet: the UNets learn the residual over the class x 5 m range + per-beam lookup (lidar-train --lookup-base=classes)")
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
@@ -192,6 +193,7 @@ int run(int argc, char** argv) {
       io.unet.threads = a["threads"].as<int>();
       io.unet.lookup_base = a.count("lookup-base") > 0;
       io.split = a["split"].as<std::string>();
+      io.folds = a["folds"].as<int>();
       io.progress = !a.count("quiet");
       if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
       j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);

@@ -1,0 +1,201 @@
+#pragma once
+// Internals of the intensity loop (qualify/intensity.h), shared by its files:
+//   intensity_qualify.cpp     cells, lookups and `lidar-qualify intensity`
+//   intensity_folds.cpp       the rotated folds, the base model per fold, the pooled held-out cells
+//   intensity_forms.cpp       candidate forms (additive, gain, affine; tables and windows), cross-fitted
+//   intensity_loop.cpp        one round as named steps (rank, judge, refit, report) and the rounds
+//   intensity_report.cpp      the JSON written from the typed round result
+#include <array>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "qualify/intensity.h"
+#include "qualify/residual.h"
+#include "train/trainer.h"
+
+namespace lidarsim::qualify::intensity_detail {
+
+struct Errors {
+  double mae = 0, rmse = 0;
+  long n = 0;
+};
+Errors errors(const std::vector<double>& pred, const std::vector<double>& meas, const std::vector<size_t>& idx);
+Errors errors(const std::vector<double>& pred, const std::vector<double>& meas);  // every cell
+
+std::vector<size_t> held_indices(const IntensityCells& c, int cls = -1);
+
+std::vector<double> pick(const std::vector<double>& v, const std::vector<size_t>& idx);
+
+// Lookup on key(i) fitted on the fit cells; unseen keys fall back to `fallback`.
+template <class Key>
+std::vector<double> lookup(const IntensityCells& c, Key key, const std::vector<double>& fallback) {
+  std::map<long, std::pair<double, long>> t;
+  for (size_t i = 0; i < c.size(); ++i)
+    if (!c.held_out[i]) {
+      auto& e = t[key(i)];
+      e.first += c.measured[i];
+      ++e.second;
+    }
+  std::vector<double> out(c.size());
+  for (size_t i = 0; i < c.size(); ++i) {
+    const auto it = t.find(key(i));
+    out[i] = it != t.end() ? it->second.first / it->second.second : fallback[i];
+  }
+  return out;
+}
+
+enum class Base { Unet, Lookup, LookupBeam };
+Base parse_base(const std::string& name);  // throws naming the option
+
+// The PGM channels that carry a feature into the UNet (azimuth: its sine and cosine).
+std::vector<std::string> channels_of(const std::string& feature);
+// A copy of the dataset with the derived channels among `names` appended.
+data::Dataset with_derived_channels(const data::Dataset& ds, const std::vector<std::string>& names);
+
+// UNets trained on the fit cells of `ds` (its guarded split) with `channels` as input, one per
+// seed: per-cell predictions of each seed and their mean.
+struct UnetFits {
+  std::vector<double> ensemble;
+  std::vector<std::vector<double>> seed_pred;
+  train::TrainResult first;  // the first seed's model and its checkpoint metadata
+};
+struct TrainingCount {
+  int done = 0, total = 0;
+};
+UnetFits fit_unets(const data::Dataset& ds, const IntensityCells& c, const std::vector<std::string>& channels,
+                   const IntensityLoopOptions& o, const std::string& label, TrainingCount& count,
+                   bool row_affine = false);
+
+// One fold of the rotated guarded split. The dataset is rolled by `shift` columns (rolled column
+// c = original column (c + shift) mod W), so the guarded split of the rolled scans validates the
+// fold's regions with the same guard bands; every model of the fold trains on the rolled scans.
+struct Fold {
+  int shift = 0;
+  data::Dataset ds;
+  IntensityCells cells;
+  std::vector<size_t> held;  // indices into cells
+};
+
+// Every held-out cell of every fold, in fold order: with the regions rotated over 4 folds every
+// column is validated once, so these are all the cells with a return, each predicted by a base
+// model that did not see its scenery.
+struct Pooled {
+  std::vector<double> measured, base, lookup;
+  std::vector<std::vector<double>> feature;  // [kIntensityFeatures][cell]
+  std::vector<int> fold, frame, row, cls;
+  std::vector<long> block;  // bootstrap block: 16-column strip of the original columns (all scans) or a frame
+  std::vector<int> group;   // cross-fit group of the candidate forms
+  std::vector<std::size_t> offset;  // first pooled cell of each fold (folds.size() + 1 entries)
+  std::string group_by;             // "scan", "fold" or "validation region"
+  int groups = 1;
+  double scenery_correlation = 0;   // scenery_correlation() of the scans
+  std::size_t size() const { return measured.size(); }
+};
+
+// The folds of `ds`: 1 = the guarded split as it is; 4 = its regions rotated by W/8 per fold, so
+// that every column is validated once (only for a guarded region split). Throws naming --folds.
+std::vector<Fold> make_folds(const data::Dataset& ds, const data::SectorSplit& split, int folds);
+// Mean correlation between consecutive scans of the range's deviation from its row mean, cell by
+// cell: how much the scans show the same scenery at the same cells.
+double scenery_correlation(const data::Dataset& ds);
+// From this correlation on the scans are taken for one place (SemanticKITTI's consecutive scans:
+// about 0.9; the reference sensor's independent scenes: about 0).
+inline constexpr double kSameSceneryCorrelation = 0.5;
+// The pooled held-out cells with the lookup's prediction; `base` is left for the caller.
+Pooled pool(const std::vector<Fold>& folds, int columns, double scenery);
+// Per-fold predictions (indexed by each fold's cells) to pooled held-out cells.
+std::vector<double> pool_prediction(const std::vector<Fold>& folds, const std::vector<std::vector<double>>& per_fold);
+
+// Block bootstrap 95% interval of the held-out MAE change after - before, over the pooled blocks.
+std::array<double, 2> change_interval(const Pooled& p, const std::vector<double>& after);
+
+// --- Candidate forms (intensity_forms.cpp) ---------------------------------------------------------
+enum class Form { Table, Window, GainTable, WindowGain, AffineTable };
+inline constexpr std::array<Form, 5> kForms = {Form::Table, Form::Window, Form::GainTable, Form::WindowGain,
+                                               Form::AffineTable};
+// "binned table" / "per-beam table", "window", "binned gain" / "per-beam gain", "window gain",
+// "binned affine" / "per-row affine".
+std::string form_name(Form f, bool per_row);
+bool additive(Form f);
+
+// A correction fitted on some cells and applied to others: delta(x, base) added to the prediction.
+struct FittedForm {
+  BinnedTable table;          // additive levels, gains, or affine offsets
+  std::vector<double> slope;  // affine only: per bin, on (base - centre)
+  double centre = 0;
+  Form form = Form::Table;
+  bool ok() const { return !table.value.empty(); }
+  double delta(double x, double base) const;
+};
+
+// Fits `form` of the winsorised residual rc (= clamp(measured - base)) over x on the cells idx:
+// `edges` bin the tables (one bin per beam row for beam_row), `fine` the windows' search.
+FittedForm fit_form(Form form, const std::vector<double>& edges, const std::vector<double>& fine,
+                    const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
+                    const std::vector<size_t>& idx);
+
+// A form scored on the pooled held-out residual, cross-fitted over the pool's groups (fitted on the
+// other groups, applied to each group in turn).
+struct FormScore {
+  double r2 = 0;  // held-out share of the residual variance the form explains beyond its one-bin version
+  std::array<double, 2> interval{0, 0};
+  double mae_after = 0;               // held-out MAE of base + correction
+  double effect = 0;                  // RMS of the correction (intensity units); windows: inside - outside
+  std::vector<double> corrected;      // base + correction per pooled cell (when asked for)
+  FittedForm shown;                   // fitted on every pooled cell: for the report and the plot
+};
+FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vector<double>& edges,
+                     const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected = false);
+
+// --- One round's typed result (intensity_loop.cpp fills it, intensity_report.cpp writes it) -------
+enum class Decision { Added, NotAdded, Tried, NotTried, NotRanked };
+const char* decision_name(Decision d);  // "added", "not added", ...
+
+struct Candidate {
+  std::string feature;
+  Form form = Form::Table;
+  bool per_row = false;
+  bool used = false;  // a form the base model already has
+  FormScore score;
+  Decision decision = Decision::NotTried;
+  std::string reason;  // in words a user acts on
+  std::string name() const { return form_name(form, per_row); }
+};
+
+struct Refit {
+  std::string method;
+  double mae = 0;
+  bool addable = true;  // false: measured and reported only
+};
+
+struct RoundResult {
+  std::string split, group_by, base_model;
+  int half_width = 0, folds = 1;
+  double scenery_correlation = 0;
+  Errors before, after, tried;
+  double lookup_before = 0;
+  std::array<double, 2> interval{0, 0};
+  std::vector<Candidate> candidates;   // every feature x form, best first
+  std::vector<FeatureScore> ranking;   // best form per feature not used by the base, best first
+  std::vector<std::string> ranking_form;  // the best form of each ranked feature
+  std::vector<double> ranking_mae;        // and the held-out MAE of the refit it implies
+  std::vector<FeatureScore> used;
+  std::string top_feature, top_form;
+  bool candidate = false, added = false;
+  std::string method = "none";
+  std::vector<Refit> refits;
+  std::string rejected_why;
+  std::vector<double> seeds_before, seeds_after, seeds_tried;
+  FittedForm effect_table;             // the chosen form, fitted on every pooled cell
+  std::map<std::string, BinnedTable> residual_tables;  // each feature's additive table, for the plot
+  std::string plot;
+};
+
+nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o);
+// A round's entry of "rounds": added effect, method, top feature, before, after, the change.
+nlohmann::json round_summary(const nlohmann::json& round);
+
+}  // namespace lidarsim::qualify::intensity_detail
