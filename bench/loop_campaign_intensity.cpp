@@ -92,23 +92,23 @@ struct DrawSettings {
   qualify::IntensityLoopOptions loop;
 };
 
-nlohmann::json run_draw(const Source& src, data::PlantedFamily family, std::uint64_t seed, const DrawSettings& settings,
+nlohmann::json run_draw(const Source& src, data::PlantedScanFamily family, std::uint64_t seed, const DrawSettings& settings,
                         FamilyRows& rows) {
   const auto t0 = std::chrono::steady_clock::now();
-  const data::PlantedDraw draw = data::draw_planted(family, seed, src.geometry, settings.sigma, settings.binned_base);
+  const data::PlantedScanDraw draw = data::draw_planted(family, seed, src.geometry, settings.sigma, settings.binned_base);
   const nlohmann::json loop = qualify::loop_intensity(data::plant(src.geometry, draw), settings.loop);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   // The control twin (same seed: same hidden base and noise, no effect) gives the base's own floor.
   double floor = data::score_planted(draw, loop).excess_before;
-  if (family != data::PlantedFamily::Control) {
-    const auto twin = data::draw_planted(data::PlantedFamily::Control, seed, src.geometry, settings.sigma, settings.binned_base);
+  if (family != data::PlantedScanFamily::Control) {
+    const auto twin = data::draw_planted(data::PlantedScanFamily::Control, seed, src.geometry, settings.sigma, settings.binned_base);
     floor = data::score_planted(twin, qualify::loop_intensity(data::plant(src.geometry, twin), settings.loop)).excess_before;
   }
   const data::PlantedScore s = data::score_planted(draw, loop, floor);
   ++rows.draws;
   rows.hits += s.hit;
   rows.hits_above_floor += s.hit_above_floor;
-  rows.false_adds += family == data::PlantedFamily::Control ? !s.added.empty() : s.false_add;
+  rows.false_adds += family == data::PlantedScanFamily::Control ? !s.added.empty() : s.false_add;
   rows.before.push_back(s.excess_before);
   rows.after.push_back(s.excess_after);
   rows.floor.push_back(floor);
@@ -145,7 +145,7 @@ std::string named_list(const std::map<std::string, int>& named) {
 }
 
 // The table per family on stdout (markdown) and the overall line; returns them as JSON.
-nlohmann::json print_table(const std::vector<data::PlantedFamily>& families, const std::vector<FamilyRows>& rows,
+nlohmann::json print_table(const std::vector<data::PlantedScanFamily>& families, const std::vector<FamilyRows>& rows,
                            const data::Dataset& geometry, double sigma) {
   std::printf("| family | scoring | planted feature | draws | recall | recall above floor | false adds | median excess before | median excess after | median floor | median s | added effects |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
@@ -205,11 +205,11 @@ int main(int argc, char** argv) try {
   const int draws = std::max(1, args["draws"].as<int>());
   const std::uint64_t seed = args["seed"].as<std::uint64_t>();
   const double sigma = args["sigma"].as<double>();
-  std::vector<data::PlantedFamily> families;
+  std::vector<data::PlantedScanFamily> families;
   {
     std::stringstream ss(args["families"].as<std::string>());
     for (std::string f; std::getline(ss, f, ',');)
-      if (!f.empty()) families.push_back(data::planted_family_from_string(f));
+      if (!f.empty()) families.push_back(data::planted_scan_family_from_string(f));
     if (families.empty()) families = data::all_planted_families();
   }
   DrawSettings settings;

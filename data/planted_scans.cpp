@@ -65,18 +65,18 @@ std::vector<int> common_classes(const Dataset& geometry, double share) {
   return out;
 }
 
-void draw_effect(PlantedEffect& e, Rng& rng, const Dataset& geometry) {
+void draw_effect(PlantedScanEffect& e, Rng& rng, const Dataset& geometry) {
   const int rows = geometry.rows();
   auto& p = e.parameters;
   switch (e.family) {
-    case PlantedFamily::BeamGain: {
+    case PlantedScanFamily::BeamGain: {
       const double spread = rng.uniform(0.1, 0.5);
       e.row_gain.resize(rows);
       for (double& g : e.row_gain) g = 1 + spread * rng.uniform(-1, 1);
       p = {{"spread", spread}, {"row_gain", e.row_gain}};
       break;
     }
-    case PlantedFamily::BadLasers: {
+    case PlantedScanFamily::BadLasers: {
       const int bad = rng.integer(2, std::min(10, rows));
       std::vector<int> order(rows);
       std::iota(order.begin(), order.end(), 0);
@@ -90,13 +90,13 @@ void draw_effect(PlantedEffect& e, Rng& rng, const Dataset& geometry) {
       p = {{"bad_lasers", lasers}};
       break;
     }
-    case PlantedFamily::AzimuthWindow:
+    case PlantedScanFamily::AzimuthWindow:
       e.azimuth_width_deg = rng.uniform(20, 120);
       e.azimuth_start_deg = rng.uniform(0, 360);
       e.gain = gain_either_side(rng, 0.4, 0.8, 1.25, 2.0);
       p = {{"start_deg", e.azimuth_start_deg}, {"width_deg", e.azimuth_width_deg}, {"gain", e.gain}};
       break;
-    case PlantedFamily::RangeFalloff: {
+    case PlantedScanFamily::RangeFalloff: {
       const int size = rng.integer(std::max(1, rows / 4), std::max(1, rows / 2));
       e.row_first = rng.integer(0, rows - size);
       e.row_last = e.row_first + size - 1;
@@ -105,47 +105,47 @@ void draw_effect(PlantedEffect& e, Rng& rng, const Dataset& geometry) {
            {"reference_range_m", e.reference_range_m}};
       break;
     }
-    case PlantedFamily::IncidenceFalloff:
+    case PlantedScanFamily::IncidenceFalloff:
       e.exponent = rng.uniform(0.3, 1.2);
       p = {{"exponent", e.exponent}};
       break;
-    case PlantedFamily::ClassGain: {
+    case PlantedScanFamily::ClassGain: {
       const auto classes = common_classes(geometry, 0.02);
       e.class_id = classes[rng.integer(0, static_cast<int>(classes.size()) - 1)];
       e.gain = gain_either_side(rng, 0.5, 0.8, 1.25, 1.6);
       p = {{"class", pgm::class_name(e.class_id)}, {"gain", e.gain}};
       break;
     }
-    case PlantedFamily::Control: p = nlohmann::json::object(); break;
+    case PlantedScanFamily::Control: p = nlohmann::json::object(); break;
   }
 }
 
 }  // namespace
 
-const std::vector<PlantedFamily>& all_planted_families() {
-  static const std::vector<PlantedFamily> all = {PlantedFamily::BeamGain,         PlantedFamily::BadLasers,
-                                                 PlantedFamily::AzimuthWindow,    PlantedFamily::RangeFalloff,
-                                                 PlantedFamily::IncidenceFalloff, PlantedFamily::ClassGain,
-                                                 PlantedFamily::Control};
+const std::vector<PlantedScanFamily>& all_planted_families() {
+  static const std::vector<PlantedScanFamily> all = {PlantedScanFamily::BeamGain,         PlantedScanFamily::BadLasers,
+                                                 PlantedScanFamily::AzimuthWindow,    PlantedScanFamily::RangeFalloff,
+                                                 PlantedScanFamily::IncidenceFalloff, PlantedScanFamily::ClassGain,
+                                                 PlantedScanFamily::Control};
   return all;
 }
 
-std::string to_string(PlantedFamily f) {
+std::string to_string(PlantedScanFamily f) {
   switch (f) {
-    case PlantedFamily::BeamGain: return "beam_gain";
-    case PlantedFamily::BadLasers: return "bad_lasers";
-    case PlantedFamily::AzimuthWindow: return "azimuth_window";
-    case PlantedFamily::RangeFalloff: return "range_falloff";
-    case PlantedFamily::IncidenceFalloff: return "incidence_falloff";
-    case PlantedFamily::ClassGain: return "class_gain";
-    case PlantedFamily::Control: return "control";
+    case PlantedScanFamily::BeamGain: return "beam_gain";
+    case PlantedScanFamily::BadLasers: return "bad_lasers";
+    case PlantedScanFamily::AzimuthWindow: return "azimuth_window";
+    case PlantedScanFamily::RangeFalloff: return "range_falloff";
+    case PlantedScanFamily::IncidenceFalloff: return "incidence_falloff";
+    case PlantedScanFamily::ClassGain: return "class_gain";
+    case PlantedScanFamily::Control: return "control";
   }
   return "unknown";
 }
 
-PlantedFamily planted_family_from_string(const std::string& name) {
+PlantedScanFamily planted_scan_family_from_string(const std::string& name) {
   std::string known;
-  for (PlantedFamily f : all_planted_families()) {
+  for (PlantedScanFamily f : all_planted_families()) {
     if (to_string(f) == name) return f;
     known += (known.empty() ? "" : ", ") + to_string(f);
   }
@@ -167,25 +167,25 @@ double HiddenIntensityBase::operator()(int class_id, double range_m) const {
   return a * std::exp(-r / attenuation_m);
 }
 
-double PlantedEffect::gain_at(int row, double range_m, double azimuth_rad, double incidence_rad, int cls) const {
+double PlantedScanEffect::gain_at(int row, double range_m, double azimuth_rad, double incidence_rad, int cls) const {
   switch (family) {
-    case PlantedFamily::BeamGain:
-    case PlantedFamily::BadLasers: return row >= 0 && row < static_cast<int>(row_gain.size()) ? row_gain[row] : 1.0;
-    case PlantedFamily::AzimuthWindow: {
+    case PlantedScanFamily::BeamGain:
+    case PlantedScanFamily::BadLasers: return row >= 0 && row < static_cast<int>(row_gain.size()) ? row_gain[row] : 1.0;
+    case PlantedScanFamily::AzimuthWindow: {
       const double deg = std::fmod(azimuth_rad * 180 / kPi + 720, 360);
       return std::fmod(deg - azimuth_start_deg + 720, 360) < azimuth_width_deg ? gain : 1.0;
     }
-    case PlantedFamily::RangeFalloff:
+    case PlantedScanFamily::RangeFalloff:
       // Ranges under 1 m are the sensor's own housing region: held at the 1 m gain.
       return row >= row_first && row <= row_last ? std::pow(std::max(range_m, 1.0) / reference_range_m, -exponent) : 1.0;
-    case PlantedFamily::IncidenceFalloff: return std::pow(std::cos(std::clamp(incidence_rad, 0.0, kPi / 2)), exponent);
-    case PlantedFamily::ClassGain: return cls == class_id ? gain : 1.0;
-    case PlantedFamily::Control: return 1.0;
+    case PlantedScanFamily::IncidenceFalloff: return std::pow(std::cos(std::clamp(incidence_rad, 0.0, kPi / 2)), exponent);
+    case PlantedScanFamily::ClassGain: return cls == class_id ? gain : 1.0;
+    case PlantedScanFamily::Control: return 1.0;
   }
   return 1.0;
 }
 
-nlohmann::json PlantedDraw::to_json() const {
+nlohmann::json PlantedScanDraw::to_json() const {
   nlohmann::json albedo = nlohmann::json::object();
   for (int c = 0; c < static_cast<int>(base.albedo.size()); ++c) albedo[pgm::class_name(c)] = base.albedo[c];
   return {{"family", to_string(family)},
@@ -198,9 +198,9 @@ nlohmann::json PlantedDraw::to_json() const {
                            {"fall_off_at", base.binned ? "5 m range-bin centre" : "range"}}}};
 }
 
-PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma, bool binned) {
+PlantedScanDraw draw_planted(PlantedScanFamily family, std::uint64_t seed, const Dataset& geometry, double sigma, bool binned) {
   if (!(sigma >= 0)) throw Error("planted scans: sigma: expected >= 0, got " + std::to_string(sigma));
-  PlantedDraw d;
+  PlantedScanDraw d;
   d.family = family;
   d.seed = seed;
   Rng rng(mix(seed));
@@ -209,25 +209,25 @@ PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset
   d.base.albedo.resize(pgm::cls::count);
   for (double& a : d.base.albedo) a = rng.uniform(0.15, 0.6);
   d.base.attenuation_m = rng.uniform(60, 150);
-  PlantedEffect& e = d.effect;
+  PlantedScanEffect& e = d.effect;
   e.family = family;
   switch (family) {
-    case PlantedFamily::BeamGain:
-    case PlantedFamily::BadLasers: e.feature = "beam_row", e.accepted = {"beam_row"}; break;
-    case PlantedFamily::RangeFalloff: e.feature = "beam_row", e.accepted = {"beam_row", "elevation"}; break;
-    case PlantedFamily::AzimuthWindow: e.feature = "azimuth", e.accepted = {"azimuth"}; break;
-    case PlantedFamily::IncidenceFalloff: e.feature = "incidence_angle", e.accepted = {"incidence_angle"}; break;
-    case PlantedFamily::ClassGain:
-    case PlantedFamily::Control: break;
+    case PlantedScanFamily::BeamGain:
+    case PlantedScanFamily::BadLasers: e.feature = "beam_row", e.accepted = {"beam_row"}; break;
+    case PlantedScanFamily::RangeFalloff: e.feature = "beam_row", e.accepted = {"beam_row", "elevation"}; break;
+    case PlantedScanFamily::AzimuthWindow: e.feature = "azimuth", e.accepted = {"azimuth"}; break;
+    case PlantedScanFamily::IncidenceFalloff: e.feature = "incidence_angle", e.accepted = {"incidence_angle"}; break;
+    case PlantedScanFamily::ClassGain:
+    case PlantedScanFamily::Control: break;
   }
-  e.scoring = family == PlantedFamily::Control     ? PlantedScoring::Control
-              : family == PlantedFamily::ClassGain ? PlantedScoring::Absorbed
+  e.scoring = family == PlantedScanFamily::Control     ? PlantedScoring::Control
+              : family == PlantedScanFamily::ClassGain ? PlantedScoring::Absorbed
                                                    : PlantedScoring::Detect;
   draw_effect(e, rng, geometry);
   return d;
 }
 
-Dataset plant(const Dataset& geometry, const PlantedDraw& draw, bool noise) {
+Dataset plant(const Dataset& geometry, const PlantedScanDraw& draw, bool noise) {
   Dataset out = geometry;
   const int ir = geometry.channel_index("range"), ic = geometry.channel_index("class"),
             iaz = geometry.channel_index("azimuth"), iinc = geometry.channel_index("incidence");
@@ -254,7 +254,7 @@ Dataset plant(const Dataset& geometry, const PlantedDraw& draw, bool noise) {
   return out;
 }
 
-PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop, double floor) {
+PlantedScore score_planted(const PlantedScanDraw& draw, const nlohmann::json& loop, double floor) {
   for (const char* key : {"added_effect", "rmse_before", "rmse_after"})
     if (!loop.contains(key)) throw Error(std::string("planted scans: the loop's JSON has no \"") + key + "\"");
   PlantedScore s;

@@ -50,10 +50,10 @@
 
 namespace lidarsim::data {
 
-enum class PlantedFamily { BeamGain, BadLasers, AzimuthWindow, RangeFalloff, IncidenceFalloff, ClassGain, Control };
-const std::vector<PlantedFamily>& all_planted_families();
-std::string to_string(PlantedFamily family);
-PlantedFamily planted_family_from_string(const std::string& name);  // throws naming the known ones
+enum class PlantedScanFamily { BeamGain, BadLasers, AzimuthWindow, RangeFalloff, IncidenceFalloff, ClassGain, Control };
+const std::vector<PlantedScanFamily>& all_planted_families();
+std::string to_string(PlantedScanFamily family);
+PlantedScanFamily planted_scan_family_from_string(const std::string& name);  // throws naming the known ones
 
 // How a family is scored: Detect = the loop must name the planted feature and cut the excess
 // error to <= 0.7 x; Absorbed = the base already represents it, nothing may be added; Control =
@@ -69,8 +69,8 @@ struct HiddenIntensityBase {
   double operator()(int class_id, double range_m) const;
 };
 
-struct PlantedEffect {
-  PlantedFamily family = PlantedFamily::Control;
+struct PlantedScanEffect {
+  PlantedScanFamily family = PlantedScanFamily::Control;
   PlantedScoring scoring = PlantedScoring::Control;
   std::string feature;                // the loop's name for it; empty when nothing is to be named
   std::vector<std::string> accepted;  // names that count as naming it (feature first)
@@ -86,23 +86,23 @@ struct PlantedEffect {
   double gain_at(int row, double range_m, double azimuth_rad, double incidence_rad, int class_id) const;
 };
 
-struct PlantedDraw {
-  PlantedFamily family = PlantedFamily::Control;
+struct PlantedScanDraw {
+  PlantedScanFamily family = PlantedScanFamily::Control;
   std::uint64_t seed = 0;
   HiddenIntensityBase base;
-  PlantedEffect effect;
+  PlantedScanEffect effect;
   nlohmann::json to_json() const;  // family, seed, scoring, feature, accepted, parameters, base
 };
 
 // Draws the hidden base and one effect of `family` from `seed` (same seed, same draw). `geometry`
 // gives the row count and the class shares (class_gain picks among classes with >= 2 % of returns).
-PlantedDraw draw_planted(PlantedFamily family, std::uint64_t seed, const Dataset& geometry, double sigma = 0.03,
+PlantedScanDraw draw_planted(PlantedScanFamily family, std::uint64_t seed, const Dataset& geometry, double sigma = 0.03,
                          bool binned_base = true);
 
 // `geometry` with its target replaced by the draw's intensity on every cell with a return (0
 // elsewhere); the noise comes from the draw's seed. Needs the range, class, azimuth and incidence
 // channels (the error names the missing one). noise = false gives the noise-free truth.
-Dataset plant(const Dataset& geometry, const PlantedDraw& draw, bool noise = true);
+Dataset plant(const Dataset& geometry, const PlantedScanDraw& draw, bool noise = true);
 
 // One draw scored from the loop's JSON (qualify::loop_intensity: added_effect, rmse_before,
 // rmse_after). Excess errors are against the noise-free truth: sqrt(max(0, rmse^2 - sigma^2)).
@@ -125,6 +125,6 @@ struct PlantedScore {
   bool hit_above_floor = false;  // as hit, with the 0.7 x rule on the excess above the floor
 };
 inline constexpr double kPlantedErrorRatio = 0.7;
-PlantedScore score_planted(const PlantedDraw& draw, const nlohmann::json& loop, double floor = 0);
+PlantedScore score_planted(const PlantedScanDraw& draw, const nlohmann::json& loop, double floor = 0);
 
 }  // namespace lidarsim::data

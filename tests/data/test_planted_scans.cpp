@@ -47,21 +47,21 @@ Dataset synthetic_geometry() {
 TEST(PlantedScans, ParametersInTheirRanges) {
   const Dataset g = synthetic_geometry();
   for (std::uint64_t seed = 0; seed < 200; ++seed) {
-    for (PlantedFamily f : all_planted_families()) {
-      const PlantedDraw d = draw_planted(f, seed, g);
-      const PlantedEffect& e = d.effect;
+    for (PlantedScanFamily f : all_planted_families()) {
+      const PlantedScanDraw d = draw_planted(f, seed, g);
+      const PlantedScanEffect& e = d.effect;
       for (double a : d.base.albedo) EXPECT_TRUE(a >= 0.15 && a <= 0.6) << a;
       EXPECT_TRUE(d.base.attenuation_m >= 60 && d.base.attenuation_m <= 150);
       const auto& p = e.parameters;
       switch (f) {
-        case PlantedFamily::BeamGain: {
+        case PlantedScanFamily::BeamGain: {
           const double s = p["spread"];
           EXPECT_TRUE(s >= 0.1 && s <= 0.5) << s;
           ASSERT_EQ(static_cast<int>(e.row_gain.size()), g.rows());
           for (double x : e.row_gain) EXPECT_LE(std::abs(x - 1), s + 1e-12);
           break;
         }
-        case PlantedFamily::BadLasers: {
+        case PlantedScanFamily::BadLasers: {
           EXPECT_TRUE(p["bad_lasers"].size() >= 2 && p["bad_lasers"].size() <= 10) << p.dump();
           int bad = 0;
           for (double x : e.row_gain)
@@ -72,24 +72,24 @@ TEST(PlantedScans, ParametersInTheirRanges) {
           EXPECT_EQ(bad, static_cast<int>(p["bad_lasers"].size()));  // distinct lasers
           break;
         }
-        case PlantedFamily::AzimuthWindow:
+        case PlantedScanFamily::AzimuthWindow:
           EXPECT_TRUE(e.azimuth_width_deg >= 20 && e.azimuth_width_deg <= 120);
           EXPECT_TRUE(e.azimuth_start_deg >= 0 && e.azimuth_start_deg < 360);
           EXPECT_TRUE((e.gain >= 0.4 && e.gain <= 0.8) || (e.gain >= 1.25 && e.gain <= 2)) << e.gain;
           break;
-        case PlantedFamily::RangeFalloff: {
+        case PlantedScanFamily::RangeFalloff: {
           const int size = e.row_last - e.row_first + 1;
           EXPECT_TRUE(size >= g.rows() / 4 && size <= g.rows() / 2 && e.row_first >= 0 && e.row_last < g.rows());
           EXPECT_TRUE(std::abs(e.exponent) >= 0.2 && std::abs(e.exponent) <= 0.6) << e.exponent;
           break;
         }
-        case PlantedFamily::IncidenceFalloff: EXPECT_TRUE(e.exponent >= 0.3 && e.exponent <= 1.2); break;
-        case PlantedFamily::ClassGain:
+        case PlantedScanFamily::IncidenceFalloff: EXPECT_TRUE(e.exponent >= 0.3 && e.exponent <= 1.2); break;
+        case PlantedScanFamily::ClassGain:
           EXPECT_TRUE((e.gain >= 0.5 && e.gain <= 0.8) || (e.gain >= 1.25 && e.gain <= 1.6)) << e.gain;
           EXPECT_TRUE(e.class_id == pgm::cls::road || e.class_id == pgm::cls::building ||
                       e.class_id == pgm::cls::vegetation || e.class_id == pgm::cls::car);
           break;
-        case PlantedFamily::Control: EXPECT_TRUE(e.feature.empty()); break;
+        case PlantedScanFamily::Control: EXPECT_TRUE(e.feature.empty()); break;
       }
     }
   }
@@ -97,8 +97,8 @@ TEST(PlantedScans, ParametersInTheirRanges) {
 
 TEST(PlantedScans, DeterministicBySeed) {
   const Dataset g = synthetic_geometry();
-  for (PlantedFamily f : all_planted_families()) {
-    const PlantedDraw a = draw_planted(f, 42, g), b = draw_planted(f, 42, g), c = draw_planted(f, 43, g);
+  for (PlantedScanFamily f : all_planted_families()) {
+    const PlantedScanDraw a = draw_planted(f, 42, g), b = draw_planted(f, 42, g), c = draw_planted(f, 43, g);
     EXPECT_EQ(a.to_json(), b.to_json()) << to_string(f);
     EXPECT_NE(a.to_json(), c.to_json()) << to_string(f);
     const Dataset pa = plant(g, a), pb = plant(g, b), pc = plant(g, c);
@@ -113,15 +113,15 @@ TEST(PlantedScans, DeterministicBySeed) {
 TEST(PlantedScans, EffectIsInTheTarget) {
   const Dataset g = synthetic_geometry();
   const int W = g.cols();
-  const Dataset control = plant(g, draw_planted(PlantedFamily::Control, 7, g), false);
-  const PlantedDraw beam = draw_planted(PlantedFamily::BeamGain, 7, g);
+  const Dataset control = plant(g, draw_planted(PlantedScanFamily::Control, 7, g), false);
+  const PlantedScanDraw beam = draw_planted(PlantedScanFamily::BeamGain, 7, g);
   const Dataset gained = plant(g, beam, false);
   for (int r = 0; r < g.rows(); ++r) {
     double ratio = 0;
     for (int c = 0; c < W; ++c) ratio += gained.target.data()[r * W + c] / control.target.data()[r * W + c];
     EXPECT_NEAR(ratio / W, beam.effect.row_gain[r], 1e-5) << "row " << r;
   }
-  const PlantedDraw window = draw_planted(PlantedFamily::AzimuthWindow, 7, g);
+  const PlantedScanDraw window = draw_planted(PlantedScanFamily::AzimuthWindow, 7, g);
   const Dataset windowed = plant(g, window, false);
   const int iaz = g.channel_index("azimuth");
   int inside = 0;
@@ -133,7 +133,7 @@ TEST(PlantedScans, EffectIsInTheTarget) {
   }
   EXPECT_GT(inside, 0);
   // The noise has the draw's sigma.
-  const Dataset noisy = plant(g, draw_planted(PlantedFamily::Control, 7, g, 0.05));
+  const Dataset noisy = plant(g, draw_planted(PlantedScanFamily::Control, 7, g, 0.05));
   double sq = 0;
   for (int k = 0; k < g.rows() * W; ++k) sq += std::pow(noisy.target.data()[k] - control.target.data()[k], 2);
   EXPECT_NEAR(std::sqrt(sq / (g.rows() * W)), 0.05, 0.005);
@@ -141,7 +141,7 @@ TEST(PlantedScans, EffectIsInTheTarget) {
 
 TEST(PlantedScans, ScoreUsesTheExcessOverTheNoise) {
   const Dataset g = synthetic_geometry();
-  const PlantedDraw d = draw_planted(PlantedFamily::BeamGain, 1, g, 0.03);
+  const PlantedScanDraw d = draw_planted(PlantedScanFamily::BeamGain, 1, g, 0.03);
   const nlohmann::json hit = {{"added_effect", "beam_row"}, {"rmse_before", 0.05}, {"rmse_after", 0.032}};
   PlantedScore s = score_planted(d, hit);
   EXPECT_NEAR(s.excess_before, 0.04, 1e-12);
@@ -155,7 +155,7 @@ TEST(PlantedScans, ScoreUsesTheExcessOverTheNoise) {
   // Below the noise the excess is 0, not NaN.
   s = score_planted(d, {{"added_effect", nullptr}, {"rmse_before", 0.02}, {"rmse_after", 0.02}});
   EXPECT_EQ(s.excess_before, 0.0);
-  const PlantedDraw control = draw_planted(PlantedFamily::Control, 1, g);
+  const PlantedScanDraw control = draw_planted(PlantedScanFamily::Control, 1, g);
   EXPECT_TRUE(score_planted(control, {{"added_effect", nullptr}, {"rmse_before", 0.03}, {"rmse_after", 0.03}}).hit);
   EXPECT_FALSE(score_planted(control, {{"added_effect", "azimuth"}, {"rmse_before", 0.03}, {"rmse_after", 0.03}}).hit);
   EXPECT_THROW(score_planted(d, {{"added_effect", nullptr}}), Error);
@@ -163,7 +163,7 @@ TEST(PlantedScans, ScoreUsesTheExcessOverTheNoise) {
 
 TEST(PlantedScans, UnknownFamilyAndMissingChannelAreClearErrors) {
   try {
-    planted_family_from_string("beam");
+    planted_scan_family_from_string("beam");
     FAIL();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("beam_gain"), std::string::npos) << e.what();
@@ -171,7 +171,7 @@ TEST(PlantedScans, UnknownFamilyAndMissingChannelAreClearErrors) {
   Dataset g = synthetic_geometry();
   g.channels[g.channel_index("incidence")] = "renamed";
   try {
-    plant(g, draw_planted(PlantedFamily::Control, 1, g));
+    plant(g, draw_planted(PlantedScanFamily::Control, 1, g));
     FAIL();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("incidence"), std::string::npos) << e.what();

@@ -14,7 +14,7 @@ namespace lidarsim::qualify {
 namespace {
 
 struct Outcome {
-  data::PlantedDraw draw;
+  data::PlantedScanDraw draw;
   data::PlantedScore score;
 };
 
@@ -26,12 +26,12 @@ TEST(CampaignIntensityStatistical, OneDrawPerFamilyOnSemanticKitti) {
   // One seed for every family: the control's draw is every draw's twin (the same hidden base and
   // noise), so its excess is the base's own floor.
   const std::uint64_t seed = 2026;
-  const data::PlantedDraw control_draw = data::draw_planted(data::PlantedFamily::Control, seed, geometry, 0.03);
+  const data::PlantedScanDraw control_draw = data::draw_planted(data::PlantedScanFamily::Control, seed, geometry, 0.03);
   const double floor =
       data::score_planted(control_draw, loop_intensity(data::plant(geometry, control_draw), options)).excess_before;
-  std::map<data::PlantedFamily, Outcome> out;
-  for (data::PlantedFamily f : data::all_planted_families()) {
-    const data::PlantedDraw draw = data::draw_planted(f, seed, geometry, 0.03);
+  std::map<data::PlantedScanFamily, Outcome> out;
+  for (data::PlantedScanFamily f : data::all_planted_families()) {
+    const data::PlantedScanDraw draw = data::draw_planted(f, seed, geometry, 0.03);
     const nlohmann::json loop = loop_intensity(data::plant(geometry, draw), options);
     out[f] = {draw, data::score_planted(draw, loop, floor)};
     const auto& s = out[f].score;
@@ -40,14 +40,14 @@ TEST(CampaignIntensityStatistical, OneDrawPerFamilyOnSemanticKitti) {
                 s.hit_above_floor ? "hit" : "miss");
   }
   // Nothing is added on the control, nor for a class gain the class x range base already holds.
-  EXPECT_TRUE(out[data::PlantedFamily::Control].score.added.empty()) << out[data::PlantedFamily::Control].score.added;
-  EXPECT_TRUE(out[data::PlantedFamily::ClassGain].score.added.empty()) << out[data::PlantedFamily::ClassGain].score.added;
+  EXPECT_TRUE(out[data::PlantedScanFamily::Control].score.added.empty()) << out[data::PlantedScanFamily::Control].score.added;
+  EXPECT_TRUE(out[data::PlantedScanFamily::ClassGain].score.added.empty()) << out[data::PlantedScanFamily::ClassGain].score.added;
   // Every effect the base cannot represent leaves an error against the truth above the base's floor.
   for (const auto& [f, o] : out)
     if (o.draw.effect.scoring == data::PlantedScoring::Detect) EXPECT_GT(o.score.above_floor_before, 0.005) << data::to_string(f);
   // The per-laser families are what the loop was built for: named, and the error above the floor cut.
-  EXPECT_TRUE(out[data::PlantedFamily::BeamGain].score.hit_above_floor);
-  EXPECT_TRUE(out[data::PlantedFamily::BadLasers].score.hit_above_floor);
+  EXPECT_TRUE(out[data::PlantedScanFamily::BeamGain].score.hit_above_floor);
+  EXPECT_TRUE(out[data::PlantedScanFamily::BadLasers].score.hit_above_floor);
 }
 
 }  // namespace
