@@ -99,7 +99,7 @@ int main(int argc, char** argv) {
       "frames", "frames per sequence (a random window; 0: whole sequences); 150 keeps 10 draws per family near 8-17 min on 2 cores", cxxopts::value<int>()->default_value("150"))(
       "source", "the real KITTI tracking ground truth", cxxopts::value<std::string>()->default_value(default_source))(
       "work", "where draws are written (removed after each)", cxxopts::value<std::string>()->default_value(""))(
-      "keep", "keep each draw's folder")(
+      "keep", "keep each draw's folder (and the work folder)")(
       "json", "per-draw results (written atomically)", cxxopts::value<std::string>()->default_value(""))(
       "h,help", "help");
   const auto a = opts.parse(argc, argv);
@@ -159,7 +159,7 @@ int main(int argc, char** argv) {
         out["table"] = table(names, rows);
         if (!json_path.empty()) write_file_atomically(json_path, out.dump(1) + "\n");
       }
-    fs::remove_all(work);
+    if (!a.count("keep")) fs::remove_all(work);
     std::cout << table(names, rows);
     if (!json_path.empty()) std::cout << "wrote " << json_path << "\n";
     return 0;

@@ -120,7 +120,7 @@ int run(int argc, char** argv) {
     ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("rounds", "loop intensity --base lookup: add effects one after another, up to this many rounds", cxxopts::value<int>()->default_value("1"))
-    ("min-gain", "loop: smallest cut of the held-out error (share of before: intensity MAE; objects winsorised RMS or deviance) for which an effect is added", cxxopts::value<double>()->default_value("0.05"))
+    ("min-gain", "loop intensity: smallest held-out MAE cut (share of before) for which an effect is added", cxxopts::value<double>()->default_value("0.05"))
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("held-out-seeds", "objects: simulation seeds per fold and model in the held-out table; loop objects: in its distribution check (fewer: faster, and a model with per-track errors pays Monte Carlo noise)", cxxopts::value<int>()->default_value(std::to_string(qualify::kHeldOutSeeds)))
     ("h,help", "this help");
@@ -168,9 +168,6 @@ int run(int argc, char** argv) {
     nlohmann::json j;
     if (sub == "objects") {
       if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
-      lo.min_relative_gain = a["min-gain"].as<double>();
-      if (!(lo.min_relative_gain >= 0 && lo.min_relative_gain < 1))
-        throw Error("loop objects: --min-gain: expected a share in [0, 1), got " + std::to_string(lo.min_relative_gain));
       if (a.count("out-model")) lo.out_model = a["out-model"].as<std::string>();
       lo.max_effects = a["max-effects"].as<int>();
       if (lo.max_effects < 0) throw Error("loop objects: --max-effects must be >= 0, got " + std::to_string(lo.max_effects));

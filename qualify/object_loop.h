@@ -33,7 +33,6 @@ enum class DecisionKind {
   Pending,                 // not decided yet (never in a finished result)
   Added,                   // judged and added (as a model term where the KPI manager computes it)
   RejectedByNoise,         // judged: the refit did not lower the held-out loss beyond the track-to-track noise
-  RejectedBySmallGain,     // judged: beyond the noise, but by less than LoopOptions::min_relative_gain
   RejectedByDistribution,  // judged: the re-simulated held-out distribution got worse for every class
   CannotDecide,            // the held-out data cannot judge it (Candidate::undecided)
   UsedByModel,             // the base KPI model holds this form already: never ranked
@@ -77,8 +76,6 @@ struct Judged {
   std::vector<double> before_r, after_r;  // after_r = before_r when not added
   std::array<std::pair<double, double>, 2> fold_rms{};  // per fold: RMS before, after
   std::array<double, 2> change{0, 0};  // of the winsorised RMS (detection: deviance per object)
-  double relative_change = 0;          // pooled over held-out tracks: loss after / before - 1
-  bool small_gain = false;             // beyond the noise, by less than min_relative_gain
   int tracks = 0, tracks_better = 0;
   bool candidate = false, add = false;  // candidate: its score clears the threshold
   double candidate_after = kNaN;        // the held-out RMS with it, also when not added

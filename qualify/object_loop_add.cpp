@@ -34,11 +34,6 @@ Decision added(const Candidate& c, const Judged& J, const std::string& note) {
 }
 
 Decision rejected(const Candidate& c, const Judged& J) {
-  if (J.small_gain)
-    return {DecisionKind::RejectedBySmallGain,
-            "not added: the refit cuts the held-out " + loss_of(c) + " by " + fmt(-100 * J.relative_change, 1) +
-                " %, beyond the track-to-track noise (95 % interval " + interval_text(J.change) +
-                ") but below the minimum gain (--min-gain): too small a change to be worth a model term"};
   if (!c.undecided.empty())
     return {DecisionKind::CannotDecide, "the data cannot decide: " + c.undecided + " (the refit's change of the " +
                                             loss_of(c) + " " + interval_text(J.change) + " reaches 0)"};

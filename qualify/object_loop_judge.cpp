@@ -110,15 +110,7 @@ Judged judge(LoopContext& L, const Candidate& c, bool distribution_decides) {
                        return s[2] > 0 ? std::sqrt(s[0] / s[2]) - std::sqrt(s[1] / s[2]) : 0.0;
                      });
   }
-  if (J.candidate) {
-    std::array<double, 3> sum{0, 0, 0};
-    for (const auto& s : per_track)
-      for (int k = 0; k < 3; ++k) sum[k] += s[k];
-    if (sum[1] > 0)
-      J.relative_change = t == kDetectionTarget ? sum[0] / sum[1] - 1 : std::sqrt(sum[0] / sum[1]) - 1;
-  }
-  J.small_gain = J.candidate && J.change[1] < 0 && J.relative_change > -L.options.min_relative_gain;
-  J.add = J.candidate && J.change[1] < 0 && !J.small_gain;
+  J.add = J.candidate && J.change[1] < 0;
   if (J.add && t != kDetectionTarget && in_manager(kObjectFeatures[f])) {
     distribution_check(L, S, c, per_class, J);
     const bool any = J.classes[0] || J.classes[1] || J.classes[2];

@@ -10,7 +10,7 @@ namespace lidarsim::qualify::obj {
 namespace {
 
 constexpr const char* kDecisionNames[] = {
-    "pending",     "added",          "rejected_by_noise", "rejected_by_small_gain", "rejected_by_distribution", "cannot_decide",
+    "pending",     "added",          "rejected_by_noise", "rejected_by_distribution", "cannot_decide",
     "used_by_model", "below_threshold", "interval_reaches_zero", "bias_added_first", "not_in_manager",
     "top_not_a_term", "one_per_target", "max_effects",     "one_spread_form"};
 static_assert(std::size(kDecisionNames) == static_cast<size_t>(DecisionKind::Count));
@@ -216,8 +216,6 @@ void top_fields(const ObjectLoopResult& R, nlohmann::json& j) {
                             {"change_interval95", J.change},
                             {"why", J.distribution_rejected
                                         ? "the re-simulated held-out distribution of the KPI got worse for every class"
-                                    : J.small_gain
-                                        ? "the refit lowered the held-out error by less than min_relative_gain"
                                     : top.undecided.empty()
                                         ? "the refit did not lower the held-out RMS beyond the track-to-track noise"
                                         : "the data cannot decide: " + top.undecided}};
@@ -238,7 +236,6 @@ std::string decision_label(const Decision& d, const Candidate& c) {
   switch (d.kind) {
     case DecisionKind::Added: return "added";
     case DecisionKind::RejectedByNoise: return "rejected: the refit did not beat the track-to-track noise";
-    case DecisionKind::RejectedBySmallGain: return "rejected: the refit's cut of the held-out error is below the minimum gain";
     case DecisionKind::RejectedByDistribution:
       return "rejected: the re-simulated held-out distribution of the KPI got worse for every class";
     case DecisionKind::CannotDecide: return "the data cannot decide: " + c.undecided;
@@ -272,7 +269,6 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
   j["used_by_model"] = ranked(R, R.used);
   j["spread_ranking"] = ranked(R, R.spread_ranking);
   j["threshold"] = o.threshold;
-  j["min_relative_gain"] = o.min_relative_gain;
   j["distribution_seeds"] = o.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
       "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "

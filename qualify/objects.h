@@ -127,13 +127,6 @@ nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel&
 
 struct LoopOptions {
   double threshold = 0.05;  // held-out share of residual variance below which nothing stands out
-  // Smallest cut of the held-out loss (share of before: winsorised RMS, or deviance per object for
-  // detection) for which a bias form is added, on top of the bootstrap interval: the top of ~400
-  // candidates is judged on the data that ranked it, so on controls a pattern of the drives can
-  // clear the interval with a cut of 0-8 % (campaign of planted effects, docs/objects-and-loop.md);
-  // effects found so far cut 16 % (real length by size) to 60 % (reference sensor). The intensity
-  // loop's rule (IntensityLoopOptions::min_relative_gain), the same default.
-  double min_relative_gain = 0.05;
   int bins = 10;
   std::filesystem::path plots_dir;  // where to write residual-vs-feature PNGs (empty: none)
   std::filesystem::path out_model;  // where to write the refitted KPI model (empty: not written)

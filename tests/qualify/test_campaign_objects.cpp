@@ -145,28 +145,6 @@ TEST(CampaignObjectsStatistical, OneDrawPerFamilyRunsAndTheControlAddsNothing) {
   }
 }
 
-// A control of the campaign (4 sequences of real ground truth, no planted effect) on which the
-// loop once added the detection rate by speed: the refit cut the held-out deviance by 0.5 %, beyond
-// the track bootstrap's interval (the top of ~400 candidates, judged on the data that ranked it) but
-// below the minimum gain. The loop now rejects it and says why.
-TEST(CampaignObjectsStatistical, ControlWhoseTopCutsTheErrorByLessThanTheMinimumGainAddsNothing) {
-  LIDARSIM_REQUIRE_SHARED_DATA(source, "kitti-tracking-gt-pointrcnn");
-  data::PlantedTrackingOptions o = smoke(source, 14706943115164671828ULL);
-  o.sequences = 4;
-  const data::PlantedDraw d = data::plan_planted_tracking(data::PlantedFamily::Control, o);
-  const fs::path dir = lidarsim::testing::temp_path("campaign_control_min_gain");
-  data::write_planted_tracking(dir, d);
-  qualify::LoopOptions lo;
-  lo.distribution_seeds = 32;
-  const nlohmann::json j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
-  EXPECT_TRUE(bench::loop_added_effects(j).empty()) << bench::loop_added_effects(j).front().feature;
-  bool small_gain_named = false;
-  for (const auto& c : j["candidates"])
-    if (c.value("decision", "").find("below the minimum gain") != std::string::npos) small_gain_named = true;
-  EXPECT_TRUE(small_gain_named) << "the top candidate's refusal names the minimum gain";
-  EXPECT_DOUBLE_EQ(j["min_relative_gain"].get<double>(), 0.05);
-}
-
 // The scoring reads every kind of addition from the loop's JSON.
 TEST(CampaignObjects, ScoresAddedEffectsSpreadAndFalsePositivesFromTheLoopsJson) {
   data::PlantedEffect lag;
