@@ -21,11 +21,14 @@
 //   depth_discontinuity   1 next to an occlusion edge (pgm "depth_discontinuity": left or right
 //                         neighbour in the row more than 10 % nearer or farther), else 0
 //   beam_row              the PGM row = the laser (dataset's beam layout); binned one bin per row
-// Each feature is tried in two forms (qualify/windows.h): a table (16 equal-count bins; one bin per
-// beam row) and a window (the best contiguous range of 32 fine bins / beam rows, fitted edges).
+// Each feature is tried in five forms (qualify/intensity_forms.cpp, qualify/windows.h): over a table
+// (16 equal-count bins; one bin per beam row) an additive correction, a gain and an affine map (gain
+// and offset per bin); over a window (the best contiguous range of 32 fine bins / beam rows, fitted
+// edges) an additive level and a gain. Gains matter where the base already carries part of an
+// effect: what is left of a per-laser gain scales with the prediction, not an offset.
 // The loop's base model is a UNet on the range, class and material channels (the inputs of the
-// shipped model), or, with base_model "lookup", the class x 5 m range-bin lookup (data/baselines.h):
-// either way range, class and material are the features it already uses.
+// shipped model), or a lookup: class x 5 m range bins (data/baselines.h), optionally with an offset
+// per beam row: either way range, class and material are the features it already uses.
 #include <filesystem>
 #include <string>
 #include <vector>
