@@ -82,20 +82,7 @@ void print_loop(const nlohmann::json& j) {
   }
 }
 
-int run(int argc, char** argv) {
-  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
-    std::cout << kUsage;
-    return argc < 2 ? 1 : 0;
-  }
-  const std::string cmd = argv[1];
-  std::string sub;
-  int shift = 1;
-  if (cmd == "loop") {
-    if (argc < 3) throw Error("loop: expected `objects` or `intensity` after `loop`");
-    sub = argv[2];
-    shift = 2;
-  }
-  const std::string name = cmd == "loop" ? "lidar-qualify loop " + sub : "lidar-qualify " + cmd;
+cxxopts::Options command_options(const std::string& name) {
   cxxopts::Options opts(name, "qualification against measured data");
   opts.add_options()
     ("kitti-tracking", "KITTI tracking folder (label_02/, calib/, detection/<det>_<Class>_val/)", cxxopts::value<std::string>())
@@ -116,7 +103,7 @@ int run(int argc, char** argv) {
     ("lookup-base", "loop intensity --base unet: the UNets learn the residual over the class x 5 m range + per-beam lookup (lidar-train --lookup-base=classes)")
     ("seeds", "loop intensity: UNets per model (seeds 1..n), averaged", cxxopts::value<int>()->default_value("2"))
     ("threads", "loop intensity: OpenMP threads", cxxopts::value<int>()->default_value("2"))
-    ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (old, leaks) | guarded:<half-width> | frames:<id>,... (whole frames held out)", cxxopts::value<std::string>()->default_value("guarded"))
+    ("split", "loop intensity: guarded (guard bands of twice the UNet's receptive field) | interleaved (leaks; for comparison) | guarded:<half-width> | frames:<id>,... (whole frames held out)", cxxopts::value<std::string>()->default_value("guarded"))
     ("quiet", "no progress on stderr")
     ("threshold", "loop: held-out share of residual variance below which no effect is added", cxxopts::value<double>())
     ("rounds", "loop intensity --base lookup: add effects one after another, up to this many rounds", cxxopts::value<int>()->default_value("1"))
@@ -124,175 +111,226 @@ int run(int argc, char** argv) {
     ("seed", "seed of the simulation", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("held-out-seeds", "objects: simulation seeds per fold and model in the held-out table; loop objects: in its distribution check (fewer: faster, and a model with per-track errors pays Monte Carlo noise)", cxxopts::value<int>()->default_value(std::to_string(qualify::kHeldOutSeeds)))
     ("h,help", "this help");
+  return opts;
+}
+
+// Options the commands share, checked once.
+struct Common {
+  std::uint64_t seed = 1;
+  int held_out_seeds = qualify::kHeldOutSeeds;
+  qualify::TermShrink shrink_terms = qualify::TermShrink::Off;
+};
+
+Common common_options(const cxxopts::ParseResult& a) {
+  Common c;
+  c.seed = a["seed"].as<std::uint64_t>();
+  c.held_out_seeds = a["held-out-seeds"].as<int>();
+  if (c.held_out_seeds < 1) throw Error("--held-out-seeds: expected >= 1, got " + std::to_string(c.held_out_seeds));
+  const std::string shrink = a["term-shrink"].as<std::string>();
+  if (shrink != "off" && shrink != "zero" && shrink != "pooled")
+    throw Error("--term-shrink: expected off, zero or pooled, got \"" + shrink + "\"");
+  c.shrink_terms = shrink == "zero"     ? qualify::TermShrink::TowardsZero
+                   : shrink == "pooled" ? qualify::TermShrink::TowardsPooled
+                                        : qualify::TermShrink::Off;
+  return c;
+}
+
+int run_objects(const cxxopts::ParseResult& a, const Common& c) {
+  const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
+                                           a["seqmap"].as<std::string>(), a["detector"].as<std::string>());
+  const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
+  const fs::path out = need(a, "out", "the report folder");
+  const auto j = qualify::qualify_objects(data, model, out, c.seed, a.count("nested") > 0, c.shrink_terms,
+                                          a.count("pool-track-spread") > 0, c.held_out_seeds);
+  std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
+            << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
+            << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";
+  return 0;
+}
+
+int run_intensity(const cxxopts::ParseResult& a) {
+  const fs::path out = need(a, "out", "the report folder");
+  const auto j = qualify::qualify_intensity(need(a, "model", "the intensity checkpoint"),
+                                            need(a, "semantickitti", "the SemanticKITTI folder"), out);
+  std::cout << "validation MAE " << j["overall"]["mae"].get<double>() << ", RMSE " << j["overall"]["rmse"].get<double>()
+            << ", histogram intersection " << j["overall"]["similarity"]["intersection"].get<double>()
+            << " (ceiling " << j["overall"]["similarity"]["ceiling"].get<double>() << ")\nwrote " << (out / "report.md")
+            << "\n";
+  return 0;
+}
+
+nlohmann::json run_loop_objects(const cxxopts::ParseResult& a, const Common& c, const fs::path& plots_dir) {
+  qualify::LoopOptions lo;
+  lo.plots_dir = plots_dir;
+  if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
+  if (a.count("out-model")) lo.out_model = a["out-model"].as<std::string>();
+  lo.max_effects = a["max-effects"].as<int>();
+  if (lo.max_effects < 0) throw Error("loop objects: --max-effects must be >= 0, got " + std::to_string(lo.max_effects));
+  lo.seed = c.seed;
+  lo.shrink_terms = c.shrink_terms;
+  lo.pool_track_spread = a.count("pool-track-spread") > 0;
+  lo.distribution_seeds = c.held_out_seeds;
+  const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
+                                           a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
+  return qualify::loop_objects(data, lo);
+}
+
+nlohmann::json run_loop_intensity(const cxxopts::ParseResult& a, const fs::path& plots_dir) {
+  qualify::IntensityLoopOptions io;
+  if (a.count("threshold")) io.threshold = a["threshold"].as<double>();
+  io.min_relative_gain = a["min-gain"].as<double>();
+  io.rounds = a["rounds"].as<int>();
+  io.plots_dir = plots_dir;
+  io.base_model = a["base"].as<std::string>();
+  io.unet.steps = a["steps"].as<int>();
+  io.unet.seeds = a["seeds"].as<int>();
+  io.unet.threads = a["threads"].as<int>();
+  io.unet.lookup_base = a.count("lookup-base") > 0;
+  io.split = a["split"].as<std::string>();
+  io.folds = a["folds"].as<int>();
+  io.progress = !a.count("quiet");
+  if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
+  return qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
+}
+
+// Every intensity candidate tried, with the loop's decision and its reason, so that a reader sees
+// what was ruled out as well as what was added.
+std::string intensity_candidates_markdown(const nlohmann::json& tested) {
+  std::string md =
+      "\nEvery candidate tested (held-out R^2 of the residual; significant = interval above 0):\n\n"
+      "| feature | form | effect size | held-out R^2 | 95 % interval | significant | decision | reason |\n"
+      "|---|---|---|---|---|---|---|---|\n";
+  for (const auto& k : tested)
+    md += "| " + k["feature"].get<std::string>() + " | " + k["form"].get<std::string>() + " | " +
+          std::to_string(k["effect_size"].get<double>()) + " | " + std::to_string(k["held_out_r2"].get<double>()) +
+          " | [" + std::to_string(k["interval95"][0].get<double>()) + ", " +
+          std::to_string(k["interval95"][1].get<double>()) + "] | " + (k["significant"].get<bool>() ? "yes" : "no") +
+          " | " + k.value("decision", "") + " | " + k.value("reason", "") + " |\n";
+  return md;
+}
+
+// The loop's report for people, written beside the JSON (R.json -> R.md).
+std::string loop_markdown(const std::string& sub, const nlohmann::json& j) {
+  std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
+                   (j.contains("split") ? "Split: " + j["split"].get<std::string>() + "; receptive-field half-width " +
+                                              std::to_string(j["receptive_field_half_width"].get<int>()) + " columns\n\n"
+                                        : std::string()) +
+                   "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
+                   std::to_string(j["threshold"].get<double>()) +
+                   "\n\n| feature | score | 95 % interval | explains |\n|---|---|---|---|\n";
+  for (const auto& r : j["ranking"])
+    md += "| " + r["feature"].get<std::string>() + " | " + std::to_string(r["score"].get<double>()) + " | " +
+          (r.contains("interval95") ? "[" + std::to_string(r["interval95"][0].get<double>()) + ", " +
+                                          std::to_string(r["interval95"][1].get<double>()) + "]"
+                                    : std::string("-")) +
+          " | " + (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
+  if (j.contains("candidates_tested")) md += intensity_candidates_markdown(j["candidates_tested"]);
+  md += "\nAlready used by the base model:";
+  for (const auto& r : j["used_by_model"])
+    md += " " + r["feature"].get<std::string>() +
+          (r.contains("target") ? " on " + r["target"].get<std::string>() + " " + r["kind"].get<std::string>()
+                                : std::string()) +
+          " (" + std::to_string(r["score"].get<double>()) + ")";
+  md += "\n\nAdded effect: **" + (j["added_effect"].is_null() ? std::string("none (no feature stands out)")
+                                                               : j["added_effect"].get<std::string>()) +
+        "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +
+        "\n\n" + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
+        ", after " + std::to_string(j["after"].get<double>()) + "\n";
+  if (j.contains("after_simulated") && !j["after_simulated"].is_null())
+    md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
+          std::to_string(j["before_simulated"].get<double>()) + ", after " +
+          std::to_string(j["after_simulated"].get<double>()) + "\n";
+  if (j.contains("added_effects") && !j["added_effects"].empty()) {
+    md += "\n### Effects added (greedy: the best accepted bias form per target)\n\n| target | feature | kind | score | "
+          "held-out before | after | re-simulated before | after | change [95%] | tracks better |\n"
+          "|---|---|---|---|---|---|---|---|---|---|\n";
+    auto num = [](const nlohmann::json& v) { return v.is_null() ? std::string("-") : qualify::fmt(v.get<double>(), 4); };
+    for (const auto& e : j["added_effects"])
+      md += "| " + e["target"].get<std::string>() + " | " + e["feature"].get<std::string>() + " | " +
+            e["kind"].get<std::string>() + " | " + qualify::fmt(e["score"].get<double>()) + " | " + num(e["before"]) +
+            " | " + num(e["after"]) + " | " + num(e["before_simulated"]) + " | " + num(e["after_simulated"]) + " | [" +
+            qualify::fmt(e["change_interval95"][0].get<double>(), 4) + ", " +
+            qualify::fmt(e["change_interval95"][1].get<double>(), 4) + "] | " +
+            std::to_string(e["held_out_tracks_better"].get<int>()) + " of " +
+            std::to_string(e["held_out_tracks"].get<int>()) + " |\n";
+  }
+  if (j.contains("rejected_effect"))
+    md += "\nTried and rejected: " + j["rejected_effect"]["feature"].get<std::string>() + " (" +
+          j["rejected_effect"]["why"].get<std::string>() + "; held-out error with it " +
+          std::to_string(j["rejected_effect"]["held_out_after"].get<double>()) + ")\n";
+  if (j.contains("seeds_before"))
+    md += "\nBase model: " + j["base_model"].get<std::string>() + ". Per seed, before " + j["seeds_before"].dump() +
+          ", after " + j["seeds_after"].dump() + " (class x range lookup: " +
+          std::to_string(j["lookup_before"].get<double>()) + ")\n";
+  if (j.contains("change_interval95"))
+    md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
+          ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";
+  if (j.contains("held_out_tracks"))
+    md += "\nHeld-out tracks better with it: " + std::to_string(j["held_out_tracks_better"].get<int>()) + " of " +
+          std::to_string(j["held_out_tracks"].get<int>()) + "\n";
+  if (j.contains("folds")) {
+    md += "\n| fold | fit on | judged on | before | after |\n|---|---|---|---|---|\n";
+    int k = 0;
+    for (const auto& f : j["folds"]) {
+      std::string fit, held;
+      for (const auto& s : f["fit_sequences"]) fit += s.get<std::string>() + " ";
+      for (const auto& s : f["held_out_sequences"]) held += s.get<std::string>() + " ";
+      md += "| " + std::to_string(++k) + " | " + fit + "| " + held + "| " + std::to_string(f["before"].get<double>()) +
+            " | " + std::to_string(f["after"].get<double>()) + " |\n";
+    }
+  }
+  if (j.contains("plot"))
+    md += "\n![residual vs " + j["ranking"][0]["feature"].get<std::string>() + "](" + j["plot"].get<std::string>() +
+          ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";
+  if (j.contains("added_kind") && !j["added_kind"].is_null())
+    md += "\nForm of the added effect: " + j["added_kind"].get<std::string>() + "; " +
+          j["error_metric"].get<std::string>() + " before " + qualify::fmt(j["error_before"].get<double>(), 4) +
+          ", after " + qualify::fmt(j["error_after"].get<double>(), 4) + "\n";
+  if (j.contains("candidates")) md += qualify::candidates_markdown(j["candidates"]);
+  if (j.contains("false_positives")) md += qualify::obj::fp_markdown(j["false_positives"]);
+  return md;
+}
+
+int run_loop(const std::string& sub, const cxxopts::ParseResult& a, const Common& c) {
+  const fs::path report = need(a, "report", "the JSON report to write");
+  const fs::path plots_dir = report.parent_path().empty() ? fs::path(".") : report.parent_path();
+  nlohmann::json j;
+  if (sub == "objects") j = run_loop_objects(a, c, plots_dir);
+  else if (sub == "intensity") j = run_loop_intensity(a, plots_dir);
+  else throw Error("loop: unknown domain \"" + sub + "\" (expected objects or intensity)");
+  write_file_atomically(report, j.dump(2) + "\n");
+  fs::path md_path = report;
+  md_path.replace_extension(".md");
+  write_file_atomically(md_path, loop_markdown(sub, j));
+  print_loop(j);
+  std::cout << "wrote " << report << "\n";
+  return 0;
+}
+
+int run(int argc, char** argv) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << kUsage;
+    return argc < 2 ? 1 : 0;
+  }
+  const std::string cmd = argv[1];
+  std::string sub;
+  int shift = 1;
+  if (cmd == "loop") {
+    if (argc < 3) throw Error("loop: expected `objects` or `intensity` after `loop`");
+    sub = argv[2];
+    shift = 2;
+  }
+  cxxopts::Options opts = command_options(cmd == "loop" ? "lidar-qualify loop " + sub : "lidar-qualify " + cmd);
   const auto a = opts.parse(argc - shift, argv + shift);
   if (a.count("help")) {
     std::cout << opts.help() << "\n";
     return 0;
   }
   if (!a.unmatched().empty()) throw Error("unexpected argument \"" + a.unmatched().front() + "\"");
-  const std::uint64_t seed = a["seed"].as<std::uint64_t>();
-  const int held_out_seeds = a["held-out-seeds"].as<int>();
-  if (held_out_seeds < 1) throw Error("--held-out-seeds: expected >= 1, got " + std::to_string(held_out_seeds));
-  const std::string shrink_arg = a["term-shrink"].as<std::string>();
-  if (shrink_arg != "off" && shrink_arg != "zero" && shrink_arg != "pooled")
-    throw Error("--term-shrink: expected off, zero or pooled, got \"" + shrink_arg + "\"");
-  const qualify::TermShrink shrink_terms = shrink_arg == "zero"     ? qualify::TermShrink::TowardsZero
-                                           : shrink_arg == "pooled" ? qualify::TermShrink::TowardsPooled
-                                                                    : qualify::TermShrink::Off;
-  if (cmd == "objects") {
-    const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
-                                             a["seqmap"].as<std::string>(), a["detector"].as<std::string>());
-    const auto model = sensor::load_kpi_model(need(a, "model", "the KPI model JSON"));
-    const fs::path out = need(a, "out", "the report folder");
-    const auto j = qualify::qualify_objects(data, model, out, seed, a.count("nested") > 0, shrink_terms,
-                                              a.count("pool-track-spread") > 0, held_out_seeds);
-    std::cout << "overall similarity " << j["overall"]["similarity"].get<double>() << " (real-vs-real ceiling "
-              << j["overall"]["ceiling"].get<double>() << ", ratio " << j["overall"]["ratio_to_ceiling"].get<double>()
-              << ") over " << j["overall"]["kpis"].get<int>() << " KPIs\nwrote " << (out / "report.md") << "\n";
-    return 0;
-  }
-  if (cmd == "intensity") {
-    const fs::path out = need(a, "out", "the report folder");
-    const auto j = qualify::qualify_intensity(need(a, "model", "the intensity checkpoint"),
-                                              need(a, "semantickitti", "the SemanticKITTI folder"), out);
-    std::cout << "validation MAE " << j["overall"]["mae"].get<double>() << ", RMSE " << j["overall"]["rmse"].get<double>()
-              << ", histogram intersection " << j["overall"]["similarity"]["intersection"].get<double>()
-              << " (ceiling " << j["overall"]["similarity"]["ceiling"].get<double>() << ")\nwrote " << (out / "report.md")
-              << "\n";
-    return 0;
-  }
-  if (cmd == "loop") {
-    const fs::path report = need(a, "report", "the JSON report to write");
-    qualify::LoopOptions lo;
-    lo.plots_dir = report.parent_path().empty() ? fs::path(".") : report.parent_path();
-    nlohmann::json j;
-    if (sub == "objects") {
-      if (a.count("threshold")) lo.threshold = a["threshold"].as<double>();
-      if (a.count("out-model")) lo.out_model = a["out-model"].as<std::string>();
-      lo.max_effects = a["max-effects"].as<int>();
-      if (lo.max_effects < 0) throw Error("loop objects: --max-effects must be >= 0, got " + std::to_string(lo.max_effects));
-      lo.seed = seed;
-      lo.shrink_terms = shrink_terms;
-      lo.pool_track_spread = a.count("pool-track-spread") > 0;
-      lo.distribution_seeds = held_out_seeds;
-      const auto data = qualify::load_tracking(need(a, "kitti-tracking", "the KITTI tracking folder"),
-                                               a["seqmap"].as<std::string>(), a["detector"].as<std::string>(), 2);
-      j = qualify::loop_objects(data, lo);
-    } else if (sub == "intensity") {
-      qualify::IntensityLoopOptions io;
-      if (a.count("threshold")) io.threshold = a["threshold"].as<double>();
-      io.min_relative_gain = a["min-gain"].as<double>();
-      io.rounds = a["rounds"].as<int>();
-      io.plots_dir = lo.plots_dir;
-      io.base_model = a["base"].as<std::string>();
-      io.unet.steps = a["steps"].as<int>();
-      io.unet.seeds = a["seeds"].as<int>();
-      io.unet.threads = a["threads"].as<int>();
-      io.unet.lookup_base = a.count("lookup-base") > 0;
-      io.split = a["split"].as<std::string>();
-      io.folds = a["folds"].as<int>();
-      io.progress = !a.count("quiet");
-      if (a.count("out-model")) io.out_model = a["out-model"].as<std::string>();
-      j = qualify::loop_intensity(need(a, "semantickitti", "the SemanticKITTI folder"), io);
-    } else {
-      throw Error("loop: unknown domain \"" + sub + "\" (expected objects or intensity)");
-    }
-    write_file_atomically(report, j.dump(2) + "\n");
-    // The same for people, beside the JSON: R.json -> R.md.
-    std::string md = "# Closed loop: " + sub + "\n\nMetric: " + j["metric"].get<std::string>() + "\n\n" +
-                     (j.contains("split") ? "Split: " + j["split"].get<std::string>() + "; receptive-field half-width " +
-                                                std::to_string(j["receptive_field_half_width"].get<int>()) + " columns\n\n"
-                                          : std::string()) +
-                     "Score: " + j["score_definition"].get<std::string>() + "; threshold " +
-                     std::to_string(j["threshold"].get<double>()) +
-                     "\n\n| feature | score | 95 % interval | explains |\n|---|---|---|---|\n";
-    for (const auto& r : j["ranking"])
-      md += "| " + r["feature"].get<std::string>() + " | " + std::to_string(r["score"].get<double>()) + " | " +
-            (r.contains("interval95") ? "[" + std::to_string(r["interval95"][0].get<double>()) + ", " +
-                                            std::to_string(r["interval95"][1].get<double>()) + "]"
-                                      : std::string("-")) +
-            " | " + (r.contains("target") ? r["target"].get<std::string>() : std::string("intensity")) + " |\n";
-    if (j.contains("candidates_tested")) {
-      // Everything tried, so a reader sees what was ruled out as well as what was added.
-      md += "\nEvery candidate tested (held-out R^2 of the residual; significant = interval above 0):\n\n"
-            "| feature | form | effect size | held-out R^2 | 95 % interval | significant |\n|---|---|---|---|---|---|\n";
-      for (const auto& k : j["candidates_tested"])
-        md += "| " + k["feature"].get<std::string>() + " | " + k["form"].get<std::string>() + " | " +
-              std::to_string(k["effect_size"].get<double>()) + " | " + std::to_string(k["held_out_r2"].get<double>()) +
-              " | [" + std::to_string(k["interval95"][0].get<double>()) + ", " +
-              std::to_string(k["interval95"][1].get<double>()) + "] | " + (k["significant"].get<bool>() ? "yes" : "no") +
-              " |\n";
-    }
-    md += "\nAlready used by the base model:";
-    for (const auto& r : j["used_by_model"])
-      md += " " + r["feature"].get<std::string>() +
-            (r.contains("target") ? " on " + r["target"].get<std::string>() + " " + r["kind"].get<std::string>()
-                                  : std::string()) +
-            " (" + std::to_string(r["score"].get<double>()) + ")";
-    md += "\n\nAdded effect: **" + (j["added_effect"].is_null() ? std::string("none (no feature stands out)")
-                                                                 : j["added_effect"].get<std::string>()) +
-          "**" + (j.contains("method") ? " via " + j["method"].get<std::string>() : std::string()) +
-          "\n\n" + j["metric"].get<std::string>() + ": before " + std::to_string(j["before"].get<double>()) +
-          ", after " + std::to_string(j["after"].get<double>()) + "\n";
-    if (j.contains("after_simulated") && !j["after_simulated"].is_null())
-      md += "\nWith the KPI manager's injected conditional mean (re-simulated): before " +
-            std::to_string(j["before_simulated"].get<double>()) + ", after " +
-            std::to_string(j["after_simulated"].get<double>()) + "\n";
-    if (j.contains("added_effects") && !j["added_effects"].empty()) {
-      md += "\n### Effects added (greedy: the best accepted bias form per target)\n\n| target | feature | kind | score | "
-            "held-out before | after | re-simulated before | after | change [95%] | tracks better |\n"
-            "|---|---|---|---|---|---|---|---|---|---|\n";
-      auto num = [](const nlohmann::json& v) { return v.is_null() ? std::string("-") : qualify::fmt(v.get<double>(), 4); };
-      for (const auto& e : j["added_effects"])
-        md += "| " + e["target"].get<std::string>() + " | " + e["feature"].get<std::string>() + " | " +
-              e["kind"].get<std::string>() + " | " + qualify::fmt(e["score"].get<double>()) + " | " + num(e["before"]) +
-              " | " + num(e["after"]) + " | " + num(e["before_simulated"]) + " | " + num(e["after_simulated"]) + " | [" +
-              qualify::fmt(e["change_interval95"][0].get<double>(), 4) + ", " +
-              qualify::fmt(e["change_interval95"][1].get<double>(), 4) + "] | " +
-              std::to_string(e["held_out_tracks_better"].get<int>()) + " of " +
-              std::to_string(e["held_out_tracks"].get<int>()) + " |\n";
-    }
-    if (j.contains("rejected_effect"))
-      md += "\nTried and rejected: " + j["rejected_effect"]["feature"].get<std::string>() + " (" +
-            j["rejected_effect"]["why"].get<std::string>() + "; held-out error with it " +
-            std::to_string(j["rejected_effect"]["held_out_after"].get<double>()) + ")\n";
-    if (j.contains("seeds_before"))
-      md += "\nBase model: " + j["base_model"].get<std::string>() + ". Per seed, before " + j["seeds_before"].dump() +
-            ", after " + j["seeds_after"].dump() + " (class x range lookup: " +
-            std::to_string(j["lookup_before"].get<double>()) + ")\n";
-    if (j.contains("change_interval95"))
-      md += "\nBlock-bootstrap 95% interval of the change: [" + std::to_string(j["change_interval95"][0].get<double>()) +
-            ", " + std::to_string(j["change_interval95"][1].get<double>()) + "]\n";
-    if (j.contains("held_out_tracks"))
-      md += "\nHeld-out tracks better with it: " + std::to_string(j["held_out_tracks_better"].get<int>()) + " of " +
-            std::to_string(j["held_out_tracks"].get<int>()) + "\n";
-    if (j.contains("folds")) {
-      md += "\n| fold | fit on | judged on | before | after |\n|---|---|---|---|---|\n";
-      int k = 0;
-      for (const auto& f : j["folds"]) {
-        std::string fit, held;
-        for (const auto& s : f["fit_sequences"]) fit += s.get<std::string>() + " ";
-        for (const auto& s : f["held_out_sequences"]) held += s.get<std::string>() + " ";
-        md += "| " + std::to_string(++k) + " | " + fit + "| " + held + "| " + std::to_string(f["before"].get<double>()) +
-              " | " + std::to_string(f["after"].get<double>()) + " |\n";
-      }
-    }
-    if (j.contains("plot"))
-      md += "\n![residual vs " + j["ranking"][0]["feature"].get<std::string>() + "](" + j["plot"].get<std::string>() +
-            ")\n\nGrey bars: mean held-out residual per bin of the feature; orange: the table fitted on the fit split.\n";
-    if (j.contains("added_kind") && !j["added_kind"].is_null())
-      md += "\nForm of the added effect: " + j["added_kind"].get<std::string>() + "; " +
-            j["error_metric"].get<std::string>() + " before " + qualify::fmt(j["error_before"].get<double>(), 4) +
-            ", after " + qualify::fmt(j["error_after"].get<double>(), 4) + "\n";
-    if (j.contains("candidates")) md += qualify::candidates_markdown(j["candidates"]);
-    if (j.contains("false_positives")) md += qualify::obj::fp_markdown(j["false_positives"]);
-    fs::path md_path = report;
-    md_path.replace_extension(".md");
-    write_file_atomically(md_path, md);
-    print_loop(j);
-    std::cout << "wrote " << report << "\n";
-    return 0;
-  }
+  const Common c = common_options(a);
+  if (cmd == "objects") return run_objects(a, c);
+  if (cmd == "intensity") return run_intensity(a);
+  if (cmd == "loop") return run_loop(sub, a, c);
   throw Error("unknown command \"" + cmd + "\" (expected objects, intensity or loop)");
 }
 
