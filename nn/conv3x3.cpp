@@ -123,22 +123,7 @@ struct Cat {
   }
 };
 
-// Grow-only, 64-byte aligned scratch.
-struct Buf {
-  float* p = nullptr;
-  std::size_t n = 0;
-  float* get(std::size_t want) {
-    if (want > n) {
-      std::free(p);
-      p = nullptr;  // a throw below leaves an empty buffer
-      n = 0;
-      p = static_cast<float*>(aligned_storage(want * sizeof(float)));
-      n = want;
-    }
-    return p;
-  }
-  ~Buf() { std::free(p); }
-};
+using Buf = GrowBuffer;  // nn/big_alloc.h
 
 Buf g_pad_in, g_pad_g, g_wpack, g_sums;
 

@@ -16,22 +16,7 @@ namespace lidarsim::nn::detail::wino {
 
 constexpr int kCB = 8;  // output channels per GEMM register block
 
-// Grow-only, 64-byte aligned scratch.
-struct Buf {
-  float* p = nullptr;
-  std::size_t n = 0;
-  float* get(std::size_t want) {
-    if (want > n) {
-      std::free(p);
-      p = nullptr;  // a throw below leaves an empty buffer
-      n = 0;
-      p = static_cast<float*>(aligned_storage(want * sizeof(float)));
-      n = want;
-    }
-    return p;
-  }
-  ~Buf() { std::free(p); }
-};
+using Buf = GrowBuffer;  // nn/big_alloc.h
 
 // Per-thread transform scratch, shared by the forward pass and the weight gradient (they never
 // run at the same time on one thread).
