@@ -11,6 +11,10 @@
 //              holds the effect (a dropout beyond a range is the detection rate's range bins), so
 //              there is nothing to add. Counted apart from recall: the table shows both.
 //   other add  anything added that is not the planted effect (on a control: a false add).
+//   above floor  recalled with the floor removed: the data's own noise (the ideal refit's error,
+//              data/planted_tracking.h PlantedStats::ideal_after) is taken out of both errors,
+//              sqrt(after^2 - floor^2) <= 0.7 x sqrt(before^2 - floor^2), as the intensity half
+//              scores excess error over its noise. Where no ideal exists (spread, fp_cell): recalled.
 // Everything added is read from the loop's JSON: "added_effects" (bias terms: feature, target,
 // before, after), the spread form ("added_kind" spread_*, "effect".target, "before", "after"), the
 // false positives' table ("false_positives"."added": feature, error_before, error_after) and their
@@ -67,11 +71,20 @@ inline std::vector<AddedEffect> loop_added_effects(const nlohmann::json& j) {
 struct DrawScore {
   bool named = false;      // the planted feature added on the planted target
   bool recalled = false;   // named and after <= kRecallRatio x before
+  bool above_floor = false;  // named and the excess over the data's noise floor cut as much (see above)
   bool other_add = false;  // something else added (on a control: a false add)
   bool absorbed = false;   // the base KPI model holds the planted form already (see above)
   double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
   nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
 };
+
+// The 0.7 rule on the error above the noise floor an ideal refit leaves.
+inline bool recalled_above_floor(const DrawScore& s, double floor) {
+  if (!s.named) return false;
+  if (std::isnan(floor)) return s.recalled;
+  auto excess = [floor](double e) { return std::sqrt(std::max(0.0, e * e - floor * floor)); };
+  return excess(s.after) <= kRecallRatio * excess(s.before);
+}
 
 inline bool names_planted(const data::PlantedEffect& e, const AddedEffect& a) {
   if (e.feature.empty() || a.target != e.target) return false;
@@ -156,7 +169,7 @@ inline nlohmann::json to_json(const DrawResult& r) {
   auto num = [](double v) { return std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(v); };
   return {{"truth", to_json(r.draw)},          {"recalled", r.score.recalled},
           {"named", r.score.named},            {"other_add", r.score.other_add},
-          {"absorbed", r.score.absorbed},
+          {"absorbed", r.score.absorbed},         {"recalled_above_floor", r.score.above_floor},
           {"before", num(r.score.before)},     {"after", num(r.score.after)},
           {"seconds", r.seconds},              {"error", r.error},
           {"added", r.added},                  {"loop_top", r.top},
@@ -176,6 +189,7 @@ inline DrawResult run_draw(data::PlantedFamily family, const data::PlantedTracki
     r.ideal = data::write_planted_tracking(dir, r.draw);
     const nlohmann::json j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
     r.score = score_draw(r.draw.effect, j);
+    r.score.above_floor = recalled_above_floor(r.score, r.ideal.ideal_after);
     r.added = nlohmann::json::array();
     for (const AddedEffect& a : loop_added_effects(j))
       r.added.push_back({{"feature", a.feature}, {"target", a.target}, {"kind", a.kind}, {"before", a.before},

@@ -158,6 +158,10 @@ TEST(CampaignObjects, ScoresAddedEffectsSpreadAndFalsePositivesFromTheLoopsJson)
   j["added_effects"][0]["after"] = 0.8;
   s = bench::score_draw(lag, j);
   EXPECT_TRUE(s.named && !s.recalled);
+  // Above a noise floor of 0.5 the excess 0.87 -> 0.62 is not cut to 0.7 x; above 0.7, 0.71 -> 0.39 is.
+  EXPECT_FALSE(bench::recalled_above_floor(s, 0.5));
+  EXPECT_TRUE(bench::recalled_above_floor(s, 0.7));
+  EXPECT_FALSE(bench::recalled_above_floor(s, std::nan(""))) << "no ideal: the plain rule";
   j["added_effects"][0]["target"] = "position_across";
   s = bench::score_draw(lag, j);
   EXPECT_TRUE(!s.named && s.other_add) << "the right feature on the wrong target is not the planted effect";
