@@ -298,11 +298,36 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
   fit_cell_offsets(f, x, r, cls, rb);  // against the shrunk table
 }
 
+namespace {
+
+// Target t's error on the fit records of class c with the term's part taken out, as samples for a
+// noise refit (heading wrapped back to [-pi, pi)).
+std::vector<sensor::ErrorSample> samples_without_term(const Refit& ref, int t, int c, const Split& fit,
+                                                      const std::vector<double>& x, const std::vector<int>& cls,
+                                                      const std::vector<int>& cells) {
+  std::vector<sensor::ErrorSample> out;
+  for (size_t i = 0; i < x.size(); ++i) {
+    if (cls[i] != c) continue;
+    const ObjectRecord& r = *fit.rec[i];
+    double v = r.value[t] - ref(c, cells[i], x[i]);
+    if (kTargetParam[t] == sensor::KpiParam::Heading) v = wrap(v);
+    if (std::isfinite(v)) out.push_back({r.seq, r.track, r.frame, r.range_bin, r.visibility_bin, v});
+  }
+  return out;
+}
+
+}  // namespace
+
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
                            const Winsor& w, int nvis, std::array<bool, 3> classes) {
   if (t == kDetectionTarget) return;
   const bool track_constant =
       feature == "size" || feature == "box_width" || feature == "box_height" || feature == "class";
+  const sensor::KpiParam param = kTargetParam[t];
+  const bool size_param =
+      param == sensor::KpiParam::Length || param == sensor::KpiParam::Width || param == sensor::KpiParam::Height;
+  sensor::FitOptions opt;
+  opt.range_bin_edges = m.range_bin_edges, opt.visibility_bin_edges = m.visibility_bin_edges;
   const auto x = fit.column(feature_index(feature));
   const auto cls = fit.classes();
   const auto cells = fit.cells(t, nvis);
@@ -323,14 +348,25 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
     const double V = var(res);
     double v = var(vals);
     if (V <= 0 || v <= 0) continue;
-    sensor::ErrorModel& em = it->second.errors[int(kTargetParam[t])];
+    sensor::ErrorModel& em = it->second.errors[int(param)];
     if (track_constant) {
       const double take = std::min(v, em.track_std * em.track_std);
       em.track_std = std::sqrt(em.track_std * em.track_std - take);
       v -= take;
     }
-    const double f = std::sqrt(std::max(0.04, 1 - v / V));
-    for (double& s : em.sigma) s *= f;
+    // The noise refitted on the error without the term, as calibration fits it: where the term
+    // carried the error's tails or its correlation along a track (a lag on the few fast objects),
+    // the base's mixture, AR(1) and range-bin sigmas were fitted to the term itself. With too few
+    // samples for that, the sigmas shrink by the share of variance the term explains.
+    const auto samples = samples_without_term(ref, t, c, fit, x, cls, cells);
+    if (static_cast<int>(samples.size()) >= 2 * opt.min_samples) {
+      const sensor::ErrorModel own = sensor::fit_error_model(samples, opt, size_param);
+      em.sigma = own.sigma, em.visibility_std_scale = own.visibility_std_scale;
+      em.ar1 = own.ar1, em.innovation = own.innovation;
+    } else {
+      const double f = std::sqrt(std::max(0.04, 1 - v / V));
+      for (double& s : em.sigma) s *= f;
+    }
   }
 }
 

@@ -5,6 +5,7 @@
 #include <limits>
 #include <numbers>
 #include <numeric>
+#include <tuple>
 
 #include "common/error.h"
 #include "sensor/hungarian.h"
@@ -444,6 +445,27 @@ CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence
     st.classes[opt.classes[ci]] = cs;
   }
   return st;
+}
+
+ErrorModel fit_error_model(std::vector<ErrorSample> samples, const FitOptions& opt, bool per_track_constant) {
+  const int nr = static_cast<int>(opt.range_bin_edges.size()), nv = static_cast<int>(opt.visibility_bin_edges.size());
+  std::sort(samples.begin(), samples.end(), [](const ErrorSample& a, const ErrorSample& b) {
+    return std::tie(a.seq, a.track, a.frame) < std::tie(b.seq, b.track, b.frame);
+  });
+  std::vector<Rec> recs(samples.size());
+  for (size_t i = 0; i < samples.size(); ++i) {
+    const ErrorSample& s = samples[i];
+    if (s.range_bin < 0 || s.range_bin >= nr || s.visibility_bin < 0 || s.visibility_bin >= nv)
+      throw Error("fit_error_model: sample " + std::to_string(i) + " has range bin " + std::to_string(s.range_bin) +
+                  " / visibility bin " + std::to_string(s.visibility_bin) + ", outside the " + std::to_string(nr) +
+                  " x " + std::to_string(nv) + " bins of the fit options");
+    Rec& r = recs[i];
+    r.seq = s.seq, r.track = s.track, r.frame = s.frame, r.rb = s.range_bin, r.vb = s.visibility_bin;
+    r.detected = true;
+    r.e.fill(std::numeric_limits<double>::quiet_NaN());
+    r.e[0] = s.value;
+  }
+  return fit_error(recs, 0, recs.size(), 0, opt, per_track_constant);
 }
 
 KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt) {

@@ -73,6 +73,17 @@ CalibrationStats measure_calibration_stats(const std::vector<CalibrationSequence
 
 KpiModel fit_kpi_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
 
+// One parameter's error on one matched detection, for fitting that parameter's noise alone: the
+// object loop refits a class's noise once a conditional term has taken its share of the error.
+struct ErrorSample {
+  int seq = 0, track = 0, frame = 0, range_bin = 0, visibility_bin = 0;
+  double value = 0;
+};
+// The error model fit_kpi_model fits for one parameter of one class (range-bin means and sigmas,
+// visibility scale, per-track constant when asked, AR(1) and innovation mixture), from samples
+// in any order. Bins outside opt's edges are an error.
+ErrorModel fit_error_model(std::vector<ErrorSample> samples, const FitOptions& opt, bool per_track_constant);
+
 // The baseline DESIGN.md warns about: every error Gaussian and iid (one bin, no correlation,
 // no heavy tails, no per-track sizes), misses independent, no flips; same pooled mean and std.
 KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const FitOptions& opt);
