@@ -78,13 +78,13 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
                                std::uint64_t seed = 7);
 
 // A mean term on an error explains part of the spread the base model's noise was fitted to carry:
-// without this the refitted model's errors come out too wide (term + the old noise). Per class:
-// a feature constant along a track (size) takes the variance of the term's values (table + cell
-// offsets) out of the per-track constant first (track_std^2 - v); the range-bin sigmas, visibility
-// scale, AR(1) and innovation are refitted (sensor::fit_error_model) on the fit records' errors
-// minus the term, so tails and track correlation the term carried leave the noise. A class with
-// fewer than 40 fit records keeps its shape, its sigmas x sqrt(1 - v_rest / V) (V the winsorised
-// residual's variance; at least 0.2 of them).
+// without this the refitted model's errors come out too wide (term + the old noise). Per class,
+// v = variance of the term's values (table + cell offsets) over the fit records, V = variance of
+// the winsorised fit residual; a feature constant along a track (size) takes v out of the per-track
+// constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
+// (sigma x sqrt(1 - v_rest / V), at least 0.2 of it). The noise's shape, AR(1) and innovation, is
+// refitted (sensor::fit_error_model) on the fit records' errors minus the term (classes with at
+// least 40 of them), so correlation along a track or tails the term carried leave the noise.
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
                            const Winsor& w, int nvis, std::array<bool, 3> classes = {true, true, true});
 
