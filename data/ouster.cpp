@@ -132,17 +132,12 @@ int OusterFrame::valid_columns() const {
   return n;
 }
 
-std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const OusterMetadata& meta) {
-  const std::string fname = pcap_path.string();
-  char err[PCAP_ERRBUF_SIZE] = {0};
-  std::unique_ptr<pcap_t, void (*)(pcap_t*)> pcap(pcap_open_offline(pcap_path.c_str(), err), pcap_close);
-  if (!pcap) throw input_error(fname, "file", std::string("libpcap cannot open it: ") + err);
-  if (pcap_datalink(pcap.get()) != DLT_EN10MB)
-    throw input_error(fname, "link type", "expected Ethernet, got " + std::to_string(pcap_datalink(pcap.get())));
-  const Profile profile = profile_of(meta);
-  const std::size_t size = meta.packet_bytes();
-  const int H = meta.pixels_per_column, W = meta.columns_per_frame;
-  const std::size_t column_bytes = profile.column_header + static_cast<std::size_t>(H) * profile.pixel_bytes + (profile.legacy ? 4 : 0);
+namespace {
+
+// The frames read so far and the current record's number, for frame_for's check and its errors.
+struct FrameAssembly {
+  std::string fname;
+  int H = 0, W = 0;
   std::vector<OusterFrame> frames;
   // Each frame costs rows x columns cells however few of its columns arrive, so a frame id that
   // changes every column made a 64 KB file cost hundreds of MB (found by the fuzz target). Between
@@ -150,7 +145,9 @@ std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const Ouste
   // columns: real captures hold all of them, and memory stays a few times the file's size.
   int arrived = 0;  // columns of frames.back() so far
   long record = 0;
-  auto frame_for = [&](std::uint32_t id) -> OusterFrame& {
+
+  // The frame with this id: the last one, or a new empty one after it.
+  OusterFrame& frame_for(std::uint32_t id) {
     if (frames.empty() || frames.back().frame_id != id) {
       if (frames.size() >= 2 && arrived < (W + 1) / 2)
         throw input_error(fname, "record " + std::to_string(record) + " frame id",
@@ -172,76 +169,114 @@ std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const Ouste
       frames.push_back(std::move(f));
     }
     return frames.back();
-  };
+  }
+};
+
+// The UDP payload of a record if it is an IPv4/UDP packet (one VLAN tag at most) to `port`, with
+// its size in `payload`; nullptr for any other record.
+const std::uint8_t* udp_payload_to(const pcap_pkthdr* header, const std::uint8_t* data, int port,
+                                   std::size_t& payload) {
+  std::size_t at = 14;
+  if (header->caplen < at) return nullptr;
+  std::uint16_t ether = static_cast<std::uint16_t>(data[12] << 8 | data[13]);
+  if (ether == 0x8100 && header->caplen >= 18) {  // one VLAN tag
+    ether = static_cast<std::uint16_t>(data[16] << 8 | data[17]);
+    at = 18;
+  }
+  if (ether != 0x0800 || header->caplen < at + 20) return nullptr;  // IPv4 only
+  const std::size_t ihl = (data[at] & 0x0F) * 4u;
+  if (data[at + 9] != 17 || header->caplen < at + ihl + 8) return nullptr;  // UDP only
+  const std::uint8_t* udp = data + at + ihl;
+  if ((udp[2] << 8 | udp[3]) != port) return nullptr;
+  payload = header->caplen - (at + ihl + 8);
+  return udp + 8;
+}
+
+// One column's pixels (measurement id mid) into frame f.
+void decode_column_pixels(const std::uint8_t* col, const Profile& profile, int H, int W, int mid, OusterFrame& f) {
+  for (int r = 0; r < H; ++r) {
+    const std::uint8_t* px = col + profile.column_header + static_cast<std::size_t>(r) * profile.pixel_bytes;
+    const std::size_t cell = static_cast<std::size_t>(r) * W + mid;
+    if (profile.legacy) {
+      f.range_mm[cell] = le<std::uint32_t>(px) & 0xFFFFFu;
+      f.reflectivity[cell] = le<std::uint16_t>(px + 4);
+      f.signal[cell] = le<std::uint16_t>(px + 6);
+      f.nir[cell] = le<std::uint16_t>(px + 8);
+    } else if (profile.pixel_bytes == 12) {
+      f.range_mm[cell] = le<std::uint32_t>(px) & 0x7FFFFu;
+      f.reflectivity[cell] = px[4];
+      f.signal[cell] = le<std::uint16_t>(px + 6);
+      f.nir[cell] = le<std::uint16_t>(px + 8);
+    } else {
+      f.range_mm[cell] = (le<std::uint16_t>(px) & 0x7FFFu) * 8u;
+      f.reflectivity[cell] = px[2];
+      f.nir[cell] = px[3];
+    }
+  }
+}
+
+// One lidar packet's columns (payload p) into their frames; the packet counts for the frame of its last column.
+void decode_packet(const std::uint8_t* p, const OusterMetadata& meta, const Profile& profile, FrameAssembly& a) {
+  const int H = a.H, W = a.W;
+  const std::size_t column_bytes =
+      profile.column_header + static_cast<std::size_t>(H) * profile.pixel_bytes + (profile.legacy ? 4 : 0);
+  const std::uint32_t packet_frame = profile.legacy ? 0 : le<std::uint16_t>(p + 2);
+  const std::uint8_t* columns = profile.legacy ? p : p + 32;
+  OusterFrame* frame = nullptr;
+  for (int c = 0; c < meta.columns_per_packet; ++c) {
+    const std::uint8_t* col = columns + c * column_bytes;
+    const int mid = le<std::uint16_t>(col + 8);
+    const std::uint32_t id = profile.legacy ? le<std::uint16_t>(col + 10) : packet_frame;
+    bool valid = false;
+    if (profile.legacy) valid = le<std::uint32_t>(col + column_bytes - 4) == 0xFFFFFFFFu;
+    else valid = (le<std::uint16_t>(col + 10) & 1u) != 0;
+    if (mid >= W)
+      throw input_error(a.fname, "record " + std::to_string(a.record) + " measurement id",
+                        std::to_string(mid) + " is beyond columns_per_frame " + std::to_string(W));
+    OusterFrame& f = a.frame_for(id);
+    frame = &f;
+    ++a.arrived;
+    if (!valid) continue;
+    f.column_valid[mid] = 1;
+    decode_column_pixels(col, profile, H, W, mid, f);
+  }
+  if (frame) ++frame->packets;
+}
+
+}  // namespace
+
+std::vector<OusterFrame> read_ouster_pcap(const fs::path& pcap_path, const OusterMetadata& meta) {
+  const std::string fname = pcap_path.string();
+  char err[PCAP_ERRBUF_SIZE] = {0};
+  std::unique_ptr<pcap_t, void (*)(pcap_t*)> pcap(pcap_open_offline(pcap_path.c_str(), err), pcap_close);
+  if (!pcap) throw input_error(fname, "file", std::string("libpcap cannot open it: ") + err);
+  if (pcap_datalink(pcap.get()) != DLT_EN10MB)
+    throw input_error(fname, "link type", "expected Ethernet, got " + std::to_string(pcap_datalink(pcap.get())));
+  const Profile profile = profile_of(meta);
+  const std::size_t size = meta.packet_bytes();
+  FrameAssembly a;
+  a.fname = fname;
+  a.H = meta.pixels_per_column, a.W = meta.columns_per_frame;
   pcap_pkthdr* header = nullptr;
   const std::uint8_t* data = nullptr;
-  for (record = 1;; ++record) {
+  for (a.record = 1;; ++a.record) {
     const int rc = pcap_next_ex(pcap.get(), &header, &data);
     if (rc == PCAP_ERROR_BREAK) break;
-    if (rc != 1) throw input_error(fname, "record " + std::to_string(record), std::string("cannot be read: ") + pcap_geterr(pcap.get()));
-    std::size_t at = 14;
-    if (header->caplen < at) continue;
-    std::uint16_t ether = static_cast<std::uint16_t>(data[12] << 8 | data[13]);
-    if (ether == 0x8100 && header->caplen >= 18) {  // one VLAN tag
-      ether = static_cast<std::uint16_t>(data[16] << 8 | data[17]);
-      at = 18;
-    }
-    if (ether != 0x0800 || header->caplen < at + 20) continue;  // IPv4 only
-    const std::size_t ihl = (data[at] & 0x0F) * 4u;
-    if (data[at + 9] != 17 || header->caplen < at + ihl + 8) continue;  // UDP only
-    const std::uint8_t* udp = data + at + ihl;
-    const int port = udp[2] << 8 | udp[3];
-    const std::size_t payload = header->caplen - (at + ihl + 8);
-    if (port != meta.udp_port_lidar) continue;
+    if (rc != 1)
+      throw input_error(fname, "record " + std::to_string(a.record), std::string("cannot be read: ") + pcap_geterr(pcap.get()));
+    std::size_t payload = 0;
+    const std::uint8_t* p = udp_payload_to(header, data, meta.udp_port_lidar, payload);
+    if (!p) continue;
     if (payload != size)
-      throw input_error(fname, "record " + std::to_string(record),
+      throw input_error(fname, "record " + std::to_string(a.record),
                         "lidar packet of " + std::to_string(payload) + " bytes, the metadata's " + meta.udp_profile_lidar +
-                            " with " + std::to_string(H) + " beams x " + std::to_string(meta.columns_per_packet) +
+                            " with " + std::to_string(a.H) + " beams x " + std::to_string(meta.columns_per_packet) +
                             " columns makes " + std::to_string(size) + " (wrong metadata file?)");
-    const std::uint8_t* p = udp + 8;
-    const std::uint32_t packet_frame = profile.legacy ? 0 : le<std::uint16_t>(p + 2);
-    const std::uint8_t* columns = profile.legacy ? p : p + 32;
-    OusterFrame* frame = nullptr;
-    for (int c = 0; c < meta.columns_per_packet; ++c) {
-      const std::uint8_t* col = columns + c * column_bytes;
-      const int mid = le<std::uint16_t>(col + 8);
-      const std::uint32_t id = profile.legacy ? le<std::uint16_t>(col + 10) : packet_frame;
-      bool valid = false;
-      if (profile.legacy) valid = le<std::uint32_t>(col + column_bytes - 4) == 0xFFFFFFFFu;
-      else valid = (le<std::uint16_t>(col + 10) & 1u) != 0;
-      if (mid >= W)
-        throw input_error(fname, "record " + std::to_string(record) + " measurement id",
-                          std::to_string(mid) + " is beyond columns_per_frame " + std::to_string(W));
-      OusterFrame& f = frame_for(id);
-      frame = &f;
-      ++arrived;
-      if (!valid) continue;
-      f.column_valid[mid] = 1;
-      for (int r = 0; r < H; ++r) {
-        const std::uint8_t* px = col + profile.column_header + static_cast<std::size_t>(r) * profile.pixel_bytes;
-        const std::size_t cell = static_cast<std::size_t>(r) * W + mid;
-        if (profile.legacy) {
-          f.range_mm[cell] = le<std::uint32_t>(px) & 0xFFFFFu;
-          f.reflectivity[cell] = le<std::uint16_t>(px + 4);
-          f.signal[cell] = le<std::uint16_t>(px + 6);
-          f.nir[cell] = le<std::uint16_t>(px + 8);
-        } else if (profile.pixel_bytes == 12) {
-          f.range_mm[cell] = le<std::uint32_t>(px) & 0x7FFFFu;
-          f.reflectivity[cell] = px[4];
-          f.signal[cell] = le<std::uint16_t>(px + 6);
-          f.nir[cell] = le<std::uint16_t>(px + 8);
-        } else {
-          f.range_mm[cell] = (le<std::uint16_t>(px) & 0x7FFFu) * 8u;
-          f.reflectivity[cell] = px[2];
-          f.nir[cell] = px[3];
-        }
-      }
-    }
-    if (frame) ++frame->packets;
+    decode_packet(p, meta, profile, a);
   }
-  if (frames.empty())
+  if (a.frames.empty())
     throw input_error(fname, "packets", "no lidar packets on UDP port " + std::to_string(meta.udp_port_lidar));
-  return frames;
+  return std::move(a.frames);
 }
 
 std::vector<pgm::Point> ouster_points(const OusterFrame& frame, const OusterMetadata& meta) {

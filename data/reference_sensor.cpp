@@ -92,174 +92,231 @@ std::string effect_feature(IntensityEffect e) {
   }
 }
 
+namespace {
+
+// The main random stream of the tracking data: tracks, detections and clutter draw from it in
+// this order, so its use must not move.
+struct TrackingDraws {
+  std::mt19937_64 rng;
+  std::normal_distribution<double> N01{0, 1};
+  std::uniform_real_distribution<double> U{0, 1};
+  explicit TrackingDraws(std::uint64_t seed) : rng(seed) {}
+  double u() { return U(rng); }
+  double n() { return N01(rng); }
+  double uni(double a, double b) { return a + (b - a) * U(rng); }
+};
+
+// The tracking data's other streams: each planted false-positive form draws from its own, so
+// nothing else moves when it is switched on.
+struct FalsePositiveDraws {
+  std::mt19937_64 spot_rng, ghost_rng;
+  std::vector<std::array<double, 3>> ghosts;  // x, y (sensor frame), score; the live ones of this sequence
+};
+
+// Calibration: R0_rect = I, Tr_velo_to_cam = the axis permutation (cam x = -y, y = -z, z = x).
+void write_tracking_calib(const fs::path& file) {
+  write_file_atomically(file,
+                        "P0: 700 0 600 0 0 700 170 0 0 0 1 0\nP1: 700 0 600 0 0 700 170 0 0 0 1 0\n"
+                        "P2: 700 0 600 0 0 700 170 0 0 0 1 0\nP3: 700 0 600 0 0 700 170 0 0 0 1 0\n"
+                        "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
+                        "Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0\n");
+}
+
+std::vector<Track> draw_tracks(const ReferenceTrackingOptions& o, TrackingDraws& d) {
+  auto uni = [&](double a, double b) { return d.uni(a, b); };
+  std::vector<Track> tracks(o.tracks);
+  for (int k = 0; k < o.tracks; ++k) {
+    Track& t = tracks[k];
+    t.id = k;
+    const double u = d.u();
+    t.type = u < 0.7 ? "Car" : u < 0.85 ? "Pedestrian" : "Cyclist";
+    const double vmax = t.type == "Car" ? 12 : t.type == "Cyclist" ? 5 : 1.5;
+    t.size = t.type == "Car" ? Eigen::Vector3d(uni(3.6, 4.8), uni(1.6, 1.9), uni(1.4, 1.7))
+             : t.type == "Cyclist" ? Eigen::Vector3d(uni(1.6, 1.9), uni(0.5, 0.7), uni(1.6, 1.8))
+                                   : Eigen::Vector3d(uni(0.5, 0.9), uni(0.5, 0.7), uni(1.6, 1.9));
+    t.start = static_cast<int>(uni(0, o.frames * 0.5));
+    t.end = std::min(o.frames, t.start + static_cast<int>(uni(o.frames * 0.3, o.frames * 0.8)));
+    const double dur = (t.end - t.start) * 0.1;
+    t.v = Eigen::Vector3d(uni(-vmax, vmax), uni(-0.3, 0.3) * vmax, 0);
+    // Start so the whole track stays between 5 and 60 m ahead.
+    const double x_end_lo = 5 - t.v.x() * dur, x_end_hi = 60 - t.v.x() * dur;
+    const double x0 = uni(std::max(5.0, x_end_lo), std::max(std::max(5.0, x_end_lo) + 1, std::min(60.0, x_end_hi)));
+    t.p0 = Eigen::Vector3d(x0, uni(-15, 15), -1.73 + t.size.z() / 2);
+    t.heading = t.v.head<2>().norm() > 0.5 ? std::atan2(t.v.y(), t.v.x()) : uni(-kPi, kPi);
+    t.truncated = uni(0, 0.8);
+    t.occluded = static_cast<int>(uni(0, 2.999));
+  }
+  return tracks;
+}
+
+// The planted error effects on one detection of track t at bird's-eye position bev (u: the line
+// of sight, left: across it): along/across offsets and the size changed in place.
+void plant_error_effects(const ReferenceTrackingOptions& o, const Track& t, const Eigen::Vector2d& bev,
+                         const Eigen::Vector2d& u, const Eigen::Vector2d& left, double& along, double& across,
+                         Eigen::Vector3d& sz) {
+  for (const ObjectEffect effect : {o.effect, o.second_effect}) {
+    switch (effect) {
+    case ObjectEffect::VelocityLag: {
+      const Eigen::Vector2d lag = -0.08 * t.v.head<2>();
+      along += lag.dot(u);
+      across += lag.dot(left);
+      break;
+    }
+    case ObjectEffect::TruncationSize: sz.x() -= 0.45 * t.truncated * t.size.x(); break;
+    case ObjectEffect::OcclusionSize: sz.x() -= kOcclusionSizeShare * t.occluded * t.size.x(); break;
+    case ObjectEffect::AspectAcross: {
+      double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+      if (rel > kPi / 2) rel = kPi - rel;
+      across += 1.2 * (rel / (kPi / 2)) - 0.6;
+      break;
+    }
+    case ObjectEffect::AspectSpread: {
+      double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+      if (rel > kPi / 2) rel = kPi - rel;
+      across *= kSpreadBase + kSpreadPerAspect * rel / (kPi / 2);
+      break;
+    }
+    case ObjectEffect::AzimuthDropout:
+    case ObjectEffect::AzimuthWindowDropout:
+    case ObjectEffect::FalsePositiveHotspot:
+    case ObjectEffect::None: break;
+    }
+  }
+}
+
+// Track t's label line in frame f, and (if drawn detected) its detection line in dets[class].
+void append_track_frame(const ReferenceTrackingOptions& o, const Track& t, int f, TrackingDraws& d,
+                        std::string& labels, std::string dets[3]) {
+  char line[512];
+  const Eigen::Vector3d c = t.p0 + t.v * ((f - t.start) * 0.1);
+  const double ry = std::atan2(-std::cos(t.heading), -std::sin(t.heading));
+  // Rectified camera: (-y, -z + h/2, x) is the bottom centre.
+  std::snprintf(line, sizeof line, "%d %d %s %.4f %d -10 0 0 100 100 %.4f %.4f %.4f %.4f %.4f %.4f %.5f\n", f,
+                t.id, t.type.c_str(), t.truncated, t.occluded, t.size.z(), t.size.y(), t.size.x(), -c.y(),
+                -c.z() + t.size.z() / 2, c.x(), ry);
+  labels += line;
+  // The same draw for every effect, so the other effects' outputs stay as they were.
+  double pd = o.detection_probability;
+  auto planted = [&](ObjectEffect e) { return o.effect == e || o.second_effect == e; };
+  if (planted(ObjectEffect::AzimuthDropout)) {
+    const double az = std::atan2(c.y(), c.x());
+    if (az >= kDropoutAzimuthLo && az <= kDropoutAzimuthHi) pd *= kDropoutFactor;
+  }
+  if (planted(ObjectEffect::AzimuthWindowDropout)) {
+    const double az = std::atan2(c.y(), c.x());
+    if (az >= o.window_azimuth_lo && az <= o.window_azimuth_hi) pd *= kDropoutFactor;
+  }
+  if (d.u() > pd) return;
+  const Eigen::Vector2d bev = c.head<2>();
+  const Eigen::Vector2d u = bev / bev.norm(), left(-u.y(), u.x());
+  double along = o.noise * d.n(), across = o.noise * d.n();
+  Eigen::Vector3d sz = t.size + Eigen::Vector3d(d.n(), d.n(), d.n()) * (o.noise / 2);
+  double heading = t.heading + o.noise / 5 * d.n();
+  plant_error_effects(o, t, bev, u, left, along, across, sz);
+  const Eigen::Vector2d pos = bev + along * u + across * left;
+  const double dry = std::atan2(-std::cos(heading), -std::sin(heading));
+  const int cls = t.type == "Car" ? 0 : t.type == "Pedestrian" ? 1 : 2;
+  const int type_id = cls == 0 ? 2 : cls == 1 ? 1 : 3;
+  std::snprintf(line, sizeof line, "%d,%d,0,0,100,100,%.3f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,-10\n", f, type_id,
+                d.uni(3, 12), sz.z(), sz.y(), sz.x(), -pos.y(), -c.z() + sz.z() / 2, pos.x(), dry);
+  dets[cls] += line;
+}
+
+// A car-sized false positive at sensor-frame (x, y) in frame f, as a detection line.
+void append_false_car(std::string& dets, int f, double score, double x, double y) {
+  char line[512];
+  std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score, -y,
+                1.73 - 0.75, x);
+  dets += line;
+}
+
+// Frame f's false positives: clutter (Bernoulli per slot), persistent ghosts and the hot spot.
+void append_false_positives(const ReferenceTrackingOptions& o, bool hotspot, int f, TrackingDraws& d,
+                            FalsePositiveDraws& fp, std::string& dets) {
+  for (int k = 0; k < 3; ++k)
+    if (d.u() < o.false_positives / 3) {
+      if (!o.polar_clutter) {
+        char line[512];
+        std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f,
+                      d.uni(0.5, 4), d.uni(-20, 20), 1.73 - 0.75, d.uni(5, 60));
+        dets += line;
+      } else {
+        const double score = d.uni(0.5, 4), az = d.uni(-kPi / 4, kPi / 4), r = d.uni(5, 60);
+        append_false_car(dets, f, score, r * std::cos(az), r * std::sin(az));
+      }
+    }
+  if (o.ghost_survival > 0) {
+    // Survivors first, then births at the rate that keeps kFpGhostRate per frame (the first frame
+    // starts with the stationary count).
+    std::uniform_real_distribution<double> gu(0, 1);
+    std::normal_distribution<double> gn(0, kFpGhostJitter);
+    auto& ghosts = fp.ghosts;
+    size_t kept = 0;
+    for (auto& g : ghosts)
+      if (gu(fp.ghost_rng) < o.ghost_survival) g[0] += gn(fp.ghost_rng), g[1] += gn(fp.ghost_rng), ghosts[kept++] = g;
+    ghosts.resize(kept);
+    const int n = std::poisson_distribution<int>(kFpGhostRate * (f == 0 ? 1 : 1 - o.ghost_survival))(fp.ghost_rng);
+    for (int k = 0; k < n; ++k) {
+      const double az = -kPi / 4 + kPi / 2 * gu(fp.ghost_rng), r = 5 + 55 * gu(fp.ghost_rng);
+      ghosts.push_back({r * std::cos(az), r * std::sin(az), 0.5 + 3.5 * gu(fp.ghost_rng)});
+    }
+    for (const auto& g : ghosts) append_false_car(dets, f, g[2], g[0], g[1]);
+  }
+  if (hotspot) {
+    std::uniform_real_distribution<double> su(0, 1);
+    const int n = std::poisson_distribution<int>(kFpHotspotRate)(fp.spot_rng);
+    for (int k = 0; k < n; ++k) {
+      const double az = kFpHotspotAzimuthLo + (kFpHotspotAzimuthHi - kFpHotspotAzimuthLo) * su(fp.spot_rng);
+      const double r = kFpHotspotRangeLo + (kFpHotspotRangeHi - kFpHotspotRangeLo) * su(fp.spot_rng);
+      const double score = 0.5 + 3.5 * su(fp.spot_rng);
+      append_false_car(dets, f, score, r * std::cos(az), r * std::sin(az));
+    }
+  }
+}
+
+// One sequence's calibration, labels and the three classes' detection files.
+void write_tracking_sequence(const fs::path& dir, const std::string& name, const ReferenceTrackingOptions& o,
+                             bool hotspot, TrackingDraws& d, FalsePositiveDraws& fp) {
+  write_tracking_calib(dir / "calib" / (name + ".txt"));
+  const std::vector<Track> tracks = draw_tracks(o, d);
+  std::string labels;
+  std::string dets[3];  // Car, Pedestrian, Cyclist
+  fp.ghosts.clear();
+  for (int f = 0; f < o.frames; ++f) {
+    for (const Track& t : tracks)
+      if (f >= t.start && f < t.end) append_track_frame(o, t, f, d, labels, dets);
+    append_false_positives(o, hotspot, f, d, fp, dets[0]);
+  }
+  // A DontCare region in the last frame, as KITTI's label files have: the reader takes the last
+  // labelled frame as the sequence's end, and clutter may fall into frames after the last track.
+  char line[512];
+  std::snprintf(line, sizeof line, "%d -1 DontCare -1 -1 -10 0 0 100 100 -1 -1 -1 -1000 -1000 -1000 -10\n",
+                o.frames - 1);
+  labels += line;
+  write_file_atomically(dir / "label_02" / (name + ".txt"), labels);
+  const char* cls_names[3] = {"Car", "Pedestrian", "Cyclist"};
+  for (int k = 0; k < 3; ++k)
+    write_file_atomically(dir / "detection" / (std::string("pointrcnn_") + cls_names[k] + "_val") / (name + ".txt"),
+                          dets[k]);
+}
+
+}  // namespace
+
 void write_reference_tracking(const fs::path& dir, const ReferenceTrackingOptions& o) {
   if (o.sequences < 1 || o.frames < 2 || o.tracks < 1) throw Error("reference sensor: sequences, frames, tracks >= 1");
   for (const char* sub : {"label_02", "calib", "detection/pointrcnn_Car_val", "detection/pointrcnn_Pedestrian_val",
                           "detection/pointrcnn_Cyclist_val"})
     fs::create_directories(dir / sub);
-  std::mt19937_64 rng(o.seed);
-  std::normal_distribution<double> N01(0, 1);
-  std::uniform_real_distribution<double> U(0, 1);
-  auto uni = [&](double a, double b) { return a + (b - a) * U(rng); };
-  // The hot spot's false positives: a stream of their own, so nothing else moves.
-  std::mt19937_64 spot_rng(o.seed ^ 0x5a17c0ffee5eedULL);
-  std::mt19937_64 ghost_rng(o.seed ^ 0x6b05757acce55ULL);
+  TrackingDraws d(o.seed);
+  // The hot spot's false positives and the ghosts: streams of their own, so nothing else moves.
+  FalsePositiveDraws fp{std::mt19937_64(o.seed ^ 0x5a17c0ffee5eedULL), std::mt19937_64(o.seed ^ 0x6b05757acce55ULL),
+                        {}};
   const bool hotspot = o.effect == ObjectEffect::FalsePositiveHotspot || o.second_effect == ObjectEffect::FalsePositiveHotspot;
   std::string seqmap;
   for (int s = 0; s < o.sequences; ++s) {
     const std::string name = seq_name(s, 4);
     seqmap += name + " empty 000000 " + seq_name(o.frames, 6) + "\n";
-    // Calibration: R0_rect = I, Tr_velo_to_cam = the axis permutation (cam x = -y, y = -z, z = x).
-    write_file_atomically(dir / "calib" / (name + ".txt"),
-                          "P0: 700 0 600 0 0 700 170 0 0 0 1 0\nP1: 700 0 600 0 0 700 170 0 0 0 1 0\n"
-                          "P2: 700 0 600 0 0 700 170 0 0 0 1 0\nP3: 700 0 600 0 0 700 170 0 0 0 1 0\n"
-                          "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
-                          "Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0\n");
-    std::vector<Track> tracks(o.tracks);
-    for (int k = 0; k < o.tracks; ++k) {
-      Track& t = tracks[k];
-      t.id = k;
-      const double u = U(rng);
-      t.type = u < 0.7 ? "Car" : u < 0.85 ? "Pedestrian" : "Cyclist";
-      const double vmax = t.type == "Car" ? 12 : t.type == "Cyclist" ? 5 : 1.5;
-      t.size = t.type == "Car" ? Eigen::Vector3d(uni(3.6, 4.8), uni(1.6, 1.9), uni(1.4, 1.7))
-               : t.type == "Cyclist" ? Eigen::Vector3d(uni(1.6, 1.9), uni(0.5, 0.7), uni(1.6, 1.8))
-                                     : Eigen::Vector3d(uni(0.5, 0.9), uni(0.5, 0.7), uni(1.6, 1.9));
-      t.start = static_cast<int>(uni(0, o.frames * 0.5));
-      t.end = std::min(o.frames, t.start + static_cast<int>(uni(o.frames * 0.3, o.frames * 0.8)));
-      const double dur = (t.end - t.start) * 0.1;
-      t.v = Eigen::Vector3d(uni(-vmax, vmax), uni(-0.3, 0.3) * vmax, 0);
-      // Start so the whole track stays between 5 and 60 m ahead.
-      const double x_end_lo = 5 - t.v.x() * dur, x_end_hi = 60 - t.v.x() * dur;
-      const double x0 = uni(std::max(5.0, x_end_lo), std::max(std::max(5.0, x_end_lo) + 1, std::min(60.0, x_end_hi)));
-      t.p0 = Eigen::Vector3d(x0, uni(-15, 15), -1.73 + t.size.z() / 2);
-      t.heading = t.v.head<2>().norm() > 0.5 ? std::atan2(t.v.y(), t.v.x()) : uni(-kPi, kPi);
-      t.truncated = uni(0, 0.8);
-      t.occluded = static_cast<int>(uni(0, 2.999));
-    }
-    std::string labels;
-    std::string dets[3];  // Car, Pedestrian, Cyclist
-    char line[512];
-    std::vector<std::array<double, 3>> ghosts;  // x, y (sensor frame), score
-    for (int f = 0; f < o.frames; ++f) {
-      for (const Track& t : tracks) {
-        if (f < t.start || f >= t.end) continue;
-        const Eigen::Vector3d c = t.p0 + t.v * ((f - t.start) * 0.1);
-        const double ry = std::atan2(-std::cos(t.heading), -std::sin(t.heading));
-        // Rectified camera: (-y, -z + h/2, x) is the bottom centre.
-        std::snprintf(line, sizeof line, "%d %d %s %.4f %d -10 0 0 100 100 %.4f %.4f %.4f %.4f %.4f %.4f %.5f\n", f,
-                      t.id, t.type.c_str(), t.truncated, t.occluded, t.size.z(), t.size.y(), t.size.x(), -c.y(),
-                      -c.z() + t.size.z() / 2, c.x(), ry);
-        labels += line;
-        // The same draw for every effect, so the other effects' outputs stay as they were.
-        double pd = o.detection_probability;
-        auto planted = [&](ObjectEffect e) { return o.effect == e || o.second_effect == e; };
-        if (planted(ObjectEffect::AzimuthDropout)) {
-          const double az = std::atan2(c.y(), c.x());
-          if (az >= kDropoutAzimuthLo && az <= kDropoutAzimuthHi) pd *= kDropoutFactor;
-        }
-        if (planted(ObjectEffect::AzimuthWindowDropout)) {
-          const double az = std::atan2(c.y(), c.x());
-          if (az >= o.window_azimuth_lo && az <= o.window_azimuth_hi) pd *= kDropoutFactor;
-        }
-        if (U(rng) > pd) continue;
-        const Eigen::Vector2d bev = c.head<2>();
-        const Eigen::Vector2d u = bev / bev.norm(), left(-u.y(), u.x());
-        double along = o.noise * N01(rng), across = o.noise * N01(rng);
-        Eigen::Vector3d sz = t.size + Eigen::Vector3d(N01(rng), N01(rng), N01(rng)) * (o.noise / 2);
-        double heading = t.heading + o.noise / 5 * N01(rng);
-        for (const ObjectEffect effect : {o.effect, o.second_effect}) {
-          switch (effect) {
-          case ObjectEffect::VelocityLag: {
-            const Eigen::Vector2d lag = -0.08 * t.v.head<2>();
-            along += lag.dot(u);
-            across += lag.dot(left);
-            break;
-          }
-          case ObjectEffect::TruncationSize: sz.x() -= 0.45 * t.truncated * t.size.x(); break;
-          case ObjectEffect::OcclusionSize: sz.x() -= kOcclusionSizeShare * t.occluded * t.size.x(); break;
-          case ObjectEffect::AspectAcross: {
-            double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
-            if (rel > kPi / 2) rel = kPi - rel;
-            across += 1.2 * (rel / (kPi / 2)) - 0.6;
-            break;
-          }
-          case ObjectEffect::AspectSpread: {
-            double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
-            if (rel > kPi / 2) rel = kPi - rel;
-            across *= kSpreadBase + kSpreadPerAspect * rel / (kPi / 2);
-            break;
-          }
-          case ObjectEffect::AzimuthDropout:
-          case ObjectEffect::AzimuthWindowDropout:
-          case ObjectEffect::FalsePositiveHotspot:
-          case ObjectEffect::None: break;
-          }
-        }
-        const Eigen::Vector2d pos = bev + along * u + across * left;
-        const double dry = std::atan2(-std::cos(heading), -std::sin(heading));
-        const int cls = t.type == "Car" ? 0 : t.type == "Pedestrian" ? 1 : 2;
-        const int type_id = cls == 0 ? 2 : cls == 1 ? 1 : 3;
-        std::snprintf(line, sizeof line, "%d,%d,0,0,100,100,%.3f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,-10\n", f, type_id,
-                      uni(3, 12), sz.z(), sz.y(), sz.x(), -pos.y(), -c.z() + sz.z() / 2, pos.x(), dry);
-        dets[cls] += line;
-      }
-      // False positives: Poisson-ish (Bernoulli per slot) clutter, cars, far from nothing in particular.
-      for (int k = 0; k < 3; ++k)
-        if (U(rng) < o.false_positives / 3) {
-          if (!o.polar_clutter) {
-            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, uni(0.5, 4),
-                          uni(-20, 20), 1.73 - 0.75, uni(5, 60));
-          } else {
-            const double score = uni(0.5, 4), az = uni(-kPi / 4, kPi / 4), r = uni(5, 60);
-            std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score,
-                          -r * std::sin(az), 1.73 - 0.75, r * std::cos(az));
-          }
-          dets[0] += line;
-        }
-      if (o.ghost_survival > 0) {
-        // Survivors first, then births at the rate that keeps kFpGhostRate per frame (the first frame
-        // starts with the stationary count).
-        std::uniform_real_distribution<double> gu(0, 1);
-        std::normal_distribution<double> gn(0, kFpGhostJitter);
-        size_t kept = 0;
-        for (auto& g : ghosts)
-          if (gu(ghost_rng) < o.ghost_survival) g[0] += gn(ghost_rng), g[1] += gn(ghost_rng), ghosts[kept++] = g;
-        ghosts.resize(kept);
-        const int n = std::poisson_distribution<int>(kFpGhostRate * (f == 0 ? 1 : 1 - o.ghost_survival))(ghost_rng);
-        for (int k = 0; k < n; ++k) {
-          const double az = -kPi / 4 + kPi / 2 * gu(ghost_rng), r = 5 + 55 * gu(ghost_rng);
-          ghosts.push_back({r * std::cos(az), r * std::sin(az), 0.5 + 3.5 * gu(ghost_rng)});
-        }
-        for (const auto& g : ghosts) {
-          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, g[2], -g[1],
-                        1.73 - 0.75, g[0]);
-          dets[0] += line;
-        }
-      }
-      if (hotspot) {
-        std::uniform_real_distribution<double> su(0, 1);
-        const int n = std::poisson_distribution<int>(kFpHotspotRate)(spot_rng);
-        for (int k = 0; k < n; ++k) {
-          const double az = kFpHotspotAzimuthLo + (kFpHotspotAzimuthHi - kFpHotspotAzimuthLo) * su(spot_rng);
-          const double r = kFpHotspotRangeLo + (kFpHotspotRangeHi - kFpHotspotRangeLo) * su(spot_rng);
-          const double score = 0.5 + 3.5 * su(spot_rng);
-          std::snprintf(line, sizeof line, "%d,2,0,0,100,100,%.3f,1.5,1.7,4.0,%.4f,%.4f,%.4f,0,-10\n", f, score,
-                        -r * std::sin(az), 1.73 - 0.75, r * std::cos(az));
-          dets[0] += line;
-        }
-      }
-    }
-    // A DontCare region in the last frame, as KITTI's label files have: the reader takes the last
-    // labelled frame as the sequence's end, and clutter may fall into frames after the last track.
-    std::snprintf(line, sizeof line, "%d -1 DontCare -1 -1 -10 0 0 100 100 -1 -1 -1 -1000 -1000 -1000 -10\n",
-                  o.frames - 1);
-    labels += line;
-    write_file_atomically(dir / "label_02" / (name + ".txt"), labels);
-    const char* cls_names[3] = {"Car", "Pedestrian", "Cyclist"};
-    for (int k = 0; k < 3; ++k)
-      write_file_atomically(dir / "detection" / (std::string("pointrcnn_") + cls_names[k] + "_val") / (name + ".txt"),
-                            dets[k]);
+    write_tracking_sequence(dir, name, o, hotspot, d, fp);
   }
   write_file_atomically(dir / "evaluate_tracking.seqmap.val", seqmap);
 }

@@ -94,8 +94,7 @@ std::filesystem::path resolve_default(const std::string& relative) {
   return std::filesystem::exists(in_source) ? in_source : std::filesystem::path(relative);
 }
 
-int run_sim(int argc, char** argv) {
-  using namespace lidarsim;
+cxxopts::Options sim_options_spec() {
   cxxopts::Options options("lidar-infer sim",
                            "Run a scenario through the sensor model (frames, FoV, occlusion, tracking, KPI errors),\n"
                            "the PCL generator and the intensity UNet. Per frame under --out: objects_NNNN.csv|json,\n"
@@ -122,65 +121,80 @@ int run_sim(int argc, char** argv) {
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
-  const auto args = options.parse(argc, argv);
-  if (args.count("help")) {
-    std::cout << options.help() << "\n";
-    return 0;
-  }
+  return options;
+}
+
+// `lidar-infer sim`'s options, checked.
+struct SimArgs {
+  std::filesystem::path scenario, kpi, model;
+  lidarsim::infer::SimOutputOptions out;
+  lidarsim::infer::SimOptions sim_options;
+  bool write = true, sync_outputs = false, quiet = false;
+  int threads = 2, max_frames = 0, every = 1;
+};
+
+// Checks the options in the order a user meets them; sets the OpenMP threads and the UNet precision.
+SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
+  using namespace lidarsim;
   if (!args.unmatched().empty()) throw Error("lidar-infer sim: unexpected argument '" + args.unmatched()[0] + "'");
   auto path_of = [&](const char* name) {
     const std::string value = args[name].as<std::string>();
     return args.count(name) ? std::filesystem::path(value) : resolve_default(value);
   };
-  const std::filesystem::path scenario = path_of("scenario"), kpi = path_of("kpi"), model = path_of("model");
-  infer::SimOutputOptions out;
-  out.out = args["out"].as<std::string>();
-  out.format = args["format"].as<std::string>();
-  out.images = !args.count("no-images");
-  if (out.format != "pcd" && out.format != "ply") throw Error("lidar-infer sim: --format must be pcd or ply, got '" + out.format + "'");
-  const bool write = !args.count("no-outputs");
-  const int threads = args["threads"].as<int>();
-  if (threads < 1 || threads > 1024) throw Error("lidar-infer sim: --threads must be in [1, 1024], got " + std::to_string(threads));
-  if (args["frames"].as<int>() < 0)
-    throw Error("lidar-infer sim: --frames must be >= 0 (0: the whole scenario), got " + std::to_string(args["frames"].as<int>()));
-  omp_set_num_threads(threads);
+  SimArgs a;
+  a.scenario = path_of("scenario"), a.kpi = path_of("kpi"), a.model = path_of("model");
+  a.out.out = args["out"].as<std::string>();
+  a.out.format = args["format"].as<std::string>();
+  a.out.images = !args.count("no-images");
+  if (a.out.format != "pcd" && a.out.format != "ply")
+    throw Error("lidar-infer sim: --format must be pcd or ply, got '" + a.out.format + "'");
+  a.write = !args.count("no-outputs");
+  a.sync_outputs = args.count("sync-outputs") > 0;
+  a.quiet = args.count("quiet") > 0;
+  a.threads = args["threads"].as<int>();
+  if (a.threads < 1 || a.threads > 1024)
+    throw Error("lidar-infer sim: --threads must be in [1, 1024], got " + std::to_string(a.threads));
+  a.max_frames = args["frames"].as<int>();
+  if (a.max_frames < 0)
+    throw Error("lidar-infer sim: --frames must be >= 0 (0: the whole scenario), got " + std::to_string(a.max_frames));
+  omp_set_num_threads(a.threads);
   if (args.count("precision"))
     nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer sim: --precision"));
-  infer::SimOptions sim_options;
-  sim_options.seed = args["seed"].as<std::uint64_t>();
-  if (args.count("sensor")) sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
-  const int every = args["every"].as<int>();
-  if (every < 1) throw Error("lidar-infer sim: --every must be >= 1, got " + std::to_string(every));
-  if (!args.count("model") && !std::filesystem::exists(model))
-    throw input_error(model.string(), "file",
+  a.sim_options.seed = args["seed"].as<std::uint64_t>();
+  if (args.count("sensor")) a.sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
+  a.every = args["every"].as<int>();
+  if (a.every < 1) throw Error("lidar-infer sim: --every must be >= 1, got " + std::to_string(a.every));
+  if (!args.count("model") && !std::filesystem::exists(a.model))
+    throw input_error(a.model.string(), "file",
                       "the bundled intensity model does not exist (train one with lidar-train, or pass --model)");
+  return a;
+}
 
-  const auto wall0 = std::chrono::steady_clock::now();
-  infer::SimPipeline pipeline = infer::SimPipeline::from_files(scenario, kpi, model, sim_options);
-  if (const auto* m = pipeline.intensity_model(); m && !(m->layout() == pipeline.scenario().sensor.beams.layout()))
-    std::fprintf(stderr, "warning: %s was trained for another beam layout than the scenario's sensor: %s (model vs scenario)\n",
-                 model.string().c_str(), m->layout().difference(pipeline.scenario().sensor.beams.layout()).c_str());
-  int frames = pipeline.frame_count();
-  if (args["frames"].as<int>() > 0) frames = std::min(frames, args["frames"].as<int>());
-  std::filesystem::create_directories(out.out);
-  remove_stale_temp_files_in(out.out);  // left by a run that was killed while writing
+// What the frame loop took: its wall time and (with a writer thread) the writer's busy time.
+struct SimLoopTimes {
+  double loop_s = 0, writer_ms = 0;
+  bool writer = false;
+};
 
-  infer::SimStats stats;
+// Runs `frames` frames, writing the outputs (on a writer thread unless asked otherwise) into stats.
+SimLoopTimes run_sim_frames(lidarsim::infer::SimPipeline& pipeline, const SimArgs& a, int frames,
+                            lidarsim::infer::SimStats& stats) {
+  using namespace lidarsim;
   infer::SimFrame frame;
-  ProgressBar bar("sim", frames, !args.count("quiet"));
+  ProgressBar bar("sim", frames, !a.quiet);
   // Outputs go to a writer thread unless asked otherwise; its time is not the pipeline's.
   std::unique_ptr<infer::FrameWriter> writer;
-  if (write && !args.count("sync-outputs")) writer = std::make_unique<infer::FrameWriter>(out);
+  if (a.write && !a.sync_outputs) writer = std::make_unique<infer::FrameWriter>(a.out);
   const auto loop0 = std::chrono::steady_clock::now();
   for (int k = 0; k < frames; ++k) {
     // The predicted intensity is read only by the outputs: with --every N the UNet runs on the
     // frames that are written (without outputs it runs on all, so the timing covers it).
-    const bool written = write && k % every == 0;
-    pipeline.run_frame(k, frame, written || !write);
+    const bool written = a.write && k % a.every == 0;
+    pipeline.run_frame(k, frame, written || !a.write);
     double output_ms = 0;
     if (written) {
       if (writer) writer->push(frame);
-      else output_ms = infer::write_frame_outputs(out, frame);
+      else output_ms = infer::write_frame_outputs(a.out, frame);
     }
     stats.add(frame, output_ms);
     char status[96];
@@ -188,30 +202,63 @@ int run_sim(int argc, char** argv) {
                   frame.reported.size(), frame.cloud.size());
     bar.update(k + 1, status);
   }
-  const double writer_ms = writer ? writer->finish() : 0.0;
+  SimLoopTimes t;
+  t.writer = writer != nullptr;
+  t.writer_ms = writer ? writer->finish() : 0.0;
   if (writer) stats.set_writer_ms(writer->frame_ms());
-  const double loop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - loop0).count();
+  t.loop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - loop0).count();
   bar.finish();
+  return t;
+}
+
+// summary.json/.md, then the two lines on stdout.
+void report_sim(const SimArgs& a, const lidarsim::infer::SimPipeline& pipeline, lidarsim::infer::SimStats& stats,
+                int frames, const SimLoopTimes& t, double wall_seconds) {
+  using namespace lidarsim;
   infer::SimStats::Info info;
-  info.scenario = scenario.string();
-  info.kpi_model = kpi.string();
-  info.intensity_model = model.string();
-  info.format = out.format;
+  info.scenario = a.scenario.string();
+  info.kpi_model = a.kpi.string();
+  info.intensity_model = a.model.string();
+  info.format = a.out.format;
   info.rate_hz = pipeline.scenario().rate_hz;
-  info.threads = threads;
-  info.seed = sim_options.seed;
-  info.outputs = write;
-  info.images = out.images;
-  info.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
-  stats.write_summary(out.out, info);
+  info.threads = a.threads;
+  info.seed = a.sim_options.seed;
+  info.outputs = a.write;
+  info.images = a.out.images;
+  info.wall_seconds = wall_seconds;
+  stats.write_summary(a.out.out, info);
   std::printf("%d frames: %.1f ms per frame (p95 %.1f), real-time factor %.2f on %d thread(s); outputs in %s "
               "(summary.md)\n",
               stats.frames(), stats.mean_total_ms(), stats.p95_total_ms(), stats.real_time_factor(info.rate_hz),
-              threads, out.out.string().c_str());
+              a.threads, a.out.out.string().c_str());
   // The rate a user sees: the whole loop including any wait for outputs.
-  std::printf("loop: %.2f frames/s over %.2f s (outputs %s, every %d frame(s)%s)\n", frames / std::max(loop_s, 1e-9),
-              loop_s, write ? (writer ? "on a writer thread" : "on the pipeline thread") : "off", every,
-              writer ? (", writer busy " + std::to_string(static_cast<int>(writer_ms)) + " ms").c_str() : "");
+  std::printf("loop: %.2f frames/s over %.2f s (outputs %s, every %d frame(s)%s)\n", frames / std::max(t.loop_s, 1e-9),
+              t.loop_s, a.write ? (t.writer ? "on a writer thread" : "on the pipeline thread") : "off", a.every,
+              t.writer ? (", writer busy " + std::to_string(static_cast<int>(t.writer_ms)) + " ms").c_str() : "");
+}
+
+int run_sim(int argc, char** argv) {
+  using namespace lidarsim;
+  cxxopts::Options options = sim_options_spec();
+  const auto args = options.parse(argc, argv);
+  if (args.count("help")) {
+    std::cout << options.help() << "\n";
+    return 0;
+  }
+  const SimArgs a = parse_sim_args(args);
+  const auto wall0 = std::chrono::steady_clock::now();
+  infer::SimPipeline pipeline = infer::SimPipeline::from_files(a.scenario, a.kpi, a.model, a.sim_options);
+  if (const auto* m = pipeline.intensity_model(); m && !(m->layout() == pipeline.scenario().sensor.beams.layout()))
+    std::fprintf(stderr, "warning: %s was trained for another beam layout than the scenario's sensor: %s (model vs scenario)\n",
+                 a.model.string().c_str(), m->layout().difference(pipeline.scenario().sensor.beams.layout()).c_str());
+  int frames = pipeline.frame_count();
+  if (a.max_frames > 0) frames = std::min(frames, a.max_frames);
+  std::filesystem::create_directories(a.out.out);
+  remove_stale_temp_files_in(a.out.out);  // left by a run that was killed while writing
+  infer::SimStats stats;
+  const SimLoopTimes t = run_sim_frames(pipeline, a, frames, stats);
+  report_sim(a, pipeline, stats, frames, t,
+             std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count());
   return 0;
 }
 

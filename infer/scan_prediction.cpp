@@ -103,88 +103,66 @@ Image comparison_image(const pgm::PolarGridMap& pgm, const std::vector<float>& p
   return add_caption_band(stacked, title + "  (black: no return)", kHeaderStyle);
 }
 
-PredictSummary predict_scans(const PredictOptions& o) {
-  if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer predict: --format must be pcd or ply");
-  IntensityModel model = IntensityModel::load(o.model);
-  const ScanSource source = list_sources(o);
-  std::filesystem::create_directories(o.out);
+namespace {
 
-  PredictSummary summary;
+// Error sums over every scan: the cells' |error| and error^2, and per class (sum |err|, cells).
+struct ErrorSums {
+  double abs_sum = 0, sq_sum = 0;
   std::map<int, std::pair<double, long>> class_abs;  // class id -> (sum |err|, cells)
-  double abs_sum = 0, sq_sum = 0, compute_seconds = 0;
-  ProgressBar bar("predict", static_cast<long>(source.size()), o.progress);
-  std::vector<float> predicted;
-  pgm::ProjectOptions project_options;
-  project_options.extra_channels = model.extra_channels();
-  for (std::size_t i = 0; i < source.size(); ++i) {
-    const ScanInput scan = source.read(i);
-    const auto t0 = std::chrono::steady_clock::now();
-    const pgm::ProjectionResult projected = pgm::project(scan.points, model.layout(), project_options, scan.id);
-    model.predict(projected.pgm, predicted);
-    compute_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+};
 
-    // Cell metrics (the grid is what the network sees and what training scored).
-    const float* measured = projected.pgm.channel("intensity");
-    const float* mask = projected.pgm.channel("mask");
-    const float* cls = projected.pgm.channel("class");
-    ScanResult result;
-    result.id = scan.id;
-    double scan_abs = 0, scan_sq = 0;
-    for (std::size_t c = 0; c < projected.pgm.cells(); ++c) {
-      if (mask[c] <= 0) continue;
-      const double e = predicted[c] - measured[c];
-      scan_abs += std::fabs(e);
-      scan_sq += e * e;
-      ++result.cells;
-      auto& entry = class_abs[static_cast<int>(cls[c])];
-      entry.first += std::fabs(e);
-      ++entry.second;
-    }
-    abs_sum += scan_abs;
-    sq_sum += scan_sq;
-    summary.cells += result.cells;
-    result.mae = result.cells ? scan_abs / result.cells : 0;
-    result.rmse = result.cells ? std::sqrt(scan_sq / result.cells) : 0;
-
-    // Every point gets its cell's prediction.
-    const std::vector<float> point_prediction = pgm::back_project(predicted.data(), projected.point_cell);
-    data::PointCloud cloud;
-    std::vector<float> x, y, z, intensity, pred, err, klass;
-    for (std::size_t p = 0; p < scan.points.size(); ++p) {
-      const auto& pt = scan.points[p];
-      x.push_back(pt.x);
-      y.push_back(pt.y);
-      z.push_back(pt.z);
-      intensity.push_back(pt.intensity);
-      pred.push_back(point_prediction[p]);
-      err.push_back(std::isfinite(point_prediction[p]) ? std::fabs(point_prediction[p] - pt.intensity) : NAN);
-      klass.push_back(static_cast<float>(pt.class_id));
-    }
-    cloud.add_field("x", std::move(x));
-    cloud.add_field("y", std::move(y));
-    cloud.add_field("z", std::move(z));
-    cloud.add_field("intensity", std::move(intensity));
-    cloud.add_field("predicted_intensity", std::move(pred));
-    cloud.add_field("abs_error", std::move(err));
-    cloud.add_field("class", std::move(klass));
-    result.cloud = o.out / (scan.id + "." + o.format);
-    data::write_point_cloud(result.cloud, cloud);
-    result.image = o.out / (scan.id + "_intensity.png");
-    char title[128];
-    std::snprintf(title, sizeof title, "scan %s  MAE %.4f", scan.id.c_str(), result.mae);
-    write_png(result.image, comparison_image(projected.pgm, predicted, title));
-    summary.scans.push_back(result);
-    char status[64];
-    std::snprintf(status, sizeof status, "MAE %.4f", result.mae);
-    bar.update(static_cast<long>(i + 1), status);
+// One scan's cell metrics (the grid is what the network sees and what training scored), added to sums.
+ScanResult score_cells(const std::string& id, const pgm::PolarGridMap& grid, const std::vector<float>& predicted,
+                       ErrorSums& sums) {
+  const float* measured = grid.channel("intensity");
+  const float* mask = grid.channel("mask");
+  const float* cls = grid.channel("class");
+  ScanResult result;
+  result.id = id;
+  double scan_abs = 0, scan_sq = 0;
+  for (std::size_t c = 0; c < grid.cells(); ++c) {
+    if (mask[c] <= 0) continue;
+    const double e = predicted[c] - measured[c];
+    scan_abs += std::fabs(e);
+    scan_sq += e * e;
+    ++result.cells;
+    auto& entry = sums.class_abs[static_cast<int>(cls[c])];
+    entry.first += std::fabs(e);
+    ++entry.second;
   }
-  bar.finish();
-  summary.mae = summary.cells ? abs_sum / summary.cells : 0;
-  summary.rmse = summary.cells ? std::sqrt(sq_sum / summary.cells) : 0;
-  summary.seconds_per_scan = compute_seconds / static_cast<double>(source.size());
-  for (const auto& [id, entry] : class_abs)
-    summary.per_class.push_back({pgm::class_name(id), entry.first / std::max(1L, entry.second), entry.second});
+  sums.abs_sum += scan_abs;
+  sums.sq_sum += scan_sq;
+  result.mae = result.cells ? scan_abs / result.cells : 0;
+  result.rmse = result.cells ? std::sqrt(scan_sq / result.cells) : 0;
+  return result;
+}
 
+// The scan's points with their cell's prediction and its error, as a point cloud file.
+void write_predicted_cloud(const std::filesystem::path& path, const ScanInput& scan,
+                           const std::vector<float>& point_prediction) {
+  data::PointCloud cloud;
+  std::vector<float> x, y, z, intensity, pred, err, klass;
+  for (std::size_t p = 0; p < scan.points.size(); ++p) {
+    const auto& pt = scan.points[p];
+    x.push_back(pt.x);
+    y.push_back(pt.y);
+    z.push_back(pt.z);
+    intensity.push_back(pt.intensity);
+    pred.push_back(point_prediction[p]);
+    err.push_back(std::isfinite(point_prediction[p]) ? std::fabs(point_prediction[p] - pt.intensity) : NAN);
+    klass.push_back(static_cast<float>(pt.class_id));
+  }
+  cloud.add_field("x", std::move(x));
+  cloud.add_field("y", std::move(y));
+  cloud.add_field("z", std::move(z));
+  cloud.add_field("intensity", std::move(intensity));
+  cloud.add_field("predicted_intensity", std::move(pred));
+  cloud.add_field("abs_error", std::move(err));
+  cloud.add_field("class", std::move(klass));
+  data::write_point_cloud(path, cloud);
+}
+
+void write_summary_json(const PredictOptions& o, const PredictSummary& summary) {
   nlohmann::json j;
   j["model"] = o.model.string();
   j["mae"] = summary.mae;
@@ -196,7 +174,9 @@ PredictSummary predict_scans(const PredictOptions& o) {
                           {"cloud", s.cloud.filename().string()}, {"image", s.image.filename().string()}});
   for (const auto& c : summary.per_class) j["per_class"].push_back({{"class", c.name}, {"mae", c.mae}, {"cells", c.cells}});
   write_file_atomically(o.out / "summary.json", j.dump(2) + "\n");
+}
 
+void write_summary_md(const PredictOptions& o, const PredictSummary& summary) {
   std::string md = "# Intensity prediction\n\nModel: `" + o.model.string() + "`. Metrics over grid cells with a return.\n\n";
   char line[256];
   std::snprintf(line, sizeof line, "Overall: MAE %.4f, RMSE %.4f over %ld cells; %.3f s per scan (projection + UNet).\n\n",
@@ -215,6 +195,51 @@ PredictSummary predict_scans(const PredictOptions& o) {
   md += "\n";
   for (const auto& s : summary.scans) md += "![" + s.id + "](" + s.image.filename().string() + ")\n";
   write_file_atomically(o.out / "summary.md", md);
+}
+
+}  // namespace
+
+PredictSummary predict_scans(const PredictOptions& o) {
+  if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer predict: --format must be pcd or ply");
+  IntensityModel model = IntensityModel::load(o.model);
+  const ScanSource source = list_sources(o);
+  std::filesystem::create_directories(o.out);
+
+  PredictSummary summary;
+  ErrorSums sums;
+  double compute_seconds = 0;
+  ProgressBar bar("predict", static_cast<long>(source.size()), o.progress);
+  std::vector<float> predicted;
+  pgm::ProjectOptions project_options;
+  project_options.extra_channels = model.extra_channels();
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    const ScanInput scan = source.read(i);
+    const auto t0 = std::chrono::steady_clock::now();
+    const pgm::ProjectionResult projected = pgm::project(scan.points, model.layout(), project_options, scan.id);
+    model.predict(projected.pgm, predicted);
+    compute_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ScanResult result = score_cells(scan.id, projected.pgm, predicted, sums);
+    summary.cells += result.cells;
+    // Every point gets its cell's prediction.
+    result.cloud = o.out / (scan.id + "." + o.format);
+    write_predicted_cloud(result.cloud, scan, pgm::back_project(predicted.data(), projected.point_cell));
+    result.image = o.out / (scan.id + "_intensity.png");
+    char title[128];
+    std::snprintf(title, sizeof title, "scan %s  MAE %.4f", scan.id.c_str(), result.mae);
+    write_png(result.image, comparison_image(projected.pgm, predicted, title));
+    summary.scans.push_back(result);
+    char status[64];
+    std::snprintf(status, sizeof status, "MAE %.4f", result.mae);
+    bar.update(static_cast<long>(i + 1), status);
+  }
+  bar.finish();
+  summary.mae = summary.cells ? sums.abs_sum / summary.cells : 0;
+  summary.rmse = summary.cells ? std::sqrt(sums.sq_sum / summary.cells) : 0;
+  summary.seconds_per_scan = compute_seconds / static_cast<double>(source.size());
+  for (const auto& [id, entry] : sums.class_abs)
+    summary.per_class.push_back({pgm::class_name(id), entry.first / std::max(1L, entry.second), entry.second});
+  write_summary_json(o, summary);
+  write_summary_md(o, summary);
   return summary;
 }
 

@@ -160,6 +160,82 @@ int raster_span(const float* s_in, const float* s_out, int n, float inv_ce, floa
   return footprint;
 }
 
+// The angles in rasterise only bound the columns and rows to visit (the slab tests decide every
+// cell), so they come from angle_bounds.h, widened by kBoundMargin (5 x their error).
+constexpr double kBoundMargin = 5 * kAtanBoundError;
+
+// The columns a box can cover, [first, first + n) modulo cols: the footprint rectangle's bounding
+// circle (radius, centre at horizontal distance d_c) bounds its azimuth span, or the full circle
+// when the sensor is within it; the per-column slab test then trims the span exactly.
+inline void column_window(double cx, double cy, double radius, double d_c, int cols, double res, int& first,
+                          int& n) {
+  first = 0, n = cols;
+  if (d_c > radius * (1 + 1e-9) + 1e-9) {
+    double az_c = atan2_bound(cy, cx);
+    if (az_c < 0) az_c += 2 * kPi;
+    const double half = asin_bound(radius / d_c) + kBoundMargin;
+    first = static_cast<int>(std::floor((az_c - half) / res)) - 1;
+    n = std::min(cols, static_cast<int>(std::ceil(2 * half / res)) + 3);
+  }
+  first = ((first % cols) + cols) % cols;
+}
+
+// Per column k < n (directions ac[k], as[k]): the 2-D slab interval [in, out] of horizontal
+// distance through the rectangle [ax0, ax1] x [ay0, ay1] (box frame, relative to the sensor) of a
+// box with heading (fch, fsh). Branch-free: a direction along a slab gets a huge finite inverse,
+// so its interval is everything or nothing, as ray_box's parallel case.
+inline void column_slabs(const float* ac, const float* as, int n, float fch, float fsh, float ax0, float ax1,
+                         float ay0, float ay1, float* in, float* out) {
+  for (int k = 0; k < n; ++k) {
+    float dx = fch * ac[k] + fsh * as[k], dy = -fsh * ac[k] + fch * as[k];
+    dx = std::abs(dx) < 1e-20f ? 1e-20f : dx;
+    dy = std::abs(dy) < 1e-20f ? 1e-20f : dy;
+    const float ix = 1.f / dx, iy = 1.f / dy;
+    const float xa = ax0 * ix, xb = ax1 * ix, ya = ay0 * iy, yb = ay1 * iy;
+    in[k] = std::max(0.f, std::max(std::min(xa, xb), std::min(ya, yb)));
+    out[k] = std::min(std::max(xa, xb), std::max(ya, yb));
+  }
+}
+
+// The columns whose slab interval is not empty: the first and last (k_hi < 0: none) and the
+// nearest entry and farthest exit over them; then over the whole run [k_lo, k_hi] (empty columns
+// included) the least entry and the greatest exit, for the per-row test.
+struct ColumnRun {
+  int k_lo, k_hi;
+  float s_min, s_max, run_in_min, run_out_max;
+};
+inline ColumnRun column_run(const float* in, const float* out, int n) {
+  ColumnRun u{n, -1, std::numeric_limits<float>::infinity(), 0, std::numeric_limits<float>::infinity(), 0};
+  for (int k = 0; k < n; ++k) {
+    if (!(in[k] <= out[k])) continue;
+    u.k_lo = std::min(u.k_lo, k);
+    u.k_hi = k;
+    u.s_min = std::min(u.s_min, in[k]);
+    u.s_max = std::max(u.s_max, out[k]);
+  }
+  u.run_out_max = -u.run_in_min;
+  for (int k = u.k_lo; k <= u.k_hi; ++k) {
+    u.run_in_min = std::min(u.run_in_min, in[k]);
+    u.run_out_max = std::max(u.run_out_max, out[k]);
+  }
+  return u;
+}
+
+// The height slab [t_lo, t_hi] (distance along the unit ray) of a row with sin(elevation) se
+// through heights [z_bot, z_top]; false when the row misses them.
+inline bool height_slab(double se, double z_bot, double z_top, double& t_lo, double& t_hi) {
+  t_lo = 0, t_hi = std::numeric_limits<double>::infinity();
+  if (std::abs(se) < 1e-15) {
+    if (z_bot > 0 || z_top < 0) return false;
+  } else {
+    double ta = z_bot / se, tb = z_top / se;
+    if (ta > tb) std::swap(ta, tb);
+    t_lo = std::max(t_lo, ta);
+    t_hi = tb;
+  }
+  return !(t_hi < t_lo);
+}
+
 }  // namespace
 
 void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c) {
@@ -174,58 +250,22 @@ void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c)
   const double lox = -(ch * cx + sh * cy), loy = -(-sh * cx + ch * cy);  // sensor origin in box coordinates
   const double z_top = o.position.z() + 0.5 * o.size.z(), z_bot = o.position.z() - 0.5 * o.size.z();
 
-  // Columns: the footprint rectangle's bounding circle bounds its azimuth span (or the full
-  // circle when the sensor is within it); the per-column slab test then trims the span exactly.
-  // The angles here only bound the columns and rows to visit (the slab tests decide every cell),
-  // so they come from angle_bounds.h, widened by kBoundMargin (5 x their error).
-  constexpr double kBoundMargin = 5 * kAtanBoundError;
   const double radius = std::sqrt(hx * hx + hy * hy);  // d_c = hypot(cx, cy), from apply()
   int c_first = 0, n_cols = cols_;
-  if (d_c > radius * (1 + 1e-9) + 1e-9) {
-    double az_c = atan2_bound(cy, cx);
-    if (az_c < 0) az_c += 2 * kPi;
-    const double half = asin_bound(radius / d_c) + kBoundMargin;
-    c_first = static_cast<int>(std::floor((az_c - half) / cfg_.azimuth_resolution)) - 1;
-    n_cols = std::min(cols_, static_cast<int>(std::ceil(2 * half / cfg_.azimuth_resolution)) + 3);
-  }
-  c_first = ((c_first % cols_) + cols_) % cols_;
+  column_window(cx, cy, radius, d_c, cols_, cfg_.azimuth_resolution, c_first, n_cols);
   col_in_.resize(n_cols + 16);
   col_out_.resize(n_cols + 16);
-  {
-    // Branch-free 2-D slab test (a direction along a slab gets a huge finite inverse: its
-    // interval is everything or nothing, as ray_box's parallel case).
-    const float fch = static_cast<float>(ch), fsh = static_cast<float>(sh);
-    const float ax0 = static_cast<float>(-hx - lox), ax1 = static_cast<float>(hx - lox);
-    const float ay0 = static_cast<float>(-hy - loy), ay1 = static_cast<float>(hy - loy);
-    const float* ac = az_cos_f_.data() + c_first;  // tables run over two turns: no wrap here
-    const float* as = az_sin_f_.data() + c_first;
-    float* in = col_in_.data();
-    float* out = col_out_.data();
-    for (int k = 0; k < n_cols; ++k) {
-      float dx = fch * ac[k] + fsh * as[k], dy = -fsh * ac[k] + fch * as[k];
-      dx = std::abs(dx) < 1e-20f ? 1e-20f : dx;
-      dy = std::abs(dy) < 1e-20f ? 1e-20f : dy;
-      const float ix = 1.f / dx, iy = 1.f / dy;
-      const float xa = ax0 * ix, xb = ax1 * ix, ya = ay0 * iy, yb = ay1 * iy;
-      in[k] = std::max(0.f, std::max(std::min(xa, xb), std::min(ya, yb)));
-      out[k] = std::min(std::max(xa, xb), std::max(ya, yb));
-    }
-  }
-  int k_lo = n_cols, k_hi = -1;
-  float s_min = std::numeric_limits<float>::infinity(), s_max = 0;
-  for (int k = 0; k < n_cols; ++k) {
-    if (!(col_in_[k] <= col_out_[k])) continue;
-    k_lo = std::min(k_lo, k);
-    k_hi = k;
-    s_min = std::min(s_min, col_in_[k]);
-    s_max = std::max(s_max, col_out_[k]);
-  }
+  // The direction tables run over two turns: no wrap here.
+  column_slabs(az_cos_f_.data() + c_first, az_sin_f_.data() + c_first, n_cols, static_cast<float>(ch),
+               static_cast<float>(sh), static_cast<float>(-hx - lox), static_cast<float>(hx - lox),
+               static_cast<float>(-hy - loy), static_cast<float>(hy - loy), col_in_.data(), col_out_.data());
+  const ColumnRun run = column_run(col_in_.data(), col_out_.data(), n_cols);
   footprint_[index] = 0;
-  if (k_hi < 0) return;
+  if (run.k_hi < 0) return;
 
   // Rows: elevations between the lowest and highest a point of the box can be seen at (heights
   // over the nearest and farthest horizontal distance), one row of margin each side.
-  const double s_near = std::max<double>(s_min, 1e-9), s_far = std::max<double>(s_max, 1e-9);
+  const double s_near = std::max<double>(run.s_min, 1e-9), s_far = std::max<double>(run.s_max, 1e-9);
   const double tan_hi = z_top > 0 ? z_top / s_near : z_top / s_far;
   const double tan_lo = z_bot < 0 ? z_bot / s_near : z_bot / s_far;
   const double res_e = cfg_.elevation_resolution;
@@ -235,34 +275,19 @@ void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c)
       rows_ - 1, static_cast<int>(std::floor((cfg_.elevation_max - (atan_bound(tan_lo) - kBoundMargin)) / res_e)) + 1);
 
   // The run of columns may cross the azimuth seam: two pieces then.
-  const int c_lo = c_first + k_lo, n_run = k_hi - k_lo + 1;
-  // A row can have a footprint cell only if its height slab [t_lo, t_hi] meets [min s_in, max
-  // s_out] / cos(e) over the run: float products are monotone, so a row failing this test fails
-  // raster_span's test in every cell, and skipping it changes nothing (it saves the rows of
-  // margin and those the bounds above over-estimate).
-  float run_in_min = std::numeric_limits<float>::infinity(), run_out_max = -run_in_min;
-  for (int k = k_lo; k <= k_hi; ++k) {
-    run_in_min = std::min(run_in_min, col_in_[k]);
-    run_out_max = std::max(run_out_max, col_out_[k]);
-  }
+  const int k_lo = run.k_lo, c_lo = c_first + k_lo, n_run = run.k_hi - k_lo + 1;
   const int first_piece = std::min(n_run, cols_ - (c_lo % cols_));
   int footprint = 0;
   for (int r = r0; r <= r1; ++r) {
-    // Height slab for this row's elevation (t along the unit ray).
-    double t_lo = 0, t_hi = std::numeric_limits<double>::infinity();
-    const double se = el_sin_[r];
-    if (std::abs(se) < 1e-15) {
-      if (z_bot > 0 || z_top < 0) continue;
-    } else {
-      double ta = z_bot / se, tb = z_top / se;
-      if (ta > tb) std::swap(ta, tb);
-      t_lo = std::max(t_lo, ta);
-      t_hi = tb;
-    }
-    if (t_hi < t_lo) continue;
+    double t_lo, t_hi;
+    if (!height_slab(el_sin_[r], z_bot, z_top, t_lo, t_hi)) continue;
     const float ice = static_cast<float>(el_inv_cos_[r]), flo = static_cast<float>(t_lo),
                 fhi = static_cast<float>(std::min(t_hi, 1e30));
-    if (flo > run_out_max * ice || run_in_min * ice > fhi) continue;
+    // A row can have a footprint cell only if its height slab [t_lo, t_hi] meets [min s_in, max
+    // s_out] / cos(e) over the run: float products are monotone, so a row failing this test fails
+    // raster_span's test in every cell, and skipping it changes nothing (it saves the rows of
+    // margin and those the bounds above over-estimate).
+    if (flo > run.run_out_max * ice || run.run_in_min * ice > fhi) continue;
     const std::size_t row = static_cast<std::size_t>(r) * cols_;
     int done = 0;
     for (int piece = 0; piece < 2 && done < n_run; ++piece) {

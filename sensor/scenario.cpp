@@ -242,6 +242,150 @@ std::string default_material(ObjectClass cls) {
   return pgm::material_name(pgm::default_material(pgm::class_from_object_type(to_string(cls))));
 }
 
+namespace {
+
+// sensor.beams (a name, an elevation list or a uniform fan) and sensor.columns, into `beams`.
+void read_beams(const Reader& r, const json& sj, BeamSpec& beams) {
+  const json& bj = r.field(sj, "sensor", "beams");
+  if (bj.is_string()) {
+    if (bj.get<std::string>() != "hdl64e")
+      r.fail("sensor.beams", "must be \"hdl64e\" or {rows, top_deg, bottom_deg}, got " + Reader::describe(bj));
+    beams.kind = "hdl64e";
+  } else if (bj.is_object() && bj.contains("elevations_deg")) {
+    beams.kind = "list";
+    const json& ej = r.array(bj, "sensor.beams", "elevations_deg", 1);
+    std::set<double> seen;
+    for (std::size_t i = 0; i < ej.size(); ++i) {
+      const std::string p = Reader::index("sensor.beams.elevations_deg", i);
+      const double e = r.number(ej[i], p);
+      if (std::abs(e) > 90) r.fail(p, "must lie within [-90, 90] degrees, got " + Reader::fmt(e));
+      if (!seen.insert(e).second) r.fail(p, "repeats the elevation " + Reader::fmt(e));
+      beams.elevations_deg.push_back(e);
+    }
+    beams.rows = static_cast<int>(ej.size());
+  } else {
+    beams.kind = "uniform";
+    beams.rows = r.integer(bj, "sensor.beams", "rows", 1);
+    beams.top_deg = r.number(bj, "sensor.beams", "top_deg");
+    beams.bottom_deg = r.number(bj, "sensor.beams", "bottom_deg");
+    if (!(beams.top_deg > beams.bottom_deg) && beams.rows > 1)
+      r.fail("sensor.beams.top_deg", "must be above bottom_deg (" + Reader::fmt(beams.bottom_deg) + "), got " +
+                                         Reader::fmt(beams.top_deg));
+    if (std::abs(beams.top_deg) > 90 || std::abs(beams.bottom_deg) > 90)
+      r.fail("sensor.beams", "elevations must lie within [-90, 90] degrees");
+  }
+  beams.columns = r.integer(sj, "sensor", "columns", 1);
+  if (beams.columns > pgm::BeamLayout::kMaxColumns)
+    r.fail("sensor.columns", "at most " + std::to_string(pgm::BeamLayout::kMaxColumns) + ", got " +
+                                 std::to_string(beams.columns));
+  if (beams.rows > pgm::BeamLayout::kMaxRows)
+    r.fail("sensor.beams", "at most " + std::to_string(pgm::BeamLayout::kMaxRows) + " rows, got " +
+                               std::to_string(beams.rows));
+}
+
+// sensor.fov, sensor.max_range and the optional sensor.min_range, into `fov`.
+void read_fov(const Reader& r, const json& sj, FieldOfView& fov) {
+  const json& fj = r.field(sj, "sensor", "fov");
+  const json& hj = r.array(fj, "sensor.fov", "horizontal_deg", 2);
+  const json& vj = r.array(fj, "sensor.fov", "vertical_deg", 2);
+  fov.azimuth_min = r.number(hj[0], "sensor.fov.horizontal_deg[0]") * kDeg;
+  fov.azimuth_max = r.number(hj[1], "sensor.fov.horizontal_deg[1]") * kDeg;
+  fov.elevation_min = r.number(vj[0], "sensor.fov.vertical_deg[0]") * kDeg;
+  fov.elevation_max = r.number(vj[1], "sensor.fov.vertical_deg[1]") * kDeg;
+  if (!(fov.azimuth_max > fov.azimuth_min) || fov.azimuth_max - fov.azimuth_min > 2 * std::numbers::pi + 1e-9)
+    r.fail("sensor.fov.horizontal_deg", "must be [min, max] with min < max and at most 360 degrees wide, got " +
+                                            Reader::describe(hj));
+  if (!(fov.elevation_max > fov.elevation_min) || fov.elevation_min < -std::numbers::pi / 2 - 1e-9 ||
+      fov.elevation_max > std::numbers::pi / 2 + 1e-9)
+    r.fail("sensor.fov.vertical_deg", "must be [min, max] with -90 <= min < max <= 90, got " + Reader::describe(vj));
+  fov.range_max = r.positive(sj, "sensor", "max_range");
+  if (const json* mr = r.optional(sj, "min_range")) {
+    fov.range_min = r.number(*mr, "sensor.min_range");
+    if (fov.range_min < 0 || fov.range_min >= fov.range_max)
+      r.fail("sensor.min_range", "must be in [0, max_range), got " + Reader::fmt(fov.range_min));
+  }
+}
+
+void read_sensor(const Reader& r, const json& root, SensorSpec& sensor) {
+  const json& sj = r.field(root, "", "sensor");
+  const json& mj = r.field(sj, "sensor", "mount");
+  const Eigen::Vector3d mt(r.number(mj, "sensor.mount", "x"), r.number(mj, "sensor.mount", "y"),
+                           r.number(mj, "sensor.mount", "z"));
+  sensor.mount = make_pose(mt, r.number(mj, "sensor.mount", "roll_deg") * kDeg,
+                           r.number(mj, "sensor.mount", "pitch_deg") * kDeg,
+                           r.number(mj, "sensor.mount", "yaw_deg") * kDeg);
+  read_beams(r, sj, sensor.beams);
+  read_fov(r, sj, sensor.fov);
+}
+
+// objects[i] (path p): id, class, size, material (the class's default when absent), states.
+ScenarioObject read_object(const Reader& r, const json& oj, const std::string& p, std::set<int>& ids) {
+  ScenarioObject o;
+  o.id = r.integer(oj, p, "id", 0);
+  if (!ids.insert(o.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(o.id) + " twice");
+  const std::string cls = r.string(oj, p, "class");
+  try {
+    o.cls = object_class_from_string(cls);
+  } catch (const Error& e) {
+    r.fail(p + ".class", e.what());
+  }
+  const json& size = r.field(oj, p, "size");
+  o.size = r.vec(size, p + ".size");
+  for (int k = 0; k < 3; ++k)
+    if (!(o.size[k] > 0)) r.fail(p + ".size[" + std::to_string(k) + "]", "must be positive, got " + Reader::fmt(o.size[k]));
+  if (r.optional(oj, "material")) {
+    o.material = r.string(oj, p, "material");
+    try {
+      pgm::material_from_name(o.material);
+    } catch (const Error& e) {
+      r.fail(p + ".material", e.what());
+    }
+  } else {
+    o.material = default_material(o.cls);
+  }
+  o.states = read_states(r, oj, p);
+  return o;
+}
+
+std::vector<ScenarioObject> read_objects(const Reader& r, const json& root) {
+  const json& oj = r.array(root, "", "objects", 0);
+  if (oj.size() > kMaxObjects)
+    r.fail("objects", "at most " + std::to_string(kMaxObjects) + " objects, got " + std::to_string(oj.size()));
+  std::set<int> ids;
+  std::vector<ScenarioObject> objects;
+  for (std::size_t i = 0; i < oj.size(); ++i) objects.push_back(read_object(r, oj[i], Reader::index("objects", i), ids));
+  return objects;
+}
+
+// lanes[i]: id, type and points, resampled to at most 0.5 m apart.
+std::vector<LanePolyline> read_lanes(const Reader& r, const json& root) {
+  const json& lj = r.array(root, "", "lanes", 0);
+  std::set<int> lane_ids;
+  std::vector<LanePolyline> lanes;
+  for (std::size_t i = 0; i < lj.size(); ++i) {
+    const std::string p = Reader::index("lanes", i);
+    LanePolyline lane;
+    lane.id = r.integer(lj[i], p, "id", 0);
+    if (!lane_ids.insert(lane.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(lane.id) + " twice");
+    lane.type = lane_type_from(r, r.string(lj[i], p, "type"), p + ".type");
+    const json& pts = r.array(lj[i], p, "points", 2);
+    std::vector<Eigen::Vector3d> raw;
+    double length = 0;
+    for (std::size_t k = 0; k < pts.size(); ++k) {
+      raw.push_back(r.vec(pts[k], Reader::index(p + ".points", k), 2));
+      if (k > 0) length += (raw[k] - raw[k - 1]).norm();
+    }
+    if (length > kMaxLaneLength)
+      r.fail(p + ".points", "the lane is " + Reader::fmt(length) + " m long, at most " + Reader::fmt(kMaxLaneLength) +
+                                " m are allowed");
+    lane.points = resample(raw, 0.5);
+    lanes.push_back(std::move(lane));
+  }
+  return lanes;
+}
+
+}  // namespace
+
 Scenario parse_scenario(const std::string& text, const std::string& file) {
   json root;
   try {
@@ -262,130 +406,10 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
   if (sc.duration * sc.rate_hz > kMaxFrames)
     r.fail("duration", "duration x rate_hz gives " + Reader::fmt(sc.duration * sc.rate_hz) + " frames, at most " +
                            std::to_string(kMaxFrames) + " are allowed");
-
-  // Sensor.
-  const json& sj = r.field(root, "", "sensor");
-  const json& mj = r.field(sj, "sensor", "mount");
-  const Eigen::Vector3d mt(r.number(mj, "sensor.mount", "x"), r.number(mj, "sensor.mount", "y"),
-                           r.number(mj, "sensor.mount", "z"));
-  sc.sensor.mount = make_pose(mt, r.number(mj, "sensor.mount", "roll_deg") * kDeg,
-                              r.number(mj, "sensor.mount", "pitch_deg") * kDeg,
-                              r.number(mj, "sensor.mount", "yaw_deg") * kDeg);
-  const json& bj = r.field(sj, "sensor", "beams");
-  if (bj.is_string()) {
-    if (bj.get<std::string>() != "hdl64e")
-      r.fail("sensor.beams", "must be \"hdl64e\" or {rows, top_deg, bottom_deg}, got " + Reader::describe(bj));
-    sc.sensor.beams.kind = "hdl64e";
-  } else if (bj.is_object() && bj.contains("elevations_deg")) {
-    sc.sensor.beams.kind = "list";
-    const json& ej = r.array(bj, "sensor.beams", "elevations_deg", 1);
-    std::set<double> seen;
-    for (std::size_t i = 0; i < ej.size(); ++i) {
-      const std::string p = Reader::index("sensor.beams.elevations_deg", i);
-      const double e = r.number(ej[i], p);
-      if (std::abs(e) > 90) r.fail(p, "must lie within [-90, 90] degrees, got " + Reader::fmt(e));
-      if (!seen.insert(e).second) r.fail(p, "repeats the elevation " + Reader::fmt(e));
-      sc.sensor.beams.elevations_deg.push_back(e);
-    }
-    sc.sensor.beams.rows = static_cast<int>(ej.size());
-  } else {
-    sc.sensor.beams.kind = "uniform";
-    sc.sensor.beams.rows = r.integer(bj, "sensor.beams", "rows", 1);
-    sc.sensor.beams.top_deg = r.number(bj, "sensor.beams", "top_deg");
-    sc.sensor.beams.bottom_deg = r.number(bj, "sensor.beams", "bottom_deg");
-    if (!(sc.sensor.beams.top_deg > sc.sensor.beams.bottom_deg) && sc.sensor.beams.rows > 1)
-      r.fail("sensor.beams.top_deg", "must be above bottom_deg (" + Reader::fmt(sc.sensor.beams.bottom_deg) +
-                                         "), got " + Reader::fmt(sc.sensor.beams.top_deg));
-    if (std::abs(sc.sensor.beams.top_deg) > 90 || std::abs(sc.sensor.beams.bottom_deg) > 90)
-      r.fail("sensor.beams", "elevations must lie within [-90, 90] degrees");
-  }
-  sc.sensor.beams.columns = r.integer(sj, "sensor", "columns", 1);
-  if (sc.sensor.beams.columns > pgm::BeamLayout::kMaxColumns)
-    r.fail("sensor.columns", "at most " + std::to_string(pgm::BeamLayout::kMaxColumns) + ", got " +
-                                 std::to_string(sc.sensor.beams.columns));
-  if (sc.sensor.beams.rows > pgm::BeamLayout::kMaxRows)
-    r.fail("sensor.beams", "at most " + std::to_string(pgm::BeamLayout::kMaxRows) + " rows, got " +
-                               std::to_string(sc.sensor.beams.rows));
-  const json& fj = r.field(sj, "sensor", "fov");
-  const json& hj = r.array(fj, "sensor.fov", "horizontal_deg", 2);
-  const json& vj = r.array(fj, "sensor.fov", "vertical_deg", 2);
-  auto& fov = sc.sensor.fov;
-  fov.azimuth_min = r.number(hj[0], "sensor.fov.horizontal_deg[0]") * kDeg;
-  fov.azimuth_max = r.number(hj[1], "sensor.fov.horizontal_deg[1]") * kDeg;
-  fov.elevation_min = r.number(vj[0], "sensor.fov.vertical_deg[0]") * kDeg;
-  fov.elevation_max = r.number(vj[1], "sensor.fov.vertical_deg[1]") * kDeg;
-  if (!(fov.azimuth_max > fov.azimuth_min) || fov.azimuth_max - fov.azimuth_min > 2 * std::numbers::pi + 1e-9)
-    r.fail("sensor.fov.horizontal_deg", "must be [min, max] with min < max and at most 360 degrees wide, got " +
-                                            Reader::describe(hj));
-  if (!(fov.elevation_max > fov.elevation_min) || fov.elevation_min < -std::numbers::pi / 2 - 1e-9 ||
-      fov.elevation_max > std::numbers::pi / 2 + 1e-9)
-    r.fail("sensor.fov.vertical_deg", "must be [min, max] with -90 <= min < max <= 90, got " + Reader::describe(vj));
-  fov.range_max = r.positive(sj, "sensor", "max_range");
-  if (const json* mr = r.optional(sj, "min_range")) {
-    fov.range_min = r.number(*mr, "sensor.min_range");
-    if (fov.range_min < 0 || fov.range_min >= fov.range_max)
-      r.fail("sensor.min_range", "must be in [0, max_range), got " + Reader::fmt(fov.range_min));
-  }
-
-  // Ego.
+  read_sensor(r, root, sc.sensor);
   sc.ego = read_states(r, r.field(root, "", "ego"), "ego");
-
-  // Objects.
-  const json& oj = r.array(root, "", "objects", 0);
-  if (oj.size() > kMaxObjects)
-    r.fail("objects", "at most " + std::to_string(kMaxObjects) + " objects, got " + std::to_string(oj.size()));
-  std::set<int> ids;
-  for (std::size_t i = 0; i < oj.size(); ++i) {
-    const std::string p = Reader::index("objects", i);
-    ScenarioObject o;
-    o.id = r.integer(oj[i], p, "id", 0);
-    if (!ids.insert(o.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(o.id) + " twice");
-    const std::string cls = r.string(oj[i], p, "class");
-    try {
-      o.cls = object_class_from_string(cls);
-    } catch (const Error& e) {
-      r.fail(p + ".class", e.what());
-    }
-    const json& size = r.field(oj[i], p, "size");
-    o.size = r.vec(size, p + ".size");
-    for (int k = 0; k < 3; ++k)
-      if (!(o.size[k] > 0)) r.fail(p + ".size[" + std::to_string(k) + "]", "must be positive, got " + Reader::fmt(o.size[k]));
-    if (r.optional(oj[i], "material")) {
-      o.material = r.string(oj[i], p, "material");
-      try {
-        pgm::material_from_name(o.material);
-      } catch (const Error& e) {
-        r.fail(p + ".material", e.what());
-      }
-    } else {
-      o.material = default_material(o.cls);
-    }
-    o.states = read_states(r, oj[i], p);
-    sc.objects.push_back(std::move(o));
-  }
-
-  // Lanes.
-  const json& lj = r.array(root, "", "lanes", 0);
-  std::set<int> lane_ids;
-  for (std::size_t i = 0; i < lj.size(); ++i) {
-    const std::string p = Reader::index("lanes", i);
-    LanePolyline lane;
-    lane.id = r.integer(lj[i], p, "id", 0);
-    if (!lane_ids.insert(lane.id).second) r.fail(p + ".id", "must be unique, got " + std::to_string(lane.id) + " twice");
-    lane.type = lane_type_from(r, r.string(lj[i], p, "type"), p + ".type");
-    const json& pts = r.array(lj[i], p, "points", 2);
-    std::vector<Eigen::Vector3d> raw;
-    double length = 0;
-    for (std::size_t k = 0; k < pts.size(); ++k) {
-      raw.push_back(r.vec(pts[k], Reader::index(p + ".points", k), 2));
-      if (k > 0) length += (raw[k] - raw[k - 1]).norm();
-    }
-    if (length > kMaxLaneLength)
-      r.fail(p + ".points", "the lane is " + Reader::fmt(length) + " m long, at most " + Reader::fmt(kMaxLaneLength) +
-                                " m are allowed");
-    lane.points = resample(raw, 0.5);
-    sc.lanes.push_back(std::move(lane));
-  }
+  sc.objects = read_objects(r, root);
+  sc.lanes = read_lanes(r, root);
   return sc;
 }
 
