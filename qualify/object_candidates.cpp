@@ -368,7 +368,10 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     else if (t == kDetectionTarget) m = with_term(m, e.bias, t, ct->feature, nvis, classes);
     else m = with_term_and_noise(m, e.bias, t, ct->feature, nvis, fold.fit_r[t], fold.win[t], classes);
   }
-  // The false-positive table, refitted with the loop's form: a window or step has at most 3 bins.
+  // The false-positive table, refitted with the loop's form: a window or step has at most 3 bins; a
+  // table in one class only (of several) is that class's own candidate.
+  int tables = 0;
+  for (const auto& [name, cm] : recipe.classes) tables += cm.fp_table.present();
   for (const auto& [name, cm] : recipe.classes) {
     const sensor::FalsePositiveTable& ft = cm.fp_table;
     const auto it = std::find(kFpFeatures.begin(), kFpFeatures.end(), ft.feature);
@@ -376,6 +379,9 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     FpCandidate c;
     c.feature = static_cast<int>(it - kFpFeatures.begin());
     c.window = ft.edges.size() <= 3;
+    const auto cls = std::find(kObjectClasses.begin(), kObjectClasses.end(), name);
+    if (tables == 1 && recipe.classes.size() > 1 && cls != kObjectClasses.end())
+      c.cls = static_cast<int>(cls - kObjectClasses.begin());
     m = with_fitted_fp_table(m, fold, c, bins);
     break;
   }

@@ -20,12 +20,15 @@ struct Side {
   FpData fit, held;
   std::array<double, 3> floor{};
   FpModel base;
-  std::vector<double> dev_base;  // per block
+  std::array<std::vector<double>, 4> dev_base;  // per judged class (all, Car, Pedestrian, Cyclist), per block
 };
 
+bool judged(int c, int cls) { return cls < 0 || c == cls; }
+
 // Poisson deviance of each block's held-out counts per class and cell against the model's expected
-// counts summed over the block's frames (indexed by block; 0 for blocks of the other fold).
-std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t nblocks, int cells) {
+// counts summed over the block's frames (indexed by block; 0 for blocks of the other fold); of class
+// `cls`'s cells only, or every class's (-1).
+std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t nblocks, int cells, int cls) {
   std::vector<std::vector<double>> Y(nblocks), M(nblocks);
   for (const auto& fr : held.frames) {
     auto &y = Y[fr.block], &mu = M[fr.block];
@@ -40,12 +43,14 @@ std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t 
   std::vector<double> d(nblocks, 0.0);
   for (size_t b = 0; b < nblocks; ++b)
     for (size_t k = 0; k < Y[b].size(); ++k)
-      d[b] += 2 * ((Y[b][k] > 0 ? Y[b][k] * std::log(Y[b][k] / M[b][k]) : 0.0) - (Y[b][k] - M[b][k]));
+      if (judged(static_cast<int>(k) / cells, cls))
+        d[b] += 2 * ((Y[b][k] > 0 ? Y[b][k] * std::log(Y[b][k] / M[b][k]) : 0.0) - (Y[b][k] - M[b][k]));
   return d;
 }
 
-// Per class and cell: (held-out false positives per frame, the model's mean expected count).
-std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& held, int cells) {
+// Per class and cell: (held-out false positives per frame, the model's mean expected count); of class
+// `cls` only, or of every class (-1).
+std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& held, int cells, int cls = -1) {
   std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
   for (const auto& fr : held.frames) {
     const int b = m.frame_bin(fr);
@@ -57,6 +62,7 @@ std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& he
   }
   const double n = std::max<size_t>(1, held.frames.size());
   for (auto& e : p) e[0] /= n, e[1] /= n, e[2] = e[0] / n;  // Poisson variance of the measured rate
+  if (cls >= 0) p = std::vector<std::array<double, 3>>(p.begin() + cls * cells, p.begin() + (cls + 1) * cells);
   return p;
 }
 
@@ -100,6 +106,54 @@ std::vector<std::array<double, 3>> simulated_pairs(const TrackingData& data, con
   return p;
 }
 
+// The held-out blocks of both folds: how many, their frames, which fold holds each out.
+struct Blocks {
+  size_t n = 0;
+  std::vector<double> frames;
+  std::vector<int> fold;
+};
+
+// One candidate (feature, form, class) fitted on each fold's fit split (`fitted`) and judged on the
+// held-out blocks: on every class's cells, or on class `cls`'s only.
+FpCandidate judge_candidate(const std::array<Side, 2>& side, const std::array<Fold, 2>& folds, const Blocks& blocks,
+                            int f, bool window, int cls, int bins, std::array<FpModel, 2>& fitted) {
+  FpCandidate c;
+  c.feature = f, c.window = window, c.cls = cls;
+  BlockSums sums(blocks.n, {0, 0, 0});
+  std::array<double, 3> total{0, 0, 0};
+  std::array<std::vector<std::array<double, 3>>, 2> before, after;
+  for (int k = 0; k < 2; ++k) {
+    const Side& s = side[k];
+    fitted[k] = fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor, cls);
+    const auto dev = block_deviance(fitted[k], s.held, blocks.n, s.g.cells(), cls);
+    const auto& dev0 = s.dev_base[cls + 1];
+    for (size_t b = 0; b < blocks.n; ++b) {
+      if (blocks.fold[b] != k) continue;
+      sums[b][0] += dev[b], sums[b][1] += dev0[b], sums[b][2] += blocks.frames[b];
+      total[0] += dev[b], total[1] += dev0[b], total[2] += blocks.frames[b];
+    }
+    before[k] = rate_pairs(s.base, s.held, s.g.cells(), cls);
+    after[k] = rate_pairs(fitted[k], s.held, s.g.cells(), cls);
+  }
+  c.form = form_of(fitted[0], window);
+  double moved = 0, mass = 0;
+  for (size_t i = 0; i < before[0].size(); ++i)
+    moved += std::abs(after[0][i][1] - before[0][i][1]), mass += before[0][i][1];
+  c.effect_size = mass > 0 ? 0.5 * moved / mass : 0;
+  BlockSums used;
+  for (const auto& b : sums)
+    if (b[2] > 0) used.push_back(b);
+  c.score = r2_of_sums(total);
+  c.interval = block_bootstrap_interval(used, r2_of_sums);
+  c.change = block_bootstrap_interval(used, change_per_frame);
+  c.deviance_before = total[2] > 0 ? total[1] / total[2] : 0;
+  c.deviance_after = total[2] > 0 ? total[0] / total[2] : 0;
+  c.error_before = fp_rate_error(before);
+  c.error_after = fp_rate_error(after);
+  c.frames = static_cast<long>(total[2]);
+  return c;
+}
+
 }  // namespace
 
 double fp_rate_error(const std::array<std::vector<std::array<double, 3>>, 2>& per_fold) {
@@ -121,61 +175,40 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
     s.fit = fp_data(folds[k].fit_set, s.g);
     s.held = fp_data(folds[k].held_set, s.g);
     s.floor = fp_floor(s.fit, s.g.cells());
-    s.base = fp_base(folds[k].base);
+    s.base = fp_base(folds[k].base, s.fit);
     s.base.compile(s.g, s.floor);
     for (auto& fr : s.held.frames) fr.block = block_id.try_emplace(fr.block, static_cast<int>(block_id.size())).first->second;
     A.frames += static_cast<int>(s.held.frames.size());
     A.fps += static_cast<int>(s.held.fps.size());
   }
-  const size_t nblocks = block_id.size();
-  std::vector<double> block_frames(nblocks, 0.0);
-  std::vector<int> block_fold(nblocks, 0);
+  Blocks blocks;
+  blocks.n = block_id.size();
+  blocks.frames.assign(blocks.n, 0.0);
+  blocks.fold.assign(blocks.n, 0);
   for (int k = 0; k < 2; ++k) {
-    side[k].dev_base = block_deviance(side[k].base, side[k].held, nblocks, side[k].g.cells());
-    for (const auto& fr : side[k].held.frames) block_frames[fr.block] += 1, block_fold[fr.block] = k;
+    for (int cls = -1; cls < 3; ++cls)
+      side[k].dev_base[cls + 1] = block_deviance(side[k].base, side[k].held, blocks.n, side[k].g.cells(), cls);
+    for (const auto& fr : side[k].held.frames) blocks.frames[fr.block] += 1, blocks.fold[fr.block] = k;
+  }
+  // A class's own candidates where both fit splits hold enough of its false positives for a window
+  // (kWindowSide inside and outside); below that its table would be its fitting noise.
+  std::array<bool, 3> own{true, true, true};
+  for (int k = 0; k < 2; ++k) {
+    std::array<long, 3> n{0, 0, 0};
+    for (const auto& r : side[k].fit.fps) ++n[r.cls];
+    for (int c = 0; c < 3; ++c) own[c] = own[c] && n[c] >= 2 * kFpWindowSide;
   }
   std::vector<std::array<FpModel, 2>> models;  // per candidate, per fold
   for (int f = 0; f < static_cast<int>(kFpFeatures.size()); ++f)
-    for (bool window : {false, true}) {
-      FpCandidate c;
-      c.feature = f;
-      c.window = window;
-      BlockSums sums(nblocks, {0, 0, 0});
-      std::array<double, 3> total{0, 0, 0};
-      std::array<std::vector<std::array<double, 3>>, 2> before, after;
-      std::array<FpModel, 2> fitted;
-      for (int k = 0; k < 2; ++k) {
-        const Side& s = side[k];
-        fitted[k] = fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor);
-        const auto dev = block_deviance(fitted[k], s.held, nblocks, s.g.cells());
-        for (size_t b = 0; b < nblocks; ++b) {
-          if (block_fold[b] != k) continue;
-          sums[b][0] += dev[b], sums[b][1] += s.dev_base[b], sums[b][2] += block_frames[b];
-          total[0] += dev[b], total[1] += s.dev_base[b], total[2] += block_frames[b];
-        }
-        before[k] = rate_pairs(s.base, s.held, s.g.cells());
-        after[k] = rate_pairs(fitted[k], s.held, s.g.cells());
+    for (bool window : {false, true})
+      for (int cls = -1; cls < (f < kFpAttributeFeatures ? 3 : 0); ++cls) {
+        if (cls >= 0 && !own[cls]) continue;
+        std::array<FpModel, 2> fitted;
+        FpCandidate c = judge_candidate(side, folds, blocks, f, window, cls, bins, fitted);
+        c.fps = A.fps;
+        A.candidates.push_back(c);
+        models.push_back(std::move(fitted));
       }
-      c.form = form_of(fitted[0], window);
-      double moved = 0, mass = 0;
-      for (size_t i = 0; i < before[0].size(); ++i)
-        moved += std::abs(after[0][i][1] - before[0][i][1]), mass += before[0][i][1];
-      c.effect_size = mass > 0 ? 0.5 * moved / mass : 0;
-      BlockSums used;
-      for (const auto& b : sums)
-        if (b[2] > 0) used.push_back(b);
-      c.score = r2_of_sums(total);
-      c.interval = block_bootstrap_interval(used, r2_of_sums);
-      c.change = block_bootstrap_interval(used, change_per_frame);
-      c.deviance_before = total[2] > 0 ? total[1] / total[2] : 0;
-      c.deviance_after = total[2] > 0 ? total[0] / total[2] : 0;
-      c.error_before = fp_rate_error(before);
-      c.error_after = fp_rate_error(after);
-      c.frames = static_cast<long>(total[2]);
-      c.fps = A.fps;
-      A.candidates.push_back(c);
-      models.push_back(std::move(fitted));
-    }
   // The best candidate on an attribute of the false detection (what the KPI model's fp_table holds).
   for (size_t i = 0; i < A.candidates.size(); ++i) {
     const FpCandidate& c = A.candidates[i];
@@ -214,7 +247,7 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
 sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& whole, const FpCandidate& c, int bins) {
   const FpGrid g = fp_grid(whole.fit_set);
   const FpData fit = fp_data(whole.fit_set, g);
-  return with_fp_table(m, fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, fp_floor(fit, g.cells())));
+  return with_fp_table(m, fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, fp_floor(fit, g.cells()), c.cls));
 }
 
 nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
@@ -222,6 +255,7 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
   for (const FpCandidate& c : a.candidates)
     cj.push_back({{"feature", kFpFeatures[c.feature]},
                   {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+                  {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
                   {"form_fold1", c.form},
                   {"effect_size", c.effect_size},
                   {"score", c.score},
@@ -311,7 +345,8 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
       {"association", "a detection of a modelled class with score > 0 matched to no ground truth (same class, 2 m BEV "
                       "gate, Hungarian) and not within 2 m of other ground truth: lidar-calibrate's false positives"},
       {"score_definition", "1 - D_after / D_before, D the held-out Poisson deviance of each block's counts per class "
-                           "and cell (blocks: 100 consecutive frames of a sequence), both folds; interval95 and "
+                           "and cell (blocks: 100 consecutive frames of a sequence; a class's own candidate: that class's "
+                           "cells only), both folds; interval95 and "
                            "change_interval95 (deviance per frame, after - before) by a basic bootstrap over the blocks"},
       {"effect_size_definition", "fold 1: share of the expected false positives the candidate moves between cells "
                                  "(0.5 sum |mu_after - mu_before| / sum mu_before)"},
@@ -327,6 +362,7 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
     const FpCandidate& c = a.candidates[a.added];
     j["added"] = {{"feature", kFpFeatures[c.feature]},
                   {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+                  {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
                   {"score", c.score},
                   {"change_interval95", c.change},
                   {"error_before", c.error_before},
@@ -349,8 +385,9 @@ std::string fp_markdown(const nlohmann::json& fp) {
     md += "Added: **none**\n";
   } else {
     const auto& a = fp["added"];
-    md += "Added: **" + a["feature"].get<std::string>() + "** (" + a["kind"].get<std::string>() +
-          ", per class in `fp_table`): rate error " + fmt(a["error_before"].get<double>(), 4) + " -> " +
+    md += "Added: **" + a["feature"].get<std::string>() + "** (" + a["kind"].get<std::string>() + ", " +
+          (a.value("class", "all") == "all" ? std::string("per class") : a.value("class", "") + " only") +
+          " in `fp_table`): rate error " + fmt(a["error_before"].get<double>(), 4) + " -> " +
           fmt(a["error_after"].get<double>(), 4) + "; re-simulated by the KPI manager " +
           fmt(a["simulated_error_before"].get<double>(), 4) + " -> " + fmt(a["simulated_error_after"].get<double>(), 4) +
           "\n";
@@ -361,7 +398,8 @@ std::string fp_markdown(const nlohmann::json& fp) {
   // The persistence row has no deviance: its error is the persistence share's, its change that error's.
   auto num = [&](const nlohmann::json& c, const char* k) { return c.contains(k) ? fmt(c[k].get<double>(), 4) : "—"; };
   for (const auto& c : fp["candidates"])
-    md += "| " + c["feature"].get<std::string>() + " | " + c["kind"].get<std::string>() + " | " +
+    md += "| " + c["feature"].get<std::string>() + " | " + c["kind"].get<std::string>() +
+          (c.value("class", "all") == "all" ? std::string() : " (" + c.value("class", "") + ")") + " | " +
           c["form_fold1"].get<std::string>() + " | " + fmt(c["effect_size"].get<double>()) + " | " +
           fmt(c["score"].get<double>()) + " [" + fmt(c["interval95"][0].get<double>()) + ", " +
           fmt(c["interval95"][1].get<double>()) + "] | [" + fmt(c["change_interval95"][0].get<double>(), 4) + ", " +

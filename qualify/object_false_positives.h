@@ -16,10 +16,18 @@
 //   blocks    100-frame chunks of a sequence, also what the bootstrap resamples (frames and the false
 //             detections that persist over them stay together; a fold holds out whole sequences).
 // Candidates, per feature (kFpFeatures) and form, fitted on a fold's fit sequences only:
-//   fp_rate_table   per class, per bin of the feature (10 equal-count bins): a rate and the bin's own
-//                   quantiles of range, azimuth and score (the class's where it has < 20 there);
+//   fp_rate_table   per class, per bin of the feature (10 equal-count bins): a rate and the bin's
+//                   quantiles of range, azimuth and score;
 //   fp_rate_window  the same with the bins below, inside and above one window of the feature (a step
 //                   when it reaches an end), edges chosen on the fit split among 20 equal-count bins.
+// A bin's placement: its own false positives of the class pooled with 20 pseudo ones from a reference
+// (the class's over all bins; for the binned attribute the bin's of every class), so a bin of a few
+// false positives does not put nothing where the held-out ones land.
+// Each form is a candidate for every class at once (one window for all, judged on all classes'
+// false positives) and for each class alone (its own window chosen on its own fit deviance, the other
+// classes keep the base; judged on that class's held-out false positives): an effect in one class
+// (a cell of pedestrian ghosts) is a share of that class's deviance, a sliver of all classes', and
+// the other classes' tables only add their fitting noise to the judgement.
 // The base model (one component per class) cannot hold a joint effect such as a hot spot (false
 // detections in a window of azimuth at one range) or a score that falls with range; these forms can.
 // Frame features (truth_count, frame_index) keep the class's placement and give each frame bin its own
@@ -41,6 +49,7 @@ namespace lidarsim::qualify::obj {
 inline const std::vector<std::string> kFpFeatures = {"range", "azimuth", "score", "truth_count", "frame_index"};
 inline constexpr int kFpAttributeFeatures = 3;  // the first three: attributes of the false detection
 inline constexpr int kFpBlockFrames = 100;      // bootstrap block: consecutive frames of one sequence
+inline constexpr long kFpWindowSide = 30;       // fit false positives inside a window, at least
 
 // The cells the rate is judged on: cut points of range, azimuth and score.
 struct FpGrid {
@@ -71,6 +80,7 @@ struct FpComponent {
 // mixture); frame features: the frame's bin's component. feature -1: the base model's own.
 struct FpModel {
   int feature = -1;
+  int cls = -1;  // the class the candidate models (its table); -1: every class. Other classes: the base's
   std::vector<double> cuts;  // bin k = [cuts[k-1], cuts[k])
   std::array<std::vector<FpComponent>, 3> comps;  // per class, per bin
   std::array<std::vector<std::vector<double>>, 3> mu;  // compiled: per class, bin, cell: expected count
@@ -79,9 +89,18 @@ struct FpModel {
 };
 
 FpModel fp_base(const sensor::KpiModel& base);
-// The candidate of `feature` (index in kFpFeatures), table or window, fitted on `fit`.
+// The base of the fold's judgement: the base model's own, and for a class the base model leaves out
+// (kpi_fit drops a class with too few matched detections, min_samples) what lidar-calibrate would
+// have fitted from the class's false positives on `fit` (rate and quantiles). False positives need
+// no truth: a class absent from the truth of one fold's fit sequences (KITTI sequences without a
+// pedestrian) still has them, and without this every model would leave them at the floor, an
+// equal and huge deviance before and after that drowned any effect in that class.
+FpModel fp_base(const sensor::KpiModel& base, const FpData& fit);
+// The candidate of `feature` (index in kFpFeatures), table or window, fitted on `fit`; for class
+// `cls` only (the window chosen on that class's deviance, the other classes keep the base), or for
+// every class (-1, one window for all).
 FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
-                     const FpGrid& g, const std::array<double, 3>& floor);
+                     const FpGrid& g, const std::array<double, 3>& floor, int cls = -1);
 // Poisson deviance of `m` on the frames of `d` (per frame, summed over classes and cells).
 std::vector<double> fp_deviance(const FpModel& m, const FpData& d);
 // The floor added to every cell's expected count (the same for every model of a fold): 0.1 % of the
@@ -94,6 +113,7 @@ sensor::KpiModel with_fp_table(const sensor::KpiModel& m, const FpModel& fp);
 struct FpCandidate {
   int feature = 0;
   bool window = false;
+  int cls = -1;  // -1: a table for every class, judged on all classes; else that class's, judged on it
   std::string form;  // fold 1's
   double effect_size = 0;  // fold 1: largest ratio of the candidate's to the base's expected count in a cell
   double score = 0;

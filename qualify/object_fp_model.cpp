@@ -13,8 +13,7 @@ namespace lidarsim::qualify::obj {
 namespace {
 
 constexpr int kQuantiles = 21;  // as lidar-calibrate stores them
-constexpr long kOwnQuantiles = 20;  // false positives a class needs in a bin for quantiles of its own
-constexpr long kWindowSide = 30;    // fit false positives inside and outside a window, at least
+constexpr double kPriorWeight = 20;  // pseudo false positives a bin's placement is shrunk with
 
 int cut_bin(const std::vector<double>& cuts, double x) {
   return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x) - cuts.begin());
@@ -136,6 +135,17 @@ FpModel fp_base(const sensor::KpiModel& base) {
   return m;
 }
 
+FpModel fp_base(const sensor::KpiModel& base, const FpData& fit) {
+  FpModel m = fp_base(base);
+  std::array<std::vector<double>, 3> r, a, s;
+  for (const auto& f : fit.fps) r[f.cls].push_back(f.range), a[f.cls].push_back(f.azimuth), s[f.cls].push_back(f.score);
+  const double frames = static_cast<double>(std::max<size_t>(1, fit.frames.size()));
+  for (int c = 0; c < 3; ++c)
+    if (!base.classes.count(kObjectClasses[c]) && r[c].size() >= 2)
+      m.comps[c] = {{r[c].size() / frames, quantiles(r[c]), quantiles(a[c]), quantiles(s[c])}};
+  return m;
+}
+
 std::array<double, 3> fp_floor(const FpData& fit, int cells) {
   std::array<double, 3> n{0, 0, 0};
   for (const auto& r : fit.fps) n[r.cls] += 1;
@@ -167,13 +177,75 @@ std::vector<double> fp_deviance(const FpModel& m, const FpData& d) {
 
 namespace {
 
-// Components of a candidate with the given cuts, fitted on `fit`.
-FpModel components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts) {
+// Quantiles of `own` (weight 1 each) pooled with `ref` (kPriorWeight in all): a bin's placement
+// shrunk toward a reference. A bin's own few false positives span less than the class's: with their
+// quantiles alone every held-out false positive beyond that span lands where the model has nothing
+// (only the floor, ~20 deviance units each), and tables and windows lost held-out what they gained.
+std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::vector<double>& ref) {
+  std::vector<std::pair<double, double>> v;  // value, weight
+  for (double x : own) v.push_back({x, 1.0});
+  for (double x : ref) v.push_back({x, kPriorWeight / static_cast<double>(ref.size())});
+  if (v.size() < 2) return {};
+  std::sort(v.begin(), v.end());
+  // Point k at t_k = (weight before it + half its own - half the first's) / (total - half the ends'):
+  // with equal weights k / (n - 1), as quantiles() places them.
+  std::vector<double> t(v.size());
+  double before = 0;
+  for (size_t k = 0; k < v.size(); ++k) t[k] = before + v[k].second / 2, before += v[k].second;
+  const double lo = t.front(), span = t.back() - t.front();
+  std::vector<double> q(kQuantiles);
+  size_t k = 0;
+  for (int i = 0; i < kQuantiles; ++i) {
+    const double p = lo + span * i / (kQuantiles - 1);
+    while (k + 2 < v.size() && t[k + 1] < p) ++k;
+    const double f = t[k + 1] > t[k] ? std::clamp((p - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0) : 0.0;
+    q[i] = v[k].first + f * (v[k + 1].first - v[k].first);
+  }
+  return q;
+}
+
+// Per class and bin of an attribute (m.feature, m.cuts): a rate and a placement. The placement is
+// the bin's own false positives of the class shrunk toward, for the binned attribute, the bin's of
+// every class (where in the bin) and for the other two, the class's over all bins (its marginal).
+void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0) {
+  const int nb = static_cast<int>(m.cuts.size() + 1);
+  std::vector<std::array<std::vector<double>, 3>> pooled(nb);
+  std::array<std::vector<std::array<std::vector<double>, 3>>, 3> own;
+  std::array<std::array<std::vector<double>, 3>, 3> all;
+  for (auto& v : own) v.resize(nb);
+  for (const auto& r : fit.fps) {
+    const int b = cut_bin(m.cuts, feature_of(r, m.feature));
+    for (int a = 0; a < kFpAttributeFeatures; ++a) {
+      const double x = feature_of(r, a);
+      pooled[b][a].push_back(x), own[r.cls][b][a].push_back(x), all[r.cls][a].push_back(x);
+    }
+  }
+  const double frames = std::max<size_t>(1, fit.frames.size());
+  for (int c = 0; c < 3; ++c)
+    for (int b = 0; b < nb; ++b) {
+      FpComponent k;
+      k.rate = own[c][b][0].size() / frames;
+      std::array<std::vector<double>, 3> q;
+      for (int a = 0; a < kFpAttributeFeatures; ++a)
+        q[a] = shrunk_quantiles(own[c][b][a], a == m.feature ? pooled[b][a] : all[c][a]);
+      // The binned attribute's placement reaches the bin's edges (the KPI manager draws between them).
+      auto& qf = q[m.feature];
+      if (!qf.empty() && b > 0) qf.front() = std::min(qf.front(), m.cuts[b - 1]);
+      if (!qf.empty() && b < nb - 1) qf.back() = std::max(qf.back(), m.cuts[b]);
+      k.rq = q[0], k.aq = q[1], k.sq = q[2];
+      // Nowhere to place them, or a class without false positives to model (< 2 on the fit split).
+      if (k.rq.empty() || k.aq.empty() || k.sq.empty() || b0.comps[c][0].rq.empty()) k.rate = 0;
+      m.comps[c].push_back(k);
+    }
+}
+
+// Components of a candidate with the given cuts, fitted on `fit`, for every class.
+FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts) {
   FpModel m;
   m.feature = feature;
   m.cuts = cuts;
   const int nb = static_cast<int>(cuts.size() + 1);
-  const FpModel b0 = fp_base(base);
+  const FpModel b0 = fp_base(base, fit);
   if (feature >= kFpAttributeFeatures) {
     // A rate per frame bin; the class's placement.
     std::vector<double> frames(nb, 0.0);
@@ -189,62 +261,53 @@ FpModel components(const FpData& fit, const sensor::KpiModel& base, int feature,
       }
     return m;
   }
-  // Per class and bin of the attribute: a rate and the bin's own quantiles.
-  std::vector<std::vector<const FalsePositiveRecord*>> pooled(nb);
-  std::array<std::vector<std::vector<const FalsePositiveRecord*>>, 3> own;
-  for (auto& v : own) v.resize(nb);
-  for (const auto& r : fit.fps) {
-    const int b = cut_bin(cuts, feature_of(r, feature));
-    pooled[b].push_back(&r);
-    own[r.cls][b].push_back(&r);
-  }
-  const double frames = std::max<size_t>(1, fit.frames.size());
-  for (int c = 0; c < 3; ++c)
-    for (int b = 0; b < nb; ++b) {
-      FpComponent k;
-      k.rate = own[c][b].size() / frames;
-      const auto& src = own[c][b].size() >= kOwnQuantiles ? own[c][b] : pooled[b];
-      if (src.size() >= 2) {
-        std::vector<double> rr, aa, ss;
-        for (const auto* r : src) rr.push_back(r->range), aa.push_back(r->azimuth), ss.push_back(r->score);
-        k.rq = quantiles(rr), k.aq = quantiles(aa), k.sq = quantiles(ss);
-      } else {
-        const FpComponent& cls = b0.comps[c][0];
-        k.rq = cls.rq, k.aq = cls.aq, k.sq = cls.sq;
-      }
-      // Nowhere to place them (a class with < 2 false positives), or a class the model does not have.
-      if (k.rq.empty() || k.aq.empty() || !base.classes.count(kObjectClasses[c])) k.rate = 0;
-      m.comps[c].push_back(k);
-    }
+  attribute_components(m, fit, b0);
   return m;
 }
 
-std::vector<double> feature_values(const FpData& fit, int feature) {
+// The same for class `cls` only (>= 0): the other classes keep the base's component.
+FpModel components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts,
+                   int cls) {
+  FpModel m = class_components(fit, base, feature, cuts);
+  if (cls < 0) return m;
+  const FpModel b0 = fp_base(base, fit);
+  for (int c = 0; c < 3; ++c)
+    if (c != cls) m.comps[c] = b0.comps[c];
+  m.cls = cls;
+  return m;
+}
+
+std::vector<double> feature_values(const FpData& fit, int feature, int cls) {
   std::vector<double> x;
-  if (feature < kFpAttributeFeatures)
-    for (const auto& r : fit.fps) x.push_back(feature_of(r, feature));
-  else
+  if (feature < kFpAttributeFeatures) {
+    for (const auto& r : fit.fps)
+      if (cls < 0 || r.cls == cls) x.push_back(feature_of(r, feature));
+  } else {
     for (const auto& f : fit.frames) x.push_back(f.feature[feature - kFpAttributeFeatures]);
+  }
   return x;
 }
 
 }  // namespace
 
 FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
-                     const FpGrid& g, const std::array<double, 3>& floor) {
-  const std::vector<double> x = feature_values(fit, feature);
+                     const FpGrid& g, const std::array<double, 3>& floor, int cls) {
+  const std::vector<double> x = feature_values(fit, feature, cls);
   if (!window) {
-    FpModel m = components(fit, base, feature, equal_count_edges(x, bins));
+    FpModel m = components(fit, base, feature, equal_count_edges(x, bins), cls);
     m.compile(g, floor);
     return m;
   }
-  // The window (or step) of the fine bins whose model has the lowest deviance on the fit split.
+  // The window (or step) of the fine bins whose model has the lowest deviance on the fit split. The
+  // window must hold kFpWindowSide false positives; outside it may hold few: a cell that holds most
+  // of a class's false positives leaves few beside it, and a window forced to leave 30 outside cut
+  // the cell in two (a fine bin, 1/20 of them, is always outside).
   const std::vector<double> fine = equal_count_edges(x, 2 * bins);
   const int K = static_cast<int>(fine.size() + 1);
   std::vector<long> cum(K + 1, 0);
   for (double v : x) ++cum[cut_bin(fine, v) + 1];
   for (int k = 0; k < K; ++k) cum[k + 1] += cum[k];
-  FpModel best = fp_base(base);
+  FpModel best = fp_base(base, fit);
   best.compile(g, floor);
   const auto d0 = fp_deviance(best, fit);
   double best_dev = std::accumulate(d0.begin(), d0.end(), 0.0);
@@ -253,17 +316,17 @@ FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int featur
     for (int b = a; b < K; ++b) {
       if (a == 0 && b == K - 1) continue;
       const long in = cum[b + 1] - cum[a], out = cum[K] - in;
-      if (in < kWindowSide || out < kWindowSide) continue;
+      if (in < kFpWindowSide || out < 1) continue;
       std::vector<double> cuts;
       if (a > 0) cuts.push_back(fine[a - 1]);
       if (b < K - 1) cuts.push_back(fine[b]);
-      FpModel m = components(fit, base, feature, cuts);
+      FpModel m = components(fit, base, feature, cuts, cls);
       m.compile(g, floor);
       const auto d = fp_deviance(m, fit);
       const double dev = std::accumulate(d.begin(), d.end(), 0.0);
       if (dev < best_dev) best_dev = dev, best = std::move(m), found = true;
     }
-  if (!found) best.feature = feature;  // no window qualifies: the base
+  if (!found) best.feature = feature, best.cls = cls;  // no window qualifies: the base
   return best;
 }
 
@@ -272,7 +335,7 @@ sensor::KpiModel with_fp_table(const sensor::KpiModel& base, const FpModel& fp) 
   if (fp.feature < 0 || fp.feature >= kFpAttributeFeatures) return m;
   for (int c = 0; c < 3; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
-    if (it == m.classes.end()) continue;
+    if (it == m.classes.end() || (fp.cls >= 0 && c != fp.cls)) continue;
     sensor::FalsePositiveTable t;
     t.feature = kFpFeatures[fp.feature];
     // Lower edges: the model's first bin takes everything below its second edge.
@@ -287,7 +350,8 @@ sensor::KpiModel with_fp_table(const sensor::KpiModel& base, const FpModel& fp) 
     if (t.rate.size() != t.edges.size()) continue;  // the base (no cuts, one component): no table
     it->second.fp_table = t;
   }
-  m.source = base.source + "; plus the object loop's false-positive table on " + kFpFeatures[fp.feature];
+  m.source = base.source + "; plus the object loop's false-positive table on " + kFpFeatures[fp.feature] +
+             (fp.cls >= 0 ? " (" + kObjectClasses[fp.cls] + ")" : "");
   return m;
 }
 
