@@ -104,6 +104,7 @@ int main(int argc, char** argv) {
       "work", "where draws are written (removed after each)", cxxopts::value<std::string>()->default_value(""))(
       "keep", "keep each draw's folder (and the work folder)")(
       "json", "per-draw results (written atomically)", cxxopts::value<std::string>()->default_value(""))(
+      "no-selection-bound", "judge the picked candidates by their own interval alone (the loop before the selection-aware bound)")(
       "h,help", "help");
   const auto a = opts.parse(argc, argv);
   if (a.count("help")) {
@@ -132,6 +133,7 @@ int main(int argc, char** argv) {
     nlohmann::json out = {{"command", "bench_loop_campaign_objects"},
                           {"options", {{"draws", draws}, {"seed", a["seed"].as<std::uint64_t>()}, {"sequences", seqs},
                                        {"frames", a["frames"].as<int>()}, {"source", a["source"].as<std::string>()},
+                                       {"selection_bound", a.count("no-selection-bound") == 0},
                                        {"loop_options", "qualify::LoopOptions defaults (as lidar-qualify loop objects)"}}},
                           {"draws", nlohmann::json::array()}};
     for (int d = 0; d < draws; ++d)
@@ -141,7 +143,9 @@ int main(int argc, char** argv) {
         o.sequences = seqs == "mixed" ? (d % 2 == 0 ? 2 : 4) : std::stoi(seqs);
         o.max_frames = a["frames"].as<int>();
         o.seed = draw_seed(a["seed"].as<std::uint64_t>(), static_cast<int>(fam), d);
-        const bench::DrawResult r = bench::run_draw(fam, o, work, {}, a.count("keep") > 0);
+        qualify::LoopOptions lo;
+        lo.selection_bound = a.count("no-selection-bound") == 0;
+        const bench::DrawResult r = bench::run_draw(fam, o, work, lo, a.count("keep") > 0);
         FamilyRow& row = rows[data::to_string(fam)];
         ++row.draws;
         row.recalled += r.score.recalled, row.above_floor += r.score.above_floor, row.named += r.score.named, row.absorbed += r.score.absorbed, row.other_adds += r.score.other_add;

@@ -50,6 +50,7 @@ bool used_by_model(const std::string& feature, int target, Kind kind) {
   return false;
 }
 bool used_by_model(const Candidate& c) { return used_by_model(kObjectFeatures[c.feature], c.target, c.kind); }
+bool clears_selection(const Candidate& c) { return !(c.selection_lower <= 0); }
 
 double Effect::mean(int cls, int cell) const {
   const auto it = cell_mean.find({cls, cell});
@@ -129,6 +130,10 @@ std::string form_of(const Effect& e) {
 }
 
 }  // namespace
+
+double score_of_sums(Kind kind, const std::array<double, 3>& sums) {
+  return is_spread(kind) ? spread_score(sums) : r2_of_sums(sums);
+}
 
 Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
   Effect e;
@@ -303,6 +308,7 @@ Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind k
   for (const auto& s : sums)
     if (s[2] > 0) used.push_back(s);
   c.n = static_cast<long>(total[2]);
+  c.blocks = sums;
   if (is_spread(kind)) {
     c.score = spread_score(total);
     c.interval = block_bootstrap_interval(used, spread_score);

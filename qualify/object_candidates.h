@@ -17,6 +17,7 @@
 // Spread forms are measured around the fit split's per-class x range-bin mean, in units of that
 // cell's standard deviation, so a feature-dependent bias does not pose as a spread.
 #include <array>
+#include <limits>
 #include <map>
 #include <string>
 #include <utility>
@@ -81,8 +82,22 @@ struct Candidate {
   // Why the held-out data cannot decide on it (empty: it can), in words a user acts on; set when
   // it is judged. Such a candidate may still be added when it passes, but is never "ruled out".
   std::string undecided;
+  // Per track block of its fold set (FoldSet::block ids, empty blocks included): the held-out loss
+  // sums (after, before, n) its score is a statistic of (score_of_sums).
+  BlockSums blocks;
+  // The score's lower bound simultaneous over every candidate of its family, whichever the scores
+  // pick (object_selection.h; NaN: not computed), its critical value and the family's size.
+  double selection_lower = std::numeric_limits<double>::quiet_NaN();
+  double selection_critical = 0;
+  int selection_family = 0;
 };
 bool used_by_model(const Candidate& c);
+// Whether the candidate's selection-aware bound lies above 0 (true when it was not computed).
+bool clears_selection(const Candidate& c);
+
+// A candidate's score from its held-out loss sums (after, before, n): the R^2 1 - after / before
+// (bias forms) or 1 - exp(-(before - after) / n) (spread forms).
+double score_of_sums(Kind kind, const std::array<double, 3>& sums);
 
 // Fits and judges one candidate on both folds; block[k][i] = the track block of fold k's i-th
 // held-out record of target t.

@@ -6,6 +6,7 @@
 
 #include "common/error.h"
 #include "qualify/object_loop.h"
+#include "qualify/object_selection.h"
 #include "qualify/objects.h"
 #include "qualify/report.h"
 #include "sensor/kpi_manager.h"
@@ -79,7 +80,7 @@ Decision ranked_decision(const Candidate& c, double threshold) {
   if (used_by_model(c))
     return {DecisionKind::UsedByModel, "not ranked: the base KPI model already conditions " + tn + " on " + fn +
                                            " in this form (" + how_the_model_uses(c) + "); nothing to add"};
-  if (!c.undecided.empty() && (c.score < threshold || c.interval[0] <= 0))
+  if (!c.undecided.empty() && (c.score < threshold || c.interval[0] <= 0 || !clears_selection(c)))
     return {DecisionKind::CannotDecide, "the data cannot decide: " + c.undecided};
   if (c.score < threshold)
     return {DecisionKind::BelowThreshold, "ruled out: held-out score " + score + " is below the threshold " +
@@ -88,6 +89,13 @@ Decision ranked_decision(const Candidate& c, double threshold) {
   if (c.interval[0] <= 0)
     return {DecisionKind::IntervalReachesZero, "ruled out: held-out score " + score + ", but its 95 % interval " +
                                                    interval + " reaches 0: no more than the track-to-track spread"};
+  if (!clears_selection(c))
+    return {DecisionKind::SelectionReachesZero,
+            "ruled out: held-out score " + score + " with 95 % interval " + interval + ", but the best of the " +
+                std::to_string(c.selection_family) + " candidates scored on the same held-out tracks scores this " +
+                "high by chance: its bound simultaneous over them (score - " + fmt(c.selection_critical, 3) +
+                " x its bootstrap standard error) is " + fmt(c.selection_lower, 3) +
+                ", not above 0; more held-out tracks would tell"};
   return {};
 }
 
@@ -162,10 +170,19 @@ void rank(LoopContext& L, ObjectLoopResult& R) {
                                       S.nblocks);
         c.fold_set = set_of(f);
         c.undecided = cannot_decide(S, c);
-        R.decisions.push_back(ranked_decision(c, L.options.threshold));
         R.candidates.push_back(std::move(c));
       }
     }
+  // The bias forms and the spread forms are each a family the loop picks from by score (rank,
+  // add): each gets a bound that holds whichever of its members the scores pick.
+  std::vector<int> bias, spread;
+  for (size_t i = 0; i < R.candidates.size(); ++i)
+    if (!used_by_model(R.candidates[i])) (is_spread(R.candidates[i].kind) ? spread : bias).push_back(static_cast<int>(i));
+  if (L.options.selection_bound) {
+    selection_aware_bounds(R.candidates, bias);
+    selection_aware_bounds(R.candidates, spread);
+  }
+  for (const Candidate& c : R.candidates) R.decisions.push_back(ranked_decision(c, L.options.threshold));
   R.ranking = best_per_feature(R.candidates, false, false);
   R.used = best_per_feature(R.candidates, false, true);
   R.spread_ranking = best_per_feature(R.candidates, true, false);

@@ -2,7 +2,8 @@
 // The object loop's steps and its typed result (internal to qualify/). loop_objects (objects.h)
 // is report_json(run_object_loop(...)), and run_object_loop is six named steps:
 //   make_fold_sets  the cross-fit's folds: whole sequences; with few sequences also time blocks
-//   rank            every candidate (feature x target x form) judged on the held-out folds
+//   rank            every candidate (feature x target x form) judged on the held-out folds, with a
+//                   bound that holds whichever candidate the scores pick (object_selection.h)
 //   judge           one bias form refitted per fold: the held-out change beyond the track-to-track
 //                   noise and, for a further error term, the re-simulated distribution per class
 //   add             the top bias form, then the best bias form of each other target, else a spread form
@@ -38,6 +39,7 @@ enum class DecisionKind {
   UsedByModel,             // the base KPI model holds this form already: never ranked
   BelowThreshold,          // held-out score below the threshold
   IntervalReachesZero,     // the score's 95 % interval reaches 0
+  SelectionReachesZero,    // its bound simultaneous over the candidates picked from reaches 0 (object_selection.h)
   BiasAddedFirst,          // a spread form: a bias form was added in this run
   NotInManager,            // the KPI manager cannot compute the feature, so it cannot become a term
   TopNotATerm,             // a further bias form: tried only once the top one is a model term

@@ -132,7 +132,7 @@ void add_further(LoopContext& L, ObjectLoopResult& R) {
   if (!R.term()) return;
   std::vector<int> order;
   for (int i : best_further(R))
-    if (i >= 0 && R.candidates[i].score >= L.options.threshold) order.push_back(i);
+    if (i >= 0 && R.candidates[i].score >= L.options.threshold && clears_selection(R.candidates[i])) order.push_back(i);
   std::sort(order.begin(), order.end(), [&](int a, int b) { return R.candidates[a].score > R.candidates[b].score; });
   for (int i : order) {
     const Candidate& c = R.candidates[i];
@@ -163,7 +163,7 @@ void add_spread(ObjectLoopResult& R) {
   if (R.top_added() || R.spread_ranking.empty()) return;
   const int i = R.spread_ranking.front();
   const Candidate& sp = R.candidates[i];
-  if (sp.score < R.options.threshold || sp.interval[0] <= 0) return;
+  if (sp.score < R.options.threshold || sp.interval[0] <= 0 || !clears_selection(sp)) return;
   if (!in_manager(kObjectFeatures[sp.feature])) {
     R.decisions[i] = {DecisionKind::NotInManager, "not added: the KPI manager cannot compute \"" +
                                                       kObjectFeatures[sp.feature] +

@@ -91,7 +91,7 @@ Judged judge(LoopContext& L, const Candidate& c, bool distribution_decides) {
   Judged J;
   const int t = c.target, f = c.feature;
   const FoldSet& S = L.set_of(c);
-  J.candidate = c.score >= L.options.threshold;
+  J.candidate = c.score >= L.options.threshold && clears_selection(c);
   J.refs = {fit_effect(S.folds[0], t, f, c.kind, L.nvis, L.options.bins).bias,
             fit_effect(S.folds[1], t, f, c.kind, L.nvis, L.options.bins).bias};
   BlockSums per_track(S.nblocks, {0, 0, 0});

@@ -11,7 +11,7 @@ namespace {
 
 constexpr const char* kDecisionNames[] = {
     "pending",     "added",          "rejected_by_noise", "rejected_by_distribution", "cannot_decide",
-    "used_by_model", "below_threshold", "interval_reaches_zero", "bias_added_first", "not_in_manager",
+    "used_by_model", "below_threshold", "interval_reaches_zero", "selection_reaches_zero", "bias_added_first", "not_in_manager",
     "top_not_a_term", "one_per_target", "max_effects",     "one_spread_form"};
 static_assert(std::size(kDecisionNames) == static_cast<size_t>(DecisionKind::Count));
 
@@ -22,7 +22,8 @@ nlohmann::json ranked(const ObjectLoopResult& R, const std::vector<int>& list) {
   for (int i : list) {
     const Candidate& c = R.candidates[i];
     out.push_back({{"feature", kObjectFeatures[c.feature]}, {"score", c.score},
-                   {"target", kObjectTargets[c.target]}, {"kind", to_string(c.kind)}, {"interval95", c.interval}});
+                   {"target", kObjectTargets[c.target]}, {"kind", to_string(c.kind)}, {"interval95", c.interval},
+                   {"selection_lower_bound", number_or_null(c.selection_lower)}});
   }
   return out;
 }
@@ -52,6 +53,8 @@ nlohmann::json candidates_json(const ObjectLoopResult& R) {
                   {"score", c.score},
                   {"interval95", c.interval},
                   {"significant", c.interval[0] > 0},
+                  {"selection_lower_bound", number_or_null(c.selection_lower)},
+                  {"selection_family", c.selection_family},
                   {"error_metric", is_spread(c.kind)              ? "spread error"
                                    : c.target == kDetectionTarget ? "deviance per object"
                                                                   : "RMS residual"},
@@ -244,6 +247,9 @@ std::string decision_label(const Decision& d, const Candidate& c) {
              " in this form";
     case DecisionKind::BelowThreshold: return "ruled out: held-out score below the threshold";
     case DecisionKind::IntervalReachesZero: return "ruled out: interval reaches 0";
+    case DecisionKind::SelectionReachesZero:
+      return "ruled out: its bound over the " + std::to_string(c.selection_family) +
+             " candidates picked from reaches 0 (a chance best)";
     case DecisionKind::BiasAddedFirst: return "not tried: a bias form was added first";
     case DecisionKind::NotInManager:
       return "not added: the KPI manager cannot compute \"" + fn + "\" from a truth object, so " +
@@ -282,6 +288,9 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end). Bias forms "
       "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "
       "interval95 = basic block bootstrap over held-out tracks (a track and its sequence are never on both sides). "
+      "selection_lower_bound = the score's lower bound simultaneous over its family (every bias form the base model "
+      "does not hold, or every such spread form), single-step max-T block bootstrap at 97.5 %: it holds whichever "
+      "candidate the scores pick, and a candidate is ranked for adding only when it lies above 0. "
       "The top bias form is added when its score is at least the threshold and the refit lowers the held-out loss "
       "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; each "
       "further bias form (the best of every other target) passes the same test and, on an error, is kept only for "

@@ -141,6 +141,10 @@ struct LoopOptions {
   // Seeds of the re-simulated distribution check that keeps a term per class
   // (object_distribution.h); fewer is faster and biased against per-track terms.
   int distribution_seeds = kHeldOutSeeds;
+  // A candidate is added only when its score's bound simultaneous over the candidates it was picked
+  // from lies above 0 (qualify/object_selection.h); off: its own 95 % interval alone decides, as
+  // before the campaign's controls showed the best of ~200 candidates passing it by chance.
+  bool selection_bound = true;
 };
 
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the

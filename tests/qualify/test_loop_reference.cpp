@@ -27,7 +27,7 @@ fs::path fresh_dir(const std::string& name) {
 }
 
 nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}, double threshold = 0.05,
-                           data::ObjectEffect second_effect = data::ObjectEffect::None) {
+                           data::ObjectEffect second_effect = data::ObjectEffect::None, bool selection_bound = true) {
   const fs::path dir = fresh_dir("objects_" + data::to_string(effect) + "_" + data::to_string(second_effect));
   data::ReferenceTrackingOptions o;
   o.effect = effect;
@@ -37,6 +37,7 @@ nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model 
   qualify::LoopOptions lo;
   lo.out_model = out_model;
   lo.threshold = threshold;
+  lo.selection_bound = selection_bound;
   // 64 seeds in the per-class distribution check (the command's default is 256): the reference
   // effects are large, and the check's decisions these tests read are the same; a quarter of the time.
   lo.distribution_seeds = 64;
@@ -207,10 +208,11 @@ TEST(LoopObjectsStatistical, ControlWithoutHiddenEffectAddsNothing) {
   EXPECT_EQ(std::set<std::string>(held.begin(), held.end()).size(), 2u);
 }
 
-// With the threshold off, the control set's best feature is a candidate; the refit must not beat
-// the track-to-track noise, so the loop names it as rejected and adds nothing.
+// With the threshold and the selection-aware bound off (which refuses it first, test_loop_selection.cpp),
+// the control set's best feature is a candidate; the refit must not beat the track-to-track noise,
+// so the loop names it as rejected and adds nothing.
 TEST(LoopObjectsStatistical, ControlCandidateIsRejectedByTheChangeTest) {
-  const auto j = object_loop(data::ObjectEffect::None, {}, -1.0);
+  const auto j = object_loop(data::ObjectEffect::None, {}, -1.0, data::ObjectEffect::None, false);
   ASSERT_TRUE(j.contains("rejected_effect")) << j.dump().substr(0, 400);
   EXPECT_EQ(j["rejected_effect"]["feature"], j["ranking"][0]["feature"]);
   EXPECT_GE(j["change_interval95"][1].get<double>(), 0.0);
