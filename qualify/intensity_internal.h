@@ -221,6 +221,7 @@ struct RoundResult {
   std::vector<FeatureScore> undecided;  // best form per feature the data cannot decide on
   std::string top_feature, top_form;
   bool candidate = false, added = false;
+  std::string not_tried_why;  // why the top feature is not tried although above the threshold
   std::string method = "none";
   std::vector<Refit> refits;
   std::string rejected_why;

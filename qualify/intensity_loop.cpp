@@ -152,6 +152,15 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
   r.top_feature = r.ranking.front().feature;
   r.top_form = r.ranking_form.front();
   r.candidate = r.ranking.front().score >= cx.o.threshold;
+  // A feature the data cannot decide on that explains more than the top one: the top one may only
+  // stand in for it (a window of azimuth shows up in the heights of the scenery in it), so adding
+  // it would be a guess. Nothing is tried, and the report says why.
+  if (r.candidate && !r.undecided.empty() && r.undecided.front().score > r.ranking.front().score) {
+    r.candidate = false;
+    r.not_tried_why = r.undecided.front().feature + " explains more of the held-out residual (R^2 " +
+                      num(r.undecided.front().score) + " vs " + num(r.ranking.front().score) +
+                      ") and the data cannot decide on it; " + r.top_feature + " may only stand in for it";
+  }
 }
 
 std::string refit_kind(Form f) {
@@ -246,7 +255,9 @@ void decide(RoundResult& r, const Context& cx, const std::vector<double>& after)
   r.added = r.candidate && r.interval[1] < 0 && r.tried.mae <= (1 - cx.o.min_relative_gain) * r.before.mae;
   std::string verdict;
   if (!r.candidate)
-    verdict = "not tried: its held-out R^2 " + num(r.ranking.front().score) + " is below the threshold " + num(cx.o.threshold);
+    verdict = !r.not_tried_why.empty() ? "not tried: " + r.not_tried_why
+                                       : "not tried: its held-out R^2 " + num(r.ranking.front().score) +
+                                             " is below the threshold " + num(cx.o.threshold);
   else if (r.added)
     verdict = "added: the refit cut the held-out MAE by " + pct(cut) + " (" + num(r.before.mae) + " -> " +
               num(r.tried.mae) + "), " + interval;

@@ -90,6 +90,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
                             {"change_interval95", {r.interval[0], r.interval[1]}},
                             {"seeds", unet ? nlohmann::json(r.seeds_tried) : nlohmann::json(nullptr)},
                             {"why", r.rejected_why}};
+  if (!r.not_tried_why.empty()) j["top_not_tried"] = r.not_tried_why;
   nlohmann::json refits = nlohmann::json::object();
   for (const Refit& f : r.refits) refits[f.method] = f.mae;
   j["candidates_held_out_mae"] = refits;

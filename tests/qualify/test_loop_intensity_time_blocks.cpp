@@ -61,7 +61,7 @@ nlohmann::json lookup_loop(const data::Dataset& ds) {
 
 }  // namespace
 
-TEST(LoopIntensityTimeBlocks, WindowOfAzimuthIsNamedAndCutOnBlocksOfScansAtDifferentPlaces) {
+TEST(LoopIntensityTimeBlocksStatistical, WindowOfAzimuthIsNamedAndCutOnBlocksOfScansAtDifferentPlaces) {
   const data::Dataset geometry = each_scan_twice(reference_geometry(4));
   ASSERT_EQ(geometry.size(), 8);
   const data::PlantedScanDraw draw = window_draw(geometry);
