@@ -4,7 +4,9 @@
 // left is an interaction of the lasers with range. A per-beam level (table, gain, affine) cannot
 // carry it; the loop must name the lasers (beam_row or elevation) with a form that depends on range
 // and cut the error against the noise-free truth to <= 0.7 x (the campaign's rule,
-// data::score_planted). On the same scans with no effect it must add nothing.
+// data::score_planted). On the same scans with no effect it must add nothing. (On these scans of
+// independent scenes the loop without the range slope named it too, by the lookup keyed by row as
+// well: excess 0.0134 -> 0.0035, against 0.0023 now; the SemanticKITTI draw below it did not cut.)
 #include <gtest/gtest.h>
 #include <unistd.h>
 
