@@ -126,6 +126,9 @@ nlohmann::json run_draw(const Source& src, data::PlantedScanFamily family, std::
   j["floor"] = floor, j["excess_above_floor_before"] = s.above_floor_before, j["excess_above_floor_after"] = s.above_floor_after;
   j["named"] = s.named, j["cut"] = s.cut, j["hit"] = s.hit, j["hit_above_floor"] = s.hit_above_floor, j["false_add"] = s.false_add;
   j["ranking_top3"] = top;
+  j["cross_fit"] = loop.value("cross_fit", "");
+  j["scenery_correlation"] = {{"between_scans", loop.value("scenery_correlation_between_scans", 0.0)},
+                              {"between_time_blocks", loop.value("scenery_correlation_between_time_blocks", 0.0)}};
   if (loop.contains("rejected_effect")) j["rejected_effect"] = loop["rejected_effect"];
   j["seconds"] = seconds;
   std::fprintf(stderr, "  %-17s %-13s seed %-12llu added %-16s excess %.4f -> %.4f (floor %.4f) %s%s (%.1f s)\n",

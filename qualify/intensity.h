@@ -130,16 +130,19 @@ struct IntensityLoopOptions {
 
 // `lidar-qualify loop intensity`. Base model fitted per fold on its fit cells (UNets trained on the
 // fit sectors, or a lookup); residual = measured - base on the held-out cells pooled over the
-// folds; every feature x form (additive, gain and affine tables, additive and gain windows;
-// qualify/intensity_forms.cpp) scored by the held-out R^2 of the correction it implies,
-// cross-fitted over scans; the best form per feature the base does not carry is ranked. The top
+// folds; every feature x form (additive, gain and affine tables, additive and gain windows; for
+// beam_row and elevation a range slope per bin; qualify/intensity_forms.cpp) scored by the
+// held-out R^2 of the correction it implies, cross-fitted over scans (over blocks of consecutive
+// scans, or over the folds' columns, when scans share their scenery: then azimuth is reported as
+// "the data cannot decide"); the best form per feature the base does not carry is ranked. The top
 // feature (if above the threshold) is refitted: for the UNet as a new PGM input channel (beam_row:
 // a learned per-row gain and offset on the output, nn/unet.h) and the UNets retrained per fold with
 // the same seeds; for a lookup as the form (or the lookup refitted with the feature as an extra
-// key) with the lowest pooled held-out MAE. The effect is added only if the pooled held-out MAE
-// falls by at least min_relative_gain with a block-bootstrap 95% interval of the change (blocks =
-// 16-column strips) below 0; else it is reported as rejected_effect and after = before. Every
-// candidate carries its decision and the reason. Works for any rows x columns.
+// key, or jointly with a range slope) with the lowest pooled held-out MAE. The effect is added
+// only if the pooled held-out MAE falls by at least min_relative_gain with a block-bootstrap 95%
+// interval of the change (blocks = 16-column strips) below 0; else it is reported as
+// rejected_effect and after = before. Every candidate carries its decision and the reason. Works
+// for any rows x columns.
 nlohmann::json loop_intensity(const std::filesystem::path& dir, const IntensityLoopOptions& options = {});
 nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOptions& options = {});
 

@@ -48,30 +48,46 @@ data::Dataset rolled(const data::Dataset& ds, int shift) {
 
 }  // namespace
 
-double scenery_correlation(const data::Dataset& ds) {
-  // Range deviations from each row's mean, correlated between consecutive scans cell by cell: near
-  // 1 for scans of one street 0.1 s apart, near 0 for scans of different scenes.
-  if (ds.size() < 2) return 0;
+double scan_pair_correlation(const data::Dataset& ds, int a, int b) {
   const int H = ds.rows(), W = ds.cols(), ir = ds.channel_index("range");
-  double sum = 0;
-  for (int n = 0; n + 1 < ds.size(); ++n) {
-    double sab = 0, saa = 0, sbb = 0;
-    for (int r = 0; r < H; ++r) {
-      double ma = 0, mb = 0, k = 0;
-      auto both = [&](int c) { return ds.mask.at(n, 0, r, c) > 0 && ds.mask.at(n + 1, 0, r, c) > 0; };
-      for (int c = 0; c < W; ++c)
-        if (both(c)) ma += ds.pgm.at(n, ir, r, c), mb += ds.pgm.at(n + 1, ir, r, c), ++k;
-      if (k < 2) continue;
-      ma /= k, mb /= k;
-      for (int c = 0; c < W; ++c)
-        if (both(c)) {
-          const double a = ds.pgm.at(n, ir, r, c) - ma, b = ds.pgm.at(n + 1, ir, r, c) - mb;
-          sab += a * b, saa += a * a, sbb += b * b;
-        }
-    }
-    sum += saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0;
+  double sab = 0, saa = 0, sbb = 0;
+  for (int r = 0; r < H; ++r) {
+    double ma = 0, mb = 0, k = 0;
+    auto both = [&](int c) { return ds.mask.at(a, 0, r, c) > 0 && ds.mask.at(b, 0, r, c) > 0; };
+    for (int c = 0; c < W; ++c)
+      if (both(c)) ma += ds.pgm.at(a, ir, r, c), mb += ds.pgm.at(b, ir, r, c), ++k;
+    if (k < 2) continue;
+    ma /= k, mb /= k;
+    for (int c = 0; c < W; ++c)
+      if (both(c)) {
+        const double u = ds.pgm.at(a, ir, r, c) - ma, v = ds.pgm.at(b, ir, r, c) - mb;
+        sab += u * v, saa += u * u, sbb += v * v;
+      }
   }
+  return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0;
+}
+
+double scenery_correlation(const data::Dataset& ds) {
+  // Near 1 for scans of one street 0.1 s apart, near 0 for scans of different scenes.
+  if (ds.size() < 2) return 0;
+  double sum = 0;
+  for (int n = 0; n + 1 < ds.size(); ++n) sum += scan_pair_correlation(ds, n, n + 1);
   return sum / (ds.size() - 1);
+}
+
+TimeBlocks time_blocks(const data::Dataset& ds, int blocks) {
+  TimeBlocks t;
+  const int n = ds.size();
+  t.blocks = std::min(blocks, n);
+  for (int f = 0; f < n; ++f) t.block_of_frame.push_back(f * t.blocks / std::max(1, n));
+  if (t.blocks < 2) return t;
+  double sum = 0;
+  long pairs = 0;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b)
+      if (t.block_of_frame[a] != t.block_of_frame[b]) sum += scan_pair_correlation(ds, a, b), ++pairs;
+  t.cross_correlation = pairs ? sum / pairs : 0;
+  return t;
 }
 
 std::vector<std::string> channels_of(const std::string& feature) {
@@ -167,9 +183,10 @@ std::vector<Fold> make_folds(const data::Dataset& ds, const data::SectorSplit& s
   return out;
 }
 
-Pooled pool(const std::vector<Fold>& folds, int W, double scenery) {
+Pooled pool(const std::vector<Fold>& folds, int W, double scenery, const TimeBlocks& time) {
   Pooled p;
   p.scenery_correlation = scenery;
+  p.time_block_correlation = time.cross_correlation;
   p.feature.assign(kIntensityFeatures.size(), {});
   std::vector<int> region;
   for (size_t k = 0; k < folds.size(); ++k) {
@@ -195,16 +212,32 @@ Pooled pool(const std::vector<Fold>& folds, int W, double scenery) {
   // azimuth) repeats in every scan at the same cells, so a form fitted on the other scans'
   // held-out residual predicts it on this scan's. Unless the scans show the same scenery at the
   // same cells (consecutive scans of one street): then the base's error on that scenery repeats
-  // as well and would pass for an effect of the cells, so the folds (other columns) are the groups,
-  // and a sensor effect confined to a few columns cannot be told from the scenery there.
+  // as well and would pass for an effect of the cells. Then blocks of consecutive scans are the
+  // groups if scans of different blocks do not share it (a drive long enough), else the folds
+  // (other columns): a table of a row carries to other columns, a table of azimuth does not (its
+  // held-out columns are columns it never fitted), so azimuth is left undecided.
   const std::set<int> frames(p.frame.begin(), p.frame.end()), regions(region.begin(), region.end());
+  std::vector<int> time_block;
+  for (int f : p.frame) time_block.push_back(time.block_of_frame.empty() ? 0 : time.block_of_frame.at(f));
   const std::vector<int>* by = nullptr;
   if (frames.size() >= 2 && scenery < kSameSceneryCorrelation) {
     by = &p.frame, p.group_by = "scan";
+  } else if (time.blocks >= 2 && time.cross_correlation < kSameSceneryCorrelationBetweenBlocks) {
+    by = &time_block, p.group_by = "time block (" + std::to_string(time.blocks) + " blocks of consecutive scans)";
   } else if (folds.size() >= 2) {
     by = &p.fold, p.group_by = "fold";
   } else if (regions.size() >= 2) {
     by = &region, p.group_by = "validation region";
+  }
+  if (!by || by == &p.fold || by == &region) {
+    char corr[96];
+    std::snprintf(corr, sizeof corr, "range correlation %.2f between consecutive scans, %.2f between time blocks",
+                  scenery, time.cross_correlation);
+    p.azimuth_undecided =
+        (frames.size() < 2 ? std::string("1 scan")
+                           : std::to_string(frames.size()) + " scans of the same scenery (" + corr + ")") +
+        ", so the forms are cross-fitted over columns, and an azimuth form cannot be judged on columns it never "
+        "fitted; scans far apart in time or at other places would decide";
   }
   if (by) {
     std::map<int, int> id;

@@ -89,23 +89,40 @@ struct Pooled {
   std::vector<long> block;  // bootstrap block: 16-column strip of the original columns (all scans) or a frame
   std::vector<int> group;   // cross-fit group of the candidate forms
   std::vector<std::size_t> offset;  // first pooled cell of each fold (folds.size() + 1 entries)
-  std::string group_by;             // "scan", "fold" or "validation region"
+  std::string group_by;             // "scan", "time block (...)", "fold" or "validation region"
   int groups = 1;
   double scenery_correlation = 0;   // scenery_correlation() of the scans
+  double time_block_correlation = 0;  // TimeBlocks::cross_correlation
+  // Why the held-out data cannot decide on azimuth ("" when it can): the groups are columns.
+  std::string azimuth_undecided;
   std::size_t size() const { return measured.size(); }
 };
 
 // The folds of `ds`: 1 = the guarded split as it is; 4 = its regions rotated by W/8 per fold, so
 // that every column is validated once (only for a guarded region split). Throws naming --folds.
 std::vector<Fold> make_folds(const data::Dataset& ds, const data::SectorSplit& split, int folds);
-// Mean correlation between consecutive scans of the range's deviation from its row mean, cell by
-// cell: how much the scans show the same scenery at the same cells.
+// Correlation between scans a and b of the range's deviation from its row mean, cell by cell: how
+// much the two show the same scenery at the same cells.
+double scan_pair_correlation(const data::Dataset& ds, int a, int b);
+// Its mean over consecutive scans.
 double scenery_correlation(const data::Dataset& ds);
 // From this correlation on the scans are taken for one place (SemanticKITTI's consecutive scans:
 // about 0.9; the reference sensor's independent scenes: about 0).
 inline constexpr double kSameSceneryCorrelation = 0.5;
+// Up to `blocks` blocks of consecutive scans, and the mean scan_pair_correlation over pairs of
+// scans in different blocks: what a form fitted on the other blocks shares of a block's scenery.
+struct TimeBlocks {
+  std::vector<int> block_of_frame;
+  int blocks = 1;
+  double cross_correlation = 0;
+};
+TimeBlocks time_blocks(const data::Dataset& ds, int blocks = 4);
+// Blocks are cross-fit groups below this mean correlation. Lower than kSameSceneryCorrelation
+// (which bounds the correlation of neighbours) because it is a mean over pairs of scans, most of
+// them far apart: the blocks' neighbouring scans across a boundary share more than it says.
+inline constexpr double kSameSceneryCorrelationBetweenBlocks = 0.2;
 // The pooled held-out cells with the lookup's prediction; `base` is left for the caller.
-Pooled pool(const std::vector<Fold>& folds, int columns, double scenery);
+Pooled pool(const std::vector<Fold>& folds, int columns, double scenery, const TimeBlocks& time);
 // Per-fold predictions (indexed by each fold's cells) to pooled held-out cells.
 std::vector<double> pool_prediction(const std::vector<Fold>& folds, const std::vector<std::vector<double>>& per_fold);
 
@@ -113,29 +130,46 @@ std::vector<double> pool_prediction(const std::vector<Fold>& folds, const std::v
 std::array<double, 2> change_interval(const Pooled& p, const std::vector<double>& after);
 
 // --- Candidate forms (intensity_forms.cpp) ---------------------------------------------------------
-enum class Form { Table, Window, GainTable, WindowGain, AffineTable };
-inline constexpr std::array<Form, 5> kForms = {Form::Table, Form::Window, Form::GainTable, Form::WindowGain,
-                                               Form::AffineTable};
+// RangeSlope: per bin, a gain that is a power of range, measured ~ base * exp(a + s (ln range - c)):
+// a range fall-off that differs between lasers (receiver optics focused per laser block). The base
+// keys range, so a fall-off common to every cell is in it already; what it cannot carry is the
+// interaction of a laser with range, which a per-beam level (table, gain, affine) does not carry
+// either. Tried on the features that index lasers only (range_interaction_applies).
+enum class Form { Table, Window, GainTable, WindowGain, AffineTable, RangeSlope };
+inline constexpr std::array<Form, 6> kForms = {Form::Table,      Form::Window,      Form::GainTable,
+                                               Form::WindowGain, Form::AffineTable, Form::RangeSlope};
 // "binned table" / "per-beam table", "window", "binned gain" / "per-beam gain", "window gain",
-// "binned affine" / "per-row affine".
+// "binned affine" / "per-row affine", "binned range slope" / "per-beam range slope".
 std::string form_name(Form f, bool per_row);
 bool additive(Form f);
+// Features fixed to a laser, whose interaction with range (Form::RangeSlope) is a sensor effect:
+// beam_row and elevation. Elsewhere (height, incidence, class) a per-bin range slope would be a
+// second look at the range fall-off the base keys already, and one more chance to fit noise.
+bool range_interaction_applies(const std::string& feature);
 
-// A correction fitted on some cells and applied to others: delta(x, base) added to the prediction.
+// A correction fitted on some cells and applied to others: delta(x, base, range) added to the prediction.
 struct FittedForm {
-  BinnedTable table;          // additive levels, gains, or affine offsets
-  std::vector<double> slope;  // affine only: per bin, on (base - centre)
+  BinnedTable table;          // additive levels, gains, affine offsets, or log gains (RangeSlope)
+  std::vector<double> slope;  // per bin: affine on (base - centre); RangeSlope on (ln range - centre)
   double centre = 0;
   Form form = Form::Table;
   bool ok() const { return !table.value.empty(); }
-  double delta(double x, double base) const;
+  double delta(double x, double base, double range_m) const;
 };
 
 // Fits `form` of the winsorised residual rc (= clamp(measured - base)) over x on the cells idx:
-// `edges` bin the tables (one bin per beam row for beam_row), `fine` the windows' search.
+// `edges` bin the tables (one bin per beam row for beam_row), `fine` the windows' search; `range`
+// (metres) is read by RangeSlope only.
 FittedForm fit_form(Form form, const std::vector<double>& edges, const std::vector<double>& fine,
                     const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
-                    const std::vector<size_t>& idx);
+                    const std::vector<double>& range, const std::vector<size_t>& idx);
+
+// The lookup base (class x 5 m range bin) refitted jointly with a RangeSlope of `feature` (binned
+// by `edges`) on the fit cells of `c`: intensity ~ level(class, range bin) x exp(a + s ln range)
+// per bin of the feature. A per-laser fall-off biases the plain lookup's levels (each range bin
+// averages the changed and unchanged lasers by their share of its cells), so a slope fitted on its
+// residual would carry that bias; fitted together, neither does. Per-cell predictions.
+std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feature, const std::vector<double>& edges);
 
 // A form scored on the pooled held-out residual, cross-fitted over the pool's groups (fitted on the
 // other groups, applied to each group in turn).
@@ -151,7 +185,7 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
                      const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected = false);
 
 // --- One round's typed result (intensity_loop.cpp fills it, intensity_report.cpp writes it) -------
-enum class Decision { Added, NotAdded, Tried, NotTried, NotRanked };
+enum class Decision { Added, NotAdded, Tried, NotTried, NotRanked, CannotDecide };
 const char* decision_name(Decision d);  // "added", "not added", ...
 
 struct Candidate {
@@ -159,6 +193,7 @@ struct Candidate {
   Form form = Form::Table;
   bool per_row = false;
   bool used = false;  // a form the base model already has
+  bool undecided = false;  // the held-out data cannot judge it (Decision::CannotDecide)
   FormScore score;
   Decision decision = Decision::NotTried;
   std::string reason;  // in words a user acts on
@@ -174,7 +209,7 @@ struct Refit {
 struct RoundResult {
   std::string split, group_by, base_model;
   int half_width = 0, folds = 1;
-  double scenery_correlation = 0;
+  double scenery_correlation = 0, time_block_correlation = 0;
   Errors before, after, tried;
   double lookup_before = 0;
   std::array<double, 2> interval{0, 0};
@@ -183,8 +218,10 @@ struct RoundResult {
   std::vector<std::string> ranking_form;  // the best form of each ranked feature
   std::vector<double> ranking_mae;        // and the held-out MAE of the refit it implies
   std::vector<FeatureScore> used;
+  std::vector<FeatureScore> undecided;  // best form per feature the data cannot decide on
   std::string top_feature, top_form;
   bool candidate = false, added = false;
+  std::string not_tried_why;  // why the top feature is not tried although above the threshold
   std::string method = "none";
   std::vector<Refit> refits;
   std::string rejected_why;

@@ -121,6 +121,7 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
     const auto edges = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, cx.o.bins);
     const auto fine = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, 32);
     for (Form form : kForms) {
+      if (form == Form::RangeSlope && !range_interaction_applies(name)) continue;
       Candidate k;
       k.feature = name, k.form = form, k.per_row = per_row;
       k.score = score_form(form, cx.pool, f, edges, fine, rc);
@@ -128,6 +129,10 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       k.reason = used_reason(cx.base, name, form, added_before);
       k.used = !k.reason.empty();
       if (k.used) k.decision = Decision::NotRanked;
+      if (!k.used && name == "azimuth" && !cx.pool.azimuth_undecided.empty()) {
+        k.undecided = true, k.decision = Decision::CannotDecide;
+        k.reason = "the data cannot decide: " + cx.pool.azimuth_undecided;
+      }
       if (form == Form::Table) r.residual_tables[name] = k.score.shown.table;
       r.candidates.push_back(std::move(k));
     }
@@ -136,19 +141,30 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
                    [](const Candidate& a, const Candidate& b) { return a.score.r2 > b.score.r2; });
   // Best form per feature (the candidates are sorted: the first seen is the best).
   for (const Candidate& k : r.candidates) {
-    auto& list = k.used ? r.used : r.ranking;
+    auto& list = k.used ? r.used : k.undecided ? r.undecided : r.ranking;
     const bool seen = std::any_of(list.begin(), list.end(), [&](const FeatureScore& s) { return s.feature == k.feature; });
     if (seen) continue;
     list.push_back({k.feature, k.score.r2, "intensity", k.score.interval});
-    if (!k.used) r.ranking_form.push_back(k.name()), r.ranking_mae.push_back(k.score.mae_after);
+    if (&list == &r.ranking) r.ranking_form.push_back(k.name()), r.ranking_mae.push_back(k.score.mae_after);
   }
-  if (r.ranking.empty()) throw Error("loop intensity: every feature is used by the base model: nothing to rank");
+  if (r.ranking.empty())
+    throw Error("loop intensity: every feature is used by the base model or undecided: nothing to rank");
   r.top_feature = r.ranking.front().feature;
   r.top_form = r.ranking_form.front();
   r.candidate = r.ranking.front().score >= cx.o.threshold;
+  // A feature the data cannot decide on that explains more than the top one: the top one may only
+  // stand in for it (a window of azimuth shows up in the heights of the scenery in it), so adding
+  // it would be a guess. Nothing is tried, and the report says why.
+  if (r.candidate && !r.undecided.empty() && r.undecided.front().score > r.ranking.front().score) {
+    r.candidate = false;
+    r.not_tried_why = r.undecided.front().feature + " explains more of the held-out residual (R^2 " +
+                      num(r.undecided.front().score) + " vs " + num(r.ranking.front().score) +
+                      ") and the data cannot decide on it; " + r.top_feature + " may only stand in for it";
+  }
 }
 
 std::string refit_kind(Form f) {
+  if (f == Form::RangeSlope) return "gain a power of range per bin";
   return additive(f) ? "additive correction" : f == Form::AffineTable ? "gain and offset" : "gain";
 }
 
@@ -218,6 +234,15 @@ std::vector<double> refit_lookup(RoundResult& r, const Context& cx, const std::v
     r.refits.push_back({name, mae, true});
     if (mae < best_mae) best_mae = mae, best = pr, r.method = name;
   }
+  if (cx.base == Base::Lookup && !has_prior && range_interaction_applies(r.top_feature)) {
+    std::vector<std::vector<double>> per_fold;
+    for (const Fold& f : cx.folds) per_fold.push_back(lookup_with_range_slope(f.cells, tf, edges));
+    const std::vector<double> pr = pool_prediction(cx.folds, per_fold);
+    const std::string name = form_name(Form::RangeSlope, per_row) + ": lookup refitted jointly with the slope";
+    const double mae = errors(pr, cx.pool.measured).mae;
+    r.refits.push_back({name, mae, true});
+    if (mae < best_mae) best_mae = mae, best = pr, r.method = name;
+  }
   return best;
 }
 
@@ -230,7 +255,9 @@ void decide(RoundResult& r, const Context& cx, const std::vector<double>& after)
   r.added = r.candidate && r.interval[1] < 0 && r.tried.mae <= (1 - cx.o.min_relative_gain) * r.before.mae;
   std::string verdict;
   if (!r.candidate)
-    verdict = "not tried: its held-out R^2 " + num(r.ranking.front().score) + " is below the threshold " + num(cx.o.threshold);
+    verdict = !r.not_tried_why.empty() ? "not tried: " + r.not_tried_why
+                                       : "not tried: its held-out R^2 " + num(r.ranking.front().score) +
+                                             " is below the threshold " + num(cx.o.threshold);
   else if (r.added)
     verdict = "added: the refit cut the held-out MAE by " + pct(cut) + " (" + num(r.before.mae) + " -> " +
               num(r.tried.mae) + "), " + interval;
@@ -243,7 +270,7 @@ void decide(RoundResult& r, const Context& cx, const std::vector<double>& after)
   if (r.candidate && !r.added) r.rejected_why = verdict.substr(verdict.find(": ") + 2);
   const std::string chosen_form = r.method.substr(0, r.method.find(": "));
   for (Candidate& k : r.candidates) {
-    if (k.used) continue;
+    if (k.used || k.undecided) continue;
     const bool top = k.feature == r.top_feature;
     bool chosen = false;  // the form whose refit the verdict is about
     if (top) chosen = k.name() == (cx.base == Base::Unet || r.method == "none" ? r.top_form : chosen_form);
@@ -277,6 +304,7 @@ RoundResult loop_round(Context& cx, const std::vector<std::string>& added_before
   r.folds = static_cast<int>(cx.folds.size());
   r.group_by = cx.pool.group_by;
   r.scenery_correlation = cx.pool.scenery_correlation;
+  r.time_block_correlation = cx.pool.time_block_correlation;
   r.half_width = cx.half_width;
   BaseFit base = fit_base(cx, prior);
   if (cx.base == Base::Unet) r.seeds_before = pooled_seed_mae(cx, base.unet);
@@ -330,7 +358,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   check_loop_options(options);
   const data::SectorSplit split = intensity_split(ds, options.split, options.unet.depth);
   std::vector<Fold> folds = make_folds(ds, split, default_folds(options));
-  Pooled pooled = pool(folds, ds.cols(), scenery_correlation(ds));
+  Pooled pooled = pool(folds, ds.cols(), scenery_correlation(ds), time_blocks(ds));
   const int trainings = 2 * options.unet.seeds * static_cast<int>(folds.size());
   Context cx{ds,
              options,

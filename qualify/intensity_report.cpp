@@ -56,6 +56,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
   j["validation_folds"] = r.folds;  // not "folds": the object loop's list of sequence folds
   j["cross_fit"] = "candidate forms fitted on the pooled held-out residual of the other groups, by " + r.group_by;
   j["scenery_correlation_between_scans"] = r.scenery_correlation;
+  j["scenery_correlation_between_time_blocks"] = r.time_block_correlation;
   j["receptive_field_half_width"] = r.half_width;
   j["base_model"] = base_text(o);
   j["before"] = r.before.mae;
@@ -75,6 +76,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
   }
   j["ranking"] = scores(r.ranking, &r.ranking_form, &r.ranking_mae);
   j["used_by_model"] = scores(r.used, nullptr, nullptr);
+  j["undecided"] = scores(r.undecided, nullptr, nullptr);
   nlohmann::json all = nlohmann::json::array();
   for (const Candidate& k : r.candidates) all.push_back(candidate_json(k));
   j["candidates_tested"] = all;
@@ -88,6 +90,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
                             {"change_interval95", {r.interval[0], r.interval[1]}},
                             {"seeds", unet ? nlohmann::json(r.seeds_tried) : nlohmann::json(nullptr)},
                             {"why", r.rejected_why}};
+  if (!r.not_tried_why.empty()) j["top_not_tried"] = r.not_tried_why;
   nlohmann::json refits = nlohmann::json::object();
   for (const Refit& f : r.refits) refits[f.method] = f.mae;
   j["candidates_held_out_mae"] = refits;
@@ -95,7 +98,8 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
   j["min_relative_gain"] = o.min_relative_gain;
   j["score_definition"] =
       std::string("held-out R^2 of the correction a form implies (additive, gain or affine table over 16 "
-                  "equal-count bins or one bin per beam row, or a window; tables shrunk by n/(n+5)) on the residual "
+                  "equal-count bins or one bin per beam row, or a window; tables shrunk by n/(n+5); for beam_row and "
+                  "elevation also a range slope per bin, measured ~ base exp(a + s ln range)) on the residual "
                   "measured - ") +
       (unet ? "UNet" : "base") +
       " pooled over the folds' held-out cells, winsorised at its 1st/99th percentile, each form fitted on the other "
@@ -108,6 +112,7 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
                    {"edges", r.effect_table.table.edges},
                    {"table", r.effect_table.table.value},
                    {"slope", r.effect_table.slope},
+                   {"centre", r.effect_table.centre},
                    {"residual_table", r.residual_tables.count(r.top_feature)
                                           ? nlohmann::json(r.residual_tables.at(r.top_feature).value)
                                           : nlohmann::json(nullptr)}};

@@ -1,0 +1,93 @@
+// A gain over a window of azimuth (issue 26, campaign family "gain over an azimuth window") and the
+// scans' scenery. The candidate forms are cross-fitted over groups of held-out cells; with scans of
+// one street the groups are columns (rotated folds), and an azimuth form fitted on some columns
+// says nothing of the columns it never fitted. Where scans at different places exist (a drive),
+// blocks of consecutive scans are the groups instead, and the window is named and cut; where they
+// do not (one scan), the report says the data cannot decide on azimuth instead of ruling it out.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "data/planted_scans.h"
+#include "data/reference_sensor.h"
+#include "qualify/intensity.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+
+namespace {
+
+data::Dataset reference_geometry(int scans) {
+  const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_blocks_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  data::ReferenceScanOptions o;
+  o.scans = scans;
+  o.seed = 31;
+  data::write_reference_semantickitti(dir, o);
+  data::Dataset ds = qualify::import_for_qualify(dir);
+  fs::remove_all(dir);
+  return ds;
+}
+
+// Each scan twice in a row: two scans of each place, as a drive gives (the same scenery at the same
+// cells within a pair, other scenery in the next pair).
+data::Dataset each_scan_twice(const data::Dataset& ds) {
+  data::Dataset out;
+  out.channels = ds.channels, out.source_format = ds.source_format;
+  for (int n = 0; n < ds.size(); ++n)
+    for (int k = 0; k < 2; ++k)
+      out.append(ds.frame_pgm(n), ds.frames[n] + "/" + std::to_string(k),
+                 n < static_cast<int>(ds.row_modes.size()) ? ds.row_modes[n] : "", ds.frame_place(n));
+  return out;
+}
+
+data::PlantedScanDraw window_draw(const data::Dataset& geometry) {
+  data::PlantedScanDraw d = data::draw_planted(data::PlantedScanFamily::AzimuthWindow, 5, geometry);
+  d.effect.azimuth_start_deg = 200, d.effect.azimuth_width_deg = 60, d.effect.gain = 0.5;
+  return d;
+}
+
+nlohmann::json lookup_loop(const data::Dataset& ds) {
+  qualify::IntensityLoopOptions lo;
+  lo.base_model = "lookup";
+  const auto j = qualify::loop_intensity(ds, lo);
+  std::cout << "  cross-fit " << j["cross_fit"] << "\n  top " << j["ranking"][0].dump() << "\n  added "
+            << j["added_effect"] << " via " << j["method"] << ", rmse " << j["rmse_before"] << " -> "
+            << j["rmse_after"] << "\n";
+  return j;
+}
+
+}  // namespace
+
+TEST(LoopIntensityTimeBlocksStatistical, WindowOfAzimuthIsNamedAndCutOnBlocksOfScansAtDifferentPlaces) {
+  const data::Dataset geometry = each_scan_twice(reference_geometry(4));
+  ASSERT_EQ(geometry.size(), 8);
+  const data::PlantedScanDraw draw = window_draw(geometry);
+  const nlohmann::json j = lookup_loop(data::plant(geometry, draw));
+  // Consecutive scans share their scenery half the time: not independent scans, but the blocks are.
+  EXPECT_GE(j["scenery_correlation_between_scans"].get<double>(), 0.5);
+  EXPECT_LT(j["scenery_correlation_between_time_blocks"].get<double>(), 0.2);
+  EXPECT_NE(j["cross_fit"].get<std::string>().find("time block"), std::string::npos) << j["cross_fit"];
+  const data::PlantedScore s = data::score_planted(draw, j);
+  EXPECT_TRUE(s.named) << j["added_effect"] << "; ranking " << j["ranking"].dump();
+  EXPECT_LE(s.excess_after, 0.7 * s.excess_before);
+}
+
+TEST(LoopIntensityTimeBlocks, OneScanCannotDecideOnAzimuthAndSaysSo) {
+  const data::Dataset geometry = reference_geometry(1);
+  const nlohmann::json j = lookup_loop(data::plant(geometry, window_draw(geometry)));
+  EXPECT_NE(j["added_effect"], "azimuth");
+  int azimuth = 0;
+  for (const auto& k : j["candidates_tested"])
+    if (k["feature"] == "azimuth") {
+      ++azimuth;
+      EXPECT_EQ(k["decision"], "the data cannot decide") << k.dump();
+      EXPECT_NE(k["reason"].get<std::string>().find("1 scan"), std::string::npos) << k["reason"];
+    }
+  EXPECT_GT(azimuth, 0);
+  for (const auto& r : j["ranking"]) EXPECT_NE(r["feature"], "azimuth");
+  ASSERT_FALSE(j["undecided"].empty());
+  EXPECT_EQ(j["undecided"][0]["feature"], "azimuth");
+}
