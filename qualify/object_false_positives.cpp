@@ -250,46 +250,52 @@ sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& who
   return with_fp_table(m, fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, fp_floor(fit, g.cells()), c.cls));
 }
 
-nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
-  nlohmann::json cj = nlohmann::json::array();
-  for (const FpCandidate& c : a.candidates)
-    cj.push_back({{"feature", kFpFeatures[c.feature]},
-                  {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
-                  {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
-                  {"form_fold1", c.form},
-                  {"effect_size", c.effect_size},
-                  {"score", c.score},
-                  {"interval95", c.interval},
-                  {"significant", c.interval[0] > 0},
-                  {"change_interval95", c.change},
-                  {"deviance_before", c.deviance_before},
-                  {"deviance_after", c.deviance_after},
-                  {"error_before", c.error_before},
-                  {"error_after", c.error_after},
-                  {"decision", c.decision}});
-  const FpPersistence& P = a.persistence;
-  {
-    std::ostringstream form;
-    form << "ghost share x survival (fold 1)";
-    for (int c = 0; c < 3; ++c)
-      form << " " << kObjectClasses[c] << " " << fmt(P.classes[c].ghost_share, 3) << " x " << fmt(P.classes[c].survival, 3);
-    form << "; jitter";
-    for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].jitter, 3);
-    form << " m; score_ar1";
-    for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].score_ar1, 3);
-    cj.push_back({{"feature", "previous_frame"},
-                  {"kind", "fp_persistence"},
-                  {"form_fold1", form.str()},
-                  {"effect_size", P.effect_size},
-                  {"score", P.score},
-                  {"interval95", P.interval},
-                  {"significant", P.interval[0] > 0},
-                  {"change_interval95", P.change},
-                  {"error_metric", "persistence share error"},
-                  {"error_before", P.error_before},
-                  {"error_after", P.error_after},
-                  {"decision", P.decision}});
-  }
+namespace {
+
+// One rate candidate's entry in the report.
+nlohmann::json fp_candidate_json(const FpCandidate& c) {
+  return {{"feature", kFpFeatures[c.feature]},
+          {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+          {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
+          {"form_fold1", c.form},
+          {"effect_size", c.effect_size},
+          {"score", c.score},
+          {"interval95", c.interval},
+          {"significant", c.interval[0] > 0},
+          {"change_interval95", c.change},
+          {"deviance_before", c.deviance_before},
+          {"deviance_after", c.deviance_after},
+          {"error_before", c.error_before},
+          {"error_after", c.error_after},
+          {"decision", c.decision}};
+}
+
+// The persistence candidate as one more entry of the candidate list.
+nlohmann::json fp_persistence_candidate_json(const FpPersistence& P) {
+  std::ostringstream form;
+  form << "ghost share x survival (fold 1)";
+  for (int c = 0; c < 3; ++c)
+    form << " " << kObjectClasses[c] << " " << fmt(P.classes[c].ghost_share, 3) << " x " << fmt(P.classes[c].survival, 3);
+  form << "; jitter";
+  for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].jitter, 3);
+  form << " m; score_ar1";
+  for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].score_ar1, 3);
+  return {{"feature", "previous_frame"},
+          {"kind", "fp_persistence"},
+          {"form_fold1", form.str()},
+          {"effect_size", P.effect_size},
+          {"score", P.score},
+          {"interval95", P.interval},
+          {"significant", P.interval[0] > 0},
+          {"change_interval95", P.change},
+          {"error_metric", "persistence share error"},
+          {"error_before", P.error_before},
+          {"error_after", P.error_after},
+          {"decision", P.decision}};
+}
+
+// Per class: the persistence fit and its measured / before / after statistics.
+nlohmann::json fp_persistence_classes_json(const FpPersistence& P) {
   nlohmann::json pcl = nlohmann::json::object();
   // Total variation between two track-length distributions (shares per length bin).
   auto tv = [](const std::array<double, kFpTrackBins>& a, const std::array<double, kFpTrackBins>& b) {
@@ -311,6 +317,11 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
                               {"mean_track_length", {{"measured", k.mean_track_measured}, {"before", k.mean_track_before}, {"after", k.mean_track_after}}},
                               {"track_length_tv", {{"before", tv(k.tracks_measured, k.tracks_before)}, {"after", tv(k.tracks_measured, k.tracks_after)}}}};
   }
+  return pcl;
+}
+
+// The persistence section: its definitions, score and the per-class table.
+nlohmann::json fp_persistence_json(const FpPersistence& P) {
   nlohmann::json pj = {
       {"outcome", "per held-out false positive: whether one of the same class lies within 1.5 m (BEV) in the previous "
                   "frame of its sequence (persistence share, per class)"},
@@ -336,7 +347,32 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
       {"error_after", P.error_after},
       {"added", P.added},
       {"model_term_on", "classes.*.fp_persistence"},
-      {"classes", pcl}};
+      {"classes", fp_persistence_classes_json(P)}};
+  return pj;
+}
+
+// The added rate table, or null.
+nlohmann::json fp_added_json(const FpAnalysis& a) {
+  if (a.added < 0) return nullptr;
+  const FpCandidate& c = a.candidates[a.added];
+  return {{"feature", kFpFeatures[c.feature]},
+          {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+          {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
+          {"score", c.score},
+          {"change_interval95", c.change},
+          {"error_before", c.error_before},
+          {"error_after", c.error_after},
+          {"simulated_error_before", a.simulated_before},
+          {"simulated_error_after", a.simulated_after},
+          {"model_term_on", "classes.*.fp_table"}};
+}
+
+}  // namespace
+
+nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
+  nlohmann::json cj = nlohmann::json::array();
+  for (const FpCandidate& c : a.candidates) cj.push_back(fp_candidate_json(c));
+  cj.push_back(fp_persistence_candidate_json(a.persistence));
   nlohmann::json j = {
       {"outcome",
        "per block of 100 held-out frames, class and cell of a 5 x 5 x 4 grid over (range, azimuth, score) of the fit "
@@ -357,22 +393,8 @@ nlohmann::json fp_json(const FpAnalysis& a, double threshold) {
       {"held_out_frames", a.frames},
       {"held_out_false_positives", a.fps},
       {"candidates", cj},
-      {"persistence", pj}};
-  if (a.added >= 0) {
-    const FpCandidate& c = a.candidates[a.added];
-    j["added"] = {{"feature", kFpFeatures[c.feature]},
-                  {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
-                  {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
-                  {"score", c.score},
-                  {"change_interval95", c.change},
-                  {"error_before", c.error_before},
-                  {"error_after", c.error_after},
-                  {"simulated_error_before", a.simulated_before},
-                  {"simulated_error_after", a.simulated_after},
-                  {"model_term_on", "classes.*.fp_table"}};
-  } else {
-    j["added"] = nullptr;
-  }
+      {"persistence", fp_persistence_json(a.persistence)}};
+  j["added"] = fp_added_json(a);
   return j;
 }
 
