@@ -351,20 +351,16 @@ nlohmann::json fp_persistence_json(const FpPersistence& P) {
   return pj;
 }
 
-// The added rate table, or null.
+// The added rate table, or null: its candidate's entry, in short, and the re-simulated errors.
 nlohmann::json fp_added_json(const FpAnalysis& a) {
   if (a.added < 0) return nullptr;
-  const FpCandidate& c = a.candidates[a.added];
-  return {{"feature", kFpFeatures[c.feature]},
-          {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
-          {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
-          {"score", c.score},
-          {"change_interval95", c.change},
-          {"error_before", c.error_before},
-          {"error_after", c.error_after},
-          {"simulated_error_before", a.simulated_before},
-          {"simulated_error_after", a.simulated_after},
-          {"model_term_on", "classes.*.fp_table"}};
+  const nlohmann::json c = fp_candidate_json(a.candidates[a.added]);
+  nlohmann::json j;
+  for (const char* key : {"feature", "kind", "class", "score", "change_interval95", "error_before", "error_after"})
+    j[key] = c[key];
+  j["simulated_error_before"] = a.simulated_before, j["simulated_error_after"] = a.simulated_after;
+  j["model_term_on"] = "classes.*.fp_table";
+  return j;
 }
 
 }  // namespace

@@ -5,15 +5,14 @@
 // window of azimuth placed entirely inside the fixed split's training columns must then be named
 // and cut to <= 0.7 x; with the fixed regions (folds = 1) it is not.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
 #include <iostream>
 
 #include "data/reference_sensor.h"
 #include "qualify/intensity.h"
+#include "tests/support/reference_scans.h"
 
-namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
@@ -21,16 +20,11 @@ namespace {
 // Scans with a x0.5 gain over azimuth [-1.2, -0.4] rad: PGM columns 829-958 of 1024, inside the
 // guarded split's training arc [806, 986) (regions [64, 192) and [576, 704), guards 102 wide).
 data::Dataset window_in_training_columns() {
-  const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_folds_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
   data::ReferenceScanOptions o;
   o.effect = data::IntensityEffect::AzimuthWindow;
   o.window_azimuth_lo = -1.2, o.window_azimuth_hi = -0.4;
   o.seed = 31;
-  data::write_reference_semantickitti(dir, o);
-  data::Dataset ds = qualify::import_for_qualify(dir);
-  fs::remove_all(dir);
-  return ds;
+  return lidarsim::testing::reference_scans(o, "loop_folds");
 }
 
 nlohmann::json run(const data::Dataset& ds, int folds) {

@@ -8,7 +8,6 @@
 // independent scenes the loop without the range slope named it too, by the lookup keyed by row as
 // well: excess 0.0134 -> 0.0035, against 0.0023 now; the SemanticKITTI draw below it did not cut.)
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
 #include <iostream>
@@ -17,22 +16,17 @@
 #include "data/planted_scans.h"
 #include "data/reference_sensor.h"
 #include "qualify/intensity.h"
+#include "tests/support/reference_scans.h"
 
-namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
 
 // The reference sensor's geometry (3 independent scenes, 64 lasers, 1024 columns).
 data::Dataset reference_geometry() {
-  const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_range_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
   data::ReferenceScanOptions o;
   o.seed = 31;
-  data::write_reference_semantickitti(dir, o);
-  data::Dataset ds = qualify::import_for_qualify(dir);
-  fs::remove_all(dir);
-  return ds;
+  return lidarsim::testing::reference_scans(o, "loop_range");
 }
 
 nlohmann::json lookup_loop(const data::Dataset& ds) {

@@ -5,7 +5,6 @@
 // blocks of consecutive scans are the groups instead, and the window is named and cut; where they
 // do not (one scan), the report says the data cannot decide on azimuth instead of ruling it out.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
 #include <iostream>
@@ -13,22 +12,17 @@
 #include "data/planted_scans.h"
 #include "data/reference_sensor.h"
 #include "qualify/intensity.h"
+#include "tests/support/reference_scans.h"
 
-namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
 
 data::Dataset reference_geometry(int scans) {
-  const fs::path dir = fs::temp_directory_path() / ("lidarsim_loop_blocks_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
   data::ReferenceScanOptions o;
   o.scans = scans;
   o.seed = 31;
-  data::write_reference_semantickitti(dir, o);
-  data::Dataset ds = qualify::import_for_qualify(dir);
-  fs::remove_all(dir);
-  return ds;
+  return lidarsim::testing::reference_scans(o, "loop_blocks");
 }
 
 // Each scan twice in a row: two scans of each place, as a drive gives (the same scenery at the same
