@@ -207,7 +207,8 @@ std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::
 // Per class and bin of an attribute (m.feature, m.cuts): a rate and a placement. The placement is
 // the bin's own false positives of the class shrunk toward, for the binned attribute, the bin's of
 // every class (where in the bin) and for the other two, the class's over all bins (its marginal).
-void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0) {
+// cls >= 0: that class only (a class's own candidate; the others keep the base's, set by the caller).
+void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0, int cls) {
   const int nb = static_cast<int>(m.cuts.size() + 1);
   std::vector<std::array<std::vector<double>, 3>> pooled(nb);
   std::array<std::vector<std::array<std::vector<double>, 3>>, 3> own;
@@ -222,7 +223,7 @@ void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0) {
   }
   const double frames = std::max<size_t>(1, fit.frames.size());
   for (int c = 0; c < 3; ++c)
-    for (int b = 0; b < nb; ++b) {
+    for (int b = 0; b < nb && (cls < 0 || c == cls); ++b) {
       FpComponent k;
       k.rate = own[c][b][0].size() / frames;
       std::array<std::vector<double>, 3> q;
@@ -239,8 +240,10 @@ void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0) {
     }
 }
 
-// Components of a candidate with the given cuts, fitted on `fit`, for every class.
-FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts) {
+// Components of a candidate with the given cuts, fitted on `fit`, for every class (an attribute's:
+// for class cls only when cls >= 0).
+FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts,
+                         int cls) {
   FpModel m;
   m.feature = feature;
   m.cuts = cuts;
@@ -261,14 +264,14 @@ FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int fe
       }
     return m;
   }
-  attribute_components(m, fit, b0);
+  attribute_components(m, fit, b0, cls);
   return m;
 }
 
 // The same for class `cls` only (>= 0): the other classes keep the base's component.
 FpModel components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts,
                    int cls) {
-  FpModel m = class_components(fit, base, feature, cuts);
+  FpModel m = class_components(fit, base, feature, cuts, cls);
   if (cls < 0) return m;
   const FpModel b0 = fp_base(base, fit);
   for (int c = 0; c < 3; ++c)
