@@ -177,16 +177,25 @@ std::vector<double> fp_deviance(const FpModel& m, const FpData& d) {
 
 namespace {
 
-// Quantiles of `own` (weight 1 each) pooled with `ref` (kPriorWeight in all): a bin's placement
-// shrunk toward a reference. A bin's own few false positives span less than the class's: with their
-// quantiles alone every held-out false positive beyond that span lands where the model has nothing
-// (only the floor, ~20 deviance units each), and tables and windows lost held-out what they gained.
+// Quantiles of `own` (weight 1 each) pooled with `ref` (kPriorWeight in all), both sorted: a bin's
+// placement shrunk toward a reference. A bin's own few false positives span less than the class's:
+// with their quantiles alone every held-out false positive beyond that span lands where the model has
+// nothing (only the floor, ~20 deviance units each), and tables and windows lost held-out what they
+// gained.
 std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::vector<double>& ref) {
+  if (own.size() + ref.size() < 2) return {};
+  // Merged in (value, weight) order, as sorting the pooled pairs would put them: the window search
+  // calls this for every bin of ~800 windows, and sorting each time was most of the loop's time.
+  const double w = kPriorWeight / static_cast<double>(ref.size());
   std::vector<std::pair<double, double>> v;  // value, weight
-  for (double x : own) v.push_back({x, 1.0});
-  for (double x : ref) v.push_back({x, kPriorWeight / static_cast<double>(ref.size())});
-  if (v.size() < 2) return {};
-  std::sort(v.begin(), v.end());
+  v.reserve(own.size() + ref.size());
+  size_t i = 0, j = 0;
+  while (i < own.size() || j < ref.size()) {
+    const bool take_own = j == ref.size() ||
+                          (i < own.size() && std::pair(own[i], 1.0) < std::pair(ref[j], w));
+    if (take_own) v.push_back({own[i++], 1.0});
+    else v.push_back({ref[j++], w});
+  }
   // Point k at t_k = (weight before it + half its own - half the first's) / (total - half the ends'):
   // with equal weights k / (n - 1), as quantiles() places them.
   std::vector<double> t(v.size());
@@ -195,32 +204,55 @@ std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::
   const double lo = t.front(), span = t.back() - t.front();
   std::vector<double> q(kQuantiles);
   size_t k = 0;
-  for (int i = 0; i < kQuantiles; ++i) {
-    const double p = lo + span * i / (kQuantiles - 1);
+  for (int n = 0; n < kQuantiles; ++n) {
+    const double p = lo + span * n / (kQuantiles - 1);
     while (k + 2 < v.size() && t[k + 1] < p) ++k;
     const double f = t[k + 1] > t[k] ? std::clamp((p - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0) : 0.0;
-    q[i] = v[k].first + f * (v[k + 1].first - v[k].first);
+    q[n] = v[k].first + f * (v[k + 1].first - v[k].first);
   }
   return q;
+}
+
+// What every candidate of one fit_fp_model call shares: the base, and the false positives in the
+// order of each attribute (so a bin's values come out sorted) with each class's sorted values.
+struct FpFitContext {
+  FpModel b0;
+  std::array<std::vector<size_t>, kFpAttributeFeatures> order;
+  std::array<std::array<std::vector<double>, kFpAttributeFeatures>, 3> all;  // per class, attribute
+};
+
+FpFitContext fit_context(const FpData& fit, const sensor::KpiModel& base) {
+  FpFitContext ctx;
+  ctx.b0 = fp_base(base, fit);
+  for (int a = 0; a < kFpAttributeFeatures; ++a) {
+    auto& o = ctx.order[a];
+    o.resize(fit.fps.size());
+    std::iota(o.begin(), o.end(), size_t{0});
+    std::stable_sort(o.begin(), o.end(),
+                     [&](size_t x, size_t y) { return feature_of(fit.fps[x], a) < feature_of(fit.fps[y], a); });
+    for (size_t i : o) ctx.all[fit.fps[i].cls][a].push_back(feature_of(fit.fps[i], a));
+  }
+  return ctx;
 }
 
 // Per class and bin of an attribute (m.feature, m.cuts): a rate and a placement. The placement is
 // the bin's own false positives of the class shrunk toward, for the binned attribute, the bin's of
 // every class (where in the bin) and for the other two, the class's over all bins (its marginal).
 // cls >= 0: that class only (a class's own candidate; the others keep the base's, set by the caller).
-void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0, int cls) {
+void attribute_components(FpModel& m, const FpData& fit, const FpFitContext& ctx, int cls) {
   const int nb = static_cast<int>(m.cuts.size() + 1);
+  std::vector<int> bin(fit.fps.size());
+  for (size_t i = 0; i < fit.fps.size(); ++i) bin[i] = cut_bin(m.cuts, feature_of(fit.fps[i], m.feature));
   std::vector<std::array<std::vector<double>, 3>> pooled(nb);
   std::array<std::vector<std::array<std::vector<double>, 3>>, 3> own;
-  std::array<std::array<std::vector<double>, 3>, 3> all;
   for (auto& v : own) v.resize(nb);
-  for (const auto& r : fit.fps) {
-    const int b = cut_bin(m.cuts, feature_of(r, m.feature));
-    for (int a = 0; a < kFpAttributeFeatures; ++a) {
+  for (int a = 0; a < kFpAttributeFeatures; ++a)
+    for (size_t i : ctx.order[a]) {
+      const FalsePositiveRecord& r = fit.fps[i];
       const double x = feature_of(r, a);
-      pooled[b][a].push_back(x), own[r.cls][b][a].push_back(x), all[r.cls][a].push_back(x);
+      if (a == m.feature) pooled[bin[i]][a].push_back(x);
+      own[r.cls][bin[i]][a].push_back(x);
     }
-  }
   const double frames = std::max<size_t>(1, fit.frames.size());
   for (int c = 0; c < 3; ++c)
     for (int b = 0; b < nb && (cls < 0 || c == cls); ++b) {
@@ -228,27 +260,27 @@ void attribute_components(FpModel& m, const FpData& fit, const FpModel& b0, int 
       k.rate = own[c][b][0].size() / frames;
       std::array<std::vector<double>, 3> q;
       for (int a = 0; a < kFpAttributeFeatures; ++a)
-        q[a] = shrunk_quantiles(own[c][b][a], a == m.feature ? pooled[b][a] : all[c][a]);
+        q[a] = shrunk_quantiles(own[c][b][a], a == m.feature ? pooled[b][a] : ctx.all[c][a]);
       // The binned attribute's placement reaches the bin's edges (the KPI manager draws between them).
       auto& qf = q[m.feature];
       if (!qf.empty() && b > 0) qf.front() = std::min(qf.front(), m.cuts[b - 1]);
       if (!qf.empty() && b < nb - 1) qf.back() = std::max(qf.back(), m.cuts[b]);
       k.rq = q[0], k.aq = q[1], k.sq = q[2];
       // Nowhere to place them, or a class without false positives to model (< 2 on the fit split).
-      if (k.rq.empty() || k.aq.empty() || k.sq.empty() || b0.comps[c][0].rq.empty()) k.rate = 0;
+      if (k.rq.empty() || k.aq.empty() || k.sq.empty() || ctx.b0.comps[c][0].rq.empty()) k.rate = 0;
       m.comps[c].push_back(k);
     }
 }
 
 // Components of a candidate with the given cuts, fitted on `fit`, for every class (an attribute's:
 // for class cls only when cls >= 0).
-FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts,
+FpModel class_components(const FpData& fit, const FpFitContext& ctx, int feature, const std::vector<double>& cuts,
                          int cls) {
   FpModel m;
   m.feature = feature;
   m.cuts = cuts;
   const int nb = static_cast<int>(cuts.size() + 1);
-  const FpModel b0 = fp_base(base, fit);
+  const FpModel& b0 = ctx.b0;
   if (feature >= kFpAttributeFeatures) {
     // A rate per frame bin; the class's placement.
     std::vector<double> frames(nb, 0.0);
@@ -264,18 +296,17 @@ FpModel class_components(const FpData& fit, const sensor::KpiModel& base, int fe
       }
     return m;
   }
-  attribute_components(m, fit, b0, cls);
+  attribute_components(m, fit, ctx, cls);
   return m;
 }
 
 // The same for class `cls` only (>= 0): the other classes keep the base's component.
-FpModel components(const FpData& fit, const sensor::KpiModel& base, int feature, const std::vector<double>& cuts,
+FpModel components(const FpData& fit, const FpFitContext& ctx, int feature, const std::vector<double>& cuts,
                    int cls) {
-  FpModel m = class_components(fit, base, feature, cuts, cls);
+  FpModel m = class_components(fit, ctx, feature, cuts, cls);
   if (cls < 0) return m;
-  const FpModel b0 = fp_base(base, fit);
   for (int c = 0; c < 3; ++c)
-    if (c != cls) m.comps[c] = b0.comps[c];
+    if (c != cls) m.comps[c] = ctx.b0.comps[c];
   m.cls = cls;
   return m;
 }
@@ -296,8 +327,9 @@ std::vector<double> feature_values(const FpData& fit, int feature, int cls) {
 FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
                      const FpGrid& g, const std::array<double, 3>& floor, int cls) {
   const std::vector<double> x = feature_values(fit, feature, cls);
+  const FpFitContext ctx = fit_context(fit, base);
   if (!window) {
-    FpModel m = components(fit, base, feature, equal_count_edges(x, bins), cls);
+    FpModel m = components(fit, ctx, feature, equal_count_edges(x, bins), cls);
     m.compile(g, floor);
     return m;
   }
@@ -310,7 +342,7 @@ FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int featur
   std::vector<long> cum(K + 1, 0);
   for (double v : x) ++cum[cut_bin(fine, v) + 1];
   for (int k = 0; k < K; ++k) cum[k + 1] += cum[k];
-  FpModel best = fp_base(base, fit);
+  FpModel best = ctx.b0;
   best.compile(g, floor);
   const auto d0 = fp_deviance(best, fit);
   double best_dev = std::accumulate(d0.begin(), d0.end(), 0.0);
@@ -323,7 +355,7 @@ FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int featur
       std::vector<double> cuts;
       if (a > 0) cuts.push_back(fine[a - 1]);
       if (b < K - 1) cuts.push_back(fine[b]);
-      FpModel m = components(fit, base, feature, cuts, cls);
+      FpModel m = components(fit, ctx, feature, cuts, cls);
       m.compile(g, floor);
       const auto d = fp_deviance(m, fit);
       const double dev = std::accumulate(d.begin(), d.end(), 0.0);
