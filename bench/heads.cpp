@@ -2,7 +2,7 @@
 // base 8, depth 3) with one output (the mean, masked MSE) against K = 3 outputs (mean, return
 // logit, log-scale: masked MSE + BCE on logits + Laplace or Gaussian NLL), in the same run:
 //   train   one training step on a batch of crops (zero grads, forward, loss, backward, L2,
-//           Adam), the recipe's batch 2 x 64 x 256
+//           Adam), the recipe's batch 2 x 64 x 256; and the loss with its gradient alone
 //   infer   one full frame (batch 1, 64 x 1024): predict, and for K = 3 the output transform
 //           (sigmoid, exp of the clamped log-scale)
 // The two models alternate within each round (K = 1 first in even rounds, K = 3 first in odd
@@ -105,6 +105,14 @@ struct Setup {
   void train_step() {
     model.params().zero_grads();
     model.forward(x, y);
+    loss();
+    model.backward(dy);
+    l2_penalty(model.params(), 1e-6f, true);
+    opt.step(model.params());
+  }
+
+  // The loss and its gradient on the last forward's output.
+  void loss() {
     if (heads.empty()) {
       masked_mse(y, intensity, m_int, &dy);
     } else {
@@ -113,9 +121,6 @@ struct Setup {
         t.push_back(h == HeadKind::return_logit ? HeadTarget{&returned, &m_all} : HeadTarget{&intensity, &m_int});
       heads_loss(heads, y, t, &dy);
     }
-    model.backward(dy);
-    l2_penalty(model.params(), 1e-6f, true);
-    opt.step(model.params());
   }
 
   void infer() {
@@ -168,19 +173,23 @@ int main(int argc, char** argv) {
               cols = args["cols"].as<int>();
     Setup k1(one, batch, rows, crop, cols), k3(three, batch, rows, crop, cols);
 
-    std::vector<double> train1, train3, infer1, infer3, train_ratio, infer_ratio, cpu_train_ratio, cpu_infer_ratio;
+    std::vector<double> train1, train3, infer1, infer3, train_ratio, infer_ratio, cpu_train_ratio, cpu_infer_ratio,
+        loss1, loss3;
     for (int r = 0; r < rounds; ++r) {
-      Timing t1, t3, i1, i3;
+      Timing t1, t3, i1, i3, l1, l3;
       auto run1 = [&] {
         t1 = time_it([&] { k1.train_step(); }, warmup, reps);
+        l1 = time_it([&] { k1.loss(); }, warmup, reps);
         i1 = time_it([&] { k1.infer(); }, warmup, reps);
       };
       auto run3 = [&] {
         t3 = time_it([&] { k3.train_step(); }, warmup, reps);
+        l3 = time_it([&] { k3.loss(); }, warmup, reps);
         i3 = time_it([&] { k3.infer(); }, warmup, reps);
       };
       if (r % 2 == 0) run1(), run3();
       else run3(), run1();
+      loss1.push_back(l1.wall), loss3.push_back(l3.wall);
       train1.push_back(t1.wall), train3.push_back(t3.wall), infer1.push_back(i1.wall), infer3.push_back(i3.wall);
       train_ratio.push_back(t3.wall / t1.wall), infer_ratio.push_back(i3.wall / i1.wall);
       cpu_train_ratio.push_back(t3.cpu / t1.cpu), cpu_infer_ratio.push_back(i3.cpu / i1.cpu);
@@ -194,6 +203,9 @@ int main(int argc, char** argv) {
     std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n",
                 ("train step, batch " + std::to_string(batch) + " x " + std::to_string(rows) + " x " + std::to_string(crop)).c_str(),
                 1e3 * median_of(train1), 1e3 * median_of(train3), median_of(train_ratio), median_of(cpu_train_ratio));
+    std::printf("%-40s %10.2f %10.2f   (of the step: %.1f %% / %.1f %%)\n", "  of which the loss and its gradient",
+                1e3 * median_of(loss1), 1e3 * median_of(loss3), 100 * median_of(loss1) / median_of(train1),
+                100 * median_of(loss3) / median_of(train3));
     std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n", ("inference, 1 x " + std::to_string(rows) + " x " + std::to_string(cols)).c_str(),
                 1e3 * median_of(infer1), 1e3 * median_of(infer3), median_of(infer_ratio), median_of(cpu_infer_ratio));
     if (args.count("out")) {
@@ -205,6 +217,7 @@ int main(int argc, char** argv) {
       j["spread"] = spread;
       j["train_ms"] = {{"k1", 1e3 * median_of(train1)}, {"k3", 1e3 * median_of(train3)}, {"ratio", median_of(train_ratio)},
                        {"cpu_ratio", median_of(cpu_train_ratio)}, {"ratios", train_ratio}};
+      j["loss_ms"] = {{"k1", 1e3 * median_of(loss1)}, {"k3", 1e3 * median_of(loss3)}};
       j["infer_ms"] = {{"k1", 1e3 * median_of(infer1)}, {"k3", 1e3 * median_of(infer3)}, {"ratio", median_of(infer_ratio)},
                        {"cpu_ratio", median_of(cpu_infer_ratio)}, {"ratios", infer_ratio}};
       write_file_atomically(args["out"].as<std::string>(), j.dump(2) + "\n");
