@@ -1,16 +1,19 @@
-// The heads' losses and the sigmoid against PyTorch: tests/fixtures/heads_losses_torch.h5 holds
+// The heads' losses, the sigmoid and a three-head UNet against PyTorch: tests/fixtures/heads_losses_torch.h5 holds
 // inputs, PyTorch's float64 loss and autograd gradients (binary_cross_entropy_with_logits,
 // torch.sigmoid, distributions.Normal / Laplace log_prob with a clamped log-scale), written by
 // tests/fixtures/make_heads_fixture.py. Read with the HDF5 C API: no Python runs here.
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 #include <vector>
 
 #include "nn/heads.h"
 #include "nn/loss.h"
+#include "nn/unet.h"
 #include "tests/support/shared_data.h"
 
 namespace lidarsim::nn {
@@ -143,6 +146,45 @@ TEST(HeadsTorchAgreement, TheWrongFamilyFailsTheCheck) {
   const NllErrors a = nll_errors(f, "gaussian", Spread::laplace), b = nll_errors(f, "laplace", Spread::gaussian);
   EXPECT_GT(std::max({a.loss, a.d_mean, a.d_log_scale}), 1e-2);
   EXPECT_GT(std::max({b.loss, b.d_mean, b.d_log_scale}), 1e-2);
+}
+
+// The three-head UNet end to end: forward, heads_loss (weights 1, 0.5, 0.25; the spread around the
+// detached mean) and backward against PyTorch's autograd, every parameter.
+TEST(HeadsTorchAgreement, ThreeHeadUNetOutputLossAndEveryGradient) {
+  OPEN_FIXTURE(f);
+  const std::vector<HeadKind> heads{HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace};
+  UNet model(UNetConfig{3, 3, 4, 2, 0, {}, heads});
+  ParamArena& params = model.params();
+  for (const ParamInfo& info : params.infos()) {
+    const std::vector<double> v = f.read("unet3/params/" + info.name);
+    ASSERT_EQ(v.size(), info.shape.numel()) << "fixture unet3/params/" << info.name;
+    for (std::size_t i = 0; i < v.size(); ++i) params.values()[info.offset + i] = static_cast<float>(v[i]);
+  }
+  const Tensor x = f.tensor("unet3/input"), intensity = f.tensor("unet3/intensity"),
+               returned = f.tensor("unet3/returned"), m_int = f.tensor("unet3/mask_intensity"),
+               m_ret = f.tensor("unet3/mask_returned");
+  Tensor y, dy;
+  params.zero_grads();
+  model.forward(x, y);
+  const double out_err = rel_error(y, f.read("unet3/output"));
+  const HeadsLoss loss =
+      heads_loss(heads, y, {{&intensity, &m_int, 1.f}, {&returned, &m_ret, 0.5f}, {&intensity, &m_int, 0.25f}}, &dy);
+  model.backward(dy);
+  const double want = f.attr("unet3", "loss");
+  double worst = 0;
+  std::string worst_name;
+  for (const ParamInfo& info : params.infos()) {
+    const std::vector<double> g = f.read("unet3/grads/" + info.name);
+    Tensor ours(Shape{1, 1, 1, static_cast<int>(info.shape.numel())});
+    std::copy_n(params.grads() + info.offset, info.shape.numel(), ours.data());
+    const double e = rel_error(ours, g);
+    if (e > worst) worst = e, worst_name = info.name;
+  }
+  std::printf("[ measured ] three-head UNet vs PyTorch: output %.1e, loss %.1e, worst gradient %.1e (%s)\n", out_err,
+              std::abs(loss.total - want) / want, worst, worst_name.c_str());
+  EXPECT_LT(out_err, 1e-5);
+  EXPECT_LT(std::abs(loss.total - want) / want, 1e-5);
+  EXPECT_LT(worst, 1e-4) << worst_name;
 }
 
 }  // namespace
