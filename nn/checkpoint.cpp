@@ -16,7 +16,15 @@
 namespace lidarsim::nn {
 namespace {
 
-constexpr const char* kFormat = "lidarsim-checkpoint 1";
+// Format 1: one output, `unet.out_channels`. Format 2 (several outputs, or named heads): the output
+// count is `unet.outputs` and `unet.out_channels` is left out, so builds that predate format 2
+// (they read `unet.out_channels` and never read `format`) reject the file naming that attribute
+// instead of loading a several-output model as a one-output one. A model format 1 describes is
+// still written as format 1, byte for byte as before.
+constexpr const char* kFormatPrefix = "lidarsim-checkpoint ";
+constexpr int kNewestFormat = 2;
+
+bool needs_format2(const UNetConfig& c) { return c.out_channels != 1 || !c.heads.empty(); }
 
 // HDF5 prints its own error stack to stderr by default; we turn every failure into one
 // lidarsim::Error instead. Called at each entry point (the setting is per thread).
@@ -441,9 +449,12 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     Writer w(path);
     {
       Handle config = w.group("config");
-      w.attr(config.get(), "config", "format", std::string(kFormat));
+      const bool v2 = needs_format2(model.config());
+      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v2 ? 2 : 1));
       w.attr(config.get(), "config", "unet.in_channels", std::int64_t{model.config().in_channels});
-      w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
+      if (!v2) w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
+      if (v2) w.attr(config.get(), "config", "unet.outputs", std::int64_t{model.config().out_channels});
+      if (!model.config().heads.empty()) w.attr(config.get(), "config", "unet.heads", heads_text(model.config().heads));
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
       // Only when present: a model without the layer writes no trace of it (read back as no layer).
@@ -492,11 +503,46 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
 
 namespace {
 
+// The file's format number: 1 without the attribute (files written by other tools, e.g. h5py);
+// a newer format than this build knows is refused by name.
+int format_of(const Reader& r) {
+  if (!r.has_attr("config", "format")) return 1;
+  const std::string text = r.string_attr("config", "format");
+  const std::string prefix = kFormatPrefix;
+  int v = 0;
+  const char* end = text.data() + text.size();
+  const bool number = text.rfind(prefix, 0) == 0 &&
+                      std::from_chars(text.data() + prefix.size(), end, v).ptr == end && text.size() > prefix.size();
+  if (!number) r.fail("config/format", "\"" + text + "\" is not a lidarsim checkpoint format");
+  if (v < 1 || v > kNewestFormat)
+    r.fail("config/format", "\"" + text + "\": this build reads formats 1 to " + std::to_string(kNewestFormat) +
+                                (v > kNewestFormat ? " (written by a newer lidarsim: update to read it)" : ""));
+  return v;
+}
+
+// The output channel count and heads: `unet.out_channels` in format 1, `unet.outputs` and the
+// optional `unet.heads` in format 2.
+void outputs_of(const Reader& r, UNetConfig& c) {
+  const int format = format_of(r);
+  c.out_channels = positive_int_attr(r, format == 1 ? "unet.out_channels" : "unet.outputs");
+  c.heads.clear();
+  if (r.has_attr("config", "unet.heads")) {
+    if (format == 1) r.fail("config/unet.heads", "present in a format-1 checkpoint (format 2 carries heads)");
+    const std::string text = r.string_attr("config", "unet.heads");
+    try {
+      c.heads = parse_heads(text, "value");
+      check_heads(c.heads, c.out_channels, "value");
+    } catch (const Error& e) {
+      r.fail("config/unet.heads", e.what());
+    }
+  }
+}
+
 Checkpoint read_meta(const Reader& r) {
   Checkpoint meta;
   if (!r.exists("config")) r.fail("config", "missing group (not a lidarsim checkpoint?)");
   meta.unet.in_channels = positive_int_attr(r, "unet.in_channels");
-  meta.unet.out_channels = positive_int_attr(r, "unet.out_channels");
+  outputs_of(r, meta.unet);
   meta.unet.base = positive_int_attr(r, "unet.base");
   meta.unet.depth = positive_int_attr(r, "unet.depth");
   meta.unet.row_affine_rows = row_affine_rows(r);
@@ -522,8 +568,16 @@ Checkpoint read_meta(const Reader& r) {
 
 void load(const Reader& r, UNet& model, Optimizer* optimizer) {
   const UNetConfig& want = model.config();
+  UNetConfig have_outputs;
+  outputs_of(r, have_outputs);
+  if (have_outputs.out_channels != want.out_channels)
+    r.fail(format_of(r) == 1 ? "config/unet.out_channels" : "config/unet.outputs",
+           "checkpoint has " + std::to_string(have_outputs.out_channels) + ", the model expects " +
+               std::to_string(want.out_channels));
+  if (have_outputs.heads != want.heads)
+    r.fail("config/unet.heads", "checkpoint has \"" + heads_text(have_outputs.heads) + "\", the model expects \"" +
+                                    heads_text(want.heads) + "\"");
   const std::pair<const char*, int> fields[] = {{"unet.in_channels", want.in_channels},
-                                                {"unet.out_channels", want.out_channels},
                                                 {"unet.base", want.base},
                                                 {"unet.depth", want.depth}};
   for (const auto& [name, value] : fields) {

@@ -96,7 +96,6 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
   const LookupBaseConfig& lk = config.lookup;
   if (lk.classes < 0) throw bad("lookup.classes", lk.classes, ">= 0 (0: none)");
   if (lk.classes > 0) {
-    if (config.out_channels != 1) throw bad("out_channels", config.out_channels, "1 with a lookup base");
     if (lk.class_channel < 0 || lk.class_channel + lk.classes > config.in_channels)
       throw bad("lookup.class_channel", lk.class_channel, "classes one-hot channels inside the input");
     if (lk.range_channel < 0 || lk.range_channel >= config.in_channels)
@@ -106,6 +105,7 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
     if (!(lk.bin_width > 0) || !std::isfinite(lk.bin_width))
       throw Error("UNet config: lookup.bin_width: expected a finite number > 0, got " + std::to_string(lk.bin_width));
   }
+  check_heads(config.heads, config.out_channels, "UNet config: heads");
   const int in_net = config.in_channels + (lk.classes > 0 ? 1 : 0);  // enc0.conv1 also sees the base
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
@@ -320,8 +320,14 @@ void UNet::forward_head(const Tensor& below, Tensor& y) {
     conv2d_forward(y, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
     ws.toc("fwd head");
   }
-  if (ws.table >= 0)  // out_channels is 1: y and the base have the same layout
-    for (std::size_t i = 0; i < y.numel(); ++i) y.data()[i] += ws.base.data()[i];
+  if (ws.table >= 0) {  // onto channel 0, the mean
+    const Shape s = y.shape();
+    for (int n = 0; n < s.n; ++n) {
+      float* out = y.channel(n, 0);
+      const float* base = ws.base.image(n);
+      for (std::size_t i = 0; i < s.plane(); ++i) out[i] += base[i];
+    }
+  }
 }
 
 void UNet::predict(const Tensor& x, Tensor& y) {

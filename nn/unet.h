@@ -23,12 +23,19 @@
 //     learns the residual over the table. Its parameters "lookup/table" [1, 1, classes + 1,
 //     range_bins] and "lookup/beam" [1, 1, rows, 1] are fitted on training cells
 //     (train/lookup_fit.h), not trained: no gradient, no L2, optimizer step 0. The head starts at
-//     zero, so the untrained model predicts exactly the table; out_channels must be 1.
+//     zero, so the untrained model predicts exactly the table; with several outputs the base is
+//     added to channel 0 only (the mean head).
+//   heads (optional, nn/heads.h): what each output channel predicts and is trained with; empty =
+//     out_channels plain outputs. The graph is the same for every head: only the 1x1 head's
+//     output count changes.
 // Default: depth 4, base 16 ("unet-ref" with 3 input channels: 6.07 GFLOP forward at 64 x 1024).
 #include <cstdint>
 #include <memory>
 #include <string>
 
+#include <vector>
+
+#include "nn/heads.h"
 #include "nn/layers.h"
 #include "nn/params.h"
 #include "nn/tensor.h"
@@ -42,6 +49,7 @@ struct UNetConfig {
   int depth = 4;
   int row_affine_rows = 0;  // 0: no per-row affine layer
   LookupBaseConfig lookup{};  // classes 0: no lookup base
+  std::vector<HeadKind> heads{};  // empty, or one per output channel (nn/heads.h check_heads)
   bool operator==(const UNetConfig&) const = default;
 };
 

@@ -175,8 +175,10 @@ inline DT unet(const UNet& model, const std::vector<double>& p, const DT& x) {
             v = gain[std::size_t(c) * y.s.h + h] * v + offset[std::size_t(c) * y.s.h + h];
           }
   }
-  if (cfg.lookup.classes > 0)
-    for (std::size_t i = 0; i < y.v.size(); ++i) y.v[i] += base.v[i];
+  if (cfg.lookup.classes > 0)  // onto channel 0 (the mean head)
+    for (int n = 0; n < y.s.n; ++n)
+      for (int h = 0; h < y.s.h; ++h)
+        for (int w = 0; w < y.s.w; ++w) y.at(n, 0, h, w) += base.at(n, 0, h, w);
   return y;
 }
 

@@ -14,7 +14,9 @@
 #include "nn/optim.h"
 #include "nn/unet.h"
 #include "nn/winograd.h"
+#include "nn/heads.h"
 #include "reference.h"
+#include "reference_losses.h"
 
 namespace lidarsim::nn {
 namespace {
@@ -58,10 +60,32 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
   const Tensor u = random_tensor(ys, 11);
   for (std::size_t i = 0; i < mask.numel(); ++i) mask.data()[i] = u.data()[i] > -0.2f ? 1.f : 0.f;  // ~60 %
 
+  // With heads: one [N, 1, H, W] target and mask per head (channel k of the tensors above; the
+  // return head's target thresholded to 0 / 1; the spread head shares the mean's cells).
+  const int k = c.cfg.out_channels;
+  const Shape one{c.x.n, 1, c.x.h, c.x.w};
+  std::vector<Tensor> head_target(k, Tensor(one)), head_mask(k, Tensor(one));
+  for (int h = 0; h < k && !c.cfg.heads.empty(); ++h) {
+    const bool spread = c.cfg.heads[h] == HeadKind::log_scale_gaussian || c.cfg.heads[h] == HeadKind::log_scale_laplace;
+    const int src = spread ? 0 : h;
+    for (int n = 0; n < c.x.n; ++n)
+      for (std::size_t i = 0; i < one.plane(); ++i) {
+        float t = target.channel(n, src)[i];
+        if (c.cfg.heads[h] == HeadKind::return_logit) t = t > 0 ? 1.f : 0.f;
+        head_target[h].image(n)[i] = t;
+        head_mask[h].image(n)[i] = mask.channel(n, src)[i];
+      }
+  }
+  std::vector<HeadTarget> head_targets;
+  for (int h = 0; h < k; ++h) head_targets.push_back({&head_target[h], &head_mask[h], 1.f, 0});
+
   Tensor y, dy;
   model.forward(x, y);
   arena.zero_grads();
-  masked_mse(y, target, mask, &dy);
+  if (c.cfg.heads.empty())
+    masked_mse(y, target, mask, &dy);
+  else
+    heads_loss(c.cfg.heads, y, head_targets, &dy);
   model.backward(dy);
   l2_penalty(arena, c.lambda, true);
 
@@ -69,10 +93,36 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
   const DT xd = from(x);
   double valid = 0;
   for (float m : mask) valid += m;
+  // The heads' losses in double (reference_losses.h); the spread is fitted around a detached mean.
+  auto heads_data = [&](const DT& out, const DT& detached) {
+    double total = 0;
+    for (int h = 0; h < k; ++h) {
+      double s = 0, v = 0;
+      for (int n = 0; n < c.x.n; ++n)
+        for (int yy = 0; yy < c.x.h; ++yy)
+          for (int xx = 0; xx < c.x.w; ++xx) {
+            const std::size_t i = (std::size_t(n) * c.x.h + yy) * c.x.w + xx;
+            if (head_mask[h].data()[i] == 0.f) continue;
+            const double o = out.at(n, h, yy, xx), t = head_target[h].data()[i], mu = detached.at(n, 0, yy, xx);
+            switch (c.cfg.heads[h]) {
+              case HeadKind::mean: s += (o - t) * (o - t); break;
+              case HeadKind::return_logit: s += bce_cell(o, t); break;
+              case HeadKind::log_scale_gaussian: s += gaussian_nll_cell(mu, o, t, -7, 3); break;
+              case HeadKind::log_scale_laplace: s += laplace_nll_cell(mu, o, t, -7, 3); break;
+              case HeadKind::count: break;
+            }
+            ++v;
+          }
+      total += s / std::max(v, 1.0);
+    }
+    return total;
+  };
+  const DT detached = unet(model, p, xd);
   auto loss = [&] {
     const DT out = unet(model, p, xd);
     double data = 0;
-    for (std::size_t i = 0; i < out.v.size(); ++i) {
+    if (!c.cfg.heads.empty()) data = heads_data(out, detached) * valid;  // divided by valid below
+    for (std::size_t i = 0; i < out.v.size() && c.cfg.heads.empty(); ++i) {
       const double d = out.v[i] - target.data()[i];
       data += mask.data()[i] * d * d;
     }
@@ -103,6 +153,14 @@ const Case kRowAffine7x9{{3, 2, 2, 2, 7}, {2, 3, 7, 9}, 1e-2f};  // two outputs,
 // Lookup base on 3 "class" channels from 1 and range in channel 0 (random inputs: cells with
 // range <= 0 are empty, cells with no class channel above 0.5 take the no-group row).
 const Case kLookup7x9{{4, 1, 2, 2, 0, {3, 1, 0, 4, 0.25f, 7}}, {2, 4, 7, 9}, 1e-2f};
+// Three heads (mean, return logit, Laplace log-scale) over the lookup base and the row affine:
+// the base goes onto channel 0 only, each channel has its own loss.
+const Case kHeads7x9{{4, 3, 2, 2, 7, {3, 1, 0, 4, 0.25f, 7}, {HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace}},
+                     {2, 4, 7, 9},
+                     1e-2f};
+const Case kHeadsGauss5x11{{2, 3, 3, 2, 0, {}, {HeadKind::mean, HeadKind::log_scale_gaussian, HeadKind::return_logit}},
+                           {2, 2, 5, 11},
+                           1e-2f};
 
 TEST(UNetGradCheck, OddSize7x9Batch2AllParametersMatchFiniteDifferences) {
   const Result r = check_unet(kOdd7x9);
@@ -136,6 +194,14 @@ TEST(UNetGradCheck, LookupBaseInputChannelAndEveryTrainedParameterMatchFiniteDif
   const Result r = check_unet(kLookup7x9);
   EXPECT_LT(r.forward, 1e-5);
   EXPECT_LT(r.grad, 1e-4);
+}
+
+TEST(UNetGradCheck, ThreeHeadsEachWithItsLossAndEveryParameterMatchFiniteDifferences) {
+  for (const Case& c : {kHeads7x9, kHeadsGauss5x11}) {
+    const Result r = check_unet(c);
+    EXPECT_LT(r.forward, 1e-5);
+    EXPECT_LT(r.grad, 1e-4);
+  }
 }
 
 TEST(UNet, LookupBaseStartsAsTheTableIsFrozenAndNeedsItsRowCount) {

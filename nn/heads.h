@@ -1,0 +1,66 @@
+#pragma once
+// Output heads: what each output channel of a several-output UNet predicts, the loss each is
+// trained with, and the transform that turns it into its value at inference.
+//   mean                the paper's regression output, masked MSE (nn/loss.h masked_mse)
+//   return_logit        logit of a probability (e.g. that a beam returns), masked BCE on logits;
+//                       at inference sigmoid(z)
+//   log_scale_gaussian  log sigma of a Gaussian around the mean head, masked Gaussian NLL;
+//                       at inference sigma = exp(clamp(s))
+//   log_scale_laplace   log b of a Laplace around the mean head, masked Laplace NLL;
+//                       at inference b = exp(clamp(s))
+// Rules (check_heads): channel 0 is the mean (a lookup base is added to it); every other kind
+// appears at most once, and at most one of the two spread kinds.
+#include <array>
+#include <string>
+#include <vector>
+
+#include "nn/loss.h"
+#include "nn/tensor.h"
+
+namespace lidarsim::nn {
+
+enum class HeadKind { mean, return_logit, log_scale_gaussian, log_scale_laplace, count };
+inline constexpr std::array<const char*, 4> kHeadNames = {"mean", "return_logit", "log_scale_gaussian",
+                                                          "log_scale_laplace"};
+static_assert(kHeadNames.size() == static_cast<std::size_t>(HeadKind::count), "one name per head kind");
+
+const char* head_name(HeadKind kind);
+// "mean,return_logit" <-> the kinds; `where` names the field in errors.
+std::string heads_text(const std::vector<HeadKind>& heads);
+std::vector<HeadKind> parse_heads(const std::string& text, const std::string& where);
+// Throws an Error naming `where` when the heads break the rules above or their count is not
+// out_channels. Empty heads are always valid (every channel a plain output, the mean's loss).
+void check_heads(const std::vector<HeadKind>& heads, int out_channels, const std::string& where);
+
+// One head's cells: target and mask [N, 1, H, W] (the spread heads' target is the mean head's
+// target: the measured value), its loss weight, and the denominator (nn/loss.h: 0 = this batch's
+// own count of masked-in cells; data-parallel training passes the count over all processes).
+struct HeadTarget {
+  const Tensor* target = nullptr;
+  const Tensor* mask = nullptr;
+  float weight = 1.f;
+  long denominator = 0;
+};
+struct HeadsLossConfig {
+  LogScaleClamp clamp{};
+  // false: the spread heads' NLL passes no gradient to the mean channel (the mean stays the
+  // paper's masked-MSE mean; its MAE is not traded for the spread's likelihood).
+  bool spread_trains_mean = false;
+};
+struct HeadsLoss {
+  std::vector<LossParts> per_head;  // unweighted, one per head
+  double total = 0;                 // sum of weight * data over heads
+};
+
+// pred [N, K, H, W] with K = heads.size(); targets one per head. Writes d_pred (=) [N, K, H, W]
+// when given: the weighted sum's gradient. No L2 term (add l2_penalty once).
+HeadsLoss heads_loss(const std::vector<HeadKind>& heads, const Tensor& pred, const std::vector<HeadTarget>& targets,
+                     Tensor* d_pred, const HeadsLossConfig& config = {});
+
+// Numerically stable logistic function, elementwise: in and out any shape (out may be in).
+void sigmoid_forward(Tensor& out, const Tensor& in);
+// Inference: in place on y [N, K, H, W], return_logit channels become probabilities and log-scale
+// channels scales (exp of the clamped log-scale); mean channels stay.
+void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp = {});
+
+}  // namespace lidarsim::nn

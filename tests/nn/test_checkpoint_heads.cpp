@@ -1,0 +1,230 @@
+// Checkpoint formats (nn/checkpoint.h): a model with several outputs or named heads is written as
+// format 2 without `unet.out_channels`, the attribute every older build requires, so those builds
+// refuse it by name; a one-output model is still format 1 as before, and files written by older
+// builds (the shipped model) load. Unknown or newer formats are refused naming config/format.
+#include <gtest/gtest.h>
+#include <hdf5.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <optional>
+#include <iterator>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "common/error.h"
+#include "nn/checkpoint.h"
+#include "nn/heads.h"
+#include "nn/optim.h"
+#include "nn/unet.h"
+#include "tests/support/shared_data.h"
+
+namespace fs = std::filesystem;
+using namespace lidarsim;
+using namespace lidarsim::nn;
+
+namespace {
+
+const std::vector<HeadKind> kThree{HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace};
+const UNetConfig kHeads{3, 3, 4, 2, 0, {}, kThree};
+const UNetConfig kOne{3, 1, 4, 2};
+
+std::string read_bytes(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+Tensor input(int channels) {
+  Tensor t(Shape{1, channels, 8, 12});
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  for (float& v : t) v = u(rng);
+  return t;
+}
+
+bool has_attr(const fs::path& p, const std::string& name) {
+  const hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const bool yes = f >= 0 && H5Aexists_by_name(f, "config", name.c_str(), H5P_DEFAULT) > 0;
+  if (f >= 0) H5Fclose(f);
+  return yes;
+}
+
+std::string string_attr(const fs::path& p, const std::string& name) {
+  std::string out;
+  const hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const hid_t a = H5Aopen_by_name(f, "config", name.c_str(), H5P_DEFAULT, H5P_DEFAULT);
+  if (a >= 0) {
+    const hid_t type = H5Aget_type(a);
+    out.assign(H5Tget_size(type), '\0');
+    H5Aread(a, type, out.data());
+    out.resize(out.find('\0') == std::string::npos ? out.size() : out.find('\0'));
+    H5Tclose(type);
+    H5Aclose(a);
+  }
+  if (f >= 0) H5Fclose(f);
+  return out;
+}
+
+// Replaces (or adds) a string attribute of /config with the HDF5 C API.
+void set_string_attr(const fs::path& p, const std::string& name, const std::string& value) {
+  const hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  if (H5Aexists_by_name(f, "config", name.c_str(), H5P_DEFAULT) > 0) H5Adelete_by_name(f, "config", name.c_str(), H5P_DEFAULT);
+  const hid_t type = H5Tcopy(H5T_C_S1);
+  H5Tset_size(type, value.size());
+  const hid_t space = H5Screate(H5S_SCALAR);
+  const hid_t g = H5Gopen2(f, "config", H5P_DEFAULT);
+  const hid_t a = H5Acreate2(g, name.c_str(), type, space, H5P_DEFAULT, H5P_DEFAULT);
+  ASSERT_GE(a, 0);
+  H5Awrite(a, type, value.data());
+  H5Aclose(a);
+  H5Gclose(g);
+  H5Sclose(space);
+  H5Tclose(type);
+  H5Fclose(f);
+}
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "no error";
+}
+
+class CheckpointHeadsTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("lidarsim_test_checkpoint_heads_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  fs::path save(const UNetConfig& cfg, const std::string& name, std::uint64_t seed = 7) {
+    UNet model(cfg);
+    model.init(seed);
+    Optimizer opt(OptimizerConfig{}, model.params().size());
+    Checkpoint meta;
+    meta.attributes["encoder"] = "{}";
+    meta.state.rng = "rng";
+    const fs::path p = dir_ / name;
+    save_checkpoint(p, model, &opt, meta);
+    return p;
+  }
+  fs::path dir_;
+};
+
+TEST_F(CheckpointHeadsTest, ThreeHeadsAreFormat2WithoutOutChannelsAndRoundTripWithPredictions) {
+  const fs::path p = save(kHeads, "heads.h5");
+  EXPECT_EQ(string_attr(p, "format"), "lidarsim-checkpoint 2");
+  EXPECT_FALSE(has_attr(p, "unet.out_channels")) << "older builds must find no unet.out_channels";
+  EXPECT_TRUE(has_attr(p, "unet.outputs"));
+  EXPECT_EQ(string_attr(p, "unet.heads"), "mean,return_logit,log_scale_laplace");
+
+  const Checkpoint meta = read_checkpoint_meta(p);
+  EXPECT_EQ(meta.unet, kHeads);
+  UNet saved(kHeads), loaded(meta.unet);
+  saved.init(7);
+  loaded.init(99);
+  Optimizer opt(OptimizerConfig{}, loaded.params().size());
+  load_checkpoint(p, loaded, &opt);
+  Tensor a, b;
+  const Tensor x = input(3);
+  saved.predict(x, a);
+  loaded.predict(x, b);
+  ASSERT_EQ(a.shape(), (Shape{1, 3, 8, 12}));
+  EXPECT_EQ(std::vector<float>(a.begin(), a.end()), std::vector<float>(b.begin(), b.end()));
+}
+
+TEST_F(CheckpointHeadsTest, SeveralOutputsWithoutNamedHeadsAreFormat2Too) {
+  const UNetConfig two{3, 2, 4, 2};
+  const fs::path p = save(two, "two.h5");
+  EXPECT_EQ(string_attr(p, "format"), "lidarsim-checkpoint 2");
+  EXPECT_FALSE(has_attr(p, "unet.out_channels"));
+  EXPECT_FALSE(has_attr(p, "unet.heads"));
+  EXPECT_EQ(read_checkpoint_meta(p).unet, two);
+}
+
+TEST_F(CheckpointHeadsTest, OneOutputIsStillFormat1WithOutChannelsAndNoNewAttributes) {
+  const fs::path p = save(kOne, "one.h5");
+  EXPECT_EQ(string_attr(p, "format"), "lidarsim-checkpoint 1");
+  EXPECT_TRUE(has_attr(p, "unet.out_channels"));
+  EXPECT_FALSE(has_attr(p, "unet.outputs"));
+  EXPECT_FALSE(has_attr(p, "unet.heads"));
+  EXPECT_EQ(read_checkpoint_meta(p).unet, kOne);
+  // One named head is a new field: format 2.
+  const fs::path named = save(UNetConfig{3, 1, 4, 2, 0, {}, {HeadKind::mean}}, "named.h5");
+  EXPECT_EQ(string_attr(named, "format"), "lidarsim-checkpoint 2");
+}
+
+// Files written by builds that predate format 2 load: the shipped model, and a small checkpoint
+// written by such a build (tests/fixtures/make_format1_fixture.sh, from commit d989f80's nn/),
+// which this build also writes again byte for byte: format 1 is unchanged.
+TEST_F(CheckpointHeadsTest, CheckpointsFromAnOlderBuildLoadAndFormat1IsWrittenByteForByteAsBefore) {
+  const fs::path shipped = lidarsim::testing::source_dir() / "data/models/intensity_unet.h5";
+  ASSERT_TRUE(fs::exists(shipped)) << shipped;
+  const Checkpoint meta = read_checkpoint_meta(shipped);
+  EXPECT_EQ(meta.unet.out_channels, 1);
+  EXPECT_TRUE(meta.unet.heads.empty());
+  UNet model(meta.unet);
+  EXPECT_NO_THROW(load_checkpoint(shipped, model, nullptr));
+
+  const fs::path old = lidarsim::testing::source_dir() / "tests/fixtures/checkpoint_format1_small.h5";
+  ASSERT_TRUE(fs::exists(old)) << old;
+  const Checkpoint old_meta = read_checkpoint_meta(old);
+  EXPECT_EQ(old_meta.unet, kOne);
+  ASSERT_TRUE(old_meta.optimizer.has_value());
+  UNet small(old_meta.unet);
+  Optimizer opt(*old_meta.optimizer, small.params().size());
+  load_checkpoint(old, small, &opt);
+  EXPECT_EQ(opt.steps(), 1);
+  const fs::path again = dir_ / "again.h5";
+  save_checkpoint(again, small, &opt, old_meta);
+  EXPECT_TRUE(read_bytes(again) == read_bytes(old)) << "format 1 is no longer written as the older build wrote it";
+}
+
+TEST_F(CheckpointHeadsTest, ANewerOrUnknownFormatIsRefusedNamingTheField) {
+  const fs::path p = save(kHeads, "newer.h5");
+  set_string_attr(p, "format", "lidarsim-checkpoint 3");
+  const std::string e = error_of([&] { read_checkpoint_meta(p); });
+  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 3\": this build reads formats 1 to 2"),
+            std::string::npos)
+      << e;
+  EXPECT_NE(e.find("newer lidarsim"), std::string::npos) << e;
+  set_string_attr(p, "format", "something else");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(p); }).find("config/format: \"something else\" is not a lidarsim checkpoint format"),
+            std::string::npos);
+  UNet model(kHeads);
+  EXPECT_NE(error_of([&] { load_checkpoint(p, model, nullptr); }).find("config/format"), std::string::npos);
+}
+
+TEST_F(CheckpointHeadsTest, OtherHeadsOrOutputCountsAndBadHeadTextAreRefusedNamingTheField) {
+  const fs::path p = save(kHeads, "heads.h5");
+  UNet gaussian(UNetConfig{3, 3, 4, 2, 0, {}, {HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_gaussian}});
+  std::string e = error_of([&] { load_checkpoint(p, gaussian, nullptr); });
+  EXPECT_NE(e.find("config/unet.heads: checkpoint has \"mean,return_logit,log_scale_laplace\""), std::string::npos) << e;
+  UNet two(UNetConfig{3, 2, 4, 2, 0, {}, {HeadKind::mean, HeadKind::return_logit}});
+  e = error_of([&] { load_checkpoint(p, two, nullptr); });
+  EXPECT_NE(e.find("config/unet.outputs: checkpoint has 3, the model expects 2"), std::string::npos) << e;
+  UNet one(kOne);
+  EXPECT_NE(error_of([&] { load_checkpoint(p, one, nullptr); }).find("config/unet.outputs"), std::string::npos);
+
+  set_string_attr(p, "unet.heads", "mean,return_logit,quantile");
+  e = error_of([&] { read_checkpoint_meta(p); });
+  EXPECT_NE(e.find("config/unet.heads: value: unknown head \"quantile\""), std::string::npos) << e;
+  set_string_attr(p, "unet.heads", "return_logit,mean,log_scale_laplace");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(p); }).find("channel 0 must be the mean"), std::string::npos);
+
+  const fs::path old = save(kOne, "one.h5");
+  set_string_attr(old, "unet.heads", "mean");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(old); }).find("config/unet.heads: present in a format-1 checkpoint"),
+            std::string::npos);
+}
+
+}  // namespace
