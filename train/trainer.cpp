@@ -35,7 +35,8 @@ nn::Tensor predict_dataset(nn::UNet& model, const pgm::EncoderConfig& encoder, c
   for (int n = 0; n < dataset.size(); ++n) {
     pgm::encode_input(dataset.view(n), encoder, input, 0);
     model.predict(input, pred);
-    std::copy(pred.begin(), pred.end(), out.image(n));
+    // Channel 0 is the mean intensity whatever heads follow it (nn/heads.h).
+    std::copy_n(pred.begin(), static_cast<std::ptrdiff_t>(rows) * cols, out.image(n));
   }
   return out;
 }
