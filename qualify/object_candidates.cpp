@@ -7,6 +7,7 @@
 
 #include "qualify/object_false_positives.h"
 #include "qualify/report.h"
+#include "sensor/kpi_fit.h"
 
 namespace lidarsim::qualify::obj {
 
@@ -144,19 +145,22 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
   const auto x = s.column(f);
   const auto cls = s.classes();
   const auto cells = s.cells(t, nvis);
-  // Binary outcomes have no heavy tails: rate forms fit the raw residual.
-  const auto r = t == kDetectionTarget ? s.r : s.clipped(k.win[t]);
+  // Binary outcomes have no heavy tails: rate forms fit the raw residual, with the cells shrunk as
+  // the base model's are.
+  const bool rate = t == kDetectionTarget;
+  const auto r = rate ? s.r : s.clipped(k.win[t]);
+  const double cell_prior = rate ? sensor::kDetectionPriorObjects : 0.0;
   switch (kind) {
     case Kind::MeanTable:
     case Kind::RateTable:
-      e.bias = backfit(x, r, cls, cells, bins);
+      e.bias = backfit(x, r, cls, cells, bins, cell_prior);
       if (k.shrink_terms != TermShrink::Off)
         shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), false,
                                   k.shrink_terms == TermShrink::TowardsPooled);
       break;
     case Kind::MeanWindow:
     case Kind::RateWindow:
-      e.bias = backfit_window(x, r, cls, cells, 4 * bins);
+      e.bias = backfit_window(x, r, cls, cells, 4 * bins, cell_prior);
       if (k.shrink_terms != TermShrink::Off) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
       break;
     case Kind::SpreadTable:

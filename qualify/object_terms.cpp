@@ -27,18 +27,21 @@ void fit_cell_offsets(Refit& f, const std::vector<double>& x, const std::vector<
   std::map<std::pair<int, int>, std::pair<double, long>> acc;
   for (size_t i = 0; i < r.size(); ++i) {
     auto& a = acc[{cls[i], rb[i]}];
-    a.first += r[i] - f.table(cls[i], x[i]);
+    // Detection (cell_prior > 0): the base's cells are already its shrunk fit to these records, so
+    // a cell takes back only the table's mean over it, shrunk alike; a zero table is the base.
+    a.first += f.cell_prior > 0 ? -f.table(cls[i], x[i]) : r[i] - f.table(cls[i], x[i]);
     ++a.second;
   }
   f.d.clear();
   for (const auto& [k, a] : acc)
-    if (a.second >= 20) f.d[k] = a.first / a.second;
+    if (a.second >= 20) f.d[k] = a.first / (a.second + f.cell_prior);
 }
 }  // namespace
 
 Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
-              const std::vector<int>& rb, int bins) {
+              const std::vector<int>& rb, int bins, double cell_prior) {
   Refit f;
+  f.cell_prior = cell_prior;
   std::vector<double> y(r.size());
   for (int pass = 0; pass < 4; ++pass) {
     for (size_t i = 0; i < r.size(); ++i) {
@@ -88,8 +91,9 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
 }
 
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
-                     const std::vector<int>& rb, int fine_bins) {
+                     const std::vector<int>& rb, int fine_bins, double cell_prior) {
   Refit f;
+  f.cell_prior = cell_prior;
   std::vector<double> y(r.size());
   for (int pass = 0; pass < 4; ++pass) {
     for (size_t i = 0; i < r.size(); ++i) {
@@ -132,7 +136,7 @@ Slots slots_of(const ClassTables& t, const std::vector<double>& x, const std::ve
 // The term's values refitted with its edges kept and record weights w: backfit's (or
 // backfit_window's) four passes. `inside`: the window's bin (-1: a table).
 std::vector<double> refit_values(const Slots& s, int inside, const std::vector<double>& r, const std::vector<int>& cell,
-                                 int ncell, const std::vector<double>& w) {
+                                 int ncell, const std::vector<double>& w, double cell_prior) {
   std::vector<double> d(ncell, 0.0), v(s.total, 0.0), sum(s.total), cnt(s.total), dsum(ncell), dcnt(ncell);
   for (int pass = 0; pass < 4; ++pass) {
     std::fill(sum.begin(), sum.end(), 0.0), std::fill(cnt.begin(), cnt.end(), 0.0);
@@ -151,8 +155,9 @@ std::vector<double> refit_values(const Slots& s, int inside, const std::vector<d
       for (int b = 0; b < s.total; ++b) v[b] = cnt[b] > 0 ? sum[b] / (cnt[b] + 5.0) : 0.0;
     }
     std::fill(dsum.begin(), dsum.end(), 0.0), std::fill(dcnt.begin(), dcnt.end(), 0.0);
-    for (size_t i = 0; i < r.size(); ++i) dsum[cell[i]] += w[i] * (r[i] - v[s.used(i)]), dcnt[cell[i]] += w[i];
-    for (int c = 0; c < ncell; ++c) d[c] = dcnt[c] >= 20 ? dsum[c] / dcnt[c] : 0.0;
+    for (size_t i = 0; i < r.size(); ++i)
+      dsum[cell[i]] += w[i] * ((cell_prior > 0 ? 0.0 : r[i]) - v[s.used(i)]), dcnt[cell[i]] += w[i];
+    for (int c = 0; c < ncell; ++c) d[c] = dcnt[c] >= 20 ? dsum[c] / (dcnt[c] + cell_prior) : 0.0;
   }
   return v;
 }
@@ -210,7 +215,7 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
     std::fill(wt.begin(), wt.end(), 0.0);
     for (int j = 0; j < ntracks; ++j) wt[rng() % static_cast<std::uint64_t>(ntracks)] += 1;
     for (size_t i = 0; i < n; ++i) w[i] = wt[tr[i]];
-    const auto v = refit_values(s, inside, r, cell, ncell, w);
+    const auto v = refit_values(s, inside, r, cell, ncell, w, f.cell_prior);
     for (int b = 0; b < s.total; ++b) s1[b] += v[b], s2[b] += v[b] * v[b];
   }
   std::vector<double> se(s.total), factor(s.total, 1.0);

@@ -34,6 +34,10 @@ ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<dou
 struct Refit {
   ClassTables table;
   std::map<std::pair<int, int>, double> d;
+  // 0 for errors: a cell's offset is its mean residual. For detection the base's cells are Beta-
+  // shrunk (sensor::kDetectionPriorObjects, this value): a cell then takes back only the table's
+  // mean over it, over (n + this); refitted raw, the candidates lost to the base on that alone.
+  double cell_prior = 0;
   // After shrink_by_track_bootstrap: each bin's factor (fitted value x factor = the value kept) and
   // its bootstrap standard error, laid out like `table`; empty value vectors when not shrunk.
   ClassTables factor, se;
@@ -44,7 +48,7 @@ struct Refit {
 };
 
 Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
-              const std::vector<int>& rb, int bins);
+              const std::vector<int>& rb, int bins, double cell_prior = 0);
 
 // A window (or step) of x with fitted edges: the contiguous run of up to `fine_bins` equal-count
 // bins of the fit split whose mean of y differs most from the rest (between-groups sum of
@@ -55,7 +59,7 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
                        long min_side = 30);
 // backfit with the window (pooled over classes) in place of the per-class tables.
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
-                     const std::vector<int>& rb, int fine_bins = 40);
+                     const std::vector<int>& rb, int fine_bins = 40, double cell_prior = 0);
 
 // Shrinks a fitted bias term (table or window) towards 0 by its own sampling uncertainty, so that
 // a bin carried by a few tracks is trusted less than one carried by hundreds. The bins' standard

@@ -29,6 +29,11 @@ struct CalibrationSequence {
   std::vector<CalibrationFrame> frames;  // consecutive frames
 };
 
+// A detection cell's (range x visibility) rate is shrunk toward its range row's, the row's toward
+// the class's, as by a Beta prior worth this many objects: a cell weighs as much as its row at 15
+// objects, the count below which the raw rate was not used at all before.
+inline constexpr double kDetectionPriorObjects = 15;
+
 struct FitOptions {
   std::vector<std::string> classes = {"Car", "Pedestrian", "Cyclist"};
   double gate = 2.0;       // m, bird's-eye-view centre distance for a match
