@@ -56,7 +56,7 @@ struct Scan {
 json bins_json(const std::vector<SpreadBin>& bins) {
   json a = json::array();
   for (const auto& b : bins)
-    a.push_back({{"lo", b.lo}, {"hi", b.hi}, {"n", b.n}, {"sigma_m", b.sigma}, {"median_m", b.median},
+    a.push_back({{"lo", b.lo}, {"hi", b.hi}, {"mean", b.mean}, {"n", b.n}, {"sigma_m", b.sigma}, {"median_m", b.median},
                  {"share_beyond_3_sigma", b.tail3}});
   return a;
 }
@@ -79,7 +79,7 @@ void print_bins(const std::string& title, const std::string& unit, const std::ve
     std::cout << "  " << std::left << std::setw(14) << lab.str() << std::right << std::setw(9) << b.n << std::setw(11)
               << cm(b.sigma) << std::setw(11) << cm(b.median) << std::setw(9) << std::setprecision(3) << b.tail3;
     if (model) {
-      const double mid = 0.5 * (b.lo + b.hi);
+      const double mid = b.mean;
       std::cout << std::setw(10) << cm(model->sigma(mid)) << std::setw(10)
                 << cm(std::sqrt(model->a * model->a + model->b * model->b * mid * mid));
     }
@@ -176,7 +176,7 @@ int run_range_noise(int argc, char** argv) {
   // The table: bins with enough residuals for a spread known to a few per cent (MAD of n: ~1.2/sqrt(n)).
   for (const auto& b : by_range)
     if (b.n >= kTableMinCount) {
-      model.table_range_m.push_back(0.5 * (b.lo + b.hi));
+      model.table_range_m.push_back(b.mean);
       model.table_sigma_m.push_back(b.sigma);
     }
   std::ostringstream cmd;

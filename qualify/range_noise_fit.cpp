@@ -151,18 +151,21 @@ std::vector<SpreadBin> spread_by(const std::vector<RangeResidual>& residuals,
   std::vector<SpreadBin> out;
   if (edges.size() < 2) return out;
   std::vector<std::vector<float>> bins(edges.size() - 1);
+  std::vector<double> key_sum(bins.size(), 0);
   for (const auto& r : residuals) {
     const double k = key(r);
     if (!std::isfinite(k)) continue;
     const auto it = std::upper_bound(edges.begin(), edges.end(), k);
     if (it == edges.begin() || it == edges.end()) continue;
     bins[it - edges.begin() - 1].push_back(r.residual);
+    key_sum[it - edges.begin() - 1] += k;
   }
   for (std::size_t b = 0; b < bins.size(); ++b) {
     auto& v = bins[b];
     if (v.size() < min_count) continue;
     SpreadBin s;
     s.lo = edges[b], s.hi = edges[b + 1], s.n = v.size();
+    s.mean = key_sum[b] / v.size();
     s.sigma = robust_sigma(v);
     const std::size_t m = v.size() / 2;
     std::nth_element(v.begin(), v.begin() + m, v.end());
@@ -195,11 +198,11 @@ std::vector<double> quantile_edges(const std::vector<RangeResidual>& residuals,
 SigmaFit fit_sigma_of_range(const std::vector<SpreadBin>& bins) {
   SigmaFit f;
   if (bins.empty()) return f;
-  // s2 = A + B r^2 with A = a^2, B = b^2; r at the bin's middle.
+  // s2 = A + B r^2 with A = a^2, B = b^2; r the bin's mean range.
   auto solve = [&](const std::vector<double>& w, bool use_a, bool use_b, double& A, double& B) {
     double s00 = 0, s01 = 0, s11 = 0, t0 = 0, t1 = 0;
     for (std::size_t i = 0; i < bins.size(); ++i) {
-      const double r = 0.5 * (bins[i].lo + bins[i].hi), x = r * r, y = bins[i].sigma * bins[i].sigma;
+      const double r = bins[i].mean, x = r * r, y = bins[i].sigma * bins[i].sigma;
       s00 += w[i], s01 += w[i] * x, s11 += w[i] * x * x, t0 += w[i] * y, t1 += w[i] * x * y;
     }
     A = B = 0;
@@ -221,7 +224,7 @@ SigmaFit fit_sigma_of_range(const std::vector<SpreadBin>& bins) {
     else if (B < 0) solve(w, true, false, A, B);
     // Reweight by the fitted variance (the sample variance's own spread grows with it).
     for (std::size_t i = 0; i < bins.size(); ++i) {
-      const double r = 0.5 * (bins[i].lo + bins[i].hi), s2 = std::max(1e-12, A + B * r * r);
+      const double r = bins[i].mean, s2 = std::max(1e-12, A + B * r * r);
       w[i] = static_cast<double>(bins[i].n) / (s2 * s2);
     }
   }

@@ -65,6 +65,7 @@ double robust_sigma(std::vector<float> values);
 
 struct SpreadBin {
   double lo = 0, hi = 0;  // the bin's bounds in the binned quantity
+  double mean = 0;        // the binned quantity's mean over the bin's residuals
   std::size_t n = 0;
   double sigma = 0;    // 1.4826 MAD, m
   double median = 0;   // m
@@ -81,7 +82,7 @@ std::vector<SpreadBin> spread_by(const std::vector<RangeResidual>& residuals,
 std::vector<double> quantile_edges(const std::vector<RangeResidual>& residuals,
                                    const std::function<double(const RangeResidual&)>& key, int count);
 
-// sigma(r)^2 = a^2 + (b r)^2 fitted to the bins (weighted least squares on sigma^2, weights
+// sigma(r)^2 = a^2 + (b r)^2 fitted to the bins at their mean range (weighted least squares on sigma^2, weights
 // n / sigma^4, the inverse variance of a sample variance); a, b >= 0.
 struct SigmaFit {
   double a = 0, b = 0;
