@@ -2,6 +2,7 @@
 
 #include <cxxopts.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <iomanip>
 #include <iostream>
@@ -99,7 +100,9 @@ int run_range_noise(int argc, char** argv) {
     ("rellis3d", "RELLIS-3D folder (OS1-64 .bin + .label); needs --sensor and --class-table", cxxopts::value<std::string>())
     ("sensor", "beam layout JSON (default for SemanticKITTI: the built-in HDL-64E)", cxxopts::value<std::string>())
     ("class-table", "foreign ontology -> ours (data/ontologies/*.csv)", cxxopts::value<std::string>())
-    ("half-window", "neighbours on each side of a return in its beam row", cxxopts::value<int>()->default_value("2"))
+    ("classes", "classes the model is fitted on, comma-separated (the table by class shows every planar class)",
+     cxxopts::value<std::string>()->default_value("road"))
+    ("half-window", "neighbours on each side of a return in its beam row", cxxopts::value<int>()->default_value("1"))
     ("bin", "range bin width, m", cxxopts::value<double>()->default_value("5"))
     ("max-range", "last range bin ends here, m", cxxopts::value<double>()->default_value("80"))
     ("max-scans", "at most this many scans (0: all)", cxxopts::value<int>()->default_value("0"))
@@ -121,6 +124,17 @@ int run_range_noise(int argc, char** argv) {
   fo.half_window = a["half-window"].as<int>();
   if (fo.half_window < 1 || fo.half_window > 20) throw Error("--half-window: expected 1..20, got " + std::to_string(fo.half_window));
 
+  std::vector<int> fit_classes;
+  const std::string class_list = a["classes"].as<std::string>();
+  {
+    std::stringstream ss(class_list);
+    for (std::string name; std::getline(ss, name, ',');) {
+      const int c = pgm::class_from_name(name);
+      if (std::find(fo.classes.begin(), fo.classes.end(), c) == fo.classes.end())
+        throw Error("--classes: \"" + name + "\" is not a planar class (road, parking, sidewalk, other_ground, building, fence)");
+      fit_classes.push_back(c);
+    }
+  }
   pgm::BeamLayout layout = a.count("sensor") ? pgm::BeamLayout::from_file(a["sensor"].as<std::string>())
                                              : pgm::BeamLayout::hdl64e();
   if (!a.count("semantickitti") && !a.count("sensor"))
@@ -151,12 +165,12 @@ int run_range_noise(int argc, char** argv) {
 
   // Residuals of every scan, once per half-window (the main one and its neighbours, to bound the
   // surfaces' own roughness: it grows with the window, the sensor's noise does not).
-  std::vector<RangeResidual> res;
+  std::vector<RangeResidual> all;  // every planar class (the table by class)
   std::vector<int> windows = {1, 2, 3, 5};
   std::vector<std::vector<RangeResidual>> by_window(windows.size());
   for (const auto& s : scans) {
     auto r = scan_range_residuals(s.points, layout, fo, s.source);
-    res.insert(res.end(), r.begin(), r.end());
+    all.insert(all.end(), r.begin(), r.end());
     for (std::size_t w = 0; w < windows.size(); ++w) {
       RangeFitOptions ow = fo;
       ow.half_window = windows[w];
@@ -164,7 +178,13 @@ int run_range_noise(int argc, char** argv) {
       by_window[w].insert(by_window[w].end(), rw.begin(), rw.end());
     }
   }
-  if (res.size() < 100) throw input_error(dir, "scans", "only " + std::to_string(res.size()) + " usable planar neighbourhoods");
+  // The model and the tables by range, incidence, intensity and row: the fit classes only (default
+  // road: the smoothest surface labelled in every data set, seen at every range), so the surfaces'
+  // own structure (facades at range, kerbs) does not pass for sensor noise.
+  std::vector<RangeResidual> res;
+  for (const auto& r : all)
+    if (std::find(fit_classes.begin(), fit_classes.end(), r.class_id) != fit_classes.end()) res.push_back(r);
+  if (res.size() < 100) throw input_error(dir, "scans", "only " + std::to_string(res.size()) + " usable neighbourhoods of the fit classes");
 
   std::vector<double> range_edges;
   for (double e = 0; e <= max_range + 1e-9; e += bin) range_edges.push_back(e);
@@ -183,11 +203,11 @@ int run_range_noise(int argc, char** argv) {
   cmd << "lidar-qualify range-noise --" << dataset << " " << dir;
   if (a.count("sensor")) cmd << " --sensor " << a["sensor"].as<std::string>();
   if (a.count("class-table")) cmd << " --class-table " << a["class-table"].as<std::string>();
-  cmd << " --half-window " << fo.half_window << " --bin " << bin << " --max-range " << max_range;
+  cmd << " --classes " << class_list << " --half-window " << fo.half_window << " --bin " << bin << " --max-range " << max_range;
   if (max_scans > 0) cmd << " --max-scans " << max_scans;
   cmd << " --out " << a["out"].as<std::string>();
   model.source = dataset + ": " + std::to_string(scans.size()) + " scans of " + dir + ", " +
-                 std::to_string(res.size()) + " planar neighbourhoods";
+                 std::to_string(res.size()) + " neighbourhoods of " + class_list;
   model.validate("range-noise fit");
   const Datasheet ds = datasheet_of(layout.name);
 
@@ -202,7 +222,7 @@ int run_range_noise(int argc, char** argv) {
   json classes = json::array();
   for (int c : fo.classes) {
     std::vector<RangeResidual> rc;
-    for (const auto& r : res)
+    for (const auto& r : all)
       if (r.class_id == c) rc.push_back(r);
     if (rc.size() < 50) continue;
     std::vector<float> v;
@@ -221,7 +241,12 @@ int run_range_noise(int argc, char** argv) {
         if (r.class_id == c) vc.push_back(r.residual);
       if (vc.size() >= 50) byc[pgm::class_name(c)] = robust_sigma(vc);
     }
-    windows_json.push_back({{"half_window", windows[w]}, {"n", v.size()}, {"sigma_m", robust_sigma(v)}, {"by_class", byc}});
+    std::vector<RangeResidual> fit_w;  // the fit classes, by range: does the spread grow with the window at range?
+    for (const auto& r : by_window[w])
+      if (std::find(fit_classes.begin(), fit_classes.end(), r.class_id) != fit_classes.end()) fit_w.push_back(r);
+    windows_json.push_back({{"half_window", windows[w]}, {"n", v.size()}, {"sigma_m", robust_sigma(v)}, {"by_class", byc},
+                            {"fit_classes_by_range_m",
+                             bins_json(spread_by(fit_w, [](const RangeResidual& r) { return r.range; }, range_edges))}});
   }
 
   json j;
@@ -236,7 +261,8 @@ int run_range_noise(int argc, char** argv) {
   j["table"] = {{"range_m", model.table_range_m}, {"sigma_m", model.table_sigma_m}};
   j["datasheet"] = {{"sigma_m", ds.sigma_m}, {"source", ds.source}};
   j["measured"] = {{"method", "residual along the beam of a line fit to the same row's neighbours (half-window " +
-                                  std::to_string(fo.half_window) + "), planar classes, 1.4826 x MAD per bin"},
+                                  std::to_string(fo.half_window) + "), 1.4826 x MAD per bin; classes " + class_list +
+                                  " (by_class: every planar class)"},
                    {"by_range_m", bins_json(by_range)},
                    {"by_incidence_rad", bins_json(by_incidence)},
                    {"by_intensity", bins_json(by_intensity)},
@@ -246,7 +272,8 @@ int run_range_noise(int argc, char** argv) {
   write_file_atomically(a["out"].as<std::string>(), j.dump(1) + "\n");
 
   std::cout << "range noise of " << layout.name << " from " << scans.size() << " " << dataset << " scans, "
-            << res.size() << " planar neighbourhoods (half-window " << fo.half_window << ")\n"
+            << res.size() << " neighbourhoods of " << class_list << " (half-window " << fo.half_window
+            << "; " << all.size() << " of every planar class)\n"
             << "datasheet: " << ds.source << "\n"
             << "smooth form: sigma(r) = sqrt(a^2 + (b r)^2), a = " << cm(model.a) << " cm, b = " << std::setprecision(3)
             << 1000 * model.b << " mm per m (" << cm(model.sigma(25)) << " cm at 25 m); the model uses the table of "
@@ -260,8 +287,12 @@ int run_range_noise(int argc, char** argv) {
                                           << " (n " << c["n"].get<std::size_t>() << ")";
   std::cout << "\nspread by half-window (cm; the surfaces' roughness grows with it, the sensor's noise does not):\n";
   for (const auto& w : windows_json) {
-    std::cout << "  K=" << w["half_window"].get<int>() << ": all " << cm(w["sigma_m"].get<double>());
+    std::cout << "  K=" << w["half_window"].get<int>() << ": every planar class " << cm(w["sigma_m"].get<double>());
     for (const auto& [k, v] : w["by_class"].items()) std::cout << ", " << k << " " << cm(v.get<double>());
+    std::cout << "; " << class_list << " by range:";
+    for (const auto& b : w["fit_classes_by_range_m"])
+      if (b["n"].get<std::size_t>() >= kTableMinCount)
+        std::cout << " " << b["lo"].get<double>() << "-" << b["hi"].get<double>() << " " << cm(b["sigma_m"].get<double>());
     std::cout << "\n";
   }
   std::cout << "wrote " << a["out"].as<std::string>() << "\n";

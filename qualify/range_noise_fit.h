@@ -31,7 +31,9 @@ namespace lidarsim::qualify {
 std::vector<int> planar_classes();  // road, parking, sidewalk, other_ground, building, fence
 
 struct RangeFitOptions {
-  int half_window = 2;                // neighbours on each side in the row
+  // Neighbours on each side in the row. 1 by default: at range a wider window spans more of the
+  // surface and reads its shape as noise (on KITTI roads at 45 m: 2.4 cm with 1, 3.1 cm with 2).
+  int half_window = 1;
   double gap_factor = 2.5;            // a step wider than this x the row's median step breaks a neighbourhood
   double max_neighbour_rms = 0.15;    // m: the neighbours' own line fit, above this = an edge or clutter
   double max_abs_residual = 1.0;      // m: beyond = another surface

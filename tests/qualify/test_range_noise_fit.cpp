@@ -66,15 +66,18 @@ std::vector<float> residuals_of(const std::vector<RangeResidual>& rs, int cls = 
 }  // namespace
 
 TEST(RangeNoiseFit, RecoversTheInjectedSigmaOnRoadAndWall) {
+  for (int k : {1, 2, 3})
   for (double sigma : {0.02, 0.05}) {
     const auto s = scene(sigma, 0, 1);
-    const auto rs = range_residuals(s.points, s.rows, s.incidence);
+    RangeFitOptions o;
+    o.half_window = k;
+    const auto rs = range_residuals(s.points, s.rows, s.incidence, o);
     const auto road = residuals_of(rs, pgm::cls::road), wall = residuals_of(rs, pgm::cls::building);
     ASSERT_GT(road.size(), 20000u);
     ASSERT_GT(wall.size(), 5000u);
     // MAD of n >= 5000 Gaussian residuals: ~1.2 % standard error; 6 % is five of them.
-    EXPECT_NEAR(robust_sigma(road), sigma, 0.06 * sigma) << "sigma " << sigma;
-    EXPECT_NEAR(robust_sigma(wall), sigma, 0.06 * sigma) << "sigma " << sigma;
+    EXPECT_NEAR(robust_sigma(road), sigma, 0.06 * sigma) << "sigma " << sigma << ", half-window " << k;
+    EXPECT_NEAR(robust_sigma(wall), sigma, 0.06 * sigma) << "sigma " << sigma << ", half-window " << k;
   }
 }
 
