@@ -5,11 +5,15 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
 #include <numbers>
 #include <random>
 
 #include "pgm/materials.h"
 #include "qualify/range_noise_fit.h"
+#include "sensor/frames.h"
+#include "sensor/pcl_generator.h"
+#include "sensor/range_noise.h"
 
 using namespace lidarsim::qualify;
 namespace pgm = lidarsim::pgm;
@@ -133,4 +137,48 @@ TEST(RangeNoiseFit, EdgesAndOtherClassesAreLeftOut) {
   EXPECT_TRUE(residuals_of(rs, pgm::cls::vegetation).empty());
   ASSERT_FALSE(rs.empty());
   for (const auto& r : rs) EXPECT_EQ(r.class_id, pgm::cls::road);
+}
+
+TEST(RangeNoiseFit, SimulatedScanReadsBackTheShippedModel) {
+  // The loop closed: the PCL generator applies the shipped HDL-64E model to a road, and the same
+  // fit that made the model reads its table back from the simulated scan, bin by bin.
+  const auto model = std::make_shared<const lidarsim::sensor::RangeNoiseModel>(lidarsim::sensor::load_range_noise_model(
+      std::string(LIDARSIM_SOURCE_DIR) + "/data/models/range_noise_hdl64e.json"));
+  lidarsim::sensor::PclConfig cfg;
+  cfg.range_noise = model;
+  cfg.range_noise_seed = 3;
+  const auto layout = pgm::BeamLayout::hdl64e();
+  lidarsim::sensor::PclGenerator gen(layout, lidarsim::sensor::make_pose({0, 0, 1.73}, 0, 0, 0), cfg);
+  std::vector<pgm::Point> points;
+  std::vector<int> rows;
+  for (std::uint64_t frame = 0; frame < 4; ++frame) {
+    auto map = gen.make_map({"x", "y", "z"});
+    gen.set_frame(frame);
+    gen.generate({}, {}, map);
+    const float *x = map.channel("x"), *y = map.channel("y"), *z = map.channel("z"), *mask = map.channel("mask");
+    std::vector<pgm::Point> frame_points;
+    for (std::size_t i = 0; i < map.cells(); ++i) {
+      if (!(mask[i] > 0)) continue;
+      pgm::Point p;
+      p.x = x[i], p.y = y[i], p.z = z[i];
+      p.class_id = pgm::cls::road;
+      points.push_back(p);
+      // Frames apart: each frame's rows are their own (a frame's row r is row r + 64 frame).
+      rows.push_back(static_cast<int>(i / layout.columns + frame * layout.rows()));
+    }
+  }
+  const auto rs = range_residuals(points, rows, {});
+  std::vector<double> edges;
+  for (int e = 0; e <= 50; e += 5) edges.push_back(e);
+  const auto bins = spread_by(rs, [](const RangeResidual& r) { return r.range; }, edges, 1000);
+  ASSERT_GE(bins.size(), 6u);
+  for (const auto& b : bins) {
+    // sigma changes inside a bin: compare with the model's rms over the bin's residuals.
+    double s2 = 0;
+    std::size_t n = 0;
+    for (const auto& r : rs)
+      if (r.range >= b.lo && r.range < b.hi) s2 += model->sigma(r.range) * model->sigma(r.range), ++n;
+    const double expected = std::sqrt(s2 / n);
+    EXPECT_NEAR(b.sigma, expected, 0.08 * expected) << "range " << b.lo << "-" << b.hi << " (n " << b.n << ")";
+  }
 }
