@@ -334,7 +334,7 @@ int run(int argc, char** argv) {
   if (cmd == "objects") return run_objects(a, c);
   if (cmd == "intensity") return run_intensity(a);
   if (cmd == "loop") return run_loop(sub, a, c);
-  throw Error("unknown command \"" + cmd + "\" (expected objects, intensity or loop)");
+  throw Error("unknown command \"" + cmd + "\" (expected objects, intensity, loop or range-noise)");
 }
 
 }  // namespace

@@ -129,7 +129,12 @@ int run_range_noise(int argc, char** argv) {
   {
     std::stringstream ss(class_list);
     for (std::string name; std::getline(ss, name, ',');) {
-      const int c = pgm::class_from_name(name);
+      int c = -1;
+      try {
+        c = pgm::class_from_name(name);
+      } catch (const Error& e) {
+        throw Error(std::string("--classes: ") + e.what());
+      }
       if (std::find(fo.classes.begin(), fo.classes.end(), c) == fo.classes.end())
         throw Error("--classes: \"" + name + "\" is not a planar class (road, parking, sidewalk, other_ground, building, fence)");
       fit_classes.push_back(c);

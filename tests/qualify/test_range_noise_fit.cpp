@@ -5,15 +5,20 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <numbers>
 #include <random>
 
 #include "pgm/materials.h"
+#include "qualify/range_noise_cli.h"
 #include "qualify/range_noise_fit.h"
 #include "sensor/frames.h"
 #include "sensor/pcl_generator.h"
 #include "sensor/range_noise.h"
+#include "tests/support/temp_path.h"
 
 using namespace lidarsim::qualify;
 namespace pgm = lidarsim::pgm;
@@ -28,24 +33,28 @@ struct SyntheticScan {
   std::vector<float> incidence;  // true, rad
 };
 
-// Sensor 1.73 m above a flat road; a building wall along y = 12 m (left), seen from ~0 to ~85 deg
-// incidence along the row. 48 rows from +2 to -22 deg, 2000 points per row (0.18 deg, like an
-// HDL-64E at 10 Hz). sigma(r) = sqrt(a^2 + (b r)^2) along each beam.
-SyntheticScan scene(double a, double b, std::uint64_t seed) {
+// Sensor 1.73 m above a flat road; building walls along y = 12 m (left) and y = -15 m (right),
+// each seen from ~0 to ~85 deg incidence along a row. Rows at `elevations_deg` (default 48 rows
+// from +2 to -22 deg), 2000 points per row (0.18 deg, like an HDL-64E at 10 Hz), in firing order
+// (row by row, azimuth rising from -pi). sigma(r) = sqrt(a^2 + (b r)^2) along each beam.
+SyntheticScan scene(double a, double b, std::uint64_t seed, std::vector<double> elevations_deg = {}) {
+  if (elevations_deg.empty())
+    for (int r = 0; r < 48; ++r) elevations_deg.push_back(2 - 24.0 * r / 47);
   SyntheticScan s;
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> normal;
-  const int rows = 48, cols = 2000;
-  const double h = 1.73, wall_y = 12;
-  for (int r = 0; r < rows; ++r) {
-    const double el = (2 - 24.0 * r / (rows - 1)) * kDeg;
+  const int cols = 2000;
+  const double h = 1.73, left_y = 12, right_y = -15;
+  for (int r = 0; r < static_cast<int>(elevations_deg.size()); ++r) {
+    const double el = elevations_deg[r] * kDeg;
     for (int c = 0; c < cols; ++c) {
       const double az = -std::numbers::pi + 2 * std::numbers::pi * (c + 0.5) / cols;
       const double ux = std::cos(el) * std::cos(az), uy = std::cos(el) * std::sin(az), uz = std::sin(el);
       double t = 1e9, inc = 0;
       int cls = -1;
       if (uz < 0) t = -h / uz, inc = std::acos(-uz), cls = pgm::cls::road;
-      if (uy > 0 && wall_y / uy < t) t = wall_y / uy, inc = std::acos(uy), cls = pgm::cls::building;
+      if (uy > 0 && left_y / uy < t) t = left_y / uy, inc = std::acos(uy), cls = pgm::cls::building;
+      if (uy < 0 && right_y / uy < t) t = right_y / uy, inc = std::acos(-uy), cls = pgm::cls::building;
       if (cls < 0 || t > 100) continue;
       const double noisy = t + std::hypot(a, b * t) * normal(rng);
       pgm::Point p;
@@ -181,4 +190,44 @@ TEST(RangeNoiseFit, SimulatedScanReadsBackTheShippedModel) {
     const double expected = std::sqrt(s2 / n);
     EXPECT_NEAR(b.sigma, expected, 0.08 * expected) << "range " << b.lo << "-" << b.hi << " (n " << b.n << ")";
   }
+}
+
+TEST(RangeNoiseFit, CommandWritesTheModelItMeasuresOnARecordedScan) {
+  // lidar-qualify range-noise on a scan written in the SemanticKITTI layout (HDL-64E elevations,
+  // firing order, road = label 40, building = 50) with sigma = 3 cm along the beam: the model it
+  // writes gives 3 cm back at every range of its table, and records its command and the datasheet.
+  const double sigma = 0.03;
+  std::vector<double> elevations;
+  for (double e : pgm::BeamLayout::hdl64e().elevations_rad) elevations.push_back(e / kDeg);
+  const auto s = scene(sigma, 0, 6, elevations);
+  const auto dir = lidarsim::testing::temp_path("range_noise_cli");
+  std::filesystem::create_directories(dir / "velodyne");
+  std::filesystem::create_directories(dir / "labels");
+  std::vector<float> xyzi;
+  std::vector<std::uint32_t> labels;
+  for (const auto& p : s.points) {
+    xyzi.insert(xyzi.end(), {p.x, p.y, p.z, p.intensity});
+    labels.push_back(p.class_id == pgm::cls::road ? 40u : 50u);
+  }
+  std::ofstream(dir / "velodyne/000000.bin", std::ios::binary)
+      .write(reinterpret_cast<const char*>(xyzi.data()), static_cast<std::streamsize>(xyzi.size() * sizeof(float)));
+  std::ofstream(dir / "labels/000000.label", std::ios::binary)
+      .write(reinterpret_cast<const char*>(labels.data()), static_cast<std::streamsize>(labels.size() * 4));
+  const std::string sk = dir.string(), out = (dir / "model.json").string();
+  std::vector<std::string> args = {"range-noise", "--semantickitti", sk, "--classes", "road,building", "--out", out};
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  testing::internal::CaptureStdout();
+  ASSERT_EQ(run_range_noise(static_cast<int>(argv.size()), argv.data()), 0);
+  const std::string printed = testing::internal::GetCapturedStdout();
+  EXPECT_NE(printed.find("spread by range"), std::string::npos);
+  const auto model = lidarsim::sensor::load_range_noise_model(out);
+  EXPECT_EQ(model.sensor, "hdl64e");
+  ASSERT_GE(model.table_range_m.size(), 5u);
+  for (std::size_t i = 0; i < model.table_range_m.size(); ++i)
+    EXPECT_NEAR(model.table_sigma_m[i], sigma, 0.1 * sigma) << "range " << model.table_range_m[i];
+  std::ifstream in(out);
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_NE(j["command"].get<std::string>().find("lidar-qualify range-noise --semantickitti"), std::string::npos);
+  EXPECT_EQ(j["datasheet"]["sigma_m"].get<double>(), 0.02);
 }
