@@ -96,7 +96,8 @@ int run_range_noise(int argc, char** argv) {
                         "each beam row on planar classes, measured along the beam (docs/range-noise.md).");
   opts.add_options()
     ("semantickitti", "SemanticKITTI folder (velodyne + labels; HDL-64E)", cxxopts::value<std::string>())
-    ("nuscenes-lidarseg", "nuScenes-lidarseg folder (velodyne/*.pcd.bin + labels/*.lidarseg.bin); needs --sensor and --class-table", cxxopts::value<std::string>())
+    ("nuscenes-lidarseg", "nuScenes-lidarseg folder (velodyne/*.pcd.bin + labels/*.lidarseg.bin); needs --sensor and "
+     "--class-table", cxxopts::value<std::string>())
     ("rellis3d", "RELLIS-3D folder (OS1-64 .bin + .label); needs --sensor and --class-table", cxxopts::value<std::string>())
     ("sensor", "beam layout JSON (default for SemanticKITTI: the built-in HDL-64E)", cxxopts::value<std::string>())
     ("class-table", "foreign ontology -> ours (data/ontologies/*.csv)", cxxopts::value<std::string>())

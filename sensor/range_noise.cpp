@@ -60,7 +60,8 @@ RangeNoiseModel parse_range_noise_model(const std::string& text, const std::stri
   RangeNoiseModel m;
   for (const char* key : {"a", "b"}) {
     const json& v = j["sigma_m"].contains(key) ? j["sigma_m"][key] : json();
-    if (!v.is_number()) throw input_error(file, std::string("sigma_m.") + key, "must be a number (m" + (key[0] == 'b' ? std::string(" per m)") : std::string(")")));
+    if (!v.is_number())
+      throw input_error(file, std::string("sigma_m.") + key, key[0] == 'a' ? "must be a number (m)" : "must be a number (m per m)");
     (key[0] == 'a' ? m.a : m.b) = v.get<double>();
   }
   if (j.contains("table")) {
