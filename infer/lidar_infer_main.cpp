@@ -22,6 +22,7 @@
 #include "infer/sim_outputs.h"
 #include "infer/sim_pipeline.h"
 #include "nn/precision.h"
+#include "sensor/range_noise.h"
 
 namespace {
 
@@ -112,6 +113,9 @@ cxxopts::Options sim_options_spec() {
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
     ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("range-noise", "range noise model JSON (lidar-qualify range-noise, e.g. data/models/range_noise_hdl64e.json): "
+     "each return's range scatters along its beam, drawn from --seed, the frame and the cell; default exact ranges",
+     cxxopts::value<std::string>())
     ("no-outputs", "only time the pipeline: write nothing but the summary")
     ("every", "write the outputs of every N-th frame only (the UNet then runs on those frames only)", cxxopts::value<int>()->default_value("1"))
     ("sync-outputs", "write outputs on the pipeline's thread (default: a writer thread)")
@@ -161,6 +165,9 @@ SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
   if (args.count("precision"))
     nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer sim: --precision"));
   a.sim_options.seed = args["seed"].as<std::uint64_t>();
+  if (args.count("range-noise"))
+    a.sim_options.range_noise = std::make_shared<const sensor::RangeNoiseModel>(
+        sensor::load_range_noise_model(args["range-noise"].as<std::string>()));
   if (args.count("sensor")) a.sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
   a.every = args["every"].as<int>();
   if (a.every < 1) throw Error("lidar-infer sim: --every must be >= 1, got " + std::to_string(a.every));

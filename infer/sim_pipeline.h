@@ -47,6 +47,9 @@ struct SimOptions {
   // Another sensor (lidar-infer sim --sensor FILE.json): replaces the scenario's beams, and its
   // vertical field of view and range limits follow the layout's beams and ranges.
   std::optional<pgm::BeamLayout> sensor;
+  // Range noise of the PCL generator's returns (sensor/range_noise.h), drawn from `seed`, the
+  // frame and the cell; null = exact ranges.
+  std::shared_ptr<const sensor::RangeNoiseModel> range_noise;
 };
 
 // Puts `layout` in the scenario's sensor (beams, vertical field of view, range limits).

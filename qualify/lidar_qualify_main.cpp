@@ -14,6 +14,7 @@
 #include "qualify/intensity.h"
 #include "qualify/object_false_positives.h"
 #include "qualify/objects.h"
+#include "qualify/range_noise_cli.h"
 #include "qualify/report.h"
 #include "sensor/kpi_model.h"
 
@@ -28,6 +29,7 @@ const char* kUsage =
     "  lidar-qualify intensity --model CK.h5 --semantickitti DIR --out R        predicted vs measured intensity\n"
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup|lookup-beam] [--folds 1|4] [--out-model CK.h5]\n"
+    "  lidar-qualify range-noise --semantickitti DIR --out M.json              range noise fitted on measured scans\n"
     "add --help after a command for its options\n";
 
 std::string need(const cxxopts::ParseResult& a, const std::string& key, const std::string& what) {
@@ -313,6 +315,7 @@ int run(int argc, char** argv) {
     return argc < 2 ? 1 : 0;
   }
   const std::string cmd = argv[1];
+  if (cmd == "range-noise") return qualify::run_range_noise(argc - 1, argv + 1);
   std::string sub;
   int shift = 1;
   if (cmd == "loop") {
@@ -331,7 +334,7 @@ int run(int argc, char** argv) {
   if (cmd == "objects") return run_objects(a, c);
   if (cmd == "intensity") return run_intensity(a);
   if (cmd == "loop") return run_loop(sub, a, c);
-  throw Error("unknown command \"" + cmd + "\" (expected objects, intensity or loop)");
+  throw Error("unknown command \"" + cmd + "\" (expected objects, intensity, loop or range-noise)");
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include "pgm/projection.h"
 #include "sensor/fov.h"
 #include "sensor/frames.h"
+#include "sensor/range_noise.h"
 
 namespace lidarsim::sensor {
 
@@ -270,6 +271,7 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
       }
     }
   }
+  if (cfg_.range_noise) apply_range_noise(*cfg_.range_noise, cfg_.range_noise_seed, frame_, out);
   for (const char* name : {"incidence", "depth_discontinuity"}) {
     if (!out.has_channel(name)) continue;
     if (!neighbourhood_channels) std::fill_n(out.channel(name), out.cells(), 0.f);

@@ -17,6 +17,8 @@
 // real inputs of the network are computed alike. point_index of a cell with a return is the
 // cell's own index (row * cols + col). Rows are parallel (OpenMP); no allocation per frame once
 // the internal buffers have grown.
+#include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "pgm/beam_layout.h"
@@ -25,6 +27,8 @@
 #include "sensor/scene.h"
 
 namespace lidarsim::sensor {
+
+struct RangeNoiseModel;
 
 struct PclConfig {
   bool ground = true;
@@ -37,6 +41,11 @@ struct PclConfig {
   // Beams outside the field of view's angular limits return nothing (sensor frame, rad).
   double azimuth_min = -3.14159265358979323846, azimuth_max = 3.14159265358979323846;
   double elevation_min = -3.14159265358979323846 / 2, elevation_max = 3.14159265358979323846 / 2;
+  // Range noise (sensor/range_noise.h) applied to every return before the neighbourhood channels
+  // are estimated, as a real scan's are from its noisy ranges; null = exact ranges. The draws
+  // depend only on (range_noise_seed, the frame set by set_frame, cell).
+  std::shared_ptr<const RangeNoiseModel> range_noise;
+  std::uint64_t range_noise_seed = 1;
   // Range and angular limits from a field of view; the rest at their defaults.
   static PclConfig from_fov(const FieldOfView& fov);
 };
@@ -59,6 +68,9 @@ class PclGenerator {
   int generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
                pgm::PolarGridMap& out, bool neighbourhood_channels = true);
 
+  // The frame index the range noise of the next generate() is keyed by.
+  void set_frame(std::uint64_t frame) { frame_ = frame; }
+
   const pgm::BeamLayout& layout() const { return layout_; }
   const Pose& mount() const { return mount_; }
   const PclConfig& config() const { return cfg_; }
@@ -80,6 +92,7 @@ class PclGenerator {
   Pose mount_;
   Pose sensor_from_ego_;
   PclConfig cfg_;
+  std::uint64_t frame_ = 0;
   std::vector<Eigen::Vector3d> dir_sensor_;  // [rows * cols] unit ray directions, sensor frame
   std::vector<Eigen::Vector3d> dir_ego_;     // the same in the ego frame
   std::vector<char> cell_in_fov_;            // [rows * cols]
