@@ -14,7 +14,8 @@
 // Root attributes: format = "lidarsim-dataset", version = 2, channels (JSON list of the /pgm
 // channel names), beam_layout (pgm::BeamLayout JSON), source_format ("semantickitti",
 // "kitti_object", ...), row_modes (JSON list, per frame; only while short enough for an
-// attribute — version 1 files have only this), target_channel = "intensity".
+// attribute — version 1 files have only this), target_channel = "intensity", and, when the
+// importer knows them, intensity_scale and intensity_normalisation (data/intensity_scale.h).
 // Frame arrays are chunked one frame per chunk, shuffled and deflated (DatasetWriter streams
 // them; DatasetReader reads single frames back). Written to a temporary file and renamed
 // (AtomicFile). Reading checks every dataset, attribute and shape and names the first that is
@@ -24,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "data/intensity_scale.h"
 #include "nn/tensor.h"
 #include "pgm/encoder.h"
 #include "pgm/polar_grid_map.h"
@@ -48,6 +50,7 @@ struct Dataset {
   std::vector<std::string> channels;  // names of /pgm's channels
   pgm::BeamLayout layout;
   std::string source_format;
+  IntensityScale intensity_scale;      // not recorded in files written before it existed
   std::vector<std::string> frames;     // one id per frame
   std::vector<std::string> row_modes;  // one per frame (pgm::to_string(RowMode))
   std::vector<std::string> sources;
