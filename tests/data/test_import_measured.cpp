@@ -60,5 +60,22 @@ TEST(ImportMeasuredStatistical, Seq08MosScansImportWithClassUnlabeledAndTheirMot
   EXPECT_EQ(in.header().frame_place(0).source, "semantickitti");
 }
 
+TEST(ImportMeasuredStatistical, RellisScansOnTwoIntensityScalesAreRefusedInOneDataset) {
+  LIDARSIM_REQUIRE_SHARED_DATA(dir, "rellis3d-os1-sample");
+  TempDir tmp;
+  // The sample scan with its PLY (reflectivity), and a copy without one (the .bin's intensity).
+  for (const auto& e : fs::directory_iterator(dir)) fs::copy(e.path(), tmp / e.path().filename().string());
+  fs::copy(dir / "000104.bin", tmp / "000105.bin");
+  fs::copy(dir / "000104.label", tmp / "000105.label");
+  ImportOptions o;
+  o.layout = pgm::BeamLayout::from_file((source_dir() / "data/sensors/os1-64-rellis3d.json").string());
+  o.class_table = source_dir() / "data/ontologies/rellis3d.csv";
+  const std::string err = lidarsim::testing::error_of([&] { import_dataset(SourceFormat::Rellis3d, tmp.path(), o); });
+  EXPECT_NE(err.find("000105.bin: intensity: on the scale rellis3d_bin_intensity"), std::string::npos) << err;
+  EXPECT_NE(err.find("rellis3d_reflectivity_16bit"), std::string::npos) << err;
+  o.max_frames = 1;  // the scan with its PLY alone
+  EXPECT_EQ(import_dataset(SourceFormat::Rellis3d, tmp.path(), o).intensity_scale, intensity_scale::rellis3d_reflectivity());
+}
+
 }  // namespace
 }  // namespace lidarsim::data
