@@ -1,7 +1,8 @@
 #pragma once
 // HDF5 datasets of Polar Grid Maps, readable with h5py:
-//   /pgm          float32 [N, C, H, W]  raw channels (range m, class id, material id, and effect
-//                                       channels such as elevation, azimuth, height, incidence)
+//   /pgm          float32 [N, C, H, W]  raw channels (range m, class id, material id, effect
+//                                       channels such as elevation, azimuth, height, incidence,
+//                                       and label channels a reader adds: motion, data/semantickitti_mos.h)
 //   /target       float32 [N, 1, H, W]  measured intensity (0 in empty cells)
 //   /mask         uint8   [N, 1, H, W]  1 where the cell has a return
 //   /point_index  int32   [N, H, W]     index of the point in its scan file (-1 empty), for

@@ -34,7 +34,8 @@ using namespace lidarsim;
 const char* kUsage =
     "usage: lidar-data <command> [options]\n"
     "commands:\n"
-    "  import     read SemanticKITTI, KITTI object, nuScenes, RELLIS-3D or Ouster scans into an HDF5 dataset\n"
+    "  import     read SemanticKITTI (or its moving-object labels), KITTI object, nuScenes(-lidarseg), RELLIS-3D or\n"
+    "             Ouster scans into an HDF5 dataset\n"
     "  layout     write the beam layout JSON of an Ouster sensor from its metadata\n"
     "  baselines  MAE/RMSE of the lookup baselines on a dataset's validation split (default: guarded)\n"
     "  info       frames, channels and beam layout of a dataset\n"
