@@ -114,6 +114,7 @@ void write_dataset(const fs::path& path, const Dataset& d) {
   if (!d.point_index.empty() && d.point_index.size() != static_cast<std::size_t>(N) * plane)
     throw input_error(fname, "/point_index", "size differs from N x H x W");
   DatasetWriter out(path, d.channels, d.layout, d.source_format, !d.point_index.empty());
+  out.set_intensity_scale(d.intensity_scale);
   for (int n = 0; n < N; ++n)
     out.append(d.pgm.image(n), d.target.image(n), d.mask.image(n),
                d.point_index.empty() ? nullptr : d.point_index.data() + n * plane, d.frames[n], d.row_modes[n],

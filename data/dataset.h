@@ -1,7 +1,8 @@
 #pragma once
 // HDF5 datasets of Polar Grid Maps, readable with h5py:
-//   /pgm          float32 [N, C, H, W]  raw channels (range m, class id, material id, and effect
-//                                       channels such as elevation, azimuth, height, incidence)
+//   /pgm          float32 [N, C, H, W]  raw channels (range m, class id, material id, effect
+//                                       channels such as elevation, azimuth, height, incidence,
+//                                       and label channels a reader adds: motion, data/semantickitti_mos.h)
 //   /target       float32 [N, 1, H, W]  measured intensity (0 in empty cells)
 //   /mask         uint8   [N, 1, H, W]  1 where the cell has a return
 //   /point_index  int32   [N, H, W]     index of the point in its scan file (-1 empty), for
@@ -14,7 +15,8 @@
 // Root attributes: format = "lidarsim-dataset", version = 2, channels (JSON list of the /pgm
 // channel names), beam_layout (pgm::BeamLayout JSON), source_format ("semantickitti",
 // "kitti_object", ...), row_modes (JSON list, per frame; only while short enough for an
-// attribute — version 1 files have only this), target_channel = "intensity".
+// attribute — version 1 files have only this), target_channel = "intensity", and, when the
+// importer knows them, intensity_scale and intensity_normalisation (data/intensity_scale.h).
 // Frame arrays are chunked one frame per chunk, shuffled and deflated (DatasetWriter streams
 // them; DatasetReader reads single frames back). Written to a temporary file and renamed
 // (AtomicFile). Reading checks every dataset, attribute and shape and names the first that is
@@ -24,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "data/intensity_scale.h"
 #include "nn/tensor.h"
 #include "pgm/encoder.h"
 #include "pgm/polar_grid_map.h"
@@ -48,6 +51,7 @@ struct Dataset {
   std::vector<std::string> channels;  // names of /pgm's channels
   pgm::BeamLayout layout;
   std::string source_format;
+  IntensityScale intensity_scale;      // not recorded in files written before it existed
   std::vector<std::string> frames;     // one id per frame
   std::vector<std::string> row_modes;  // one per frame (pgm::to_string(RowMode))
   std::vector<std::string> sources;

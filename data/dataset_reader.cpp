@@ -70,6 +70,12 @@ void DatasetReader::read_header(const std::vector<std::string>& required_channel
     d.channels = json_strings(h5::read_attr(root, fname_, "channels"), fname_, "attribute channels");
     d.layout = pgm::BeamLayout::from_json(h5::read_attr(root, fname_, "beam_layout"), fname_ + ": attribute beam_layout");
     d.source_format = h5::read_attr(root, fname_, "source_format");
+    if (h5::has_attr(root, "intensity_scale")) {
+      d.intensity_scale.name = h5::read_attr(root, fname_, "intensity_scale");
+      if (d.intensity_scale.name.empty()) throw input_error(fname_, "attribute intensity_scale", "empty");
+      if (h5::has_attr(root, "intensity_normalisation"))
+        d.intensity_scale.normalisation = h5::read_attr(root, fname_, "intensity_normalisation");
+    }
     for (const auto& c : required_channels) {
       if (c == "mask" || c == "intensity") continue;  // /mask and /target
       if (std::find(d.channels.begin(), d.channels.end(), c) == d.channels.end()) {

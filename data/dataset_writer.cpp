@@ -197,6 +197,10 @@ void DatasetWriter::commit() {
     const std::string modes = nlohmann::json(row_modes_).dump();
     if (modes.size() <= kMaxListAttribute) h5::write_attr(root, m.fname, "row_modes", modes);
     h5::write_attr(root, m.fname, "target_channel", "intensity");
+    if (intensity_scale_.recorded()) {
+      h5::write_attr(root, m.fname, "intensity_scale", intensity_scale_.name);
+      h5::write_attr(root, m.fname, "intensity_normalisation", intensity_scale_.normalisation);
+    }
   }
   // Everything is written by the flush; a failure there leaves the file open for abandon() (the
   // destructor). After a good flush, the close rewrites little more than the superblock, inside

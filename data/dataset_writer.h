@@ -35,6 +35,8 @@ class DatasetWriter {
   void append(const float* pgm, const float* target, const float* mask, const std::int32_t* point_index,
               const std::string& frame_id, const std::string& row_mode, const FramePlace& place);
   void add_source(const std::string& file) { sources_.push_back(file); }
+  // Written as the intensity_scale / intensity_normalisation attributes when recorded.
+  void set_intensity_scale(IntensityScale scale) { intensity_scale_ = std::move(scale); }
 
   int size() const { return static_cast<int>(frames_.size()); }
   long long returns() const { return returns_; }  // cells with a return so far
@@ -49,6 +51,7 @@ class DatasetWriter {
   std::vector<std::string> channels_;
   pgm::BeamLayout layout_;
   std::string source_format_;
+  IntensityScale intensity_scale_;
   std::vector<std::string> frames_, row_modes_, sources_;
   std::vector<FramePlace> places_;
   std::map<std::string, int> mode_counts_;

@@ -89,6 +89,7 @@ class MemoryFrameSource : public FrameSource {
     header_.channels = d.channels;
     header_.layout = d.layout;
     header_.source_format = d.source_format;
+    header_.intensity_scale = d.intensity_scale;
     header_.frames = d.frames;
     header_.row_modes = d.row_modes;
     header_.sources = d.sources;

@@ -1,11 +1,13 @@
 // lidar-data: recorded LiDAR data -> HDF5 Polar Grid Map datasets, and the reference baselines.
 //   lidar-data import --semantickitti DIR | --kitti-object DIR | --nuscenes DIR | --rellis3d DIR
-//                     | --ouster PCAP  --out file.h5 [--columns 1024] [--sensor layout.json]
+//                     | --ouster PCAP | --nuscenes-lidarseg DIR | --semantickitti-mos DIR
+//                     --out file.h5 [--columns 1024] [--sensor layout.json]
 //   lidar-data baselines file.h5     (global / class / class x range / class x row, MAE and RMSE)
 //   lidar-data info file.h5 [--png frame.png]
 //   lidar-data layout --ouster-metadata X.json --out layout.json
 #include <cxxopts.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <iostream>
@@ -32,7 +34,8 @@ using namespace lidarsim;
 const char* kUsage =
     "usage: lidar-data <command> [options]\n"
     "commands:\n"
-    "  import     read SemanticKITTI, KITTI object, nuScenes, RELLIS-3D or Ouster scans into an HDF5 dataset\n"
+    "  import     read SemanticKITTI (or its moving-object labels), KITTI object, nuScenes(-lidarseg), RELLIS-3D or\n"
+    "             Ouster scans into an HDF5 dataset\n"
     "  layout     write the beam layout JSON of an Ouster sensor from its metadata\n"
     "  baselines  MAE/RMSE of the lookup baselines on a dataset's validation split (default: guarded)\n"
     "  info       frames, channels and beam layout of a dataset\n"
@@ -60,6 +63,25 @@ pgm::RowMode parse_row_mode(const std::string& s) {
   throw Error("--rows: expected auto, firing_order or nearest_elevation, got '" + s + "'");
 }
 
+std::string counts_text(const std::map<std::string, long long>& counts) {
+  std::vector<std::pair<long long, std::string>> order;
+  for (const auto& [name, n] : counts) order.emplace_back(-n, name);
+  std::sort(order.begin(), order.end());  // largest first
+  std::string text;
+  for (const auto& [n, name] : order) text += (text.empty() ? "" : ", ") + name + " " + std::to_string(-n);
+  return text.empty() ? "none" : text;
+}
+
+// What was read, dropped and imported, in points of the scan files (the grid keeps one per cell).
+void print_point_counts(const data::ImportSummary& s) {
+  std::cerr << "points: " << s.points << " read";
+  if (s.dropped_points) std::cerr << ", " << s.dropped_points << " dropped by the reader (nuScenes-lidarseg: vehicle.ego)";
+  std::cerr << ", " << s.points - s.dropped_points << " imported\nclasses (points): " << counts_text(s.classes) << "\n";
+  if (!s.unmapped.empty()) std::cerr << "imported as unlabeled (no class of ours): " << counts_text(s.unmapped) << "\n";
+  if (!s.motion.empty()) std::cerr << "motion (points): " << counts_text(s.motion) << "\n";
+  std::cerr << "intensity scale: " << s.intensity_scale.describe() << "\n";
+}
+
 int run_import(int argc, char** argv) {
   cxxopts::Options opts("lidar-data import",
                         "Read recorded scans as they are into an HDF5 dataset (/pgm, /target, /mask).\n"
@@ -72,8 +94,14 @@ int run_import(int argc, char** argv) {
       ("nuscenes", "folder of nuScenes LIDAR_TOP .pcd.bin sweeps (HDL-32E)", cxxopts::value<std::string>())
       ("rellis3d", "RELLIS-3D OS1-64 scans (.bin + .label, PLY for reflectivity)", cxxopts::value<std::string>())
       ("ouster", "Ouster .pcap (or a folder of them) with the sensor's JSON metadata", cxxopts::value<std::string>())
+      ("nuscenes-lidarseg", "nuScenes-lidarseg folder: velodyne/*.pcd.bin with labels/*.lidarseg.bin (HDL-32E); "
+       "classes through --classes, the ego car's points (class 31) dropped", cxxopts::value<std::string>())
+      ("semantickitti-mos", "SemanticKITTI scans whose labels are moving/static only (labels_mos/*.label: 8 static, "
+       "250 movable, 251 moving): class unlabeled, a 'motion' channel 0 static, 1 movable, 2 moving",
+       cxxopts::value<std::string>())
       ("sensor", "beam layout JSON to project onto (default: the format's sensor, data/sensors/)", cxxopts::value<std::string>())
-      ("classes", "RELLIS-3D class table", cxxopts::value<std::string>()->default_value("data/ontologies/rellis3d.csv"))
+      ("classes", "class table of --rellis3d / --nuscenes-lidarseg (default: data/ontologies/rellis3d.csv / nuscenes-lidarseg.csv)",
+       cxxopts::value<std::string>())
       ("metadata", "Ouster JSON metadata (default: beside the pcap)", cxxopts::value<std::string>())
       ("out", "output dataset (.h5), written atomically", cxxopts::value<std::string>())
       ("columns", "azimuth bins (multiple of 16; 1024 or 2048)", cxxopts::value<int>()->default_value("1024"))
@@ -97,10 +125,12 @@ int run_import(int argc, char** argv) {
   for (const auto& [flag, format] : std::vector<std::pair<std::string, data::SourceFormat>>{
            {"semantickitti", data::SourceFormat::SemanticKitti}, {"kitti-object", data::SourceFormat::KittiObject},
            {"nuscenes", data::SourceFormat::Nuscenes}, {"rellis3d", data::SourceFormat::Rellis3d},
-           {"ouster", data::SourceFormat::Ouster}})
+           {"ouster", data::SourceFormat::Ouster}, {"nuscenes-lidarseg", data::SourceFormat::NuscenesLidarseg},
+           {"semantickitti-mos", data::SourceFormat::SemanticKittiMos}})
     if (args.count(flag)) given.emplace_back(format, args[flag].as<std::string>());
   if (given.size() != 1)
-    throw Error("import: give exactly one of --semantickitti, --kitti-object, --nuscenes, --rellis3d DIR or --ouster PCAP");
+    throw Error("import: give exactly one of --semantickitti, --kitti-object, --nuscenes, --rellis3d, --nuscenes-lidarseg, "
+                "--semantickitti-mos DIR or --ouster PCAP");
   const auto [format, source] = given[0];
   if (!args.count("out")) throw Error("import: --out FILE.h5 is required");
   data::ImportOptions o;
@@ -115,10 +145,13 @@ int run_import(int argc, char** argv) {
   // Sensors as data: the layout files under data/sensors/ (the HDL-64E of KITTI stays built in).
   std::string sensor;
   if (args.count("sensor")) sensor = args["sensor"].as<std::string>();
-  else if (format == data::SourceFormat::Nuscenes) sensor = resolve_default("data/sensors/hdl32e-nuscenes.json");
+  else if (format == data::SourceFormat::Nuscenes || format == data::SourceFormat::NuscenesLidarseg)
+    sensor = resolve_default("data/sensors/hdl32e-nuscenes.json");
   else if (format == data::SourceFormat::Rellis3d) sensor = resolve_default("data/sensors/os1-64-rellis3d.json");
   if (!sensor.empty()) o.layout = pgm::BeamLayout::from_file(sensor);
-  o.class_table = args.count("classes") ? args["classes"].as<std::string>() : resolve_default(args["classes"].as<std::string>());
+  if (args.count("classes")) o.class_table = args["classes"].as<std::string>();
+  else if (format == data::SourceFormat::Rellis3d) o.class_table = resolve_default("data/ontologies/rellis3d.csv");
+  else if (format == data::SourceFormat::NuscenesLidarseg) o.class_table = resolve_default("data/ontologies/nuscenes-lidarseg.csv");
   if (args.count("metadata")) o.ouster_metadata = args["metadata"].as<std::string>();
   std::vector<std::string> notes;
   o.note = [&](const std::string& n) { notes.push_back(n); };
@@ -138,6 +171,7 @@ int run_import(int argc, char** argv) {
   std::cerr << "wrote " << out << ": " << summary.frames << " frames, " << summary.channels.size() << " channels x "
             << summary.layout.rows() << " x " << summary.layout.columns << ", " << summary.returns
             << " cells with a return; rows: " << mode_text << "\n";
+  print_point_counts(summary);
   return 0;
 }
 
@@ -215,6 +249,8 @@ int run_info(int argc, char** argv) {
   std::cout << "format: " << d.source_format << "\nframes: " << in.size() << "\ngrid: " << in.rows() << " x " << in.cols()
             << "\nchannels:";
   for (const auto& c : d.channels) std::cout << " " << c;
+  std::cout << "\nintensity scale: " << d.intensity_scale.describe()
+            << (d.intensity_scale.recorded() ? "" : " (written before datasets recorded it)");
   std::cout << "\nbeam layout: " << d.layout.name << " (" << d.layout.rows() << " beams x " << d.layout.columns
             << " columns)\nsources: " << d.sources.size() << " files\n";
   std::map<std::pair<std::string, std::string>, int> places;

@@ -55,11 +55,13 @@ NuscenesLidarsegScan read_nuscenes_lidarseg_scan(const NuscenesLidarsegFiles& fi
   const std::vector<std::uint8_t> labels = read_nuscenes_lidarseg_labels(files.labels, all.size());
   scan.read = all.size();
   scan.points.reserve(all.size());
+  scan.file_index.reserve(all.size());
   for (std::size_t i = 0; i < all.size(); ++i) {
     if (labels[i] == kNuscenesEgoClass) {
       ++scan.ego;
       continue;
     }
+    scan.file_index.push_back(static_cast<std::int64_t>(i));
     pgm::Point p = all[i];
     const int ours = classes.map(labels[i]);
     if (ours < 0) ++scan.unmapped[classes.name_of(labels[i])];
@@ -73,37 +75,15 @@ NuscenesLidarsegScan read_nuscenes_lidarseg_scan(const NuscenesLidarsegFiles& fi
 
 Dataset import_nuscenes_lidarseg(const fs::path& dir, const pgm::BeamLayout& layout, const ClassTable& classes,
                                  const ImportOptions& options) {
-  layout.validate("nuscenes-lidarseg: beam layout");
-  auto files = list_nuscenes_lidarseg(dir);
-  const std::size_t first = std::min<std::size_t>(std::max(options.first, 0), files.size());
-  std::size_t last = files.size();
-  if (options.max_frames > 0) last = std::min(last, first + static_cast<std::size_t>(options.max_frames));
-  files = std::vector<NuscenesLidarsegFiles>(files.begin() + first, files.begin() + last);
-  if (files.empty()) throw input_error(dir.string(), "scans", "none left after --first/--max-frames");
-
-  pgm::ProjectOptions po;
-  po.row_mode = pgm::RowMode::Ring;  // the recorded ring; read_nuscenes_pcd_bin flips it so row 0 is the top beam
-  po.extra_channels = options.extra_channels;
-  po.min_range = options.min_range;
-  const std::string scene = fs::weakly_canonical(dir).filename().string();
-  Dataset d;
-  d.layout = layout;
-  d.channels = dataset_channels(options);
-  d.source_format = to_string(SourceFormat::Nuscenes);
-  std::size_t ego = 0;
-  std::map<std::string, std::size_t> unmapped;
-  for (const auto& f : files) {
-    NuscenesLidarsegScan scan = read_nuscenes_lidarseg_scan(f, classes);
-    ego += scan.ego;
-    for (const auto& [name, n] : scan.unmapped) unmapped[name] += n;
-    auto projected = pgm::project(scan.points, layout, po, f.pcd.string());
-    d.append(projected.pgm, "nuscenes/" + scene + "/" + f.id, pgm::to_string(projected.row_mode), {"nuscenes", scene, f.id});
-    for (const auto& s : scan.sources) d.sources.push_back(s.string());
-  }
+  ImportOptions o = options;
+  o.layout = layout;
+  o.classes = std::make_shared<const ClassTable>(classes);
+  ImportSummary summary;
+  Dataset d = import_dataset(SourceFormat::NuscenesLidarseg, dir, o, &summary);
   if (options.note) {
-    std::string text = dir.string() + ": " + std::to_string(files.size()) + " labelled sweeps; dropped " +
-                       std::to_string(ego) + " vehicle.ego points";
-    for (const auto& [name, n] : unmapped) text += "; " + name + " " + std::to_string(n) + " imported as unlabeled";
+    std::string text = dir.string() + ": " + std::to_string(d.size()) + " labelled sweeps; dropped " +
+                       std::to_string(summary.dropped_points) + " vehicle.ego points";
+    for (const auto& [name, n] : summary.unmapped) text += "; " + name + " " + std::to_string(n) + " imported as unlabeled";
     options.note(text);
   }
   return d;

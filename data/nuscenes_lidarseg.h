@@ -45,14 +45,17 @@ struct NuscenesLidarsegScan {
   std::vector<std::filesystem::path> sources;
   std::size_t read = 0;                         // points in the file
   std::size_t ego = 0;                          // of them vehicle.ego, dropped
+  std::vector<std::int64_t> file_index;         // per kept point, its index in the file
   std::map<std::string, std::size_t> unmapped;  // nuScenes class name -> points imported as unlabeled
 };
 
 NuscenesLidarsegScan read_nuscenes_lidarseg_scan(const NuscenesLidarsegFiles& files, const ClassTable& classes);
 
 // The labelled frames of `dir` as a dataset on `layout` (data/sensors/hdl32e-nuscenes.json), rows
-// by the recorded ring. Uses options.extra_channels, first, max_frames, min_range and note;
-// frame ids "nuscenes/<folder name>/<id>", one place per folder (one scene).
+// by the recorded ring: import_dataset(SourceFormat::NuscenesLidarseg) with this layout and table
+// (lidar-data import --nuscenes-lidarseg streams the same frames to a file). Frame ids
+// "nuscenes/<folder name>/<id>", one place per folder (one scene); options.note is told the
+// vehicle.ego points dropped and the points imported as unlabeled per nuScenes class.
 Dataset import_nuscenes_lidarseg(const std::filesystem::path& dir, const pgm::BeamLayout& layout,
                                  const ClassTable& classes, const ImportOptions& options = {});
 

@@ -47,6 +47,8 @@ cxxopts::Options command_line() {
     ("data", "training dataset(s), HDF5 from lidar-data import (comma-separated)", cxxopts::value<std::string>())
     ("train-also", "more training datasets (comma-separated), trained on in every cell and never scored: scans of OTHER places than --data", cxxopts::value<std::string>())
     ("val", "separate validation dataset (default: --split of --data)", cxxopts::value<std::string>())
+    ("mix-intensity-scales", "train and validate on datasets whose recorded intensity scales differ (e.g. KITTI reflectance "
+     "with nuScenes intensity / 255); refused without it")
     ("split", "guarded | guarded:<half-width> | interleaved (leaks; for comparison) | frames:<id>,...", cxxopts::value<std::string>()->default_value("guarded"))
     ("channels", "input channels of the PGM, comma-separated", cxxopts::value<std::string>()->default_value("range,class,material"))
     ("epochs", "epochs", cxxopts::value<int>()->default_value("100"))
@@ -125,6 +127,7 @@ lidarsim::train::TrainConfig config_from(const cxxopts::ParseResult& args) {
   config.cache_mb = args["cache-mb"].as<int>();
   config.prefetch = !args.count("no-prefetch");
   config.split = args["split"].as<std::string>();
+  config.mix_intensity_scales = args.count("mix-intensity-scales") > 0;
   return config;
 }
 

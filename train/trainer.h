@@ -109,6 +109,9 @@ struct TrainConfig {
   // this many MB is kept in memory once read (larger files are read per step).
   bool prefetch = true;
   int cache_mb = 256;
+  // Train on datasets whose recorded intensity scales differ (data/intensity_scale.h); refused
+  // otherwise. Datasets that record no scale (written before 2026-11-27) are never compared.
+  bool mix_intensity_scales = false;
 };
 
 struct EpochReport {

@@ -83,6 +83,7 @@ class TrainingRun {
 
  private:
   void check_grids();
+  void check_intensity_scales() const;
   void hold_out_inner_frames();
   void hold_out_inner_columns();
   void resume_from_checkpoint();
@@ -143,6 +144,7 @@ TrainingRun::TrainingRun(const TrainConfig& config, LookupForm lookup_form,
   if (val_set) prefetch = prefetch && val_set->reads_overlap_other_hdf5();
 
   check_grids();
+  check_intensity_scales();
   sector_split = val_set == nullptr;
   in_channels = config.encoder.input_channels();
   arch = nn::UNetConfig{in_channels, 1, config.base, config.depth, config.row_affine ? rows : 0};
@@ -166,6 +168,21 @@ void TrainingRun::check_grids() {
       throw input_error(train_sets[i]->name(), "/pgm", "grid " + std::to_string(train_sets[i]->rows()) + " x " +
                                                   std::to_string(train_sets[i]->cols()) + " differs from " +
                                                   std::to_string(rows) + " x " + std::to_string(cols));
+}
+
+// Datasets whose recorded intensity scales differ (data/intensity_scale.h) are not mixed unless
+// asked; those without a recorded scale (older files) are not compared.
+void TrainingRun::check_intensity_scales() const {
+  std::vector<std::pair<std::string, data::IntensityScale>> named;
+  for (const data::FrameSource* set : train_sets) named.emplace_back(set->name(), set->header().intensity_scale);
+  if (val_set) named.emplace_back(val_set->name(), val_set->header().intensity_scale);
+  const std::string conflict = data::intensity_scale_conflict(named);
+  if (conflict.empty()) return;
+  if (!config.mix_intensity_scales)
+    throw Error("lidar-train: intensity scales differ: " + conflict +
+                ". Their 0-1 targets measure different things; train on one scale, or pass --mix-intensity-scales");
+  if (config.progress && dist.root())
+    std::fprintf(stderr, "lidar-train: mixing intensity scales (--mix-intensity-scales): %s\n", conflict.c_str());
 }
 
 // --- early stopping: the inner hold-out that chooses the epoch ---------------------------------

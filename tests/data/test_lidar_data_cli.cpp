@@ -79,6 +79,8 @@ TEST(LidarDataCli, HelpListsTheImportOptions) {
   EXPECT_NE(r.output.find("--semantickitti"), std::string::npos);
   EXPECT_NE(r.output.find("--kitti-object"), std::string::npos);
   EXPECT_NE(r.output.find("--columns"), std::string::npos);
+  EXPECT_NE(r.output.find("--nuscenes-lidarseg"), std::string::npos);
+  EXPECT_NE(r.output.find("--semantickitti-mos"), std::string::npos);
   EXPECT_EQ(run("--help").code, 0);
 }
 
@@ -158,6 +160,51 @@ TEST(LidarDataCli, DatasetWithMissingChannelOrDatasetFailsNamingIt) {
   expect_one_error_line(run("info " + (dir / "e.h5").string()), "e.h5: dataset /target: missing");
 }
 
+// nuScenes-lidarseg sweeps (x right, y forward, ring = i % 32) with one label per point.
+void write_lidarseg_scan(const std::filesystem::path& dir, const std::vector<std::uint8_t>& labels) {
+  std::vector<float> pts;
+  for (std::size_t i = 0; i < labels.size(); ++i) pts.insert(pts.end(), {1.f + i, 10.f, -1.f, 40.f, float(i % 32)});
+  write_binary(dir / "velodyne/000000.pcd.bin", pts);
+  write_binary(dir / "labels/000000.lidarseg.bin", labels);
+}
+
+TEST(LidarDataCli, ImportsNuscenesLidarsegWithTheBundledSensorAndClassTable) {
+  REQUIRE_EXE();
+  TempDir dir;
+  write_lidarseg_scan(dir / "scene", {24, 31, 24, 17, 31, 29});
+  const auto r = run("import --quiet --nuscenes-lidarseg " + (dir / "scene").string() + " --out " + (dir / "n.h5").string());
+  ASSERT_EQ(r.code, 0) << r.output;
+  for (const char* line : {"points: 6 read, 2 dropped by the reader (nuScenes-lidarseg: vehicle.ego), 4 imported",
+                           "classes (points): road 2, car 1, unlabeled 1", "imported as unlabeled (no class of ours): static.other 1",
+                           "intensity scale: nuscenes_intensity_0_255 (value / 255)"})
+    EXPECT_NE(r.output.find(line), std::string::npos) << line << " missing in:\n" << r.output;
+  const auto info = run("info " + (dir / "n.h5").string());
+  EXPECT_NE(info.output.find("format: nuscenes_lidarseg"), std::string::npos) << info.output;
+  EXPECT_NE(info.output.find("grid: 32 x 1024"), std::string::npos) << info.output;
+  EXPECT_NE(info.output.find("intensity scale: nuscenes_intensity_0_255"), std::string::npos) << info.output;
+  // A label file one byte short names itself.
+  std::filesystem::resize_file(dir / "scene/labels/000000.lidarseg.bin", 5);
+  expect_one_error_line(run("import --quiet --nuscenes-lidarseg " + (dir / "scene").string() + " --out " + (dir / "m.h5").string()),
+                        "000000.lidarseg.bin: size:");
+}
+
+TEST(LidarDataCli, MovingObjectLabelsOnlyWithTheirOwnOption) {
+  REQUIRE_EXE();
+  TempDir dir;
+  write_scan(dir / "seq");  // semantic labels (50, 40) in labels/
+  expect_one_error_line(run("import --quiet --semantickitti-mos " + (dir / "seq").string() + " --out " + (dir / "m.h5").string()),
+                        "000000.label: point 0 label: lower 16 bits are 50, not a moving-object label");
+  std::vector<std::uint32_t> mos(6400, 8u);
+  mos[100] = 251u;
+  write_binary(dir / "seq/labels_mos/000000.label", mos);
+  const auto r = run("import --quiet --semantickitti-mos " + (dir / "seq").string() + " --out " + (dir / "m.h5").string());
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("motion (points): static 6399, moving 1"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("classes (points): unlabeled 6400"), std::string::npos) << r.output;
+  const auto d = data::read_dataset(dir / "m.h5", {"motion"});
+  EXPECT_EQ(d.source_format, "semantickitti_mos");
+}
+
 TEST(LidarDataCli, UnknownOptionsAndMissingSourceAreOneLineErrors) {
   REQUIRE_EXE();
   TempDir dir;
@@ -177,7 +224,10 @@ TEST(LidarDataCliReal, EverySensorFormatImportsAtItsOwnResolutionAndInfoNamesIts
       {"--rellis3d", "rellis3d-os1-sample", "64 x 2048", "rellis3d/rellis3d-os1-sample: 1"},
       {"--ouster", "ouster-sample-pcaps/OS-1-128_v2.3.0_1024x10_lb_n3.pcap", "128 x 1024",
        "ouster/OS-1-128_v2.3.0_1024x10_lb_n3: 3"},
-      {"--kitti-object", "kitti-object-more/training", "64 x 1024", "kitti_object/-: 9"}};
+      {"--kitti-object", "kitti-object-more/training", "64 x 1024", "kitti_object/-: 9"},
+      {"--nuscenes-lidarseg", "nuscenes-lidarseg-scene", "32 x 1024", "nuscenes/nuscenes-lidarseg-scene: 20"},
+      {"--semantickitti-mos", "semantickitti-seq08-mos-sample", "64 x 1024",
+       "semantickitti/semantickitti-seq08-mos-sample: 3"}};
   for (const auto& c : cases) {
     SCOPED_TRACE(c.flag);
     const auto out = dir / (c.flag.substr(2) + ".h5");
@@ -188,7 +238,7 @@ TEST(LidarDataCliReal, EverySensorFormatImportsAtItsOwnResolutionAndInfoNamesIts
     EXPECT_NE(info.output.find("grid: " + c.rows_cols), std::string::npos) << info.output;
     EXPECT_NE(info.output.find(c.place), std::string::npos) << info.output;
     // Sensors that record a ring index get their rows from it.
-    if (c.flag != "--kitti-object") {
+    if (c.flag != "--kitti-object" && c.flag != "--semantickitti-mos") {
       EXPECT_NE(info.output.find("row modes: ring: "), std::string::npos) << info.output;
     }
   }

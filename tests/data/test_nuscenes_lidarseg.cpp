@@ -2,6 +2,7 @@
 // points are dropped, the class table maps the 32-class taxonomy, bad files give clear errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 
 #include "../support/shared_data.h"
@@ -90,6 +91,32 @@ TEST(NuscenesLidarseg, BadLabelAndMissingFileAreErrors) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("000000.pcd.bin"), std::string::npos) << e.what();
   }
+}
+
+TEST(NuscenesLidarseg, ImportCountsTheDroppedEgoAndPointIndexIsTheFilesIndex) {
+  lidarsim::testing::TempDir tmp;
+  write_scan(tmp.path(), "000000", {31, 24, 31, 17, 29, 30});
+  write_scan(tmp.path(), "000002", {24, 24, 31});
+  ImportOptions o;
+  o.layout = pgm::BeamLayout::from_file((lidarsim::testing::source_dir() / "data/sensors/hdl32e-nuscenes.json").string());
+  o.class_table = lidarsim::testing::source_dir() / "data/ontologies/nuscenes-lidarseg.csv";
+  o.extra_channels = {};
+  ImportSummary s;
+  const Dataset d = import_dataset(SourceFormat::NuscenesLidarseg, tmp.path(), o, &s);
+  ASSERT_EQ(d.size(), 2);
+  EXPECT_EQ(d.source_format, "nuscenes_lidarseg");
+  EXPECT_EQ(s.points, 9);
+  EXPECT_EQ(s.dropped_points, 3);
+  EXPECT_EQ(s.classes, (std::map<std::string, long long>{{"road", 3}, {"car", 1}, {"unlabeled", 1}, {"vegetation", 1}}));
+  EXPECT_EQ(s.unmapped, (std::map<std::string, long long>{{"static.other", 1}}));
+  EXPECT_EQ(d.intensity_scale, intensity_scale::nuscenes_intensity());
+  // Every kept point of frame 0 is in a cell of its own; the cell names its index in the file.
+  const std::size_t plane = static_cast<std::size_t>(d.rows()) * d.cols();
+  std::vector<int> indices;
+  for (std::size_t k = 0; k < plane; ++k)
+    if (d.point_index[k] >= 0) indices.push_back(d.point_index[k]);
+  std::sort(indices.begin(), indices.end());
+  EXPECT_EQ(indices, (std::vector<int>{1, 3, 4, 5}));
 }
 
 TEST(NuscenesLidarseg, SharedSceneImportsWithClasses) {
