@@ -17,6 +17,8 @@
 // real inputs of the network are computed alike. point_index of a cell with a return is the
 // cell's own index (row * cols + col). Rows are parallel (OpenMP); no allocation per frame once
 // the internal buffers have grown.
+#include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "pgm/beam_layout.h"
@@ -25,6 +27,8 @@
 #include "sensor/scene.h"
 
 namespace lidarsim::sensor {
+
+class ReturnModel;  // sensor/return_model.h
 
 struct PclConfig {
   bool ground = true;
@@ -37,6 +41,10 @@ struct PclConfig {
   // Beams outside the field of view's angular limits return nothing (sensor frame, rad).
   double azimuth_min = -3.14159265358979323846, azimuth_max = 3.14159265358979323846;
   double elevation_min = -3.14159265358979323846 / 2, elevation_max = 3.14159265358979323846 / 2;
+  // Return model (sensor/return_model.h; null = off, every beam that meets geometry returns):
+  // each return is kept with the model's probability, drawn from (return_seed, frame, cell).
+  std::shared_ptr<const ReturnModel> returns;
+  std::uint64_t return_seed = 1;
   // Range and angular limits from a field of view; the rest at their defaults.
   static PclConfig from_fov(const FieldOfView& fov);
 };
@@ -62,6 +70,8 @@ class PclGenerator {
   const pgm::BeamLayout& layout() const { return layout_; }
   const Pose& mount() const { return mount_; }
   const PclConfig& config() const { return cfg_; }
+  // Frame index of the return model's draws for the next generate(); each generate() counts on.
+  void set_frame(std::uint64_t frame) { frame_ = frame; }
 
  private:
   struct Box {
@@ -80,6 +90,7 @@ class PclGenerator {
   Pose mount_;
   Pose sensor_from_ego_;
   PclConfig cfg_;
+  std::uint64_t frame_ = 0;
   std::vector<Eigen::Vector3d> dir_sensor_;  // [rows * cols] unit ray directions, sensor frame
   std::vector<Eigen::Vector3d> dir_ego_;     // the same in the ego frame
   std::vector<char> cell_in_fov_;            // [rows * cols]
