@@ -140,7 +140,12 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
   }
 
   // Rules 2 and 3, column by column.
+  std::vector<int> below(H);  // nearest row below with a return, -1 if none
   for (int c = 0; c < W; ++c) {
+    for (int r = H - 1, next = -1; r >= 0; --r) {
+      below[r] = next;
+      if (has(static_cast<std::size_t>(r) * W + c)) next = r;
+    }
     int above = -1;  // nearest row above with a return
     for (int r = 0; r < H; ++r) {
       const std::size_t i = static_cast<std::size_t>(r) * W + c;
@@ -155,7 +160,14 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
           if (has(static_cast<std::size_t>(q) * W + c)) return static_cast<int>(cls[static_cast<std::size_t>(q) * W + c]);
         return above >= 0 ? static_cast<int>(cls[static_cast<std::size_t>(above) * W + c]) : 0;
       };
-      if (above >= 0) {
+      // The surface above reaches down here unless the next return below lies beyond it (the
+      // beams in between passed under it: an overhang).
+      bool under = above >= 0;
+      if (under && below[r] >= 0) {
+        const std::size_t a = static_cast<std::size_t>(above) * W + c, b = static_cast<std::size_t>(below[r]) * W + c;
+        under = range[b] * std::cos(el[below[r]]) <= (1 + o.similar_range) * range[a] * std::cos(el[above]);
+      }
+      if (under) {
         const std::size_t a = static_cast<std::size_t>(above) * W + c;
         const double horizontal = range[a] * std::cos(el[above]);
         const double wall = horizontal / std::cos(el[r]);

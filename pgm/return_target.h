@@ -10,8 +10,11 @@
 //     `row_gap` columns away and their ranges differ by at most `similar_range` (relative):
 //     the beam swept one surface, so the gap is a drop. Range = linear interpolation of the
 //     two; class = the nearer one's (the left one's on a tie).
-//  2. below a return: a return exists higher up in the same column. Surfaces stand on the
-//     ground, so a lower beam meets that surface, something in front of it, or the ground.
+//  2. below a return: a return exists higher up in the same column, and the next return below
+//     (if any) lies no farther horizontally than it (+ `similar_range`). Surfaces stand on the
+//     ground, so a lower beam meets that surface, something in front of it, or the ground; a
+//     return below that lies beyond the one above means the beams in between passed under an
+//     overhang (a canopy, a bridge), so they are left to rule 3.
 //     Range = the nearer of the ground range (rule 3) and the range at which the beam reaches the
 //     horizontal distance of the nearest return above (a vertical surface); class = that return's
 //     class when the surface is nearer, else the ground class (below).

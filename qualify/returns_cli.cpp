@@ -1,5 +1,5 @@
 // lidar-qualify returns: the return model fitted on some places and scored on each place it never
-// saw. A place is one drive / recording (--place NAME=FORMAT:DIR[,DIR...]); per held-out place:
+// saw. A place is one drive / recording (--place NAME=FORMAT:DIR, repeated per folder); per held-out place:
 //  - "same sensor": the laser x range x class table fitted on every other place of the same beam
 //    layout (per-laser rates only carry over between units of one sensor model);
 //  - "laser-free": the range x class table fitted on every other place, any sensor;
@@ -8,6 +8,7 @@
 // the held-out target (pgm::return_target) is computed from the held-out scan alone.
 #include <cxxopts.hpp>
 
+#include <algorithm>
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
@@ -45,14 +46,12 @@ struct Place {
 Place parse_place(const std::string& spec) {
   const auto eq = spec.find('='), colon = spec.find(':', eq == std::string::npos ? 0 : eq);
   if (eq == std::string::npos || colon == std::string::npos || eq == 0)
-    throw Error("--place: expected NAME=FORMAT:DIR[,DIR...], got \"" + spec + "\"");
+    throw Error("--place: expected NAME=FORMAT:DIR, got \"" + spec + "\"");
   Place p;
   p.name = spec.substr(0, eq);
   p.format = spec.substr(eq + 1, colon - eq - 1);
-  std::stringstream dirs(spec.substr(colon + 1));
-  for (std::string d; std::getline(dirs, d, ',');)
-    if (!d.empty()) p.dirs.emplace_back(d);
-  if (p.dirs.empty()) throw Error("--place " + p.name + ": no folder given");
+  if (colon + 1 == spec.size()) throw Error("--place " + p.name + ": no folder given");
+  p.dirs.emplace_back(spec.substr(colon + 1));
   return p;
 }
 
@@ -127,7 +126,7 @@ int run_returns(int argc, char** argv) {
                         "Return model (raydrop): per held-out place, fit on the others and score AUROC and the total\n"
                         "variation of return rates per laser, 5 m range bin and class (docs/returns.md).");
   opts.add_options()
-    ("place", "a place: NAME=FORMAT:DIR[,DIR...], FORMAT semantickitti | kitti_object | rellis3d | nuscenes_lidarseg (repeat)", cxxopts::value<std::vector<std::string>>())
+    ("place", "a place: NAME=FORMAT:DIR, FORMAT semantickitti | kitti_object | rellis3d | nuscenes_lidarseg (repeat; a NAME given again adds a folder to that place)", cxxopts::value<std::vector<std::string>>())
     ("out", "report folder (report.json, report.md)", cxxopts::value<std::string>())
     ("out-model", "write the table fitted on every place of --model-sensor here (JSON)", cxxopts::value<std::string>())
     ("model-sensor", "beam layout name of the places --out-model is fitted on (default: the first place's)", cxxopts::value<std::string>())
@@ -152,10 +151,13 @@ int run_returns(int argc, char** argv) {
 
   std::vector<Place> places;
   for (const auto& spec : a["place"].as<std::vector<std::string>>()) {
-    places.push_back(parse_place(spec));
-    for (const auto& q : places)
-      if (&q != &places.back() && q.name == places.back().name) throw Error("--place: the name " + q.name + " is given twice");
+    Place p = parse_place(spec);
+    auto same = std::find_if(places.begin(), places.end(), [&](const Place& q) { return q.name == p.name; });
+    if (same == places.end()) places.push_back(std::move(p));
+    else if (same->format != p.format) throw Error("--place " + p.name + ": given as " + same->format + " and as " + p.format);
+    else same->dirs.push_back(p.dirs.front());  // one place recorded in several folders
   }
+  if (places.size() < 2) throw Error("returns: give at least two places (one is held out, the others fit)");
   for (auto& p : places) {
     load_place(p, rule);
     std::cerr << "place " << p.name << ": " << p.targets.size() << " scans (" << p.layout.name << ", "
