@@ -53,7 +53,15 @@ double estimate_sensor_height(const PolarGridMap& pgm) {
   constexpr double bin = 0.02;
   std::vector<int> hist(static_cast<std::size_t>((5.0 - 0.2) / bin) + 1, 0);
   for (double d : depth) ++hist[static_cast<std::size_t>((d - 0.2) / bin)];
-  const std::size_t mode = static_cast<std::size_t>(std::max_element(hist.begin(), hist.end()) - hist.begin());
+  // The ground of a real scan spreads over tens of cm (sensor pitch, road crown, kerbs): the
+  // mode of counts within +-10 cm, not of single bins, so two near-equal peaks do not flip it.
+  std::vector<int> window(hist.size(), 0);
+  for (std::size_t k = 0; k < hist.size(); ++k)
+    for (std::size_t q = k >= 5 ? k - 5 : 0; q <= std::min(hist.size() - 1, k + 5); ++q) window[k] += hist[q];
+  const std::size_t wide = static_cast<std::size_t>(std::max_element(window.begin(), window.end()) - window.begin());
+  // Then the densest single bin near it: a flat ground is one bin, at the window's edge.
+  const std::size_t lo = wide >= 5 ? wide - 5 : 0, hi = std::min(hist.size() - 1, wide + 5);
+  const std::size_t mode = static_cast<std::size_t>(std::max_element(hist.begin() + lo, hist.begin() + hi + 1) - hist.begin());
   const double centre = 0.2 + (mode + 0.5) * bin;
   std::vector<double> near;
   for (double d : depth)

