@@ -40,10 +40,12 @@ void SimCloud::clear() {
 
 namespace {
 
-sensor::PclConfig pcl_config(const sensor::Scenario& s) {
+sensor::PclConfig pcl_config(const sensor::Scenario& s, const SimOptions& o) {
   sensor::PclConfig c;
   c.min_range = s.sensor.fov.range_min;
   c.max_range = s.sensor.fov.range_max;
+  c.returns = o.returns;
+  c.return_seed = o.seed;
   return c;
 }
 
@@ -60,7 +62,7 @@ SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
       // cost time without changing what the beams can see.
       occlusion_(sensor::OcclusionConfig::for_fov(scenario_.sensor.fov,
                                                   2 * std::numbers::pi / scenario_.sensor.beams.columns)),
-      pcl_(scenario_.sensor.beams.layout(), scenario_.sensor.mount, pcl_config(scenario_)) {
+      pcl_(scenario_.sensor.beams.layout(), scenario_.sensor.mount, pcl_config(scenario_, options)) {
   if (!options_.point_cloud) options_.intensity = false;
   if (options_.intensity && !intensity_) throw Error("sim pipeline: an intensity model is required");
   if (intensity_) extra_channels_ = intensity_->extra_channels();
@@ -207,6 +209,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   // Paint exists whether or not the lane model reports it: the rays decide what is seen.
   // Without the UNet on this frame its neighbourhood input channels are not needed either.
   const bool predict = options_.intensity && intensity_wanted;
+  pcl_.set_frame(static_cast<std::uint64_t>(k));  // the return model's draws follow the frame, not the call count
   out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm, predict || !options_.intensity);
   lap(SimStage::PclGenerator);
 

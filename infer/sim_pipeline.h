@@ -27,6 +27,7 @@
 #include "sensor/kpi_model.h"
 #include "sensor/occlusion.h"
 #include "sensor/pcl_generator.h"
+#include "sensor/return_model.h"
 #include "sensor/scenario.h"
 #include "sensor/scene.h"
 #include "sensor/tracking.h"
@@ -47,6 +48,9 @@ struct SimOptions {
   // Another sensor (lidar-infer sim --sensor FILE.json): replaces the scenario's beams, and its
   // vertical field of view and range limits follow the layout's beams and ranges.
   std::optional<pgm::BeamLayout> sensor;
+  // Return model (lidar-infer sim --returns FILE.json): which beams that meet geometry return,
+  // drawn from (seed, frame, cell); null = every such beam returns.
+  std::shared_ptr<const sensor::ReturnModel> returns;
 };
 
 // Puts `layout` in the scenario's sensor (beams, vertical field of view, range limits).
