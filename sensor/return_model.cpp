@@ -180,10 +180,12 @@ ReturnModel ReturnModel::from_json(const json& j, const std::string& where) {
     if (!x.is_array() || x.size() != 5) throw input_error(where, f, "must be [row, bin, class, cells, returns]");
     for (const auto& v : x)
       if (!v.is_number() || !std::isfinite(v.get<double>())) throw input_error(where, f, "must hold finite numbers");
-    const int l = x[0].get<int>(), b = x[1].get<int>(), k = x[2].get<int>();
+    const double dl = x[0].get<double>(), db = x[1].get<double>(), dk = x[2].get<double>();
     const double n = x[3].get<double>(), r = x[4].get<double>();
-    if (l < 0 || l >= c.rows || b < 0 || b >= c.range_bins || k < 0 || k >= c.classes || n < 0 || r < 0 || r > n)
+    auto index_ok = [](double v, int size) { return v >= 0 && v < size && v == std::floor(v); };
+    if (!index_ok(dl, c.rows) || !index_ok(db, c.range_bins) || !index_ok(dk, c.classes) || n < 0 || r < 0 || r > n)
       throw input_error(where, f, "row, bin or class out of range, or returns not within 0..cells");
+    const int l = static_cast<int>(dl), b = static_cast<int>(db), k = static_cast<int>(dk);
     c.cells[c.index(l, b, k)] += n;
     c.returns[c.index(l, b, k)] += r;
   }
