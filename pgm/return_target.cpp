@@ -15,6 +15,7 @@ const char* to_string(ReturnRule rule) {
     case ReturnRule::BelowReturn: return "below_return";
     case ReturnRule::Ground: return "ground";
     case ReturnRule::Sky: return "sky";
+    case ReturnRule::Vehicle: return "vehicle";
     case ReturnRule::count: break;
   }
   return "?";
@@ -117,6 +118,25 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
       if (g <= ground_reach) ground[r] = g;
     }
 
+  // Rule 0: long empty runs on near-ground rows are the own vehicle (columns wrap around).
+  for (int r = 0; r < H && o.vehicle_run > 0 && o.vehicle_run <= W; ++r) {
+    if (!(ground[r] > 0 && ground[r] <= o.vehicle_ground_m)) continue;
+    const std::size_t row0 = static_cast<std::size_t>(r) * W;
+    int start = 0;  // a column with a return to start from, so no run is cut by the wrap
+    while (start < W && !has(row0 + start)) ++start;
+    if (start == W) continue;  // an empty row: nothing to tell a vehicle from
+    for (int k = 1, run = 0; k <= W; ++k) {
+      const int c = (start + k) % W;
+      if (k < W && !has(row0 + c)) {
+        ++run;
+        continue;
+      }
+      if (run >= o.vehicle_run)
+        for (int q = 1; q <= run; ++q) t.rule[row0 + (c - q + W) % W] = ReturnRule::Vehicle;
+      run = 0;
+    }
+  }
+
   // Rule 1: gaps in a row between two returns at similar range (columns wrap around).
   for (int r = 0; r < H; ++r) {
     const std::size_t row0 = static_cast<std::size_t>(r) * W;
@@ -135,7 +155,8 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
     }
     for (int c = 0; c < W; ++c) {
       const std::size_t i = row0 + c;
-      if (has(i) || left[c] < 0 || right[c] < 0 || left[c] + right[c] > o.row_gap + 1) continue;
+      if (has(i) || t.rule[i] == ReturnRule::Vehicle || left[c] < 0 || right[c] < 0 || left[c] + right[c] > o.row_gap + 1)
+        continue;
       const std::size_t a = row0 + (c - left[c] + W) % W, b = row0 + (c + right[c]) % W;
       const double ra = range[a], rb = range[b];
       if (std::abs(ra - rb) > o.similar_range * std::min(ra, rb)) continue;
@@ -161,7 +182,7 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
         above = r;
         continue;
       }
-      if (t.label[i] != ReturnLabel::Sky) continue;
+      if (t.label[i] != ReturnLabel::Sky || t.rule[i] == ReturnRule::Vehicle) continue;
       // Ground class: the nearest return below in the column, else the one above.
       auto ground_class = [&]() {
         for (int q = r + 1; q < H; ++q)

@@ -6,6 +6,11 @@
 // wet road, grazing incidence). A scan does not say which; this rule decides from the scan's own
 // structure, in this order (the first that applies wins):
 //
+//  0. own vehicle: in a row whose ground lies within `vehicle_ground_m`, a run of at least
+//     `vehicle_run` empty columns is the sensor's own vehicle hiding the ground (KITTI's lowest
+//     lasers see nothing straight ahead and behind): no scene geometry, labelled Sky. Near ground
+//     returns strongly, so random drops do not make such runs.
+//
 //  1. row gap: the nearest returns to the left and right in the same row lie at most
 //     `row_gap` columns away and their ranges differ by at most `similar_range` (relative):
 //     the beam swept one surface, so the gap is a drop. Range = linear interpolation of the
@@ -35,7 +40,9 @@
 //    rule 3; ground rising (uphill) is right, only its estimated range is too long;
 //  - a whole run of more than `row_gap` dropped columns on a surface above the horizon with sky
 //    above it (a dark car's roof line against the sky) is counted as sky;
-//  - the range and class of a drop are estimates (interpolated or predicted), not measurements.
+//  - the range and class of a drop are estimates (interpolated or predicted), not measurements;
+//  - a dark object right beside the vehicle that drops a run of `vehicle_run` columns on a near
+//     ground row is taken for the vehicle (rule 0).
 #include <cstdint>
 #include <vector>
 
@@ -43,10 +50,11 @@
 
 namespace lidarsim::pgm {
 
+// Sky = no scene geometry within reach (the sky, or the sensor's own vehicle: rule 0).
 enum class ReturnLabel : std::uint8_t { Return = 0, Drop = 1, Sky = 2 };
 
 // Which rule labelled a cell (for reports and tests).
-enum class ReturnRule : std::uint8_t { Measured = 0, RowGap = 1, BelowReturn = 2, Ground = 3, Sky = 4, count = 5 };
+enum class ReturnRule : std::uint8_t { Measured = 0, RowGap = 1, BelowReturn = 2, Ground = 3, Sky = 4, Vehicle = 5, count = 6 };
 const char* to_string(ReturnRule rule);
 
 struct ReturnTargetOptions {
@@ -56,6 +64,8 @@ struct ReturnTargetOptions {
   double ground_reach_share = 0.8; // rule 3 only where the ground range is within this share of the reach
   int row_gap = 6;                 // rule 1: at most this many columns between the bracketing returns
   double similar_range = 0.1;      // rule 1: |r_left - r_right| <= this * min(r_left, r_right)
+  int vehicle_run = 32;            // rule 0: empty columns in a run (0 = off)
+  double vehicle_ground_m = 8;     // rule 0: only rows whose ground range is within this
 };
 
 struct ReturnTarget {

@@ -80,6 +80,30 @@ TEST(ReturnTarget, GroundBelowTheHorizonWithinReachHasGeometryBeyondItIsSky) {
   EXPECT_EQ(t.drops + t.sky + t.returns, 8 * 64);
 }
 
+TEST(ReturnTarget, ALongEmptyRunOnNearGroundIsTheOwnVehicleAShortOneIsDropped) {
+  // 8 rows from -10 to -24.5 deg, 256 columns: ground at 1.7 m lies within 4-10 m.
+  pgm::PolarGridMap m(pgm::BeamLayout::uniform(8, -10, -24.5, 256), {"range", "class", "mask"});
+  for (int r = 0; r < 8; ++r)
+    for (int c = 0; c < 256; ++c) {
+      const bool front = c < 20 || c >= 236;  // 40 empty columns across the wrap
+      const bool gap = r == 7 && c >= 100 && c < 120;  // 20 dropped columns
+      if (!(r >= 5 && front) && !gap) set_return(m, r, c, 1.7f / std::sin((10 + 14.5 * r / 7) * M_PI / 180), pgm::cls::road);
+    }
+  pgm::ReturnTargetOptions o;
+  o.sensor_height_m = 1.7;
+  o.reach_m = 60;
+  const auto t = pgm::return_target(m, o);
+  // Rows 5-7 (ground 4.3-4.9 m): the run of 40 is the vehicle; the run of 20 is a drop.
+  for (int c : {0, 19, 236, 255}) {
+    EXPECT_EQ(t.rule[cell(m, 6, c)], ReturnRule::Vehicle) << c;
+    EXPECT_EQ(t.label[cell(m, 6, c)], ReturnLabel::Sky) << c;
+  }
+  EXPECT_EQ(t.label[cell(m, 7, 110)], ReturnLabel::Drop);
+  EXPECT_EQ(t.by_rule[static_cast<int>(ReturnRule::Vehicle)], 3 * 40);
+  o.vehicle_run = 0;  // off: the vehicle's cells are ground drops under the returns above
+  EXPECT_EQ(pgm::return_target(m, o).label[cell(m, 6, 0)], ReturnLabel::Drop);
+}
+
 TEST(ReturnTarget, MissingChannelAndEmptyScanAreClearErrors) {
   pgm::PolarGridMap no_mask(pgm::BeamLayout::uniform(4, 1, -1, 8), {"range", "class"});
   EXPECT_THROW(pgm::return_target(no_mask), Error);
