@@ -10,7 +10,6 @@
 //     `vehicle_run` empty columns is the sensor's own vehicle hiding the ground (KITTI's lowest
 //     lasers see nothing straight ahead and behind): no scene geometry, labelled Sky. Near ground
 //     returns strongly, so random drops do not make such runs.
-//
 //  1. row gap: the nearest returns to the left and right in the same row lie at most
 //     `row_gap` columns away and their ranges differ by at most `similar_range` (relative):
 //     the beam swept one surface, so the gap is a drop. Range = linear interpolation of the
@@ -34,15 +33,15 @@
 // row elevations; the ground is assumed level in the sensor frame.
 //
 // Known errors (docs/returns.md measures them on synthetic scans and names the real cases):
-//  - a beam below a canopy or an overhang that passes under it into open space is counted as a
-//    drop by rule 2 (it has geometry above, none in front);
+//  - a beam that passes under a canopy or an overhang into open space is counted as a drop by
+//    rule 2 when its column has no return below it (every lower beam dropped or out of reach);
 //  - ground falling away (downhill, an embankment's edge) beyond the reach is counted as a drop by
 //    rule 3; ground rising (uphill) is right, only its estimated range is too long;
 //  - a whole run of more than `row_gap` dropped columns on a surface above the horizon with sky
 //    above it (a dark car's roof line against the sky) is counted as sky;
 //  - the range and class of a drop are estimates (interpolated or predicted), not measurements;
 //  - a dark object right beside the vehicle that drops a run of `vehicle_run` columns on a near
-//     ground row is taken for the vehicle (rule 0).
+//    ground row is taken for the vehicle (rule 0).
 #include <cstdint>
 #include <vector>
 
