@@ -211,7 +211,23 @@ ReturnModel ReturnModel::load(const std::string& path) {
   return from_json(j, path);
 }
 
-void ReturnModel::save(const std::string& path) const { write_file_atomically(path, to_json().dump(1) + "\n"); }
+void ReturnModel::save(const std::string& path) const {
+  // One key per line and one count entry per line: readable, and a refit shows as a small diff.
+  const json j = to_json();
+  std::string text = "{\n";
+  for (auto it = j.begin(); it != j.end(); ++it) {
+    text += " " + json(it.key()).dump() + ": ";
+    if (it.key() == "counts") {
+      text += "[\n";
+      for (std::size_t e = 0; e < it->size(); ++e) text += "  " + (*it)[e].dump() + (e + 1 < it->size() ? ",\n" : "\n");
+      text += " ]";
+    } else {
+      text += it->dump();
+    }
+    text += std::next(it) != j.end() ? ",\n" : "\n";
+  }
+  write_file_atomically(path, text + "}\n");
+}
 
 namespace {
 std::uint64_t splitmix64(std::uint64_t x) {
