@@ -121,6 +121,8 @@ cxxopts::Options sim_options_spec() {
     ("sync-outputs", "write outputs on the pipeline's thread (default: a writer thread)")
     ("sensor", "beam layout JSON of the sensor to simulate (data/sensors/*.json); replaces the scenario's beams",
      cxxopts::value<std::string>())
+    ("returns", "return model JSON (data/models/returns_hdl64e.json): beams that meet geometry return with its probability, drawn from --seed, frame and cell (default: every beam returns)",
+     cxxopts::value<std::string>())
     ("no-images", "skip the PNG images")
     ("quiet", "no progress bar")
     ("h,help", "show this help");
@@ -169,6 +171,8 @@ SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
     a.sim_options.range_noise = std::make_shared<const sensor::RangeNoiseModel>(
         sensor::load_range_noise_model(args["range-noise"].as<std::string>()));
   if (args.count("sensor")) a.sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
+  if (args.count("returns"))
+    a.sim_options.returns = std::make_shared<sensor::ReturnModel>(sensor::ReturnModel::load(args["returns"].as<std::string>()));
   a.every = args["every"].as<int>();
   if (a.every < 1) throw Error("lidar-infer sim: --every must be >= 1, got " + std::to_string(a.every));
   if (!args.count("model") && !std::filesystem::exists(a.model))

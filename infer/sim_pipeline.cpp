@@ -46,6 +46,8 @@ sensor::PclConfig pcl_config(const sensor::Scenario& s, const SimOptions& option
   c.max_range = s.sensor.fov.range_max;
   c.range_noise = options.range_noise;
   c.range_noise_seed = options.seed;
+  c.returns = options.returns;
+  c.return_seed = options.seed;
   return c;
 }
 
@@ -209,7 +211,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   // Paint exists whether or not the lane model reports it: the rays decide what is seen.
   // Without the UNet on this frame its neighbourhood input channels are not needed either.
   const bool predict = options_.intensity && intensity_wanted;
-  pcl_.set_frame(static_cast<std::uint64_t>(k));
+  pcl_.set_frame(static_cast<std::uint64_t>(k));  // range noise and return draws follow the frame, not the call count
   out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm, predict || !options_.intensity);
   lap(SimStage::PclGenerator);
 

@@ -27,6 +27,7 @@
 #include "sensor/kpi_model.h"
 #include "sensor/occlusion.h"
 #include "sensor/pcl_generator.h"
+#include "sensor/return_model.h"
 #include "sensor/scenario.h"
 #include "sensor/scene.h"
 #include "sensor/tracking.h"
@@ -50,6 +51,9 @@ struct SimOptions {
   // Range noise of the PCL generator's returns (sensor/range_noise.h), drawn from `seed`, the
   // frame and the cell; null = exact ranges.
   std::shared_ptr<const sensor::RangeNoiseModel> range_noise;
+  // Return model (lidar-infer sim --returns FILE.json): which beams that meet geometry return,
+  // drawn from (seed, frame, cell); null = every such beam returns.
+  std::shared_ptr<const sensor::ReturnModel> returns;
 };
 
 // Puts `layout` in the scenario's sensor (beams, vertical field of view, range limits).

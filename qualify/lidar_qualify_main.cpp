@@ -16,6 +16,7 @@
 #include "qualify/objects.h"
 #include "qualify/range_noise_cli.h"
 #include "qualify/report.h"
+#include "qualify/returns.h"
 #include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;
@@ -30,6 +31,7 @@ const char* kUsage =
     "  lidar-qualify loop objects   --kitti-tracking DIR --report R.json        residual -> effect -> refit\n"
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup|lookup-beam] [--folds 1|4] [--out-model CK.h5]\n"
     "  lidar-qualify range-noise --semantickitti DIR --out M.json              range noise fitted on measured scans\n"
+    "  lidar-qualify returns   --place NAME=FORMAT:DIR ... --out R [--out-model M.json]   return model held out by place\n"
     "add --help after a command for its options\n";
 
 std::string need(const cxxopts::ParseResult& a, const std::string& key, const std::string& what) {
@@ -316,6 +318,7 @@ int run(int argc, char** argv) {
   }
   const std::string cmd = argv[1];
   if (cmd == "range-noise") return qualify::run_range_noise(argc - 1, argv + 1);
+  if (cmd == "returns") return qualify::run_returns(argc - 1, argv + 1);
   std::string sub;
   int shift = 1;
   if (cmd == "loop") {

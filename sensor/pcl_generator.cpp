@@ -11,6 +11,7 @@
 #include "sensor/fov.h"
 #include "sensor/frames.h"
 #include "sensor/range_noise.h"
+#include "sensor/return_model.h"
 
 namespace lidarsim::sensor {
 
@@ -32,6 +33,9 @@ PclConfig PclConfig::from_fov(const FieldOfView& fov) {
 PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclConfig& config)
     : layout_(std::move(layout)), mount_(mount), sensor_from_ego_(inverse(mount)), cfg_(config) {
   layout_.validate("pcl generator");
+  if (cfg_.returns && cfg_.returns->rows() != layout_.rows())
+    throw Error("pcl generator: the return model has " + std::to_string(cfg_.returns->rows()) + " lasers (" +
+                cfg_.returns->layout().name + "), the beam layout " + std::to_string(layout_.rows()) + " rows");
   // A sensor described by data brings its own range limits; the narrower of both wins.
   if (layout_.max_range_m > 0) cfg_.max_range = std::min(cfg_.max_range, layout_.max_range_m);
   cfg_.min_range = std::max(cfg_.min_range, layout_.min_range_m);
@@ -271,7 +275,9 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
       }
     }
   }
+  if (cfg_.returns) returns -= apply_return_model(*cfg_.returns, out, cfg_.return_seed, frame_);
   if (cfg_.range_noise) apply_range_noise(*cfg_.range_noise, cfg_.range_noise_seed, frame_, out);
+  ++frame_;
   for (const char* name : {"incidence", "depth_discontinuity"}) {
     if (!out.has_channel(name)) continue;
     if (!neighbourhood_channels) std::fill_n(out.channel(name), out.cells(), 0.f);

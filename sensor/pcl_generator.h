@@ -29,6 +29,7 @@
 namespace lidarsim::sensor {
 
 struct RangeNoiseModel;
+class ReturnModel;  // sensor/return_model.h
 
 struct PclConfig {
   bool ground = true;
@@ -46,6 +47,10 @@ struct PclConfig {
   // depend only on (range_noise_seed, the frame set by set_frame, cell).
   std::shared_ptr<const RangeNoiseModel> range_noise;
   std::uint64_t range_noise_seed = 1;
+  // Return model (sensor/return_model.h; null = off, every beam that meets geometry returns):
+  // each return is kept with the model's probability, drawn from (return_seed, frame, cell).
+  std::shared_ptr<const ReturnModel> returns;
+  std::uint64_t return_seed = 1;
   // Range and angular limits from a field of view; the rest at their defaults.
   static PclConfig from_fov(const FieldOfView& fov);
 };
@@ -68,12 +73,12 @@ class PclGenerator {
   int generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
                pgm::PolarGridMap& out, bool neighbourhood_channels = true);
 
-  // The frame index the range noise of the next generate() is keyed by.
-  void set_frame(std::uint64_t frame) { frame_ = frame; }
-
   const pgm::BeamLayout& layout() const { return layout_; }
   const Pose& mount() const { return mount_; }
   const PclConfig& config() const { return cfg_; }
+  // Frame index the range noise and return draws of the next generate() are keyed by; each
+  // generate() counts on.
+  void set_frame(std::uint64_t frame) { frame_ = frame; }
 
  private:
   struct Box {
