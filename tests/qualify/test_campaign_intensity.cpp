@@ -43,8 +43,11 @@ TEST(CampaignIntensityStatistical, OneDrawPerFamilyOnSemanticKitti) {
   EXPECT_TRUE(out[data::PlantedScanFamily::Control].score.added.empty()) << out[data::PlantedScanFamily::Control].score.added;
   EXPECT_TRUE(out[data::PlantedScanFamily::ClassGain].score.added.empty()) << out[data::PlantedScanFamily::ClassGain].score.added;
   // Every effect the base cannot represent leaves an error against the truth above the base's floor.
-  for (const auto& [f, o] : out)
-    if (o.draw.effect.scoring == data::PlantedScoring::Detect) EXPECT_GT(o.score.above_floor_before, 0.005) << data::to_string(f);
+  for (const auto& [f, o] : out) {
+    if (o.draw.effect.scoring == data::PlantedScoring::Detect) {
+      EXPECT_GT(o.score.above_floor_before, 0.005) << data::to_string(f);
+    }
+  }
   // The per-laser families are what the loop was built for: named, and the error above the floor cut.
   EXPECT_TRUE(out[data::PlantedScanFamily::BeamGain].score.hit_above_floor);
   EXPECT_TRUE(out[data::PlantedScanFamily::BadLasers].score.hit_above_floor);

@@ -68,9 +68,12 @@ TEST(LoopIntensityFolds, EveryCandidateCarriesItsDecisionAndReason) {
     EXPECT_FALSE(reason.empty()) << k.dump();
     EXPECT_EQ(reason.rfind(d, 0), 0u) << "the reason starts with the decision: " << k.dump();
     added += d == "added";
-    if (k["feature"] == "range") EXPECT_EQ(d, "not ranked") << k.dump();
-    if (k["feature"] != "azimuth" && d == "not tried")
+    if (k["feature"] == "range") {
+      EXPECT_EQ(d, "not ranked") << k.dump();
+    }
+    if (k["feature"] != "azimuth" && d == "not tried") {
       EXPECT_NE(reason.find("azimuth ranks first"), std::string::npos) << reason;
+    }
   }
   EXPECT_EQ(added, 1);
 }
