@@ -43,8 +43,8 @@ sets="seq00=$out/seq00.h5,seq08=$out/seq08.h5,kitti_object=$out/kitti_object.h5,
 bench="$build/bench/bench_intensity_places"
 # Variants: the recipe's channels, and range alone (seq08 has no classes: class 0 everywhere).
 variants=("rcm:range,class,material" "range:range")
-"$bench" --data "$sets" --plan > "$out/plan.tsv"
-while IFS=$'\t' read -r _ held train excluded; do
+"$bench" --data "$sets" --plan > "$out/plan.txt"
+while IFS='|' read -r _ held train excluded; do
   [[ -n $excluded ]] && say "$held held out: not trained on $excluded"
   if [[ -z $train ]]; then say "$held held out: no place on its grid and scale trains for it"; continue; fi
   files=$(echo "$train" | tr ',' '\n' | sed "s|.*|$out/&.h5|" | paste -sd,)
@@ -59,6 +59,6 @@ while IFS=$'\t' read -r _ held train excluded; do
     rm -f "$ck.running"
     say "$held held out, $name: $(tail -1 "$out/$held.$name.csv")"
   done
-done < "$out/plan.tsv"
-nice "$bench" --data "$sets" --models "$out" --variants rcm,range:noclass --out "$out/places"
+done < "$out/plan.txt"
+nice "$bench" --data "$sets" --models "$out" --variants rcm,range --out "$out/places"
 say "wrote $out/places.json and $out/places.md"
