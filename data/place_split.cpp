@@ -39,14 +39,14 @@ std::vector<PlaceFold> place_folds(const std::vector<PlacedSet>& sets) {
     const std::set<std::string> held_keys = keys_of(held);
     for (const PlacedSet& s : sets) {
       if (&s == &held) continue;
-      std::string why;
+      std::string why;  // every reason, so a reader sees all that keeps the set out
+      auto add = [&](const std::string& reason) { why += (why.empty() ? "" : ", ") + reason; };
       for (const std::string& k : keys_of(s))
-        if (held_keys.count(k)) why = "holds frames of the held-out place " + k;
-      if (why.empty() && (s.rows != held.rows || s.cols != held.cols))
-        why = "grid " + std::to_string(s.rows) + " x " + std::to_string(s.cols) + ", not " +
-              std::to_string(held.rows) + " x " + std::to_string(held.cols);
-      if (why.empty() && !(s.scale == held.scale))
-        why = "intensity scale " + s.scale.describe() + ", not " + held.scale.describe();
+        if (held_keys.count(k)) add("holds frames of the held-out place " + k);
+      if (s.rows != held.rows || s.cols != held.cols)
+        add("grid " + std::to_string(s.rows) + " x " + std::to_string(s.cols) + ", not " + std::to_string(held.rows) +
+            " x " + std::to_string(held.cols));
+      if (!(s.scale == held.scale)) add("intensity scale " + s.scale.describe() + ", not " + held.scale.describe());
       if (why.empty())
         f.training.push_back(s.name);
       else
