@@ -34,6 +34,9 @@ using Accum = ErrorSums;
 
 }  // namespace
 
+// The four lookups fitted on the cells not marked validation, scored on both sides.
+static std::vector<BaselineResult> score_cells(const std::vector<Cell>& cells);
+
 void ErrorSums::add(double e) { abs += std::abs(e), sq += e * e, ++n; }
 Metrics ErrorSums::get() const { return {n ? abs / n : 0, n ? std::sqrt(sq / n) : 0, n}; }
 
@@ -64,6 +67,36 @@ std::vector<BaselineResult> evaluate_baselines(const Dataset& d, const SectorSpl
         cells.push_back({static_cast<int>(cls[i]), r, range_bin(rng[i]), y[i], roles[c] == kValidation});
       }
   }
+  return score_cells(cells);
+}
+
+// Every cell with a return of `d`, on the given side, its class read or (without) set to 0.
+static void add_all_cells(std::vector<Cell>& cells, const Dataset& d, bool validation, bool use_class) {
+  const int ci = d.channel_index("class"), ri = d.channel_index("range");
+  const int H = d.rows(), W = d.cols();
+  for (int n = 0; n < d.size(); ++n) {
+    const float* cls = d.pgm.channel(n, ci);
+    const float* rng = d.pgm.channel(n, ri);
+    const float* mask = d.mask.image(n);
+    const float* y = d.target.image(n);
+    for (int r = 0; r < H; ++r)
+      for (int c = 0; c < W; ++c) {
+        const std::size_t i = static_cast<std::size_t>(r) * W + c;
+        if (mask[i] <= 0) continue;
+        cells.push_back({use_class ? static_cast<int>(cls[i]) : 0, r, range_bin(rng[i]), y[i], validation});
+      }
+  }
+}
+
+std::vector<BaselineResult> evaluate_baselines_across(const std::vector<const Dataset*>& training,
+                                                      const Dataset& held_out, bool use_class) {
+  std::vector<Cell> cells;
+  for (const Dataset* d : training) add_all_cells(cells, *d, false, use_class);
+  add_all_cells(cells, held_out, true, use_class);
+  return score_cells(cells);
+}
+
+static std::vector<BaselineResult> score_cells(const std::vector<Cell>& cells) {
   Mean global;
   std::map<int, Mean> by_class;
   std::map<std::pair<int, int>, Mean> by_class_bin, by_class_row;

@@ -34,6 +34,13 @@ int range_bin(double range_m);
 // All four baselines; the dataset needs the "class" and "range" channels.
 std::vector<BaselineResult> evaluate_baselines(const Dataset& dataset, const SectorSplit& split = reference_split());
 
+// The same four fitted on every cell with a return of `training` (other places) and scored on every
+// cell of `held_out` (a place held out whole: data/place_split.h). use_class false: every class
+// reads as 0 (per-class mean = global mean, class x range = range bins, class x row = rows), the
+// lookups of a model without the class channel.
+std::vector<BaselineResult> evaluate_baselines_across(const std::vector<const Dataset*>& training,
+                                                      const Dataset& held_out, bool use_class = true);
+
 // MAE/RMSE of a prediction [N, 1, H, W] against the dataset's target on the split's validation
 // (or training) cells; for comparing a network with the baselines on the same cells.
 Metrics evaluate_prediction(const Dataset& dataset, const nn::Tensor& prediction, bool validation,

@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cmath>
+
 #include "common/error.h"
 #include "data/baselines.h"
 #include "data/import.h"
@@ -91,4 +94,38 @@ TEST(BaselinesReal, KittiObjectImportsThreeFramesWithBoxClasses) {
   // Few labelled points: class helps little, range and row more (ordering only; no reference).
   EXPECT_LE(r[1].validation.mae, r[0].validation.mae + 1e-4);
   EXPECT_LT(r[3].validation.mae, r[0].validation.mae);
+}
+
+TEST(Baselines, AcrossPlacesFitOnTheTrainingPlacesOnlyAndScoreEveryHeldOutCell) {
+  // Two one-row places: training class 1 at 0.2 (near) and 0.4 (far), class 2 at 0.8; the held-out
+  // place has class 1 near at 0.6 and an unseen class 3. Fitted on the held-out cells, every
+  // lookup would score 0.
+  auto place = [](std::vector<std::array<float, 3>> cells) {  // range, class, target
+    data::Dataset d;
+    d.channels = {"range", "class"};
+    const int w = static_cast<int>(cells.size());
+    d.layout = pgm::BeamLayout::uniform(1, 0, 0, w);
+    d.pgm.resize({1, 2, 1, w});
+    d.target.resize({1, 1, 1, w});
+    d.mask.resize({1, 1, 1, w});
+    for (int c = 0; c < w; ++c) {
+      d.pgm.at(0, 0, 0, c) = cells[c][0], d.pgm.at(0, 1, 0, c) = cells[c][1], d.target.at(0, 0, 0, c) = cells[c][2];
+      d.mask.at(0, 0, 0, c) = 1;
+    }
+    return d;
+  };
+  const auto train = place({{{2, 1, 0.2f}}, {{12, 1, 0.4f}}, {{2, 2, 0.8f}}});
+  const auto held = place({{{2, 1, 0.6f}}, {{2, 3, 0.5f}}});
+  const auto r = data::evaluate_baselines_across({&train}, held);
+  ASSERT_EQ(r.size(), 4u);
+  // global mean 1.4 / 3; per class: class 1 -> 0.3, class 3 unseen -> global.
+  const double g = 1.4 / 3;
+  EXPECT_EQ(r[0].validation.cells, 2);
+  EXPECT_NEAR(r[0].validation.mae, (std::abs(g - 0.6) + std::abs(g - 0.5)) / 2, 1e-6);
+  EXPECT_NEAR(r[1].validation.mae, (0.3 + std::abs(g - 0.5)) / 2, 1e-6);
+  EXPECT_NEAR(r[2].validation.mae, (0.4 + std::abs(g - 0.5)) / 2, 1e-6);  // class 1, bin [0, 5): 0.2
+  EXPECT_EQ(r[0].training.cells, 3);
+  // Without the class: every cell is class 0; range bin [0, 5) of training = (0.2 + 0.8) / 2.
+  const auto n = data::evaluate_baselines_across({&train}, held, false);
+  EXPECT_NEAR(n[2].validation.mae, (std::abs(0.5 - 0.6) + std::abs(0.5 - 0.5)) / 2, 1e-6);
 }
