@@ -275,3 +275,28 @@ TEST(OsiConventions, TraceWrittenByOurOsi350WriterStillDecodesAndRuns) {
   }
   EXPECT_EQ(n, 2);
 }
+
+TEST(OsiConventions, LidarInferOsiIdealReportsObjectsInItsFirstSensorData) {
+  lidarsim::testing::TempDir dir;
+  const fs::path exe = fs::path(LIDARSIM_BINARY_DIR) / "infer" / "lidar-infer";
+  const fs::path in = dir / "in.osi", ideal = dir / "ideal.osi", plain = dir / "plain.osi", err = dir / "err.txt";
+  auto run_cli = [&](const std::string& args) {
+    const int rc = std::system((exe.string() + " " + args + " 2>" + err.string()).c_str());
+    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  };
+  ASSERT_EQ(run_cli("osi-trace --frames 1 --out " + in.string()), 0) << slurp(err);
+  ASSERT_EQ(run_cli("osi --no-point-cloud --quiet --ideal --in " + in.string() + " --out " + ideal.string()), 0)
+      << slurp(err);
+  ASSERT_EQ(run_cli("osi --no-point-cloud --quiet --in " + in.string() + " --out " + plain.string()), 0) << slurp(err);
+  auto tracked_in_first = [](const fs::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    lidarsim::osi::TraceReader reader(f, p.string());
+    osi3::SensorData d;
+    EXPECT_TRUE(reader.next(d));
+    int n = 0;
+    for (const auto& m : d.moving_object()) n += m.header().ground_truth_id_size() > 0;
+    return n;
+  };
+  EXPECT_GT(tracked_in_first(ideal), 0);
+  EXPECT_EQ(tracked_in_first(plain), 0);
+}
