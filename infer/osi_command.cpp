@@ -74,7 +74,7 @@ int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
     ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("no-point-cloud", "object-level model only: no PCL generator, UNet or lidar detections")
-    ("ideal", "no KPI errors, misses, false positives or heading flips (tracking and occlusion stay)")
+    ("ideal", "no KPI errors, misses, false positives or heading flips, tracks confirmed on their first frame")
     ("quiet", "no summary on stderr")
     ("h,help", "show this help");
   // clang-format on
@@ -94,7 +94,7 @@ int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
   SimOptions sim;
   sim.seed = args["seed"].as<std::uint64_t>();
   if (args.count("no-point-cloud")) sim.point_cloud = sim.intensity = false;
-  if (args.count("ideal")) sim.kpi.noise = sim.kpi.misses = sim.kpi.false_positives = sim.kpi.flips = false;
+  if (args.count("ideal")) make_ideal(sim);
   omp_set_num_threads(std::max(1, args["threads"].as<int>()));
 
   std::ifstream file;

@@ -6,6 +6,11 @@
 
 namespace lidarsim::infer {
 
+void make_ideal(SimOptions& options) {
+  options.kpi.noise = options.kpi.misses = options.kpi.false_positives = options.kpi.flips = false;
+  options.tracker.confirm_hits = 1;
+}
+
 OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::unique_ptr<IntensityModel> intensity,
                      SimOptions options)
     : sensor_(std::move(sensor)), kpi_(std::move(kpi)), intensity_(std::move(intensity)), options_(options) {

@@ -23,6 +23,12 @@
 
 namespace lidarsim::infer {
 
+// `--ideal`: a model perfect by request. The KPI manager's errors, misses, false positives and
+// heading flips off, and a track is confirmed on its first detection, so frame 0 already reports
+// every visible object (its velocity and acceleration the ground truth's: a new track starts from
+// the detection). Tracking and occlusion stay.
+void make_ideal(SimOptions& options);
+
 class OsiRunner {
  public:
   // intensity may be null when options.intensity is false.

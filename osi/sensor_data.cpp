@@ -44,9 +44,11 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
   *out.mutable_sensor_id() = scene.sensor_id;
   *out.mutable_mounting_position() = scene.mounting_position;
 
-  // Velocities relative to the sensor: BaseMoving's velocity is relative to its parent frame.
+  // Velocities and accelerations relative to the sensor: BaseMoving's are relative to its parent
+  // frame (the host's rotation rate is not subtracted: the model has none).
   const sensor::Pose map_from_sensor = sensor::compose(scene.map.ego_in_map, scene.mount);
   const Eigen::Vector3d host_velocity_sensor = map_from_sensor.rotation.transpose() * scene.host_velocity;
+  const Eigen::Vector3d host_acceleration_sensor = map_from_sensor.rotation.transpose() * scene.host_acceleration;
 
   auto* oh = out.mutable_moving_object_header();
   *oh->mutable_measurement_time() = scene.timestamp;
@@ -72,6 +74,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     b->mutable_dimension()->set_width(o.size.y());
     b->mutable_dimension()->set_height(o.size.z());
     set_vector(o.velocity - host_velocity_sensor, *b->mutable_velocity());
+    set_vector(o.acceleration - host_acceleration_sensor, *b->mutable_acceleration());
     m->set_reference_point(osi3::DetectedMovingObject::REFERENCE_POINT_CENTER);
     auto* c = m->add_candidate();
     c->set_probability(1);

@@ -8,8 +8,8 @@
 //                               for a false positive; existence_probability = the detector's
 //                               score; measurement_state measured or predicted for a coasting
 //                               track), base in the virtual sensor frame (box centre, yaw,
-//                               dimension, velocity relative to the sensor = over ground minus the
-//                               host's), one classification candidate (probability 1)
+//                               dimension, velocity and acceleration relative to the sensor = over
+//                               ground minus the host's), one classification candidate (probability 1)
 //   lane_boundary               one per lane polynomial: points every 1 m (at least 2) over its
 //                               valid range in the sensor frame, the boundary type as candidate
 //   feature_data.lidar_sensor[0] the point cloud: spherical position in the sensor frame
@@ -27,7 +27,7 @@
 
 namespace lidarsim::osi {
 
-inline constexpr std::uint32_t kOsiVersion[3] = {3, 5, 0};
+inline constexpr std::uint32_t kOsiVersion[3] = {3, 8, 0};  // checked against the official v3.8.0 .proto files (docs/osi.md)
 inline constexpr std::uint64_t kNoObject = std::numeric_limits<std::uint64_t>::max();
 // Tracking ids of false positives (our ids <= -1000) are mapped above this, real tracks keep theirs.
 inline constexpr std::uint64_t kFalsePositiveIdBase = 1ull << 40;

@@ -109,6 +109,22 @@ bool finite(const osi3::Dimension3d& d) {
 
 }  // namespace
 
+const osi3::MountingPosition* sensor_mount(const osi3::SensorView& view, std::string& field) {
+  if (view.has_mounting_position()) {
+    field = "mounting_position";
+    return &view.mounting_position();
+  }
+  for (int i = 0; i < view.lidar_sensor_view_size(); ++i) {
+    const auto& c = view.lidar_sensor_view(i).view_configuration();
+    if (c.has_mounting_position()) {
+      field = "lidar_sensor_view[" + std::to_string(i) + "].view_configuration.mounting_position";
+      return &c.mounting_position();
+    }
+  }
+  field.clear();
+  return nullptr;
+}
+
 void scene_from_sensor_view(const osi3::SensorView& view, long index, const std::string& source, IdMap& ids,
                             SceneFrame& out) {
   auto fail = [&](const std::string& field, const std::string& what) {
@@ -119,9 +135,13 @@ void scene_from_sensor_view(const osi3::SensorView& view, long index, const std:
   if (view.has_host_vehicle_id()) out.host_id = view.host_vehicle_id().value();
   else if (gt.has_host_vehicle_id()) out.host_id = gt.host_vehicle_id().value();
   else throw fail("host_vehicle_id", "missing (neither the SensorView nor its ground truth names the host)");
-  if (!view.has_mounting_position()) throw fail("mounting_position", "missing");
-  const auto& mp = view.mounting_position();
-  if (!finite(mp.position()) || !finite(mp.orientation())) throw fail("mounting_position", "not finite");
+  std::string mount_field;
+  const osi3::MountingPosition* mount = sensor_mount(view, mount_field);
+  if (!mount)
+    throw fail("mounting_position",
+               "missing (neither the SensorView nor any lidar_sensor_view[].view_configuration gives it)");
+  const auto& mp = *mount;
+  if (!finite(mp.position()) || !finite(mp.orientation())) throw fail(mount_field, "not finite");
 
   out.sensor_id = view.sensor_id();
   out.mounting_position = mp;
@@ -136,7 +156,8 @@ void scene_from_sensor_view(const osi3::SensorView& view, long index, const std:
   if (!host)
     throw fail("host_vehicle_id", std::to_string(out.host_id) + " is not among global_ground_truth.moving_object");
   const auto& hb = host->base();
-  if (!finite(hb.position()) || !finite(hb.orientation()) || !finite(hb.dimension()) || !finite(hb.velocity()))
+  if (!finite(hb.position()) || !finite(hb.orientation()) || !finite(hb.dimension()) || !finite(hb.velocity()) ||
+      !finite(hb.acceleration()))
     throw fail("host base", "not finite");
   const sensor::Pose host_box = pose_from_osi(hb.position(), hb.orientation());
   const auto& r = host->vehicle_attributes().bbcenter_to_rear();
@@ -145,6 +166,7 @@ void scene_from_sensor_view(const osi3::SensorView& view, long index, const std:
   const double yaw = hb.orientation().yaw();
   out.map.ego_in_map = sensor::make_pose(rear_axle - axle_height * Eigen::Vector3d::UnitZ(), 0, 0, yaw);
   out.host_velocity = Eigen::Vector3d(hb.velocity().x(), hb.velocity().y(), hb.velocity().z());
+  out.host_acceleration = Eigen::Vector3d(hb.acceleration().x(), hb.acceleration().y(), hb.acceleration().z());
   out.mount = sensor::make_pose(
       Eigen::Vector3d(mp.position().x(), mp.position().y(), mp.position().z() + axle_height),
       mp.orientation().roll(), mp.orientation().pitch(), mp.orientation().yaw());

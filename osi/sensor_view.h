@@ -41,16 +41,25 @@ struct SceneFrame {
   double time = 0;                 // s (SensorView timestamp, else the ground truth's)
   sensor::Frame map;               // map frame: ego pose, objects (host excluded), lanes
   sensor::Pose mount;              // sensor in our ego frame
-  Eigen::Vector3d host_velocity = Eigen::Vector3d::Zero();  // map frame
+  Eigen::Vector3d host_velocity = Eigen::Vector3d::Zero();      // map frame
+  Eigen::Vector3d host_acceleration = Eigen::Vector3d::Zero();  // map frame
   std::uint64_t host_id = 0;
   osi3::Identifier sensor_id;
   osi3::Timestamp timestamp;
-  osi3::MountingPosition mounting_position;  // as given (host vehicle frame)
+  osi3::MountingPosition mounting_position;  // as given (host vehicle frame; see sensor_mount)
 };
 
+// The sensor's mount (host vehicle frame). OSI gives two: SensorView.mounting_position, the
+// virtual sensor's (it governs the coordinates of detected objects), and each
+// lidar_sensor_view[].view_configuration.mounting_position, a physical detector's (it governs the
+// detections of that detector). Our model has one frame for both, so the virtual mount wins when
+// present; without it, the first lidar_sensor_view whose view_configuration has a mount is used.
+// `field` names where it came from (for errors); null when neither is given.
+const osi3::MountingPosition* sensor_mount(const osi3::SensorView& view, std::string& field);
+
 // Fills `out` from `view`. Errors (lidarsim::Error) read "<source>: message <index>: <field>: <what>":
-// no global_ground_truth, no host id, a host id not among the moving objects, no
-// mounting_position, a moving object without id or base position, non-finite numbers.
+// no global_ground_truth, no host id, a host id not among the moving objects, no mount
+// (sensor_mount), a moving object without id or base position, non-finite numbers.
 // Object and lane ids go through `ids` (object ids and lane ids share it).
 void scene_from_sensor_view(const osi3::SensorView& view, long index, const std::string& source, IdMap& ids,
                             SceneFrame& out);
