@@ -80,12 +80,15 @@ double median(std::vector<double> v) {
 
 // One draw: the effect planted on every scan of `ps` (a sensor effect is in every recording of the
 // unit); folds are whole places when there are several (no shared scenery), else scans.
+bool g_place_folds = false;
+
 nlohmann::json run_draw(const std::vector<const Place*>& ps, qualify::PlantedReturnFamily family, std::uint64_t seed, Rows& rows) {
   const auto t0 = std::chrono::steady_clock::now();
   const Place& p0 = *ps.front();
   const auto effect = qualify::draw_planted_returns(family, seed, p0.layout.rows(), p0.class_ranges);
   std::vector<qualify::ReturnCell> cells, reference;
   qualify::ReturnLoopOptions o;
+  o.fold_seed = seed;  // each draw its own fold assignment (controls differ only in it)
   long long dropped = 0;
   int scan = 0;
   std::string names;
@@ -97,7 +100,7 @@ nlohmann::json run_draw(const std::vector<const Place*>& ps, qualify::PlantedRet
       dropped += qualify::plant_returns(m, effect, seed, scan);
       const auto c = qualify::return_cells(pgm::return_target(m), p.layout, scan);
       cells.insert(cells.end(), c.begin(), c.end());
-      if (ps.size() > 1) o.scan_group.push_back(static_cast<int>(g));
+      if (ps.size() > 1 && g_place_folds) o.scan_group.push_back(static_cast<int>(g));
     }
     for (auto c : p.reference) {
       c.scan += scan - static_cast<int>(p.maps.size());
@@ -149,6 +152,7 @@ int main(int argc, char** argv) try {
       "seed", "campaign seed", cxxopts::value<std::uint64_t>()->default_value("1"))(
       "families", "comma-separated families (default: all)", cxxopts::value<std::string>()->default_value(""))(
       "shared", "measured data folder (default: ../shared/data beside the source tree)", cxxopts::value<std::string>())(
+      "folds", "scan (folds = scans of every place) | place (whole places)", cxxopts::value<std::string>()->default_value("scan"))(
       "json", "write every draw and the table here (atomically)", cxxopts::value<std::string>())("h,help", "show this help");
   const auto args = opts.parse(argc, argv);
   if (args.count("help")) {
@@ -158,6 +162,7 @@ int main(int argc, char** argv) try {
   const fs::path source_dir = LIDARSIM_SOURCE_DIR;
   const fs::path shared = args.count("shared") ? fs::path(args["shared"].as<std::string>()) : source_dir / "../shared/data";
   const int draws = std::max(1, args["draws"].as<int>());
+  g_place_folds = args["folds"].as<std::string>() == "place";
   const std::uint64_t seed = args["seed"].as<std::uint64_t>();
   std::vector<qualify::PlantedReturnFamily> families;
   {
@@ -181,8 +186,11 @@ int main(int argc, char** argv) try {
     for (int d = 0; d < draws; ++d) {
       const std::uint64_t s = seed * 1000003ULL + static_cast<std::uint64_t>(families[f]) * 1000ULL + d;
       // Class beyond range needs semantic classes: only sequence 00 labels them (folds: its scans).
+      // Controls alternate between the two settings (the three places; seq00 alone).
       std::vector<const Place*> ps = {&places[0]};
-      if (families[f] != qualify::PlantedReturnFamily::ClassBeyondRange) ps = {&places[0], &places[1], &places[2]};
+      const bool seq00_only = families[f] == qualify::PlantedReturnFamily::ClassBeyondRange ||
+                              (families[f] == qualify::PlantedReturnFamily::Control && d % 2 == 1);
+      if (!seq00_only) ps = {&places[0], &places[1], &places[2]};
       all.push_back(run_draw(ps, families[f], s, rows[f]));
     }
   }

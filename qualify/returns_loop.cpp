@@ -219,8 +219,14 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
   r.groups = static_cast<int>(groups.size());
   r.folds = std::min<int>(std::max(2, o.folds), r.groups);
   r.fold_of_scan.assign(max_scan + 1, -1);
+  std::vector<int> position(groups.size());
+  for (std::size_t k = 0; k < groups.size(); ++k) position[k] = static_cast<int>(k);
+  if (o.fold_seed) {
+    SplitMix shuffle(o.fold_seed);
+    for (std::size_t k = groups.size(); k > 1; --k) std::swap(position[k - 1], position[shuffle.next() % k]);
+  }
   for (int s : scans)
-    r.fold_of_scan[s] = static_cast<int>((std::lower_bound(groups.begin(), groups.end(), group(s)) - groups.begin()) % r.folds);
+    r.fold_of_scan[s] = position[std::lower_bound(groups.begin(), groups.end(), group(s)) - groups.begin()] % r.folds;
   r.cells = static_cast<long long>(target.size());
   for (const auto& c : target) r.returns += c.returned;
 
@@ -269,7 +275,7 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
   }
   double Db = 0;
   for (double v : db) Db += v;
-  r.deviance_before = Db / std::max<std::size_t>(1, target.size());
+  r.deviance_before = mean_deviance(target, r.p_before);
   std::vector<double> score(nc);
   for (int j = 0; j < nc; ++j) {
     double Dc = 0;

@@ -66,6 +66,7 @@ struct ReturnLoopOptions {
   // drive let a scenery pattern pass for a sensor-fixed (azimuth) effect; groups of other drives
   // cannot.
   std::vector<int> scan_group;
+  std::uint64_t fold_seed = 0;  // 0: groups go to folds round-robin in order; else shuffled by this seed
 };
 
 struct ReturnCandidate {

@@ -91,7 +91,8 @@ int run_loop_returns(int argc, char** argv) {
     ("target", "the place(s) examined, comma-separated: one place (folds = its scans) or several (folds = whole places)", cxxopts::value<std::string>())
     ("reference", "places the base is fitted on, comma-separated, or `self` (the target's own fit scans); default: every other place of the target's beam layout, else self", cxxopts::value<std::string>())
     ("report", "loop report JSON (Markdown beside it)", cxxopts::value<std::string>())
-    ("folds", "scan folds", cxxopts::value<int>()->default_value("5"))
+    ("folds-by", "several --target places: scan (folds = scans of every place) | place (whole places)", cxxopts::value<std::string>()->default_value("scan"))
+    ("folds", "folds", cxxopts::value<int>()->default_value("5"))
     ("min-gain", "smallest held-out deviance cut (share of the base's) that is added", cxxopts::value<double>()->default_value("0.002"))
     ("h,help", "this help");
   const auto a = opts.parse(argc, argv);
@@ -134,6 +135,8 @@ int run_loop_returns(int argc, char** argv) {
     for (const auto& p : places)
       if (!is_target(p) && p.layout == first.layout) refs.push_back(&p);
   }
+  const std::string folds_by = a["folds-by"].as<std::string>();
+  if (folds_by != "scan" && folds_by != "place") throw Error("--folds-by: expected scan or place, got \"" + folds_by + "\"");
   ReturnLoopOptions o;
   std::vector<ReturnCell> cells, ref_cells;
   int scan = 0;
@@ -141,7 +144,7 @@ int run_loop_returns(int argc, char** argv) {
   for (std::size_t g = 0; g < targets.size(); ++g) {
     target_names += (g ? "," : "") + targets[g]->name;
     for (const auto& t : targets[g]->targets) {
-      if (targets.size() > 1) o.scan_group.push_back(static_cast<int>(g));
+      if (targets.size() > 1 && a["folds-by"].as<std::string>() == "place") o.scan_group.push_back(static_cast<int>(g));
       auto c = return_cells(t, first.layout, scan++);
       cells.insert(cells.end(), c.begin(), c.end());
     }
@@ -167,7 +170,7 @@ int run_loop_returns(int argc, char** argv) {
   nlohmann::json j = to_json(r);
   j["command"] = command;
   j["target"] = target_names;
-  j["folds_are"] = targets.size() > 1 ? "whole places" : "scans of one place (scenery shared between its scans can pass for a sensor-fixed effect)";
+  j["folds_are"] = !o.scan_group.empty() ? "whole places" : "scans";
   j["reference"] = ref_names;
   const fs::path report = a["report"].as<std::string>();
   if (report.has_parent_path()) fs::create_directories(report.parent_path());
