@@ -8,10 +8,17 @@
 // The loop's base is fitted on the same scans before the plant (the model that was right before
 // the sensor changed; each fold's base leaves the held-out scans out), so on a control the base
 // is the truth up to its estimation error, and the loop must add nothing.
+// Folds (--folds scan, the default): the scans of every planted place, assigned to 5 folds at
+// random per draw, so each fold's fit holds scans of every drive. --folds place holds out whole
+// places instead: no scenery is shared, but a held-out place's overall return rate is not
+// predictable from the others, and on controls the loop then adds "class" (unlabelled cells,
+// which are mostly seq08's and the KITTI object frames', return less), 5 of 10 controls.
+// class_beyond_range needs semantic classes, which only seq00 has: it runs on seq00 alone (its six
+// scans as folds), and every second control does too.
 // Excess = held-out deviance per cell minus that of the oracle (the loop's own held-out base times
 // the planted keep probability of each cell): the base's estimation error is in both and cancels,
 // so the excess is the planted effect's part alone (the "above floor" of the other campaigns).
-//   bench_loop_campaign_returns [--draws 10] [--seed 1] [--families a,b] [--json out.json]
+//   bench_loop_campaign_returns [--draws 10] [--seed 1] [--families a,b] [--folds scan|place] [--json out.json]
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
