@@ -41,12 +41,10 @@ std::vector<ReturnCell> return_cells(const pgm::ReturnTarget& t, const pgm::Beam
 namespace {
 
 constexpr int kRangeBins = 24;          // 5 m, as the base table's
-constexpr double kHeightLo = -3, kHeightStep = 0.5;
-constexpr int kHeightBins = 20;         // -3 .. 7 m
 constexpr double kEps = 1e-4;
 
-// How a candidate keys a cell: each candidate is one multiplier per key.
-enum class Key { Laser, Range, Class, Material, Azimuth10, Azimuth5, Height, ClassRange };
+// How a candidate keys a cell (the keys the simulation's multiplier terms use).
+using Key = sensor::ReturnKey;
 constexpr int kKeys = 8;
 
 struct Spec {
@@ -57,43 +55,16 @@ struct Spec {
 const std::vector<Spec>& specs() {
   static const std::vector<Spec> s = {
       {"laser", "table", Key::Laser},       {"laser", "window", Key::Laser},
-      {"range", "table", Key::Range},       {"range", "window", Key::Range},
+      {"range", "table", Key::Range5m},       {"range", "window", Key::Range5m},
       {"class", "table", Key::Class},       {"material", "table", Key::Material},
       {"azimuth", "table", Key::Azimuth10}, {"azimuth", "window", Key::Azimuth5},
       {"height", "table", Key::Height},     {"height", "window", Key::Height},
-      {"class x range", "step", Key::ClassRange}};
+      {"class x range", "step", Key::ClassRange5m}};
   return s;
 }
 
-int range_bin(double r) { return std::clamp(static_cast<int>(r / 5.0), 0, kRangeBins - 1); }
-
-int key_size(Key k, int rows) {
-  switch (k) {
-    case Key::Laser: return rows;
-    case Key::Range: return kRangeBins;
-    case Key::Class: return pgm::class_count();
-    case Key::Material: return pgm::material_count();
-    case Key::Azimuth10: return 36;
-    case Key::Azimuth5: return 72;
-    case Key::Height: return kHeightBins;
-    case Key::ClassRange: return pgm::class_count() * kRangeBins;
-  }
-  return 0;
-}
-
-int key_of(Key k, const ReturnCell& c) {
-  switch (k) {
-    case Key::Laser: return c.row;
-    case Key::Range: return range_bin(c.range);
-    case Key::Class: return c.class_id;
-    case Key::Material: return c.material;
-    case Key::Azimuth10: return std::clamp(static_cast<int>(c.azimuth_deg / 10), 0, 35);
-    case Key::Azimuth5: return std::clamp(static_cast<int>(c.azimuth_deg / 5), 0, 71);
-    case Key::Height: return std::clamp(static_cast<int>((c.height - kHeightLo) / kHeightStep), 0, kHeightBins - 1);
-    case Key::ClassRange: return c.class_id * kRangeBins + range_bin(c.range);
-  }
-  return 0;
-}
+int key_size(Key k, int rows) { return sensor::return_key_size(k, rows); }
+int key_of(Key k, const ReturnCell& c) { return sensor::return_key(k, c.row, c.range, c.class_id, c.azimuth_deg, c.height); }
 
 // Cells, returns and predicted returns per key.
 struct Sums {
@@ -330,7 +301,9 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
     c.score = score[j], c.se = se[j];
     c.lower = score[j] - 1.96 * se[j], c.upper = score[j] + 1.96 * se[j];
     c.selection_lower = score[j] - r.critical * se[j];
-    fit_multipliers(S[j], all[static_cast<int>(S[j].key)], o.shrink, &c.fitted);
+    const auto m = fit_multipliers(S[j], all[static_cast<int>(S[j].key)], o.shrink, &c.fitted);
+    c.key = S[j].key;
+    c.factor.assign(m.begin(), m.end());
     r.candidates.push_back(std::move(c));
   }
   auto pct = [](double v) { return std::to_string(std::lround(v * 10000) / 100.0).substr(0, 5) + " %"; };
@@ -360,9 +333,13 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
                  std::to_string(r.groups) + " scan groups in " + std::to_string(r.folds) + " folds)";
     }
   }
+  r.model = full;
   if (r.added >= 0) {
     const int j = order[0];
     r.p_after = p_cand[j];
+    const ReturnCandidate& c = r.candidates[0];
+    r.model.multipliers.push_back({c.key, c.factor, "loop returns: " + c.feature + " " + c.form + ", held-out deviance cut " +
+                                                         std::to_string(c.score)});
   } else {
     r.p_after = r.p_before;
   }

@@ -31,6 +31,7 @@
 #include "pgm/beam_layout.h"
 #include "pgm/polar_grid_map.h"
 #include "pgm/return_target.h"
+#include "sensor/return_model.h"
 
 namespace lidarsim::qualify {
 
@@ -76,6 +77,8 @@ struct ReturnCandidate {
   double selection_lower = 0;           // the max-T bound over the family
   std::string decision, reason;
   nlohmann::json fitted;      // the effect fitted on every target cell (bins / window / class + step)
+  sensor::ReturnKey key = sensor::ReturnKey::Laser;
+  std::vector<float> factor;  // the same as multipliers per key
 };
 
 struct ReturnLoopResult {
@@ -89,6 +92,8 @@ struct ReturnLoopResult {
   // Per target cell (in input order), its held-out probability before and after.
   std::vector<float> p_before, p_after;
   std::vector<int> fold_of_scan;                   // scan id -> fold (-1: not a target scan)
+  // The base fitted on every reference cell, with the added effect as a multiplier term.
+  sensor::ReturnModel model;
 };
 
 // The loop: `target` = cells of the place examined; `reference` = cells the base is fitted on

@@ -91,6 +91,7 @@ int run_loop_returns(int argc, char** argv) {
     ("target", "the place(s) examined, comma-separated: one place (folds = its scans) or several (folds = whole places)", cxxopts::value<std::string>())
     ("reference", "places the base is fitted on, comma-separated, or `self` (the target's own fit scans); default: every other place of the target's beam layout, else self", cxxopts::value<std::string>())
     ("report", "loop report JSON (Markdown beside it)", cxxopts::value<std::string>())
+    ("out-model", "write the base fitted on every reference cell, with the added multiplier, here (return model JSON)", cxxopts::value<std::string>())
     ("folds-by", "several --target places: scan (folds = scans of every place) | place (whole places)", cxxopts::value<std::string>()->default_value("scan"))
     ("folds", "folds", cxxopts::value<int>()->default_value("5"))
     ("min-gain", "smallest held-out deviance cut (share of the base's) that is added", cxxopts::value<double>()->default_value("0.002"))
@@ -167,6 +168,14 @@ int run_loop_returns(int argc, char** argv) {
 
   std::string command = "lidar-qualify loop";
   for (int i = 0; i < argc; ++i) command += std::string(" ") + argv[i];
+  if (a.count("out-model")) {
+    sensor::ReturnModel m = r.model;
+    m.fit_command = command;
+    m.fit_places = ref_names;
+    m.source = "lidar-qualify loop returns on " + target_names;
+    m.save(a["out-model"].as<std::string>());
+    std::cout << "wrote " << a["out-model"].as<std::string>() << "\n";
+  }
   nlohmann::json j = to_json(r);
   j["command"] = command;
   j["target"] = target_names;

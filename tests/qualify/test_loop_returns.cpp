@@ -56,6 +56,14 @@ TEST(ReturnLoop, NamesAPlantedLaserDropout) {
   EXPECT_LT(r.deviance_after, r.deviance_before * 0.99);
   ASSERT_GE(r.added, 0);
   EXPECT_EQ(r.candidates[r.added].decision, "added");
+  // The model gains the effect as a multiplier term, kept through its JSON.
+  ASSERT_EQ(r.model.multipliers.size(), 1u);
+  const auto back = sensor::ReturnModel::from_json(r.model.to_json(), "test");
+  ASSERT_EQ(back.multipliers.size(), 1u);
+  const double ratio5 = back.probability_at(5, 100, 20, 2) / back.probability(5, 20, 2);
+  const double ratio4 = back.probability_at(4, 100, 20, 2) / back.probability(4, 20, 2);
+  EXPECT_NEAR(ratio5, 0.5, 0.06);
+  EXPECT_NEAR(ratio4, 1.0, 0.03);
   // The fitted table holds the dropout on laser 5 only.
   const auto& m = r.candidates[r.added].fitted["multiplier"];
   if (r.candidates[r.added].form == "table") {
@@ -69,6 +77,7 @@ TEST(ReturnLoop, AddsNothingOnAControl) {
   const auto r = qualify::loop_returns(s.after, s.before, s.layout);
   EXPECT_EQ(r.added_feature, "");
   EXPECT_EQ(r.deviance_after, r.deviance_before);
+  EXPECT_TRUE(r.model.multipliers.empty());
   for (const auto& c : r.candidates) EXPECT_EQ(c.decision, "not added") << c.feature << " " << c.form;
 }
 
