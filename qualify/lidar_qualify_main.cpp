@@ -17,6 +17,7 @@
 #include "qualify/range_noise_cli.h"
 #include "qualify/report.h"
 #include "qualify/returns.h"
+#include "qualify/returns_loop.h"
 #include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;
@@ -321,6 +322,7 @@ int run(int argc, char** argv) {
   if (cmd == "returns") return qualify::run_returns(argc - 1, argv + 1);
   std::string sub;
   int shift = 1;
+  if (cmd == "loop" && argc >= 3 && std::string(argv[2]) == "returns") return qualify::run_loop_returns(argc - 2, argv + 2);
   if (cmd == "loop") {
     if (argc < 3) throw Error("loop: expected `objects` or `intensity` after `loop`");
     sub = argv[2];

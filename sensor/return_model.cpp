@@ -112,6 +112,66 @@ float ReturnModel::probability(int row, double range_m, int class_id, bool use_l
                    : laser_range_[static_cast<std::size_t>(row) * counts_.range_bins + b];
 }
 
+const char* to_string(ReturnKey key) {
+  switch (key) {
+    case ReturnKey::Laser: return "laser";
+    case ReturnKey::Range5m: return "range_5m";
+    case ReturnKey::Class: return "class";
+    case ReturnKey::Material: return "material";
+    case ReturnKey::Azimuth10: return "azimuth_10deg";
+    case ReturnKey::Azimuth5: return "azimuth_5deg";
+    case ReturnKey::Height: return "height_0.5m";
+    case ReturnKey::ClassRange5m: return "class_x_range_5m";
+  }
+  return "?";
+}
+
+ReturnKey return_key_from_string(const std::string& name, const std::string& where) {
+  for (int k = 0; k <= static_cast<int>(ReturnKey::ClassRange5m); ++k)
+    if (name == to_string(static_cast<ReturnKey>(k))) return static_cast<ReturnKey>(k);
+  throw input_error(where, "multipliers/key", "unknown key \"" + name +
+                    "\" (expected laser, range_5m, class, material, azimuth_10deg, azimuth_5deg, height_0.5m, class_x_range_5m)");
+}
+
+int return_key_size(ReturnKey key, int rows) {
+  switch (key) {
+    case ReturnKey::Laser: return rows;
+    case ReturnKey::Range5m: return 24;
+    case ReturnKey::Class: return pgm::class_count();
+    case ReturnKey::Material: return pgm::material_count();
+    case ReturnKey::Azimuth10: return 36;
+    case ReturnKey::Azimuth5: return 72;
+    case ReturnKey::Height: return 20;
+    case ReturnKey::ClassRange5m: return pgm::class_count() * 24;
+  }
+  return 0;
+}
+
+int return_key(ReturnKey key, int row, double range_m, int class_id, double azimuth_deg, double height_m) {
+  const int rb = std::clamp(static_cast<int>(range_m / 5.0), 0, 23);
+  const int cls = std::clamp(class_id, 0, pgm::class_count() - 1);
+  switch (key) {
+    case ReturnKey::Laser: return row;
+    case ReturnKey::Range5m: return rb;
+    case ReturnKey::Class: return cls;
+    case ReturnKey::Material: return pgm::default_material(cls);
+    case ReturnKey::Azimuth10: return std::clamp(static_cast<int>(azimuth_deg / 10), 0, 35);
+    case ReturnKey::Azimuth5: return std::clamp(static_cast<int>(azimuth_deg / 5), 0, 71);
+    case ReturnKey::Height: return std::clamp(static_cast<int>((height_m + 3.0) / 0.5), 0, 19);
+    case ReturnKey::ClassRange5m: return cls * 24 + rb;
+  }
+  return 0;
+}
+
+float ReturnModel::probability_at(int row, int col, double range_m, int class_id) const {
+  double p = probability(row, range_m, class_id);
+  if (multipliers.empty()) return static_cast<float>(p);
+  const double az = 360.0 * (col + 0.5) / layout_.columns;
+  const double h = range_m * std::sin(layout_.elevations_rad[row]);
+  for (const auto& m : multipliers) p *= m.factor[return_key(m.key, row, range_m, class_id, az, h)];
+  return static_cast<float>(std::clamp(p, 0.0, 1.0));
+}
+
 json ReturnModel::to_json() const {
   json j;
   j["format"] = "lidarsim-returns";
@@ -138,6 +198,11 @@ json ReturnModel::to_json() const {
         if (counts_.cells[i] > 0) entries.push_back({l, b, k, counts_.cells[i], counts_.returns[i]});
       }
   j["counts"] = std::move(entries);
+  if (!multipliers.empty()) {
+    json ms = json::array();
+    for (const auto& m : multipliers) ms.push_back({{"key", to_string(m.key)}, {"factor", m.factor}, {"note", m.note}});
+    j["multipliers"] = ms;
+  }
   return j;
 }
 
@@ -190,6 +255,27 @@ ReturnModel ReturnModel::from_json(const json& j, const std::string& where) {
     c.returns[c.index(l, b, k)] += r;
   }
   ReturnModel m = fit(c, layout, number(j, "prior_strength", where));
+  if (j.contains("multipliers")) {
+    const auto& ms = j["multipliers"];
+    if (!ms.is_array()) throw input_error(where, "multipliers", "must be an array of {key, factor}");
+    for (const auto& x : ms) {
+      if (!x.is_object() || !x.contains("key") || !x["key"].is_string() || !x.contains("factor") || !x["factor"].is_array())
+        throw input_error(where, "multipliers", "each entry needs a string key and a factor array");
+      ReturnMultiplier mu;
+      mu.key = return_key_from_string(x["key"].get<std::string>(), where);
+      const int n = return_key_size(mu.key, m.rows());
+      if (static_cast<int>(x["factor"].size()) != n)
+        throw input_error(where, "multipliers/factor", std::string(to_string(mu.key)) + " needs " + std::to_string(n) + " factors, got " +
+                          std::to_string(x["factor"].size()));
+      for (const auto& v : x["factor"]) {
+        if (!v.is_number() || !(v.get<double>() >= 0) || !std::isfinite(v.get<double>()))
+          throw input_error(where, "multipliers/factor", "factors must be finite and >= 0");
+        mu.factor.push_back(v.get<float>());
+      }
+      if (x.contains("note") && x["note"].is_string()) mu.note = x["note"];
+      m.multipliers.push_back(std::move(mu));
+    }
+  }
   if (j.contains("source") && j["source"].is_string()) m.source = j["source"];
   if (j.contains("fit_command") && j["fit_command"].is_string()) m.fit_command = j["fit_command"];
   if (j.contains("fit_places") && j["fit_places"].is_array())
@@ -256,7 +342,7 @@ int apply_return_model(const ReturnModel& model, pgm::PolarGridMap& map, std::ui
   int dropped = 0;
   for (std::size_t i = 0; i < map.cells(); ++i) {
     if (mask[i] < 0.5f) continue;
-    const double p = model.probability(static_cast<int>(i / W), range[i], static_cast<int>(cls[i]));
+    const double p = model.probability_at(static_cast<int>(i / W), static_cast<int>(i % W), range[i], static_cast<int>(cls[i]));
     if (return_draw(seed, frame, i) < p) continue;
     ++dropped;
     for (int c = 0; c < C; ++c) map.channel(c)[i] = c == object_id ? -1.f : 0.f;

@@ -49,6 +49,24 @@ struct ReturnCounts {
   void merge(const ReturnCounts& other);  // same shape, else lidarsim::Error
 };
 
+// A multiplier term the closed loop adds (qualify/returns_loop.h): p' = factor(key(cell)) x p,
+// clamped to [0, 1]. Keys, the same in the loop and the simulation:
+//   laser (row), range_5m (24 bins), class, material (the class's default), azimuth_10deg (36),
+//   azimuth_5deg (72), height_0.5m (sensor-frame z = range x sin(elevation), 20 bins from -3 m),
+//   class_x_range_5m (class x 24).
+// Azimuth is the column centre 360 (col + 0.5) / columns.
+enum class ReturnKey { Laser, Range5m, Class, Material, Azimuth10, Azimuth5, Height, ClassRange5m };
+const char* to_string(ReturnKey key);
+ReturnKey return_key_from_string(const std::string& name, const std::string& where);  // throws naming the file
+int return_key_size(ReturnKey key, int rows);
+int return_key(ReturnKey key, int row, double range_m, int class_id, double azimuth_deg, double height_m);
+
+struct ReturnMultiplier {
+  ReturnKey key = ReturnKey::Laser;
+  std::vector<float> factor;  // [return_key_size]
+  std::string note;           // what the loop found (feature, form, its held-out cut)
+};
+
 class ReturnModel {
  public:
   ReturnModel() = default;
@@ -57,6 +75,11 @@ class ReturnModel {
 
   // P(return | geometry) of a cell; use_laser = false uses the laser-free chain.
   float probability(int row, double range_m, int class_id, bool use_laser = true) const;
+
+  // The probability with the multiplier terms (col: the PGM column); the same as probability()
+  // when there are none.
+  float probability_at(int row, int col, double range_m, int class_id) const;
+  std::vector<ReturnMultiplier> multipliers;  // JSON "multipliers" (optional; absent = none)
 
   const pgm::BeamLayout& layout() const { return layout_; }
   int rows() const { return counts_.rows; }
