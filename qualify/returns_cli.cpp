@@ -16,11 +16,9 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
-#include "data/class_table.h"
-#include "data/import.h"
-#include "data/nuscenes_lidarseg.h"
 #include "pgm/materials.h"
 #include "qualify/returns.h"
+#include "qualify/returns_places.h"
 
 namespace lidarsim::qualify {
 
@@ -29,68 +27,11 @@ using nlohmann::json;
 
 namespace {
 
-std::string bundled(const std::string& relative) {
-  if (fs::exists(relative)) return relative;
-  const fs::path in_source = fs::path(LIDARSIM_SOURCE_DIR) / relative;
-  return fs::exists(in_source) ? in_source.string() : relative;
-}
-
-struct Place {
-  std::string name, format;
-  std::vector<fs::path> dirs;
-  pgm::BeamLayout layout;
-  std::vector<pgm::ReturnTarget> targets;
-  std::vector<double> heights;  // sensor height per frame (estimated or given)
-};
-
-Place parse_place(const std::string& spec) {
-  const auto eq = spec.find('='), colon = spec.find(':', eq == std::string::npos ? 0 : eq);
-  if (eq == std::string::npos || colon == std::string::npos || eq == 0)
-    throw Error("--place: expected NAME=FORMAT:DIR, got \"" + spec + "\"");
-  Place p;
-  p.name = spec.substr(0, eq);
-  p.format = spec.substr(eq + 1, colon - eq - 1);
-  if (colon + 1 == spec.size()) throw Error("--place " + p.name + ": no folder given");
-  p.dirs.emplace_back(spec.substr(colon + 1));
-  return p;
-}
-
-data::Dataset import_place_dir(const Place& p, const fs::path& dir) {
-  data::ImportOptions o;
-  o.extra_channels = {"height"};
-  o.include_unlabelled = true;  // scans without semantic labels still say which beams returned
-  if (p.format == "semantickitti") return data::import_semantickitti(dir, o);
-  if (p.format == "kitti_object") return data::import_kitti_object(dir, o);
-  if (p.format == "rellis3d") {
-    o.layout = pgm::BeamLayout::from_file(bundled("data/sensors/os1-64-rellis3d.json"));
-    o.class_table = bundled("data/ontologies/rellis3d.csv");
-    return data::import_dataset(data::SourceFormat::Rellis3d, dir, o);
-  }
-  if (p.format == "nuscenes_lidarseg")
-    return data::import_nuscenes_lidarseg(dir, pgm::BeamLayout::from_file(bundled("data/sensors/hdl32e-nuscenes.json")),
-                                          data::read_class_table(bundled("data/ontologies/nuscenes-lidarseg.csv")), o);
-  throw Error("--place " + p.name + ": unknown format \"" + p.format +
-              "\" (expected semantickitti, kitti_object, rellis3d or nuscenes_lidarseg)");
-}
-
-void load_place(Place& p, const pgm::ReturnTargetOptions& rule) {
-  for (const auto& dir : p.dirs) {
-    const data::Dataset d = import_place_dir(p, dir);
-    if (p.targets.empty()) p.layout = d.layout;
-    else if (!(d.layout == p.layout))
-      throw Error("--place " + p.name + ": " + dir.string() + " has another beam layout (" + d.layout.difference(p.layout) + ")");
-    for (int f = 0; f < d.size(); ++f) {
-      p.targets.push_back(pgm::return_target(d.frame_pgm(f), rule));
-      p.heights.push_back(p.targets.back().sensor_height_m);
-    }
-  }
-}
-
-sensor::ReturnModel fit_on(const std::vector<const Place*>& places, const pgm::BeamLayout& layout, bool per_laser,
+sensor::ReturnModel fit_on(const std::vector<const ReturnPlace*>& places, const pgm::BeamLayout& layout, bool per_laser,
                            double prior) {
   // The laser-free chain ignores rows, so places of other sensors pool into row 0.
   sensor::ReturnCounts counts(per_laser ? layout.rows() : 1, pgm::class_count());
-  for (const Place* p : places)
+  for (const ReturnPlace* p : places)
     for (const auto& t : p->targets) {
       if (per_laser) {
         counts.add(t);
@@ -102,7 +43,7 @@ sensor::ReturnModel fit_on(const std::vector<const Place*>& places, const pgm::B
   pgm::BeamLayout fit_layout = layout;
   if (!per_laser) fit_layout = pgm::BeamLayout::from_elevations_deg("laser-free", {0.0}, layout.columns);
   sensor::ReturnModel m = sensor::ReturnModel::fit(counts, fit_layout, prior);
-  for (const Place* p : places) m.fit_places.push_back(p->name);
+  for (const ReturnPlace* p : places) m.fit_places.push_back(p->name);
   return m;
 }
 
@@ -117,6 +58,79 @@ json held_out_entry(const std::string& model, const std::vector<std::string>& tr
   j["model"] = model;
   j["trained_on"] = trained_on;
   return j;
+}
+
+// One held-out place: its cells by rule, and a row per model (same sensor, laser-free, baseline)
+// in the report, the Markdown table and the printed table.
+json held_out_place(const ReturnPlace& held, const std::vector<ReturnPlace>& places, double prior, std::string& md) {
+  json e;
+  e["place"] = held.name;
+  e["format"] = held.format;
+  e["sensor"] = held.layout.name;
+  e["rows"] = held.layout.rows();
+  e["scans"] = held.targets.size();
+  long long by_rule[static_cast<int>(pgm::ReturnRule::count)] = {};
+  for (const auto& t : held.targets)
+    for (int r = 0; r < static_cast<int>(pgm::ReturnRule::count); ++r) by_rule[r] += t.by_rule[r];
+  for (int r = 0; r < static_cast<int>(pgm::ReturnRule::count); ++r)
+    e["cells_by_rule"][pgm::to_string(static_cast<pgm::ReturnRule>(r))] = by_rule[r];
+  e["sensor_height_m"] = held.heights;
+  std::vector<const ReturnPlace*> same, others;
+  std::vector<std::string> same_names, other_names;
+  for (const auto& p : places)
+    if (&p != &held) {
+      others.push_back(&p);
+      other_names.push_back(p.name);
+      if (p.layout == held.layout) same.push_back(&p), same_names.push_back(p.name);
+    }
+  std::vector<std::pair<std::string, json>> rows;
+  const ReturnScore base = score_returns(held.targets, nullptr, false);
+  if (!same.empty()) {
+    const auto m = fit_on(same, held.layout, true, prior);
+    rows.emplace_back("same sensor", held_out_entry("same sensor: laser x range x class", same_names, score_returns(held.targets, &m, true)));
+  }
+  {
+    const auto m = fit_on(others, held.layout, false, prior);
+    rows.emplace_back("laser-free", held_out_entry("laser-free: range x class", other_names, score_returns(held.targets, &m, false)));
+  }
+  rows.emplace_back("baseline", held_out_entry("baseline: every geometry cell returns", {}, base));
+  for (const auto& [label, r] : rows) {
+    e["models"].push_back(r);
+    std::string trained;
+    for (const auto& n : r["trained_on"]) trained += (trained.empty() ? "" : ", ") + n.get<std::string>();
+    md += "| " + held.name + " | " + held.layout.name + " | " + std::to_string(held.targets.size()) + " | " +
+          std::to_string(base.cells) + " | " + std::to_string(by_rule[1]) + " / " + std::to_string(by_rule[2]) + " / " +
+          std::to_string(by_rule[3]) + " | " + f3(base.measured_rate) + " | " + label + " | " +
+          (trained.empty() ? "-" : trained) + " | " + f3(r["auroc"]) + " | " + f3(r["tv_laser"]) + " | " +
+          f3(r["tv_range_5m"]) + " | " + f3(r["tv_class"]) + " | " + f3(r["tv_laser_halves"]) + " / " +
+          f3(r["tv_range_5m_halves"]) + " / " + f3(r["tv_class_halves"]) + " |\n";
+    std::cout << std::setw(16) << held.name << std::setw(34) << r["model"].get<std::string>().substr(0, 33) << "  "
+              << f3(r["auroc"]) << "  " << f3(r["tv_laser"]) << "   " << f3(r["tv_range_5m"]) << "   "
+              << f3(r["tv_class"]) << "   (" << f3(r["tv_laser_halves"]) << " " << f3(r["tv_range_5m_halves"]) << " "
+              << f3(r["tv_class_halves"]) << ")\n";
+  }
+  return e;
+}
+
+// --out-model: the laser x range x class table fitted on every place of one sensor.
+json write_model(const std::vector<ReturnPlace>& places, const std::string& sensor, double prior,
+                 const std::string& command, const std::string& path) {
+  std::vector<const ReturnPlace*> fit;
+  for (const auto& p : places)
+    if (p.layout.name == sensor) fit.push_back(&p);
+  if (fit.empty()) throw Error("--model-sensor: no place has the beam layout \"" + sensor + "\"");
+  for (const ReturnPlace* p : fit)
+    if (!(p->layout == fit.front()->layout))
+      throw Error("--model-sensor: places named " + sensor + " differ in layout (" + p->layout.difference(fit.front()->layout) + ")");
+  sensor::ReturnModel m = fit_on(fit, fit.front()->layout, true, prior);
+  for (const ReturnPlace* p : fit)
+    for (const auto& d : p->dirs) m.source += (m.source.empty() ? "" : "; ") + p->name + "=" + p->format + ":" + d.string();
+  m.fit_command = command;
+  m.save(path);
+  std::cout << "wrote " << path << " (fitted on";
+  for (const auto& n : m.fit_places) std::cout << " " << n;
+  std::cout << ")\n";
+  return {{"path", path}, {"fit_places", m.fit_places}};
 }
 
 }  // namespace
@@ -149,17 +163,10 @@ int run_returns(int argc, char** argv) {
   rule.row_gap = a["row-gap"].as<int>();
   if (rule.row_gap < 0) throw Error("--row-gap: must be >= 0");
 
-  std::vector<Place> places;
-  for (const auto& spec : a["place"].as<std::vector<std::string>>()) {
-    Place p = parse_place(spec);
-    auto same = std::find_if(places.begin(), places.end(), [&](const Place& q) { return q.name == p.name; });
-    if (same == places.end()) places.push_back(std::move(p));
-    else if (same->format != p.format) throw Error("--place " + p.name + ": given as " + same->format + " and as " + p.format);
-    else same->dirs.push_back(p.dirs.front());  // one place recorded in several folders
-  }
+  std::vector<ReturnPlace> places = parse_return_places(a["place"].as<std::vector<std::string>>());
   if (places.size() < 2) throw Error("returns: give at least two places (one is held out, the others fit)");
   for (auto& p : places) {
-    load_place(p, rule);
+    load_return_place(p, rule);
     std::cerr << "place " << p.name << ": " << p.targets.size() << " scans (" << p.layout.name << ", "
               << p.layout.rows() << " rows)\n";
   }
@@ -181,74 +188,11 @@ int run_returns(int argc, char** argv) {
                    "AUROC | TV laser | TV range | TV class | halves: laser / range / class |\n"
                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   std::cout << std::left << std::setw(16) << "held out" << std::setw(34) << "model" << "  AUROC  TVlaser TVrange TVclass  (halves)\n";
-  for (const auto& held : places) {
-    json e;
-    e["place"] = held.name;
-    e["format"] = held.format;
-    e["sensor"] = held.layout.name;
-    e["rows"] = held.layout.rows();
-    e["scans"] = held.targets.size();
-    long long by_rule[static_cast<int>(pgm::ReturnRule::count)] = {};
-    for (const auto& t : held.targets)
-      for (int r = 0; r < static_cast<int>(pgm::ReturnRule::count); ++r) by_rule[r] += t.by_rule[r];
-    for (int r = 0; r < static_cast<int>(pgm::ReturnRule::count); ++r)
-      e["cells_by_rule"][pgm::to_string(static_cast<pgm::ReturnRule>(r))] = by_rule[r];
-    e["sensor_height_m"] = held.heights;
-    std::vector<const Place*> same, others;
-    std::vector<std::string> same_names, other_names;
-    for (const auto& p : places)
-      if (&p != &held) {
-        others.push_back(&p);
-        other_names.push_back(p.name);
-        if (p.layout == held.layout) same.push_back(&p), same_names.push_back(p.name);
-      }
-    std::vector<std::pair<std::string, json>> rows;
-    const ReturnScore base = score_returns(held.targets, nullptr, false);
-    if (!same.empty()) {
-      const auto m = fit_on(same, held.layout, true, prior);
-      rows.emplace_back("same sensor", held_out_entry("same sensor: laser x range x class", same_names, score_returns(held.targets, &m, true)));
-    }
-    {
-      const auto m = fit_on(others, held.layout, false, prior);
-      rows.emplace_back("laser-free", held_out_entry("laser-free: range x class", other_names, score_returns(held.targets, &m, false)));
-    }
-    rows.emplace_back("baseline", held_out_entry("baseline: every geometry cell returns", {}, base));
-    for (const auto& [label, r] : rows) {
-      e["models"].push_back(r);
-      std::string trained;
-      for (const auto& n : r["trained_on"]) trained += (trained.empty() ? "" : ", ") + n.get<std::string>();
-      md += "| " + held.name + " | " + held.layout.name + " | " + std::to_string(held.targets.size()) + " | " +
-            std::to_string(base.cells) + " | " + std::to_string(by_rule[1]) + " / " + std::to_string(by_rule[2]) + " / " +
-            std::to_string(by_rule[3]) + " | " + f3(base.measured_rate) + " | " + label + " | " +
-            (trained.empty() ? "-" : trained) + " | " + f3(r["auroc"]) + " | " + f3(r["tv_laser"]) + " | " +
-            f3(r["tv_range_5m"]) + " | " + f3(r["tv_class"]) + " | " + f3(r["tv_laser_halves"]) + " / " +
-            f3(r["tv_range_5m_halves"]) + " / " + f3(r["tv_class_halves"]) + " |\n";
-      std::cout << std::setw(16) << held.name << std::setw(34) << r["model"].get<std::string>().substr(0, 33) << "  "
-                << f3(r["auroc"]) << "  " << f3(r["tv_laser"]) << "   " << f3(r["tv_range_5m"]) << "   "
-                << f3(r["tv_class"]) << "   (" << f3(r["tv_laser_halves"]) << " " << f3(r["tv_range_5m_halves"]) << " "
-                << f3(r["tv_class_halves"]) << ")\n";
-    }
-    report["held_out"].push_back(e);
-  }
+  for (const auto& held : places) report["held_out"].push_back(held_out_place(held, places, prior, md));
 
   if (a.count("out-model")) {
     const std::string sensor = a.count("model-sensor") ? a["model-sensor"].as<std::string>() : places.front().layout.name;
-    std::vector<const Place*> fit;
-    for (const auto& p : places)
-      if (p.layout.name == sensor) fit.push_back(&p);
-    if (fit.empty()) throw Error("--model-sensor: no place has the beam layout \"" + sensor + "\"");
-    for (const Place* p : fit)
-      if (!(p->layout == fit.front()->layout))
-        throw Error("--model-sensor: places named " + sensor + " differ in layout (" + p->layout.difference(fit.front()->layout) + ")");
-    sensor::ReturnModel m = fit_on(fit, fit.front()->layout, true, prior);
-    for (const Place* p : fit)
-      for (const auto& d : p->dirs) m.source += (m.source.empty() ? "" : "; ") + p->name + "=" + p->format + ":" + d.string();
-    m.fit_command = command;
-    m.save(a["out-model"].as<std::string>());
-    report["model"] = {{"path", a["out-model"].as<std::string>()}, {"fit_places", m.fit_places}};
-    std::cout << "wrote " << a["out-model"].as<std::string>() << " (fitted on";
-    for (const auto& n : m.fit_places) std::cout << " " << n;
-    std::cout << ")\n";
+    report["model"] = write_model(places, sensor, prior, command, a["out-model"].as<std::string>());
   }
   const fs::path out = a["out"].as<std::string>();
   fs::create_directories(out);

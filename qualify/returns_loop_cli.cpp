@@ -12,10 +12,8 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
-#include "data/class_table.h"
-#include "data/import.h"
-#include "data/nuscenes_lidarseg.h"
 #include "qualify/returns_loop.h"
+#include "qualify/returns_places.h"
 
 namespace lidarsim::qualify {
 
@@ -23,61 +21,65 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string bundled_file(const std::string& relative) {
-  if (fs::exists(relative)) return relative;
-  const fs::path in_source = fs::path(LIDARSIM_SOURCE_DIR) / relative;
-  return fs::exists(in_source) ? in_source.string() : relative;
+// --target: one place (folds = its scans) or several, comma-separated (folds = whole places with
+// --folds-by place: no scenery is shared).
+std::vector<ReturnPlace*> named_targets(std::vector<ReturnPlace>& places, const std::string& names) {
+  std::vector<ReturnPlace*> targets;
+  std::stringstream ss(names);
+  for (std::string n; std::getline(ss, n, ',');) {
+    auto it = std::find_if(places.begin(), places.end(), [&](const ReturnPlace& p) { return p.name == n; });
+    if (it == places.end()) throw Error("--target " + n + ": not among the --place names");
+    targets.push_back(&*it);
+  }
+  return targets;
 }
 
-struct LoopPlace {
-  std::string name, format;
-  std::vector<fs::path> dirs;
-  pgm::BeamLayout layout;
-  std::vector<pgm::ReturnTarget> targets;
-};
-
-// As `lidar-qualify returns` imports a place's folder (qualify/returns_cli.cpp).
-data::Dataset import_dir(const LoopPlace& p, const fs::path& dir) {
-  data::ImportOptions o;
-  o.extra_channels = {"height"};
-  o.include_unlabelled = true;
-  if (p.format == "semantickitti") return data::import_semantickitti(dir, o);
-  if (p.format == "kitti_object") return data::import_kitti_object(dir, o);
-  if (p.format == "rellis3d") {
-    o.layout = pgm::BeamLayout::from_file(bundled_file("data/sensors/os1-64-rellis3d.json"));
-    o.class_table = bundled_file("data/ontologies/rellis3d.csv");
-    return data::import_dataset(data::SourceFormat::Rellis3d, dir, o);
+// --reference: the named places, none for `self` (each fold's base then sees the target's fit
+// scans only), and by default every other place of the target's beam layout.
+std::vector<const ReturnPlace*> reference_places(const std::vector<ReturnPlace>& places,
+                                                 const std::vector<ReturnPlace*>& targets, const std::string& names) {
+  const ReturnPlace& first = *targets.front();
+  auto is_target = [&](const ReturnPlace& p) { return std::find(targets.begin(), targets.end(), &p) != targets.end(); };
+  std::vector<const ReturnPlace*> refs;
+  if (!names.empty() && names != "self") {
+    std::stringstream ss(names);
+    for (std::string n; std::getline(ss, n, ',');) {
+      auto it = std::find_if(places.begin(), places.end(), [&](const ReturnPlace& p) { return p.name == n; });
+      if (it == places.end()) throw Error("--reference " + n + ": not among the --place names");
+      if (is_target(*it)) throw Error("--reference " + n + ": also a --target (use --reference self)");
+      if (!(it->layout == first.layout)) throw Error("--reference " + n + ": another beam layout than the target's (" + it->layout.name + ")");
+      refs.push_back(&*it);
+    }
+  } else if (names.empty()) {
+    for (const auto& p : places)
+      if (!is_target(p) && p.layout == first.layout) refs.push_back(&p);
   }
-  if (p.format == "nuscenes_lidarseg")
-    return data::import_nuscenes_lidarseg(dir, pgm::BeamLayout::from_file(bundled_file("data/sensors/hdl32e-nuscenes.json")),
-                                          data::read_class_table(bundled_file("data/ontologies/nuscenes-lidarseg.csv")), o);
-  throw Error("--place " + p.name + ": unknown format \"" + p.format +
-              "\" (expected semantickitti, kitti_object, rellis3d or nuscenes_lidarseg)");
+  return refs;
 }
 
-std::vector<LoopPlace> parse_places(const std::vector<std::string>& specs) {
-  std::vector<LoopPlace> places;
-  for (const auto& spec : specs) {
-    const auto eq = spec.find('='), colon = spec.find(':', eq == std::string::npos ? 0 : eq);
-    if (eq == std::string::npos || colon == std::string::npos || eq == 0 || colon + 1 == spec.size())
-      throw Error("--place: expected NAME=FORMAT:DIR, got \"" + spec + "\"");
-    const std::string name = spec.substr(0, eq), format = spec.substr(eq + 1, colon - eq - 1);
-    auto same = std::find_if(places.begin(), places.end(), [&](const LoopPlace& q) { return q.name == name; });
-    if (same == places.end()) places.push_back({name, format, {spec.substr(colon + 1)}, {}, {}});
-    else if (same->format != format) throw Error("--place " + name + ": given as " + same->format + " and as " + format);
-    else same->dirs.emplace_back(spec.substr(colon + 1));
-  }
-  return places;
-}
-
-void load(LoopPlace& p) {
-  for (const auto& dir : p.dirs) {
-    const data::Dataset d = import_dir(p, dir);
-    if (p.targets.empty()) p.layout = d.layout;
-    else if (!(d.layout == p.layout))
-      throw Error("--place " + p.name + ": " + dir.string() + " has another beam layout (" + d.layout.difference(p.layout) + ")");
-    for (int f = 0; f < d.size(); ++f) p.targets.push_back(pgm::return_target(d.frame_pgm(f)));
-  }
+// The report (JSON, Markdown beside it) and the printed summary.
+void write_loop_report(const ReturnLoopResult& r, const std::string& command, const std::string& target_names,
+                       bool folds_are_places, const std::vector<std::string>& ref_names, const fs::path& report) {
+  nlohmann::json j = to_json(r);
+  j["command"] = command;
+  j["target"] = target_names;
+  j["folds_are"] = folds_are_places ? "whole places" : "scans";
+  j["reference"] = ref_names;
+  if (report.has_parent_path()) fs::create_directories(report.parent_path());
+  write_file_atomically(report, j.dump(2) + "\n");
+  fs::path md = report;
+  md.replace_extension(".md");
+  std::string text = to_markdown(r, command);
+  text += "\nTarget: " + target_names + "; base fitted on:";
+  for (const auto& n : ref_names) text += " " + n;
+  write_file_atomically(md, text + "\n");
+  std::cout << "target " << target_names << ": " << r.scans << " scans, " << r.cells << " geometry cells\n"
+            << "held-out deviance " << r.deviance_before << " -> " << r.deviance_after << ", added: "
+            << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
+  for (const auto& c : r.candidates)
+    std::cout << "  " << c.feature << " " << c.form << ": cut " << c.score << " (bound " << c.selection_lower << ") "
+              << c.decision << "\n";
+  std::cout << "wrote " << report << " and " << md << "\n";
 }
 
 }  // namespace
@@ -104,38 +106,16 @@ int run_loop_returns(int argc, char** argv) {
   if (!a.unmatched().empty()) throw Error("loop returns: unexpected argument \"" + a.unmatched().front() + "\"");
   if (!a.count("place")) throw Error("loop returns: give the places with --place NAME=FORMAT:DIR");
   if (!a.count("report")) throw Error("loop returns: --report R.json is required");
-  std::vector<LoopPlace> places = parse_places(a["place"].as<std::vector<std::string>>());
-  // --target: one place (folds = its scans) or several (folds = whole places: no scenery is shared).
-  std::vector<LoopPlace*> targets;
-  {
-    std::stringstream ss(a.count("target") ? a["target"].as<std::string>() : places.front().name);
-    for (std::string n; std::getline(ss, n, ',');) {
-      auto it = std::find_if(places.begin(), places.end(), [&](const LoopPlace& p) { return p.name == n; });
-      if (it == places.end()) throw Error("--target " + n + ": not among the --place names");
-      targets.push_back(&*it);
-    }
-  }
+  std::vector<ReturnPlace> places = parse_return_places(a["place"].as<std::vector<std::string>>());
+  std::vector<ReturnPlace*> targets =
+      named_targets(places, a.count("target") ? a["target"].as<std::string>() : places.front().name);
   if (targets.empty()) throw Error("--target: no place named");
-  for (auto& p : places) load(p);
-  const LoopPlace& first = *targets.front();
-  for (const LoopPlace* t : targets)
+  for (auto& p : places) load_return_place(p);
+  const ReturnPlace& first = *targets.front();
+  for (const ReturnPlace* t : targets)
     if (!(t->layout == first.layout)) throw Error("--target " + t->name + ": another beam layout than " + first.name + "'s");
-  auto is_target = [&](const LoopPlace& p) { return std::find(targets.begin(), targets.end(), &p) != targets.end(); };
-
-  std::vector<const LoopPlace*> refs;
-  if (a.count("reference") && a["reference"].as<std::string>() != "self") {
-    std::stringstream ss(a["reference"].as<std::string>());
-    for (std::string n; std::getline(ss, n, ',');) {
-      auto it = std::find_if(places.begin(), places.end(), [&](const LoopPlace& p) { return p.name == n; });
-      if (it == places.end()) throw Error("--reference " + n + ": not among the --place names");
-      if (is_target(*it)) throw Error("--reference " + n + ": also a --target (use --reference self)");
-      if (!(it->layout == first.layout)) throw Error("--reference " + n + ": another beam layout than the target's (" + it->layout.name + ")");
-      refs.push_back(&*it);
-    }
-  } else if (!a.count("reference")) {
-    for (const auto& p : places)
-      if (!is_target(p) && p.layout == first.layout) refs.push_back(&p);
-  }
+  const std::vector<const ReturnPlace*> refs =
+      reference_places(places, targets, a.count("reference") ? a["reference"].as<std::string>() : "");
   const std::string folds_by = a["folds-by"].as<std::string>();
   if (folds_by != "scan" && folds_by != "place") throw Error("--folds-by: expected scan or place, got \"" + folds_by + "\"");
   ReturnLoopOptions o;
@@ -155,7 +135,7 @@ int run_loop_returns(int argc, char** argv) {
     ref_cells = cells;  // self: each fold's base sees only the fit scans
     ref_names.push_back(target_names + " (fit scans of each fold)");
   }
-  for (const LoopPlace* p : refs) {
+  for (const ReturnPlace* p : refs) {
     ref_names.push_back(p->name);
     for (const auto& t : p->targets) {
       auto c = return_cells(t, p->layout, scan++);
@@ -176,27 +156,7 @@ int run_loop_returns(int argc, char** argv) {
     m.save(a["out-model"].as<std::string>());
     std::cout << "wrote " << a["out-model"].as<std::string>() << "\n";
   }
-  nlohmann::json j = to_json(r);
-  j["command"] = command;
-  j["target"] = target_names;
-  j["folds_are"] = !o.scan_group.empty() ? "whole places" : "scans";
-  j["reference"] = ref_names;
-  const fs::path report = a["report"].as<std::string>();
-  if (report.has_parent_path()) fs::create_directories(report.parent_path());
-  write_file_atomically(report, j.dump(2) + "\n");
-  fs::path md = report;
-  md.replace_extension(".md");
-  std::string text = to_markdown(r, command);
-  text += "\nTarget: " + target_names + "; base fitted on:";
-  for (const auto& n : ref_names) text += " " + n;
-  write_file_atomically(md, text + "\n");
-  std::cout << "target " << target_names << ": " << r.scans << " scans, " << r.cells << " geometry cells\n"
-            << "held-out deviance " << r.deviance_before << " -> " << r.deviance_after << ", added: "
-            << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
-  for (const auto& c : r.candidates)
-    std::cout << "  " << c.feature << " " << c.form << ": cut " << c.score << " (bound " << c.selection_lower << ") "
-              << c.decision << "\n";
-  std::cout << "wrote " << report << " and " << md << "\n";
+  write_loop_report(r, command, target_names, !o.scan_group.empty(), ref_names, a["report"].as<std::string>());
   return 0;
 }
 
