@@ -37,6 +37,7 @@ nlohmann::json run_settings(const TrainConfig& c) {
   if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
   if (c.shrink_residual) j["shrink_residual"] = true;
   if (c.heads != "mean") j["heads"] = c.heads;  // absent for the mean alone: older checkpoints compare equal
+  if (c.heads != "mean") j["spread_weight"] = c.spread_weight;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
