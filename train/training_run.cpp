@@ -302,7 +302,7 @@ nn::Checkpoint TrainingRun::checkpoint_meta() const {
                                              : "masked_mse + lambda * sum(w^2), weights only";
   if (spread)
     m.attributes["loss"] += "; head 1 (" + std::string(nn::head_name(arch.heads[1])) +
-                            "): masked NLL of the measured intensity around the mean, no gradient to the mean";
+                            "): masked NLL of the measured intensity around the mean; trains only its own output parameters";
   m.attributes["train_config"] = describe_config(config);
   m.attributes["receptive_field_half_width"] = std::to_string(half_width);
   m.attributes["split"] = sector_split ? split.describe(cols) : "separate validation dataset";
