@@ -1,6 +1,7 @@
 #include "infer/intensity_model.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "common/error.h"
 #include "nn/checkpoint.h"
@@ -40,7 +41,25 @@ std::vector<std::string> IntensityModel::extra_channels() const {
   return extra;
 }
 
-void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out) {
+std::optional<nn::HeadKind> IntensityModel::spread() const {
+  for (nn::HeadKind h : model_.config().heads)
+    if (h == nn::HeadKind::log_scale_gaussian || h == nn::HeadKind::log_scale_laplace) return h;
+  return std::nullopt;
+}
+
+void IntensityModel::sample_from_spread(const IntensitySampling& sampling, const std::string& where) {
+  if (!spread())
+    throw input_error(path_.string(), "/config/unet.heads",
+                      where + " needs a spread head (heads: " +
+                          (model_.config().heads.empty() ? std::string("mean") : nn::heads_text(model_.config().heads)) +
+                          "); train with lidar-train --heads mean,log_scale_laplace");
+  if (!(sampling.min < sampling.max))
+    throw Error(where + ": the intensity range must have min < max, got [" + std::to_string(sampling.min) + ", " +
+                std::to_string(sampling.max) + "]");
+  sampling_ = sampling;
+}
+
+void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame) {
   const int rows = pgm.rows(), cols = pgm.cols();
   const int model_rows = model_.config().row_affine_rows;
   if (model_rows > 0 && rows != model_rows)
@@ -53,7 +72,20 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
   model_.predict(input_, output_);
   const float* mask = pgm.channel("mask");
   out.assign(pgm.cells(), 0.f);
-  for (std::size_t i = 0; i < pgm.cells(); ++i) out[i] = mask[i] > 0 ? output_.data()[i] : 0.f;
+  const float* mean = output_.data();  // channel 0 whatever heads follow (nn/heads.h)
+  if (!sampling_) {
+    for (std::size_t i = 0; i < pgm.cells(); ++i) out[i] = mask[i] > 0 ? mean[i] : 0.f;
+    return;
+  }
+  const auto heads = model_.config().heads;
+  const auto at = std::find(heads.begin(), heads.end(), *spread()) - heads.begin();
+  const float* log_scale = mean + static_cast<std::size_t>(at) * pgm.cells();
+  const nn::LogScaleClamp clamp{};  // as in training (nn/loss.h)
+  for (std::size_t i = 0; i < pgm.cells(); ++i) {
+    if (mask[i] <= 0) continue;
+    const float scale = std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
+    out[i] = sample_intensity(*spread(), mean[i], scale, *sampling_, frame, i);
+  }
 }
 
 }  // namespace lidarsim::infer

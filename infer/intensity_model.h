@@ -2,10 +2,13 @@
 // A trained intensity UNet ready for inference: the checkpoint's weights together with the input
 // encoder and beam layout that travelled in its /config, so a Polar Grid Map is encoded exactly
 // as in training. Shared by `lidar-infer predict` (recorded scans) and the simulation pipeline.
+#include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "infer/intensity_sampling.h"
 #include "nn/unet.h"
 #include "pgm/beam_layout.h"
 #include "pgm/encoder.h"
@@ -25,8 +28,18 @@ class IntensityModel {
   // PGM channels beyond pgm::kBaseChannels the encoder reads (to ask the projection for them).
   std::vector<std::string> extra_channels() const;
 
-  // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0.
-  void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out);
+  // The checkpoint's spread head (log_scale_gaussian / log_scale_laplace), if it has one.
+  std::optional<nn::HeadKind> spread() const;
+  // From now on predict() draws intensity from the spread head's distribution around the mean
+  // (infer/intensity_sampling.h) instead of the mean. Throws naming the checkpoint when it has no
+  // spread head. `where` names the option in that error.
+  void sample_from_spread(const IntensitySampling& sampling, const std::string& where);
+  bool sampling() const { return sampling_.has_value(); }
+
+  // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0. By
+  // default the mean (channel 0); with sample_from_spread, a draw per cell depending only on
+  // (seed, frame, cell).
+  void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame = 0);
 
  private:
   IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::BeamLayout layout, std::filesystem::path path);
@@ -35,6 +48,7 @@ class IntensityModel {
   pgm::BeamLayout layout_;
   std::filesystem::path path_;
   nn::Tensor input_, output_;
+  std::optional<IntensitySampling> sampling_;
 };
 
 }  // namespace lidarsim::infer

@@ -53,6 +53,9 @@ int run_predict(int argc, char** argv) {
     ("out", "output folder", cxxopts::value<std::string>()->default_value("out/predict"))
     ("format", "point cloud format: pcd or ply", cxxopts::value<std::string>()->default_value("pcd"))
     ("max-frames", "at most this many scans (0 = all)", cxxopts::value<int>()->default_value("0"))
+    ("sample-intensity", "with a spread head (lidar-train --heads mean,log_scale_...): draw each cell's intensity from the "
+     "predicted distribution, seeded by --seed, scan index and cell, clamped to 0..1 (default: the mean)")
+    ("seed", "seed of --sample-intensity", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
@@ -74,6 +77,10 @@ int run_predict(int argc, char** argv) {
   o.format = args["format"].as<std::string>();
   o.max_frames = args["max-frames"].as<int>();
   o.progress = !args.count("quiet");
+  o.sample_intensity = args.count("sample-intensity") > 0;
+  o.seed = args["seed"].as<std::uint64_t>();
+  if (args.count("seed") && !o.sample_intensity)
+    throw Error("lidar-infer predict: --seed only seeds --sample-intensity (the mean needs no seed)");
   if (o.max_frames < 0) throw Error("lidar-infer predict: --max-frames must be >= 0, got " + std::to_string(o.max_frames));
   if (args["threads"].as<int>() < 1 || args["threads"].as<int>() > 1024)
     throw Error("lidar-infer predict: --threads must be in [1, 1024], got " + std::to_string(args["threads"].as<int>()));
@@ -112,10 +119,12 @@ cxxopts::Options sim_options_spec() {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
-    ("seed", "seed of the KPI noise", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("seed", "seed of the KPI noise, --range-noise, --returns and --sample-intensity", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("range-noise", "range noise model JSON (lidar-qualify range-noise, e.g. data/models/range_noise_hdl64e.json): "
      "each return's range scatters along its beam, drawn from --seed, the frame and the cell; default exact ranges",
      cxxopts::value<std::string>())
+    ("sample-intensity", "with a spread head (lidar-train --heads mean,log_scale_...): draw each cell's intensity from the "
+     "predicted distribution (seed, frame, cell), clamped to 0..1 (default: the mean)")
     ("no-outputs", "only time the pipeline: write nothing but the summary")
     ("every", "write the outputs of every N-th frame only (the UNet then runs on those frames only)", cxxopts::value<int>()->default_value("1"))
     ("sync-outputs", "write outputs on the pipeline's thread (default: a writer thread)")
@@ -170,6 +179,7 @@ SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
   if (args.count("range-noise"))
     a.sim_options.range_noise = std::make_shared<const sensor::RangeNoiseModel>(
         sensor::load_range_noise_model(args["range-noise"].as<std::string>()));
+  a.sim_options.sample_intensity = args.count("sample-intensity") > 0;
   if (args.count("sensor")) a.sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
   if (args.count("returns"))
     a.sim_options.returns = std::make_shared<sensor::ReturnModel>(sensor::ReturnModel::load(args["returns"].as<std::string>()));

@@ -202,6 +202,7 @@ void write_summary_md(const PredictOptions& o, const PredictSummary& summary) {
 PredictSummary predict_scans(const PredictOptions& o) {
   if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer predict: --format must be pcd or ply");
   IntensityModel model = IntensityModel::load(o.model);
+  if (o.sample_intensity) model.sample_from_spread({o.seed}, "lidar-infer predict: --sample-intensity");
   const ScanSource source = list_sources(o);
   std::filesystem::create_directories(o.out);
 
@@ -216,7 +217,7 @@ PredictSummary predict_scans(const PredictOptions& o) {
     const ScanInput scan = source.read(i);
     const auto t0 = std::chrono::steady_clock::now();
     const pgm::ProjectionResult projected = pgm::project(scan.points, model.layout(), project_options, scan.id);
-    model.predict(projected.pgm, predicted);
+    model.predict(projected.pgm, predicted, i);
     compute_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ScanResult result = score_cells(scan.id, projected.pgm, predicted, sums);
     summary.cells += result.cells;

@@ -4,6 +4,7 @@
 // scan it writes a point cloud (x, y, z, intensity = measured, predicted, abs_error, class) and a
 // PNG with three rows — measured / predicted / absolute error — like the paper's Figures 9-10;
 // at the end summary.json and summary.md with MAE/RMSE overall and per class.
+#include <cstdint>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -27,6 +28,10 @@ struct PredictOptions {
   std::string format = "pcd";  // or "ply"
   int max_frames = 0;          // 0 = all
   bool progress = true;
+  // With a spread head: draw each cell's intensity from the predicted distribution (seeded; frame
+  // = the scan's index) instead of the mean (infer/intensity_sampling.h).
+  bool sample_intensity = false;
+  std::uint64_t seed = 1;
 };
 
 struct ClassError {

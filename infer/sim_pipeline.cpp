@@ -68,6 +68,8 @@ SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
   if (!options_.point_cloud) options_.intensity = false;
   if (options_.intensity && !intensity_) throw Error("sim pipeline: an intensity model is required");
   if (intensity_) extra_channels_ = intensity_->extra_channels();
+  if (options_.sample_intensity && options_.intensity)
+    intensity_->sample_from_spread({options_.seed}, "sim pipeline: --sample-intensity");
   // Generous first reservations, so the first frames do not grow buffers piecemeal.
   detections_.reserve(64);
   tracked_.reserve(64);
@@ -218,7 +220,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   float* intensity = out.pgm.channel("intensity");  // 0 from the PCL generator
   out.intensity_skipped = options_.intensity && !intensity_wanted;
   if (predict) {
-    intensity_->predict(out.pgm, predicted_);
+    intensity_->predict(out.pgm, predicted_, static_cast<std::uint64_t>(k));
     const float* mask = out.pgm.channel("mask");
     // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.
     for (std::size_t i = 0; i < out.pgm.cells(); ++i)

@@ -45,6 +45,9 @@ struct SimOptions {
   sensor::KpiOptions kpi;
   bool intensity = true;          // false: skip the UNet (intensity stays 0)
   bool point_cloud = true;        // false: the object-level model only (no PCL generator, UNet, cloud)
+  // With a spread head (lidar-train --heads mean,log_scale_...): intensity drawn from the predicted
+  // distribution, per (seed, frame, cell), instead of the mean (infer/intensity_sampling.h).
+  bool sample_intensity = false;
   // Another sensor (lidar-infer sim --sensor FILE.json): replaces the scenario's beams, and its
   // vertical field of view and range limits follow the layout's beams and ranges.
   std::optional<pgm::BeamLayout> sensor;

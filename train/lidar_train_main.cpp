@@ -63,6 +63,9 @@ cxxopts::Options command_line() {
     ("lookup-base", "learn the residual over a class x range + per-beam lookup table fitted on the training cells (input channel + added to the output); "
      "=groups (default): the class groups of the input encoding; =classes: every class, per-beam offsets as the intensity loop fits them (its best lookup)",
      cxxopts::value<std::string>()->implicit_value("groups"))
+    ("heads", "output heads: mean (default: the paper's single output), or mean,log_scale_laplace / mean,log_scale_gaussian: "
+     "a per-cell intensity spread trained with the NLL around the mean (the mean keeps masked MSE + L2)",
+     cxxopts::value<std::string>()->default_value("mean"))
     ("early-stop", "choose the epoch on an inner region carved out of the training columns (with its own guard band; never the scored regions), "
      "keep that epoch's weights, score the validation regions once")
     ("inner-columns", "with --early-stop: width of the inner region in columns", cxxopts::value<int>()->default_value("32"))
@@ -109,6 +112,7 @@ lidarsim::train::TrainConfig config_from(const cxxopts::ParseResult& args) {
   config.row_affine = args.count("row-affine") > 0;
   config.lookup_base = args.count("lookup-base") > 0;
   if (config.lookup_base) config.lookup_form = args["lookup-base"].as<std::string>();
+  config.heads = args["heads"].as<std::string>();
   config.early_stop = args.count("early-stop") > 0;
   config.inner_columns = args["inner-columns"].as<int>();
   config.patience = args["patience"].as<int>();
@@ -178,6 +182,11 @@ void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::t
                 last.validation.mae, last.validation.rmse, last.validation.cells, config.out.c_str(), half_width,
                 config.validation ? "--val" : config.split.c_str());
   }
+  std::optional<lidarsim::train::SpreadMetrics> final_spread = result.chosen_spread;
+  if (!final_spread && !result.epochs.empty()) final_spread = result.epochs.back().spread;
+  if (final_spread)
+    std::printf("final spread (%s): NLL %.4f nats/cell; inside the 50%% interval %.3f, the 90%% interval %.3f (%ld cells)\n",
+                config.heads.c_str(), final_spread->nll, final_spread->within50, final_spread->within90, final_spread->cells);
 }
 
 }  // namespace
@@ -206,8 +215,11 @@ int main(int argc, char** argv) {
     lock_outputs(lock, config, args.count("log") ? args["log"].as<std::string>() : "");
 
     // With --early-stop the epochs are measured on the inner region only (the scored regions once, at the end).
-    std::string csv = config.early_stop ? "epoch,step,train_loss,inner_mae,inner_rmse,inner_cells\n"
-                                        : "epoch,step,train_loss,val_mae,val_rmse,val_cells\n";
+    std::string csv = config.early_stop ? "epoch,step,train_loss,inner_mae,inner_rmse,inner_cells"
+                                        : "epoch,step,train_loss,val_mae,val_rmse,val_cells";
+    // A spread head adds its NLL and interval coverage (same cells as the MAE).
+    const bool spread = config.heads != "mean";
+    csv += spread ? ",spread_nll,within50,within90\n" : "\n";
     std::signal(SIGINT, on_sigint);
     if (dist.active()) std::signal(SIGUSR1, on_sigint);  // mpirun forwards SIGUSR1, not SIGINT, to the ranks
     const auto result = train::train(config, [&](const train::EpochReport& r) {
@@ -215,10 +227,18 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "epoch %d/%d  loss %.5f  %s MAE %.4f  RMSE %.4f  (%ld cells)  -> %s  [%.1f frames/s, validation %.1f s]\n",
                    r.epoch, config.epochs, r.train_loss, r.inner ? "inner" : "val", m.mae, m.rmse, m.cells,
                    config.out.c_str(), r.samples / std::max(1e-9, r.train_seconds), r.validation_seconds);
-      char line[160];
-      std::snprintf(line, sizeof line, "%d,%lld,%.6f,%.6f,%.6f,%ld\n", r.epoch, static_cast<long long>(r.step),
+      if (r.spread)
+        std::fprintf(stderr, "    spread: NLL %.4f nats/cell, inside 50%% interval %.3f, inside 90%% interval %.3f\n",
+                     r.spread->nll, r.spread->within50, r.spread->within90);
+      char line[200];
+      std::snprintf(line, sizeof line, "%d,%lld,%.6f,%.6f,%.6f,%ld", r.epoch, static_cast<long long>(r.step),
                     r.train_loss, m.mae, m.rmse, m.cells);
       csv += line;
+      if (r.spread) {
+        std::snprintf(line, sizeof line, ",%.6f,%.6f,%.6f", r.spread->nll, r.spread->within50, r.spread->within90);
+        csv += line;
+      }
+      csv += "\n";
       if (args.count("log")) write_file_atomically(args["log"].as<std::string>(), csv);
     });
     if (!dist.root()) return result.interrupted ? 130 : 0;  // rank 0 reports

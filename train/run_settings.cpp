@@ -5,6 +5,7 @@
 #include <cstdio>
 
 #include "common/error.h"
+#include "nn/heads.h"
 #include "train/distributed.h"
 
 namespace lidarsim::train {
@@ -35,6 +36,8 @@ nlohmann::json run_settings(const TrainConfig& c) {
   if (c.early_stop) j["early_stop"] = {{"inner_columns", c.inner_columns}, {"patience", c.patience}};
   if (c.early_stop && !c.inner_frames.empty()) j["early_stop"]["inner_frames"] = c.inner_frames;
   if (c.shrink_residual) j["shrink_residual"] = true;
+  if (c.heads != "mean") j["heads"] = c.heads;  // absent for the mean alone: older checkpoints compare equal
+  if (c.heads != "mean") j["spread_weight"] = c.spread_weight;
   j["epochs"] = c.epochs;
   j["steps_per_epoch"] = c.steps_per_epoch;
   j["batch"] = c.batch;
@@ -112,6 +115,19 @@ void validate_settings(const TrainConfig& c) {
   if (c.shrink_residual && !(c.lookup_base && c.early_stop))
     refuse("shrink-residual", "needs --lookup-base and --early-stop (the factor is chosen on the inner region)",
            c.lookup_base ? "no --early-stop" : "no --lookup-base");
+  const std::vector<nn::HeadKind> heads = nn::parse_heads(c.heads, "lidar-train: --heads");
+  if (heads.empty() || heads[0] != nn::HeadKind::mean)
+    refuse("heads", "must start with mean (channel 0 is the intensity mean)", "\"" + c.heads + "\"");
+  if (heads.size() > 2 || (heads.size() == 2 && heads[1] != nn::HeadKind::log_scale_gaussian &&
+                           heads[1] != nn::HeadKind::log_scale_laplace))
+    refuse("heads", "supported: mean, mean,log_scale_gaussian or mean,log_scale_laplace (a return head needs a return target)",
+           "\"" + c.heads + "\"");
+  if (heads.size() > 1 && c.shrink_residual)
+    refuse("shrink-residual", "not supported with a spread head (the residual scale would scale the log-scale too)",
+           "--heads " + c.heads);
+  if (heads.size() > 1 && Distributed::world().active())
+    refuse("heads", "a spread head is not supported on several MPI ranks yet (its NLL's denominator is not summed across ranks)",
+           "--heads " + c.heads + " on " + std::to_string(Distributed::world().size()) + " ranks");
   if (c.patience < 0 || c.patience > 1000000) refuse("patience", "must be in [0, 1000000] (0: every epoch)", std::to_string(c.patience));
 }
 

@@ -83,6 +83,15 @@ struct TrainConfig {
   // the table by the factor in {0, 0.05, ..., 1} with the lowest inner MAE (train/residual_shrink.h).
   // 0 gives the table back, 1 the chosen epoch unchanged; the scored regions never take part.
   bool shrink_residual = false;
+  // Output heads (nn/heads.h), e.g. "mean,log_scale_laplace": channel 0 is the mean, trained with
+  // masked MSE + L2 exactly as with "mean" alone; a spread head (log_scale_gaussian or
+  // log_scale_laplace) adds its NLL on the same cells, with no gradient to the mean (so the mean's
+  // MAE is not traded for the likelihood). "mean" alone is today's single-output model, bit for bit.
+  std::string heads = "mean";
+  // Weight of the spread head's NLL. It trains the spread's own output parameters only (the shared
+  // layers learn from the mean's MSE alone: training_run.cpp spread_step), so with Adam the weight
+  // barely matters; 0 switches the NLL off (tests show the spread is then not learnt).
+  float spread_weight = 1.f;
   int epochs = 100;
   int steps_per_epoch = 0;  // 0: one step per batch of frames (ceil(frames / batch))
   int batch = 1;
@@ -114,12 +123,21 @@ struct TrainConfig {
   bool mix_intensity_scales = false;
 };
 
+// A spread head's validation (train/spread_metrics.h): mean NLL (nats per cell) of the measured
+// intensity under the predicted distribution, and the share of cells inside its central 50 % and
+// 90 % intervals (a calibrated spread gives 0.5 and 0.9).
+struct SpreadMetrics {
+  double nll = 0, within50 = 0, within90 = 0;
+  long cells = 0;
+};
+
 struct EpochReport {
   int epoch = 0;       // 1-based
   std::int64_t step = 0;
   double train_loss = 0;  // mean total loss over the epoch's steps
   data::Metrics validation;  // with early_stop: not measured (cells 0)
   std::optional<data::Metrics> inner;  // with early_stop: MAE/RMSE on the inner region
+  std::optional<SpreadMetrics> spread;  // with a spread head: on the scored validation cells
   // Wall time of the epoch's steps (since the epoch or the run started) and of its validation.
   double train_seconds = 0, validation_seconds = 0;
   int samples = 0;  // frames (crops) the epoch's steps trained on
@@ -134,6 +152,7 @@ struct TrainResult {
   // once, after the choice), and the inner region, its guard band and the training columns left.
   int chosen_epoch = 0;
   std::optional<data::Metrics> chosen_validation;
+  std::optional<SpreadMetrics> chosen_spread;  // with early_stop and a spread head
   // With shrink_residual: the factor chosen and the inner MAE at each factor tried; and, for the
   // report only (after the choice), the scored validation of the chosen epoch left unscaled.
   std::optional<double> residual_scale;

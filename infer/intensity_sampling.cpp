@@ -1,0 +1,48 @@
+#include "infer/intensity_sampling.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "common/error.h"
+
+namespace lidarsim::infer {
+namespace {
+
+// SplitMix64's finaliser: a bijective mix whose outputs for consecutive inputs are independent
+// enough for Monte Carlo draws.
+std::uint64_t mix(std::uint64_t z) {
+  z += 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// (0, 1) from the top 53 bits, never 0 or 1 (the inverse CDFs below take logs).
+double to_unit(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53; }
+
+}  // namespace
+
+void cell_uniforms(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell, double& u1, double& u2) {
+  const std::uint64_t key = mix(mix(mix(seed) ^ frame) ^ cell);
+  u1 = to_unit(mix(key ^ 0x1ull));
+  u2 = to_unit(mix(key ^ 0x2ull));
+}
+
+float sample_intensity(nn::HeadKind spread, float mean, float scale, const IntensitySampling& s, std::uint64_t frame,
+                       std::uint64_t cell) {
+  double u1 = 0, u2 = 0;
+  cell_uniforms(s.seed, frame, cell, u1, u2);
+  double noise = 0;
+  if (spread == nn::HeadKind::log_scale_laplace) {
+    // Inverse CDF of Laplace(0, b): -b sign(u - 1/2) log(1 - 2 |u - 1/2|).
+    const double d = u1 - 0.5;
+    noise = -scale * (d < 0 ? -1.0 : 1.0) * std::log(1 - 2 * std::abs(d));
+  } else if (spread == nn::HeadKind::log_scale_gaussian) {
+    noise = scale * std::sqrt(-2 * std::log(u1)) * std::cos(2 * M_PI * u2);  // Box-Muller
+  } else {
+    throw Error("sample_intensity: not a spread head");
+  }
+  return static_cast<float>(std::clamp(mean + noise, static_cast<double>(s.min), static_cast<double>(s.max)));
+}
+
+}  // namespace lidarsim::infer

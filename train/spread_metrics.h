@@ -1,0 +1,39 @@
+#pragma once
+// Validation of a spread head (nn/heads.h log_scale_gaussian / log_scale_laplace): how well the
+// predicted distribution around the mean describes the measured intensity on the scored cells.
+//   nll       mean negative log-likelihood, nats per cell (nn/loss.h masked_nll's definition)
+//   within50  share of cells with |y - mean| inside the central 50 % interval of the prediction
+//   within90  the same for 90 % (a calibrated spread gives 0.5 and 0.9; lower: too narrow)
+#include <cstdint>
+#include <vector>
+
+#include "data/frame_source.h"
+#include "data/split.h"
+#include "nn/heads.h"
+#include "nn/unet.h"
+#include "pgm/encoder.h"
+#include "train/trainer.h"
+
+namespace lidarsim::train {
+
+struct SpreadSums {
+  double nll = 0;
+  long within50 = 0, within90 = 0, cells = 0;
+  SpreadMetrics get() const;
+};
+
+// Half-width of the central interval holding probability p of a distribution with scale 1
+// (Gaussian sigma = 1: the normal quantile z_{(1+p)/2}; Laplace b = 1: -log(1 - p)).
+double central_half_width(nn::HeadKind spread, double p);
+
+// Adds one frame's cells (mask > 0 and roles[column] == want_role): mean and log_scale are the
+// network's raw channels 0 and 1 [rows * cols]; the log-scale is clamped as in training.
+void add_spread_cells(SpreadSums& sums, nn::HeadKind spread, const float* mean, const float* log_scale,
+                      const float* target, const float* mask, const std::vector<std::uint8_t>& roles, int rows,
+                      int cols, std::uint8_t want_role = data::kValidation, nn::LogScaleClamp clamp = {});
+
+// The model's spread on the validation cells of `split` in `sets` (one frame at a time).
+SpreadMetrics validate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder,
+                              const std::vector<const data::FrameSource*>& sets, const data::SectorSplit& split);
+
+}  // namespace lidarsim::train
