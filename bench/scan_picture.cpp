@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
       "columns", "window width in columns (0 = all)", cxxopts::value<int>()->default_value("256"))(
       "centre-deg", "azimuth of the window centre, deg (0 = straight ahead)", cxxopts::value<double>()->default_value("0"))(
       "scale", "pixels per cell", cxxopts::value<int>()->default_value("2"))(
-      "note", "held-out note for the header", cxxopts::value<std::string>()->default_value(""))(
+      "note", "what is held out, under the picture ('|' starts a new line)", cxxopts::value<std::string>()->default_value(""))(
       "out", "PNG", cxxopts::value<std::string>()->default_value("measured_vs_simulated.png"))("h,help", "help");
   try {
     const auto a = options.parse(argc, argv);
@@ -151,10 +151,10 @@ int main(int argc, char** argv) {
     const int centre = layout.column_of(std::cos(c), std::sin(c));
     const int c0 = ((centre - n / 2) % cols + cols) % cols;
     const int scale = std::max(1, a["scale"].as<int>());
-    double max_range = 0;
-    for (std::size_t i = 0; i < measured.pgm.cells(); ++i) max_range = std::max<double>(max_range, measured.pgm.channel("range")[i]);
     const float range_hi = 50.f;
 
+    TextStyle caption_style, header_style = kHeaderStyle, note_style = caption_style;
+    caption_style.scale = header_style.scale = note_style.scale = 1;  // the window is narrow
     auto panel = [&](const float* values, const float* mask, float hi, const std::string& caption, const std::string& hi_label) {
       std::vector<float> v;
       std::vector<std::uint8_t> ok;
@@ -165,7 +165,7 @@ int main(int argc, char** argv) {
       Image wide(img.width * scale, img.height);
       for (int y = 0; y < img.height; ++y)
         for (int x = 0; x < wide.width; ++x) wide.at(x, y) = img.at(x / scale, y);
-      return add_caption_band(wide, caption, ColourKey{"0", hi_label}, TextStyle{1});
+      return add_caption_band(wide, caption, ColourKey{"0", hi_label}, caption_style);
     };
     const Image stacked = stack_vertically(
         {panel(measured.pgm.channel("range"), measured.pgm.channel("mask"), range_hi, "measured range", "50 m"),
@@ -176,12 +176,19 @@ int main(int argc, char** argv) {
     char header[256];
     std::snprintf(header, sizeof header, "scan %s, %d columns around %.0f deg, seed %llu (black: no return)", id.c_str(), n,
                   a["centre-deg"].as<double>(), static_cast<unsigned long long>(seed));
-    Image picture = add_caption_band(stacked, header, TextStyle{{0, 0, 0}, {225, 225, 225}, 1});
-    const std::string note = a["note"].as<std::string>();
-    if (!note.empty()) picture = add_caption_band(picture, note, TextStyle{{0, 0, 0}, {225, 225, 225}, 1});
+    Image picture = add_caption_band(stacked, header, header_style);
+    // The note goes below, one band per '|'-separated line (the header band does not wrap).
+    std::vector<Image> parts{picture};
+    std::string note = a["note"].as<std::string>();
+    for (std::size_t start = 0; start < note.size();) {
+      const std::size_t end = std::min(note.find('|', start), note.size());
+      Image band(picture.width, 1, {255, 255, 255});
+      parts.push_back(add_caption_band(band, note.substr(start, end - start), note_style));
+      start = end + 1;
+    }
+    picture = stack_vertically(parts, 0);
     write_png(a["out"].as<std::string>(), picture);  // write_png is atomic (common/atomic_file.h)
     std::printf("wrote %s (%dx%d)\n", a["out"].as<std::string>().c_str(), picture.width, picture.height);
-    (void)max_range;
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_scan_picture: %s\n", e.what());
