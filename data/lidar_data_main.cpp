@@ -82,7 +82,7 @@ void print_point_counts(const data::ImportSummary& s) {
   std::cerr << "intensity scale: " << s.intensity_scale.describe() << "\n";
 }
 
-int run_import(int argc, char** argv) {
+cxxopts::Options import_options() {
   cxxopts::Options opts("lidar-data import",
                         "Read recorded scans as they are into an HDF5 dataset (/pgm, /target, /mask).\n"
                         "Rows: KITTI scans are cut where the azimuth wraps (firing order, 64 rows); clouds not in\n"
@@ -115,12 +115,11 @@ int run_import(int argc, char** argv) {
       ("skip-unreadable", "skip listed scans that cannot be read (counted and named) instead of stopping")
       ("quiet", "no progress bar")
       ("h,help", "show this help");
-  auto args = opts.parse(argc, argv);
-  if (args.count("help")) {
-    std::cout << opts.help() << std::endl;
-    return 0;
-  }
-  // One source: the flag names the format.
+  return opts;
+}
+
+// The one source given: the flag names the format.
+std::pair<data::SourceFormat, std::string> import_source(const cxxopts::ParseResult& args) {
   std::vector<std::pair<data::SourceFormat, std::string>> given;
   for (const auto& [flag, format] : std::vector<std::pair<std::string, data::SourceFormat>>{
            {"semantickitti", data::SourceFormat::SemanticKitti}, {"kitti-object", data::SourceFormat::KittiObject},
@@ -131,8 +130,11 @@ int run_import(int argc, char** argv) {
   if (given.size() != 1)
     throw Error("import: give exactly one of --semantickitti, --kitti-object, --nuscenes, --rellis3d, --nuscenes-lidarseg, "
                 "--semantickitti-mos DIR or --ouster PCAP");
-  const auto [format, source] = given[0];
-  if (!args.count("out")) throw Error("import: --out FILE.h5 is required");
+  return given[0];
+}
+
+// The import settings of the command line, with the format's default sensor and class table.
+data::ImportOptions import_settings(const cxxopts::ParseResult& args, data::SourceFormat format) {
   data::ImportOptions o;
   o.columns = args["columns"].as<int>();
   o.first = args["first"].as<int>();
@@ -153,6 +155,29 @@ int run_import(int argc, char** argv) {
   else if (format == data::SourceFormat::Rellis3d) o.class_table = resolve_default("data/ontologies/rellis3d.csv");
   else if (format == data::SourceFormat::NuscenesLidarseg) o.class_table = resolve_default("data/ontologies/nuscenes-lidarseg.csv");
   if (args.count("metadata")) o.ouster_metadata = args["metadata"].as<std::string>();
+  return o;
+}
+
+void print_import_summary(const data::ImportSummary& summary, const std::vector<std::string>& notes, const std::string& out) {
+  for (const auto& n : notes) std::cerr << "note: " << n << "\n";
+  std::string mode_text;
+  for (const auto& [m, n] : summary.row_modes) mode_text += (mode_text.empty() ? "" : ", ") + m + " " + std::to_string(n);
+  std::cerr << "wrote " << out << ": " << summary.frames << " frames, " << summary.channels.size() << " channels x "
+            << summary.layout.rows() << " x " << summary.layout.columns << ", " << summary.returns
+            << " cells with a return; rows: " << mode_text << "\n";
+  print_point_counts(summary);
+}
+
+int run_import(int argc, char** argv) {
+  cxxopts::Options opts = import_options();
+  auto args = opts.parse(argc, argv);
+  if (args.count("help")) {
+    std::cout << opts.help() << std::endl;
+    return 0;
+  }
+  const auto [format, source] = import_source(args);
+  if (!args.count("out")) throw Error("import: --out FILE.h5 is required");
+  data::ImportOptions o = import_settings(args, format);
   std::vector<std::string> notes;
   o.note = [&](const std::string& n) { notes.push_back(n); };
   std::unique_ptr<ProgressBar> bar;
@@ -165,13 +190,7 @@ int run_import(int argc, char** argv) {
   remove_stale_temp_files(out);  // left by a run that was killed while writing
   const auto summary = data::import_to_file(format, source, out, o);
   if (bar) bar->finish(std::to_string(summary.frames) + " scans");
-  for (const auto& n : notes) std::cerr << "note: " << n << "\n";
-  std::string mode_text;
-  for (const auto& [m, n] : summary.row_modes) mode_text += (mode_text.empty() ? "" : ", ") + m + " " + std::to_string(n);
-  std::cerr << "wrote " << out << ": " << summary.frames << " frames, " << summary.channels.size() << " channels x "
-            << summary.layout.rows() << " x " << summary.layout.columns << ", " << summary.returns
-            << " cells with a return; rows: " << mode_text << "\n";
-  print_point_counts(summary);
+  print_import_summary(summary, notes, out);
   return 0;
 }
 

@@ -71,34 +71,45 @@ double estimate_sensor_height(const PolarGridMap& pgm) {
   return near[near.size() / 2];
 }
 
-ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o) {
-  const float* range = need_channel(pgm, "range");
-  const float* mask = need_channel(pgm, "mask");
-  const float* cls = need_channel(pgm, "class");
-  const int H = pgm.rows(), W = pgm.cols();
-  const auto& el = pgm.layout().elevations_rad;
-  ReturnTarget t;
-  t.rows = H;
-  t.cols = W;
-  const std::size_t n = pgm.cells();
+namespace {
+
+// The channels and geometry every rule reads.
+struct Scan {
+  const float* range;
+  const float* mask;
+  const float* cls;
+  int H, W;
+  const std::vector<double>& el;
+  bool has(std::size_t i) const { return mask[i] >= 0.5f; }
+  std::size_t at(int r, int c) const { return static_cast<std::size_t>(r) * W + c; }
+};
+
+// Every cell Sky, then each measured cell a Return; the measured ranges for the reach.
+std::vector<float> label_measured(const Scan& s, std::size_t n, ReturnTarget& t) {
+  t.rows = s.H;
+  t.cols = s.W;
   t.label.assign(n, ReturnLabel::Sky);
   t.rule.assign(n, ReturnRule::Sky);
   t.range.assign(n, 0.f);
   t.class_id.assign(n, 0);
-  auto has = [&](std::size_t i) { return mask[i] >= 0.5f; };
-
   std::vector<float> ranges;
   for (std::size_t i = 0; i < n; ++i)
-    if (has(i)) {
+    if (s.has(i)) {
       t.label[i] = ReturnLabel::Return;
       t.rule[i] = ReturnRule::Measured;
-      t.range[i] = range[i];
-      t.class_id[i] = static_cast<int>(cls[i]);
-      ranges.push_back(range[i]);
+      t.range[i] = s.range[i];
+      t.class_id[i] = static_cast<int>(s.cls[i]);
+      ranges.push_back(s.range[i]);
     }
   t.returns = static_cast<long long>(ranges.size());
   if (ranges.empty()) throw input_error("polar grid map", "mask", "no returns: the return target needs a measured scan");
+  return ranges;
+}
 
+// Reach and sensor height (given or estimated), then the ground range of each row
+// (0 = the beam does not meet the ground within reach).
+std::vector<double> ground_ranges(const PolarGridMap& pgm, const Scan& s, std::vector<float>& ranges,
+                                  const ReturnTargetOptions& o, ReturnTarget& t) {
   t.reach_m = o.reach_m;
   if (t.reach_m <= 0) {
     const auto k = std::min(ranges.size() - 1, static_cast<std::size_t>(o.reach_quantile * ranges.size()));
@@ -110,24 +121,27 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
     throw input_error("polar grid map", "sensor height",
                       "too few returns on the lower beams to estimate it; give it (--sensor-height)");
   const double ground_reach = o.ground_reach_share * t.reach_m;
-  // Ground range of each row (0 = the beam does not meet the ground within reach).
-  std::vector<double> ground(H, 0.0);
-  for (int r = 0; r < H; ++r)
-    if (el[r] < 0) {
-      const double g = t.sensor_height_m / std::sin(-el[r]);
+  std::vector<double> ground(s.H, 0.0);
+  for (int r = 0; r < s.H; ++r)
+    if (s.el[r] < 0) {
+      const double g = t.sensor_height_m / std::sin(-s.el[r]);
       if (g <= ground_reach) ground[r] = g;
     }
+  return ground;
+}
 
-  // Rule 0: long empty runs on near-ground rows are the own vehicle (columns wrap around).
+// Rule 0: long empty runs on near-ground rows are the own vehicle (columns wrap around).
+void rule_vehicle(const Scan& s, const std::vector<double>& ground, const ReturnTargetOptions& o, ReturnTarget& t) {
+  const int H = s.H, W = s.W;
   for (int r = 0; r < H && o.vehicle_run > 0 && o.vehicle_run <= W; ++r) {
     if (!(ground[r] > 0 && ground[r] <= o.vehicle_ground_m)) continue;
-    const std::size_t row0 = static_cast<std::size_t>(r) * W;
+    const std::size_t row0 = s.at(r, 0);
     int start = 0;  // a column with a return to start from, so no run is cut by the wrap
-    while (start < W && !has(row0 + start)) ++start;
+    while (start < W && !s.has(row0 + start)) ++start;
     if (start == W) continue;  // an empty row: nothing to tell a vehicle from
     for (int k = 1, run = 0; k <= W; ++k) {
       const int c = (start + k) % W;
-      if (k < W && !has(row0 + c)) {
+      if (k < W && !s.has(row0 + c)) {
         ++run;
         continue;
       }
@@ -136,88 +150,117 @@ ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o
       run = 0;
     }
   }
+}
 
-  // Rule 1: gaps in a row between two returns at similar range (columns wrap around).
+// Rule 1: gaps in a row between two returns at similar range (columns wrap around).
+void rule_row_gap(const Scan& s, const ReturnTargetOptions& o, ReturnTarget& t) {
+  const int H = s.H, W = s.W;
   for (int r = 0; r < H; ++r) {
-    const std::size_t row0 = static_cast<std::size_t>(r) * W;
+    const std::size_t row0 = s.at(r, 0);
     std::vector<int> left(W, -1), right(W, -1);  // nearest return column (unwrapped offset) or -1
     int last = -1;
     for (int k = 0; k < 2 * W; ++k) {
       const int c = k % W;
-      if (has(row0 + c)) last = k;
+      if (s.has(row0 + c)) last = k;
       else if (k >= W && last >= 0 && k - last <= o.row_gap + 1) left[c] = k - last;
     }
     last = -1;
     for (int k = 2 * W - 1; k >= 0; --k) {
       const int c = k % W;
-      if (has(row0 + c)) last = k;
+      if (s.has(row0 + c)) last = k;
       else if (k < W && last >= 0 && last - k <= o.row_gap + 1) right[c] = last - k;
     }
     for (int c = 0; c < W; ++c) {
       const std::size_t i = row0 + c;
-      if (has(i) || t.rule[i] == ReturnRule::Vehicle || left[c] < 0 || right[c] < 0 || left[c] + right[c] > o.row_gap + 1)
+      if (s.has(i) || t.rule[i] == ReturnRule::Vehicle || left[c] < 0 || right[c] < 0 || left[c] + right[c] > o.row_gap + 1)
         continue;
       const std::size_t a = row0 + (c - left[c] + W) % W, b = row0 + (c + right[c]) % W;
-      const double ra = range[a], rb = range[b];
+      const double ra = s.range[a], rb = s.range[b];
       if (std::abs(ra - rb) > o.similar_range * std::min(ra, rb)) continue;
       const double w = static_cast<double>(left[c]) / (left[c] + right[c]);
       t.label[i] = ReturnLabel::Drop;
       t.rule[i] = ReturnRule::RowGap;
       t.range[i] = static_cast<float>(ra + w * (rb - ra));
-      t.class_id[i] = static_cast<int>(cls[left[c] <= right[c] ? a : b]);
+      t.class_id[i] = static_cast<int>(s.cls[left[c] <= right[c] ? a : b]);
     }
   }
+}
 
-  // Rules 2 and 3, column by column.
+// Ground class of cell (r, c): the nearest return below in the column, else the one above.
+int ground_class(const Scan& s, int r, int c, int above) {
+  for (int q = r + 1; q < s.H; ++q)
+    if (s.has(s.at(q, c))) return static_cast<int>(s.cls[s.at(q, c)]);
+  return above >= 0 ? static_cast<int>(s.cls[s.at(above, c)]) : 0;
+}
+
+// Rule 2: the surface above reaches down to an empty cell of column c unless the next return below lies
+// beyond it (the beams in between passed under it: an overhang).
+bool below_return(const Scan& s, int c, int above, int below, double similar_range) {
+  if (above < 0) return false;
+  if (below < 0) return true;
+  const std::size_t a = s.at(above, c), b = s.at(below, c);
+  return s.range[b] * std::cos(s.el[below]) <= (1 + similar_range) * s.range[a] * std::cos(s.el[above]);
+}
+
+// Rule 2 (below a return), else rule 3 (ground), for the cells rules 0 and 1 left as Sky, column
+// by column.
+void rules_below_return_and_ground(const Scan& s, const std::vector<double>& ground, const ReturnTargetOptions& o,
+                                   ReturnTarget& t) {
+  const int H = s.H, W = s.W;
   std::vector<int> below(H);  // nearest row below with a return, -1 if none
   for (int c = 0; c < W; ++c) {
     for (int r = H - 1, next = -1; r >= 0; --r) {
       below[r] = next;
-      if (has(static_cast<std::size_t>(r) * W + c)) next = r;
+      if (s.has(s.at(r, c))) next = r;
     }
     int above = -1;  // nearest row above with a return
     for (int r = 0; r < H; ++r) {
-      const std::size_t i = static_cast<std::size_t>(r) * W + c;
-      if (has(i)) {
+      const std::size_t i = s.at(r, c);
+      if (s.has(i)) {
         above = r;
         continue;
       }
       if (t.label[i] != ReturnLabel::Sky || t.rule[i] == ReturnRule::Vehicle) continue;
-      // Ground class: the nearest return below in the column, else the one above.
-      auto ground_class = [&]() {
-        for (int q = r + 1; q < H; ++q)
-          if (has(static_cast<std::size_t>(q) * W + c)) return static_cast<int>(cls[static_cast<std::size_t>(q) * W + c]);
-        return above >= 0 ? static_cast<int>(cls[static_cast<std::size_t>(above) * W + c]) : 0;
-      };
-      // The surface above reaches down here unless the next return below lies beyond it (the
-      // beams in between passed under it: an overhang).
-      bool under = above >= 0;
-      if (under && below[r] >= 0) {
-        const std::size_t a = static_cast<std::size_t>(above) * W + c, b = static_cast<std::size_t>(below[r]) * W + c;
-        under = range[b] * std::cos(el[below[r]]) <= (1 + o.similar_range) * range[a] * std::cos(el[above]);
-      }
-      if (under) {
-        const std::size_t a = static_cast<std::size_t>(above) * W + c;
-        const double horizontal = range[a] * std::cos(el[above]);
-        const double wall = horizontal / std::cos(el[r]);
+      if (below_return(s, c, above, below[r], o.similar_range)) {
+        const std::size_t a = s.at(above, c);
+        const double horizontal = s.range[a] * std::cos(s.el[above]);
+        const double wall = horizontal / std::cos(s.el[r]);
         const bool surface_first = ground[r] <= 0 || wall <= ground[r];
         t.label[i] = ReturnLabel::Drop;
         t.rule[i] = ReturnRule::BelowReturn;
         t.range[i] = static_cast<float>(surface_first ? wall : ground[r]);
-        t.class_id[i] = surface_first ? static_cast<int>(cls[a]) : ground_class();
+        t.class_id[i] = surface_first ? static_cast<int>(s.cls[a]) : ground_class(s, r, c, above);
       } else if (ground[r] > 0) {
         t.label[i] = ReturnLabel::Drop;
         t.rule[i] = ReturnRule::Ground;
         t.range[i] = static_cast<float>(ground[r]);
-        t.class_id[i] = ground_class();
+        t.class_id[i] = ground_class(s, r, c, above);
       }
     }
   }
-  for (std::size_t i = 0; i < n; ++i) {
+}
+
+// Rule 4 is what is left: cells no rule labelled stay Sky. Count each rule's cells.
+void count_rules(ReturnTarget& t) {
+  for (std::size_t i = 0; i < t.label.size(); ++i) {
     ++t.by_rule[static_cast<int>(t.rule[i])];
     if (t.label[i] == ReturnLabel::Drop) ++t.drops;
     else if (t.label[i] == ReturnLabel::Sky) ++t.sky;
   }
+}
+
+}  // namespace
+
+ReturnTarget return_target(const PolarGridMap& pgm, const ReturnTargetOptions& o) {
+  const Scan s{need_channel(pgm, "range"), need_channel(pgm, "mask"), need_channel(pgm, "class"),
+               pgm.rows(), pgm.cols(), pgm.layout().elevations_rad};
+  ReturnTarget t;
+  std::vector<float> ranges = label_measured(s, pgm.cells(), t);
+  const std::vector<double> ground = ground_ranges(pgm, s, ranges, o, t);
+  rule_vehicle(s, ground, o, t);
+  rule_row_gap(s, o, t);
+  rules_below_return_and_ground(s, ground, o, t);
+  count_rules(t);
   return t;
 }
 

@@ -175,31 +175,31 @@ void pool_towards(const std::vector<double>& v, const std::vector<double>& prior
     factor[b] = !held[b] ? 1.0 : tau2 <= 0 ? 0.0 : tau2 / (tau2 + se[b] * se[b]);
 }
 
-}  // namespace
+// Records grouped by (class, range bin) cell and by track, each numbered in order of first sight.
+struct Groups {
+  std::vector<int> cell, track;  // per record
+  int ncell = 0, ntracks = 0;
+};
 
-void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
-                               const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
-                               bool window, bool towards_pooled, int replicates, std::uint64_t seed) {
-  const size_t n = r.size();
-  if (n == 0 || replicates < 2) return;
-  const Slots s = slots_of(f.table, x, cls);
-  int inside = -1;
-  if (window) {
-    for (int b = 0; b < s.npooled; ++b)
-      if (f.table.pooled.value[b] != 0) inside = b;
-    if (inside < 0) return;  // no window: nothing to shrink
-  }
+Groups groups_of(size_t n, const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track) {
+  Groups g;
   std::map<std::pair<int, int>, int> cell_id;
-  std::vector<int> cell(n);
+  g.cell.resize(n);
   for (size_t i = 0; i < n; ++i)
-    cell[i] = cell_id.try_emplace({cls[i], rb[i]}, static_cast<int>(cell_id.size())).first->second;
+    g.cell[i] = cell_id.try_emplace({cls[i], rb[i]}, static_cast<int>(cell_id.size())).first->second;
   std::map<int, int> track_id;
-  std::vector<int> tr(n);
-  for (size_t i = 0; i < n; ++i) tr[i] = track_id.try_emplace(track[i], static_cast<int>(track_id.size())).first->second;
-  const int ntracks = static_cast<int>(track_id.size()), ncell = static_cast<int>(cell_id.size());
+  g.track.resize(n);
+  for (size_t i = 0; i < n; ++i) g.track[i] = track_id.try_emplace(track[i], static_cast<int>(track_id.size())).first->second;
+  g.ntracks = static_cast<int>(track_id.size()), g.ncell = static_cast<int>(cell_id.size());
+  return g;
+}
 
-  std::vector<double> value(s.total);
-  std::vector<bool> held(s.total, false);
+// The table's values laid out by slot, and which slots are judged (hold fit data; with a window,
+// only the bin inside it).
+void table_values(const Refit& f, const Slots& s, bool window, int inside, std::vector<double>& value,
+                  std::vector<bool>& held) {
+  value.assign(s.total, 0.0);
+  held.assign(s.total, false);
   for (int b = 0; b < s.npooled; ++b) value[b] = f.table.pooled.value[b], held[b] = f.table.pooled.count[b] > 0;
   for (int c = 0; c < 3; ++c)
     if (s.offset[c] >= 0)
@@ -207,49 +207,64 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
         value[s.offset[c] + b] = f.table.per_class[c].value[b], held[s.offset[c] + b] = f.table.per_class[c].count[b] > 0;
   if (window)
     for (int b = 0; b < s.total; ++b) held[b] = b == inside;
+}
 
-  // Bootstrap over tracks: each replicate's standard deviation per bin.
+// Bootstrap over tracks: each slot's standard deviation over the replicates' refits.
+std::vector<double> bootstrap_se(const Slots& s, int inside, const std::vector<double>& r, const Groups& g,
+                                 double cell_prior, int replicates, std::uint64_t seed) {
+  const size_t n = r.size();
   std::mt19937_64 rng(seed);
-  std::vector<double> s1(s.total, 0.0), s2(s.total, 0.0), wt(ntracks), w(n);
+  std::vector<double> s1(s.total, 0.0), s2(s.total, 0.0), wt(g.ntracks), w(n);
   for (int q = 0; q < replicates; ++q) {
     std::fill(wt.begin(), wt.end(), 0.0);
-    for (int j = 0; j < ntracks; ++j) wt[rng() % static_cast<std::uint64_t>(ntracks)] += 1;
-    for (size_t i = 0; i < n; ++i) w[i] = wt[tr[i]];
-    const auto v = refit_values(s, inside, r, cell, ncell, w, f.cell_prior);
+    for (int j = 0; j < g.ntracks; ++j) wt[rng() % static_cast<std::uint64_t>(g.ntracks)] += 1;
+    for (size_t i = 0; i < n; ++i) w[i] = wt[g.track[i]];
+    const auto v = refit_values(s, inside, r, g.cell, g.ncell, w, cell_prior);
     for (int b = 0; b < s.total; ++b) s1[b] += v[b], s2[b] += v[b] * v[b];
   }
-  std::vector<double> se(s.total), factor(s.total, 1.0);
+  std::vector<double> se(s.total);
   for (int b = 0; b < s.total; ++b) {
     const double m = s1[b] / replicates;
     se[b] = std::sqrt(std::max(0.0, (s2[b] / replicates - m * m) * replicates / (replicates - 1.0)));
   }
-  // A floor under the bootstrap: a bin that holds one or two tracks shows the bootstrap no spread
-  // between tracks (resampling one track gives its own mean again), so the bin's variance is also
-  // taken as the table's between-track variance (of the residual after the term, per track means,
-  // method of moments) x sum(n_j^2) / n^2 over the bin's tracks + within-track variance / n.
+  return se;
+}
+
+// Between-track and within-track variance of the residuals e (per track means, method of
+// moments) over the records of class c (c < 0: every record, the pooled table).
+std::array<double, 2> track_components(const std::vector<double>& e, const std::vector<int>& tr,
+                                       const std::vector<int>& cls, int c) {
+  std::map<int, std::array<double, 3>> tm;  // per track: sum, sum of squares, n
+  for (size_t i = 0; i < e.size(); ++i)
+    if (c < 0 || cls[i] == c) {
+      auto& a = tm[tr[i]];
+      a[0] += e[i], a[1] += e[i] * e[i], a[2] += 1;
+    }
+  double within = 0, nw = 0, m1 = 0, m2 = 0, inv = 0;
+  for (const auto& [id, a] : tm) {
+    const double m = a[0] / a[2];
+    within += a[1] - a[2] * m * m, nw += a[2] - 1, m1 += m, m2 += m * m, inv += 1 / a[2];
+  }
+  const double T = static_cast<double>(tm.size());
+  const double sw2 = nw > 0 ? within / nw : 0.0;
+  const double sb2 = T > 1 ? std::max(0.0, (m2 - m1 * m1 / T) / (T - 1) - sw2 * inv / T) : 0.0;
+  return {sb2, sw2};
+}
+
+// A floor under the bootstrap: a bin that holds one or two tracks shows the bootstrap no spread
+// between tracks (resampling one track gives its own mean again), so the bin's variance is also
+// taken as the table's between-track variance (of the residual after the term, per track means,
+// method of moments) x sum(n_j^2) / n^2 over the bin's tracks + within-track variance / n.
+void floor_se(const Refit& f, const Slots& s, bool window, int inside, const std::vector<double>& x,
+              const std::vector<double>& r, const std::vector<int>& cls, const std::vector<int>& rb,
+              const std::vector<int>& tr, std::vector<double>& se) {
+  const size_t n = r.size();
   std::vector<double> e(n);
   for (size_t i = 0; i < n; ++i) e[i] = r[i] - f(cls[i], rb[i], x[i]);
-  auto components = [&](int c) {  // c < 0: every record (the pooled table)
-    std::map<int, std::array<double, 3>> tm;  // per track: sum, sum of squares, n
-    for (size_t i = 0; i < n; ++i)
-      if (c < 0 || cls[i] == c) {
-        auto& a = tm[tr[i]];
-        a[0] += e[i], a[1] += e[i] * e[i], a[2] += 1;
-      }
-    double within = 0, nw = 0, m1 = 0, m2 = 0, inv = 0;
-    for (const auto& [id, a] : tm) {
-      const double m = a[0] / a[2];
-      within += a[1] - a[2] * m * m, nw += a[2] - 1, m1 += m, m2 += m * m, inv += 1 / a[2];
-    }
-    const double T = static_cast<double>(tm.size());
-    const double sw2 = nw > 0 ? within / nw : 0.0;
-    const double sb2 = T > 1 ? std::max(0.0, (m2 - m1 * m1 / T) / (T - 1) - sw2 * inv / T) : 0.0;
-    return std::array<double, 2>{sb2, sw2};
-  };
   std::array<std::array<double, 2>, 4> comp{};  // pooled, then per class
-  comp[0] = components(-1);
+  comp[0] = track_components(e, tr, cls, -1);
   for (int c = 0; c < 3; ++c)
-    if (s.offset[c] >= 0) comp[c + 1] = components(c);
+    if (s.offset[c] >= 0) comp[c + 1] = track_components(e, tr, cls, c);
   std::map<std::pair<int, int>, double> per_track;  // (slot, track) -> samples
   for (size_t i = 0; i < n; ++i) {
     per_track[{s.pooled[i], tr[i]}] += 1;
@@ -276,7 +291,15 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
   } else {
     for (int b = 0; b < s.total; ++b) se[b] = std::sqrt(std::max(se[b] * se[b], floor2(b)));
   }
-  std::vector<double> prior(s.total, 0.0);
+}
+
+// Each slot's shrinkage factor and prior: the pooled table towards zero, the class tables towards
+// zero or (towards_pooled) towards the shrunk pooled table.
+void shrink_factors(const Refit& f, const Slots& s, size_t n, const std::vector<double>& value,
+                    const std::vector<double>& se, const std::vector<bool>& held, bool towards_pooled,
+                    std::vector<double>& prior, std::vector<double>& factor) {
+  prior.assign(s.total, 0.0);
+  factor.assign(s.total, 1.0);
   pool_towards(value, prior, se, held, 0, s.npooled, factor);
   if (towards_pooled) {
     // A class bin's prior: the shrunk pooled table averaged over the class's records in that bin.
@@ -289,8 +312,11 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
     if (s.offset[c] >= 0)
       pool_towards(value, prior, se, held, s.offset[c], s.offset[c] + static_cast<int>(f.table.per_class[c].value.size()),
                    factor);
+}
 
-  // Write back: values x factor, and the factors and standard errors laid out like the table.
+// Write back: values x factor, and the factors and standard errors laid out like the table.
+void write_shrunk(Refit& f, const Slots& s, const std::vector<double>& prior, const std::vector<double>& factor,
+                  const std::vector<double>& se) {
   f.factor = f.table, f.se = f.table;
   auto put = [&](BinnedTable& t, BinnedTable& ft, BinnedTable& st, int off) {
     for (size_t b = 0; b < t.value.size(); ++b)
@@ -300,6 +326,29 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
   put(f.table.pooled, f.factor.pooled, f.se.pooled, 0);
   for (int c = 0; c < 3; ++c)
     if (s.offset[c] >= 0) put(f.table.per_class[c], f.factor.per_class[c], f.se.per_class[c], s.offset[c]);
+}
+
+}  // namespace
+
+void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std::vector<double>& r,
+                               const std::vector<int>& cls, const std::vector<int>& rb, const std::vector<int>& track,
+                               bool window, bool towards_pooled, int replicates, std::uint64_t seed) {
+  if (r.empty() || replicates < 2) return;
+  const Slots s = slots_of(f.table, x, cls);
+  int inside = -1;
+  if (window) {
+    for (int b = 0; b < s.npooled; ++b)
+      if (f.table.pooled.value[b] != 0) inside = b;
+    if (inside < 0) return;  // no window: nothing to shrink
+  }
+  const Groups g = groups_of(r.size(), cls, rb, track);
+  std::vector<double> value, prior, factor;
+  std::vector<bool> held;
+  table_values(f, s, window, inside, value, held);
+  std::vector<double> se = bootstrap_se(s, inside, r, g, f.cell_prior, replicates, seed);
+  floor_se(f, s, window, inside, x, r, cls, rb, g.track, se);
+  shrink_factors(f, s, r.size(), value, se, held, towards_pooled, prior, factor);
+  write_shrunk(f, s, prior, factor, se);
   fit_cell_offsets(f, x, r, cls, rb);  // against the shrunk table
 }
 

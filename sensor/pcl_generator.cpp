@@ -186,6 +186,93 @@ bool PclGenerator::painted(double x, double y) const {
   return false;
 }
 
+namespace {
+
+// What a cast met: a box index (>= 0) or one of these.
+constexpr int kNoHit = -1, kRoad = -2, kLanePaint = -3;
+
+// The map's channels the generator writes; the optional ones are null when the map lacks them.
+struct Channels {
+  float *range, *cls, *material, *intensity, *mask, *id;
+  float *el, *az, *height, *x, *y, *z;
+  std::vector<std::int64_t>* point_index;
+  bool any_geometry() const { return el || az || height || x || y || z; }
+};
+
+Channels channels_of(pgm::PolarGridMap& out) {
+  auto optional = [&](const char* n) { return out.has_channel(n) ? out.channel(n) : nullptr; };
+  return {out.channel("range"), out.channel("class"), out.channel("material"), out.channel("intensity"),
+          out.channel("mask"), out.channel("object_id"), optional("elevation"), optional("azimuth"),
+          optional("height"), optional("x"), optional("y"), optional("z"), &out.point_index()};
+}
+
+void write_no_return(const Channels& ch, std::size_t cell) {
+  ch.range[cell] = ch.cls[cell] = ch.material[cell] = ch.intensity[cell] = ch.mask[cell] = 0.f;
+  ch.id[cell] = -1.f;
+  for (float* f : {ch.el, ch.az, ch.height, ch.x, ch.y, ch.z})
+    if (f) f[cell] = 0.f;
+  (*ch.point_index)[cell] = -1;
+}
+
+// A return of range `range` in cell (r, c) on a surface of these labels.
+void write_return(const Channels& ch, const pgm::BeamLayout& layout, const Eigen::Vector3d& dir_sensor, int r, int c,
+                  std::size_t cell, double range, int class_id, int material_id, int id) {
+  ch.range[cell] = static_cast<float>(range);
+  ch.intensity[cell] = 0.f;
+  ch.mask[cell] = 1.f;
+  ch.cls[cell] = static_cast<float>(class_id);
+  ch.material[cell] = static_cast<float>(material_id);
+  ch.id[cell] = static_cast<float>(id);
+  (*ch.point_index)[cell] = static_cast<std::int64_t>(cell);
+  if (!ch.any_geometry()) return;
+  const Eigen::Vector3d p = range * dir_sensor;
+  if (ch.el) ch.el[cell] = static_cast<float>(layout.elevations_rad[r]);
+  if (ch.az) ch.az[cell] = static_cast<float>(layout.azimuth_of_column(c));
+  if (ch.height) ch.height[cell] = static_cast<float>(p.z());
+  if (ch.x) ch.x[cell] = static_cast<float>(p.x());
+  if (ch.y) ch.y[cell] = static_cast<float>(p.y());
+  if (ch.z) ch.z[cell] = static_cast<float>(p.z());
+}
+
+// Incidence and depth discontinuity, where the map has them: computed from the final ranges, or
+// zero when the caller does not need them.
+void fill_neighbourhood_channels(pgm::PolarGridMap& out, bool neighbourhood_channels) {
+  for (const char* name : {"incidence", "depth_discontinuity"}) {
+    if (!out.has_channel(name)) continue;
+    if (!neighbourhood_channels) std::fill_n(out.channel(name), out.cells(), 0.f);
+    else if (name[0] == 'i') pgm::compute_incidence(out);
+    else pgm::compute_depth_discontinuity(out);
+  }
+}
+
+}  // namespace
+
+PclGenerator::Hit PclGenerator::cast(std::size_t cell, int c, bool lanes_on) const {
+  const Eigen::Vector3d& origin = mount_.translation;
+  const Eigen::Vector3d& d = dir_ego_[cell];
+  Hit h{cfg_.max_range, kNoHit};
+  if (!cell_in_fov_[cell]) return h;
+  for (int k = col_start_[c]; k < col_start_[c + 1]; ++k) {
+    double t = 0;
+    if (ray_box(boxes_[box_index_[k]].ray, origin, d, h.range, t) && t < h.range) {
+      h.range = t;
+      h.target = box_index_[k];
+    }
+  }
+  if (cfg_.ground && d.z() < 0) {
+    const double t = (cfg_.ground_height - origin.z()) / d.z();
+    if (t >= 0 && t < h.range) {
+      h.range = t;
+      h.target = kRoad;
+      if (lanes_on) {
+        const Eigen::Vector3d p = origin + t * d;
+        if (painted(p.x(), p.y())) h.target = kLanePaint;
+      }
+    }
+  }
+  return h;
+}
+
 int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
                            pgm::PolarGridMap& out, bool neighbourhood_channels) {
   if (!(out.layout() == layout_)) throw Error("pcl generator: the map's beam layout differs from the generator's");
@@ -196,94 +283,36 @@ int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::ve
   else segments_.clear();
 
   const int H = layout_.rows(), W = layout_.columns;
-  float* ch_range = out.channel("range");
-  float* ch_class = out.channel("class");
-  float* ch_material = out.channel("material");
-  float* ch_intensity = out.channel("intensity");
-  float* ch_mask = out.channel("mask");
-  float* ch_id = out.channel("object_id");
-  auto optional = [&](const char* n) { return out.has_channel(n) ? out.channel(n) : nullptr; };
-  float* ch_el = optional("elevation");
-  float* ch_az = optional("azimuth");
-  float* ch_height = optional("height");
-  float* ch_x = optional("x");
-  float* ch_y = optional("y");
-  float* ch_z = optional("z");
-  auto& point_index = out.point_index();
-  const Eigen::Vector3d origin = mount_.translation;
+  const Channels ch = channels_of(out);
   const bool lanes_on = cfg_.lanes && !segments_.empty();
-  const int road_class = pgm::cls::road, road_material = pgm::material::asphalt;
-  const int lane_class = pgm::cls::lane_marking, lane_material = pgm::material::lane_paint;
   int returns = 0;
 
 #pragma omp parallel for schedule(dynamic, 4) reduction(+ : returns)
   for (int r = 0; r < H; ++r) {
     for (int c = 0; c < W; ++c) {
       const std::size_t cell = static_cast<std::size_t>(r) * W + c;
-      const Eigen::Vector3d& d = dir_ego_[cell];
-      const bool cast = cell_in_fov_[cell];
-      double best = cfg_.max_range;
-      int hit = -1;  // box index, -2 road, -3 lane paint
-      for (int k = col_start_[c]; cast && k < col_start_[c + 1]; ++k) {
-        double t = 0;
-        if (ray_box(boxes_[box_index_[k]].ray, origin, d, best, t) && t < best) {
-          best = t;
-          hit = box_index_[k];
-        }
-      }
-      if (cast && cfg_.ground && d.z() < 0) {
-        const double t = (cfg_.ground_height - origin.z()) / d.z();
-        if (t >= 0 && t < best) {
-          best = t;
-          hit = -2;
-          if (lanes_on) {
-            const Eigen::Vector3d p = origin + t * d;
-            if (painted(p.x(), p.y())) hit = -3;
-          }
-        }
-      }
-      if (hit == -1 || best < cfg_.min_range) {
-        ch_range[cell] = ch_class[cell] = ch_material[cell] = ch_intensity[cell] = ch_mask[cell] = 0.f;
-        ch_id[cell] = -1.f;
-        for (float* ch : {ch_el, ch_az, ch_height, ch_x, ch_y, ch_z})
-          if (ch) ch[cell] = 0.f;
-        point_index[cell] = -1;
+      const Hit hit = cast(cell, c, lanes_on);
+      if (hit.target == kNoHit || hit.range < cfg_.min_range) {
+        write_no_return(ch, cell);
         continue;
       }
       ++returns;
-      ch_range[cell] = static_cast<float>(best);
-      ch_intensity[cell] = 0.f;
-      ch_mask[cell] = 1.f;
-      if (hit >= 0) {
-        ch_class[cell] = static_cast<float>(boxes_[hit].class_id);
-        ch_material[cell] = static_cast<float>(boxes_[hit].material_id);
-        ch_id[cell] = static_cast<float>(boxes_[hit].id);
+      if (hit.target >= 0) {
+        const Box& b = boxes_[hit.target];
+        write_return(ch, layout_, dir_sensor_[cell], r, c, cell, hit.range, b.class_id, b.material_id, b.id);
+      } else if (hit.target == kLanePaint) {
+        write_return(ch, layout_, dir_sensor_[cell], r, c, cell, hit.range, pgm::cls::lane_marking,
+                     pgm::material::lane_paint, -1);
       } else {
-        ch_class[cell] = static_cast<float>(hit == -3 ? lane_class : road_class);
-        ch_material[cell] = static_cast<float>(hit == -3 ? lane_material : road_material);
-        ch_id[cell] = -1.f;
-      }
-      point_index[cell] = static_cast<std::int64_t>(cell);
-      if (ch_el || ch_az || ch_height || ch_x || ch_y || ch_z) {
-        const Eigen::Vector3d p = best * dir_sensor_[cell];
-        if (ch_el) ch_el[cell] = static_cast<float>(layout_.elevations_rad[r]);
-        if (ch_az) ch_az[cell] = static_cast<float>(layout_.azimuth_of_column(c));
-        if (ch_height) ch_height[cell] = static_cast<float>(p.z());
-        if (ch_x) ch_x[cell] = static_cast<float>(p.x());
-        if (ch_y) ch_y[cell] = static_cast<float>(p.y());
-        if (ch_z) ch_z[cell] = static_cast<float>(p.z());
+        write_return(ch, layout_, dir_sensor_[cell], r, c, cell, hit.range, pgm::cls::road, pgm::material::asphalt, -1);
       }
     }
   }
+  // The post-passes, in this order: drops of the return model, then noise on the ranges kept.
   if (cfg_.returns) returns -= apply_return_model(*cfg_.returns, out, cfg_.return_seed, frame_);
   if (cfg_.range_noise) apply_range_noise(*cfg_.range_noise, cfg_.range_noise_seed, frame_, out);
   ++frame_;
-  for (const char* name : {"incidence", "depth_discontinuity"}) {
-    if (!out.has_channel(name)) continue;
-    if (!neighbourhood_channels) std::fill_n(out.channel(name), out.cells(), 0.f);
-    else if (name[0] == 'i') pgm::compute_incidence(out);
-    else pgm::compute_depth_discontinuity(out);
-  }
+  fill_neighbourhood_channels(out, neighbourhood_channels);
   return returns;
 }
 

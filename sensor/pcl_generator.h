@@ -92,6 +92,13 @@ class PclGenerator {
   void prepare_boxes(const std::vector<Object>& objects_ego);
   void prepare_lanes(const std::vector<LanePolyline>& lanes_ego);
   bool painted(double x, double y) const;
+  // The nearest surface the ray of `cell` (column c) meets within max_range: a box index, or
+  // road / lane paint / nothing (the constants in pcl_generator.cpp).
+  struct Hit {
+    double range;
+    int target;
+  };
+  Hit cast(std::size_t cell, int c, bool lanes_on) const;
 
   pgm::BeamLayout layout_;
   Pose mount_;
