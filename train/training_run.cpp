@@ -27,6 +27,7 @@
 #include "train/residual_shrink.h"
 #include "train/run_settings.h"
 #include "train/spread_metrics.h"
+#include "train/spread_step.h"
 
 namespace lidarsim::train {
 namespace {
@@ -95,7 +96,6 @@ class TrainingRun {
   SpreadMetrics validate_spread_now(const data::SectorSplit* region);
   double train_step(Prefetcher<Batch>& batches, bool& stop);
   double spread_step(const Batch& batch);
-  void start_spread_at(const Batch& batch);
   EpochReport end_epoch(double epoch_loss, int epoch_steps, std::chrono::steady_clock::time_point epoch_start);
 
   const TrainConfig& config;
@@ -133,8 +133,8 @@ class TrainingRun {
   TrainResult result;
   EarlyStop stopper;
   std::vector<float> best_weights;
-  nn::Tensor pred, d_pred, d_spread;
-  std::vector<float> spread_grads;
+  nn::Tensor pred, d_pred;
+  SpreadStepBuffers spread_buffers;
   std::optional<ProgressBar> bar;
 };
 
@@ -458,69 +458,9 @@ double TrainingRun::train_step(Prefetcher<Batch>& batches, bool& stop) {
   return data_loss + l2;
 }
 
-// The output parameters of channel `k` alone: its row of the 1x1 head (weights [K, C, 1, 1] and
-// bias [K]) and, with row_affine, its gain and offset per row ([1, K, rows, 1]). (offset, count)
-static std::vector<std::pair<std::size_t, std::size_t>> channel_slices(const nn::ParamArena& params, int k, int channels) {
-  std::vector<std::pair<std::size_t, std::size_t>> slices;
-  for (const std::string name : {"head/weight", "head/bias", "row_affine/gain", "row_affine/offset"}) {
-    const int id = params.find(name);
-    if (id < 0) continue;
-    const std::size_t per = params.info(id).shape.numel() / static_cast<std::size_t>(channels);
-    slices.emplace_back(params.info(id).offset + per * static_cast<std::size_t>(k), per);
-  }
-  return slices;
-}
-
-// One step's gradients with a spread head. The spread's NLL trains its own output parameters
-// only: the layers the two heads share get the mean's MSE gradient alone, so the mean is trained
-// exactly as without the head (on a shared trunk the NLL's O(1) gradients would otherwise move the
-// features the mean relies on; measured: the mean's MAE 0.061 -> 0.114 on a synthetic set). Two
-// backward passes over one forward: the spread's part, kept for its output parameters, then the mean's.
 double TrainingRun::spread_step(const Batch& batch) {
-  if (step == 0) start_spread_at(batch);
-  model->forward(batch.x, pred);
-  const nn::HeadTarget cells{&batch.y, &batch.m}, spread_cells{&batch.y, &batch.m, config.spread_weight};
-  const nn::HeadsLoss loss = nn::heads_loss(arch.heads, pred, {cells, spread_cells}, &d_pred);
-  const std::size_t plane = static_cast<std::size_t>(pred.shape().h) * pred.shape().w;
-  const int n = pred.shape().n, k = pred.shape().c;
-  // The spread channel's gradient alone.
-  d_spread.resize(pred.shape());
-  std::fill(d_spread.begin(), d_spread.end(), 0.f);
-  for (int b = 0; b < n; ++b)
-    for (int c = 1; c < k; ++c) {
-      const std::size_t at = (static_cast<std::size_t>(b) * k + c) * plane;
-      std::copy_n(d_pred.data() + at, plane, d_spread.data() + at);
-      std::fill_n(d_pred.data() + at, plane, 0.f);
-    }
-  nn::ParamArena& params = model->params();
-  model->backward(d_spread);
-  spread_grads.clear();
-  const auto slices = channel_slices(params, 1, k);
-  for (const auto& [offset, count] : slices) spread_grads.insert(spread_grads.end(), params.grads() + offset, params.grads() + offset + count);
-  params.zero_grads();
-  model->backward(d_pred);  // the mean's MSE: every shared layer, and channel 0's own parameters
-  std::size_t at = 0;
-  for (const auto& [offset, count] : slices) {
-    std::copy_n(spread_grads.data() + at, count, params.grads() + offset);
-    at += count;
-  }
-  return loss.total;
-}
-
-// The spread head starts at the first batch's spread around its mean (the log of the mean absolute
-// deviation): from the initial log-scale near 0 (scale 1, twenty times intensity's typical spread)
-// a short run would spend its steps walking the bias down.
-void TrainingRun::start_spread_at(const Batch& batch) {
-  double sum = 0, count = 0;
-  for (std::size_t i = 0; i < batch.m.numel(); ++i)
-    if (batch.m.data()[i] > 0) sum += batch.y.data()[i], count += 1;
-  if (count == 0) return;
-  const double mean = sum / count;
-  double dev = 0;
-  for (std::size_t i = 0; i < batch.m.numel(); ++i)
-    if (batch.m.data()[i] > 0) dev += std::abs(batch.y.data()[i] - mean);
-  const int bias = model->params().find("head/bias");
-  model->params().value(bias)[1] = static_cast<float>(std::log(std::max(dev / count, 1e-3)));
+  if (step == 0) start_spread_at(*model, batch.y, batch.m);
+  return spread_step_gradients(*model, arch.heads, batch.x, batch.y, batch.m, config.spread_weight, spread_buffers);
 }
 
 // The epoch's report: its mean loss and timing, and its validation (with early stopping the inner

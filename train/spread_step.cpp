@@ -1,0 +1,73 @@
+// A training step's gradients with a spread head (train/spread_step.h).
+#include "train/spread_step.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+namespace lidarsim::train {
+
+namespace {
+
+// The output parameters of channel `k` alone: its row of the 1x1 head (weights [K, C, 1, 1] and
+// bias [K]) and, with row_affine, its gain and offset per row ([1, K, rows, 1]). (offset, count)
+std::vector<std::pair<std::size_t, std::size_t>> channel_slices(const nn::ParamArena& params, int k, int channels) {
+  std::vector<std::pair<std::size_t, std::size_t>> slices;
+  for (const std::string name : {"head/weight", "head/bias", "row_affine/gain", "row_affine/offset"}) {
+    const int id = params.find(name);
+    if (id < 0) continue;
+    const std::size_t per = params.info(id).shape.numel() / static_cast<std::size_t>(channels);
+    slices.emplace_back(params.info(id).offset + per * static_cast<std::size_t>(k), per);
+  }
+  return slices;
+}
+
+}  // namespace
+
+double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& heads, const nn::Tensor& x,
+                             const nn::Tensor& y, const nn::Tensor& m, float spread_weight, SpreadStepBuffers& b) {
+  nn::Tensor &pred = b.pred, &d_pred = b.d_pred, &d_spread = b.d_spread;
+  std::vector<float>& spread_grads = b.spread_grads;
+  model.forward(x, pred);
+  const nn::HeadTarget cells{&y, &m}, spread_cells{&y, &m, spread_weight};
+  const nn::HeadsLoss loss = nn::heads_loss(heads, pred, {cells, spread_cells}, &d_pred);
+  const std::size_t plane = static_cast<std::size_t>(pred.shape().h) * pred.shape().w;
+  const int n = pred.shape().n, k = pred.shape().c;
+  // The spread channel's gradient alone.
+  d_spread.resize(pred.shape());
+  std::fill(d_spread.begin(), d_spread.end(), 0.f);
+  for (int b = 0; b < n; ++b)
+    for (int c = 1; c < k; ++c) {
+      const std::size_t at = (static_cast<std::size_t>(b) * k + c) * plane;
+      std::copy_n(d_pred.data() + at, plane, d_spread.data() + at);
+      std::fill_n(d_pred.data() + at, plane, 0.f);
+    }
+  nn::ParamArena& params = model.params();
+  model.backward(d_spread);
+  spread_grads.clear();
+  const auto slices = channel_slices(params, 1, k);
+  for (const auto& [offset, count] : slices) spread_grads.insert(spread_grads.end(), params.grads() + offset, params.grads() + offset + count);
+  params.zero_grads();
+  model.backward(d_pred);  // the mean's MSE: every shared layer, and channel 0's own parameters
+  std::size_t at = 0;
+  for (const auto& [offset, count] : slices) {
+    std::copy_n(spread_grads.data() + at, count, params.grads() + offset);
+    at += count;
+  }
+  return loss.total;
+}
+
+void start_spread_at(nn::UNet& model, const nn::Tensor& y, const nn::Tensor& m) {
+  double sum = 0, count = 0;
+  for (std::size_t i = 0; i < m.numel(); ++i)
+    if (m.data()[i] > 0) sum += y.data()[i], count += 1;
+  if (count == 0) return;
+  const double mean = sum / count;
+  double dev = 0;
+  for (std::size_t i = 0; i < m.numel(); ++i)
+    if (m.data()[i] > 0) dev += std::abs(y.data()[i] - mean);
+  const int bias = model.params().find("head/bias");
+  model.params().value(bias)[1] = static_cast<float>(std::log(std::max(dev / count, 1e-3)));
+}
+
+}  // namespace lidarsim::train
