@@ -3,19 +3,11 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/counter_hash.h"
 #include "common/error.h"
 
 namespace lidarsim::infer {
 namespace {
-
-// SplitMix64's finaliser: a bijective mix whose outputs for consecutive inputs are independent
-// enough for Monte Carlo draws.
-std::uint64_t mix(std::uint64_t z) {
-  z += 0x9E3779B97F4A7C15ull;
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
 
 // (0, 1) from the top 53 bits, never 0 or 1 (the inverse CDFs below take logs).
 double to_unit(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53; }
@@ -23,9 +15,9 @@ double to_unit(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 0
 }  // namespace
 
 void cell_uniforms(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell, double& u1, double& u2) {
-  const std::uint64_t key = mix(mix(mix(seed) ^ frame) ^ cell);
-  u1 = to_unit(mix(key ^ 0x1ull));
-  u2 = to_unit(mix(key ^ 0x2ull));
+  const std::uint64_t key = splitmix64(splitmix64(splitmix64(seed) ^ frame) ^ cell);
+  u1 = to_unit(splitmix64(key ^ 0x1ull));
+  u2 = to_unit(splitmix64(key ^ 0x2ull));
 }
 
 float sample_intensity(nn::HeadKind spread, float mean, float scale, const IntensitySampling& s, std::uint64_t frame,

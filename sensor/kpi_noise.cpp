@@ -3,28 +3,26 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/counter_hash.h"
+
 namespace lidarsim::sensor {
 
 namespace {
-std::uint64_t splitmix64(std::uint64_t& x) {
-  std::uint64_t z = (x += 0x9e3779b97f4a7c15ULL);
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-  return z ^ (z >> 31);
-}
+// SplitMix64 as a generator: advances the state x and returns the next output.
+std::uint64_t next_splitmix(std::uint64_t& x) { return mix64(x += kSplitMixGamma); }
 std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 }  // namespace
 
 KpiRng::KpiRng(std::uint64_t seed) {
-  for (auto& w : s_) w = splitmix64(seed);
+  for (auto& w : s_) w = next_splitmix(seed);
 }
 
 KpiRng KpiRng::stream(std::uint64_t seed, std::uint64_t a, std::uint64_t b, std::uint64_t purpose) {
   std::uint64_t h = seed;
-  std::uint64_t k = splitmix64(h);
+  std::uint64_t k = next_splitmix(h);
   for (std::uint64_t v : {a, b, purpose}) {
     h = k ^ v;
-    k = splitmix64(h);
+    k = next_splitmix(h);
   }
   return KpiRng(k);
 }

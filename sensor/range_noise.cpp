@@ -7,6 +7,7 @@
 #include <numbers>
 #include <sstream>
 
+#include "common/counter_hash.h"
 #include "common/error.h"
 
 namespace lidarsim::sensor {
@@ -89,20 +90,11 @@ RangeNoiseModel load_range_noise_model(const std::filesystem::path& path) {
   return parse_range_noise_model(ss.str(), path.string());
 }
 
-namespace {
-std::uint64_t mix64(std::uint64_t z) {  // splitmix64's finaliser
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-  return z ^ (z >> 31);
-}
-}  // namespace
-
 double range_noise_normal(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell) {
-  constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ULL;
-  std::uint64_t h = mix64(seed + kGolden);
-  h = mix64(h ^ (frame + 2 * kGolden));
-  h = mix64(h ^ (cell + 3 * kGolden));
-  const std::uint64_t h2 = mix64(h + kGolden);
+  std::uint64_t h = mix64(seed + kSplitMixGamma);
+  h = mix64(h ^ (frame + 2 * kSplitMixGamma));
+  h = mix64(h ^ (cell + 3 * kSplitMixGamma));
+  const std::uint64_t h2 = mix64(h + kSplitMixGamma);
   // Two uniforms from the top 53 bits; u1 in (0, 1] so the log is finite.
   const double u1 = (static_cast<double>(h >> 11) + 1) * 0x1p-53;
   const double u2 = static_cast<double>(h2 >> 11) * 0x1p-53;

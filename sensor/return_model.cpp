@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "common/atomic_file.h"
+#include "common/counter_hash.h"
 #include "common/error.h"
 #include "pgm/materials.h"
 
@@ -314,15 +315,6 @@ void ReturnModel::save(const std::string& path) const {
   }
   write_file_atomically(path, text + "}\n");
 }
-
-namespace {
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-}  // namespace
 
 double return_draw(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell) {
   const std::uint64_t h = splitmix64(splitmix64(splitmix64(seed) ^ frame) ^ cell);

@@ -3,18 +3,12 @@
 #include <algorithm>
 #include <numeric>
 
+#include "common/counter_hash.h"
 #include "common/error.h"
 #include "train/prefetcher.h"
 
 namespace lidarsim::train {
 namespace {
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
 
 int channel_of(const data::FrameSource& set, const std::string& name) {
   const auto& have = set.header().channels;
@@ -49,7 +43,7 @@ std::vector<Sample> step_samples(const SamplePlan& p, std::int64_t step) {
   const std::int64_t epoch = step / p.steps_per_epoch;
   const std::vector<int> order = epoch_order(p.frames, p.seed, epoch);
   const std::int64_t in_epoch = step % p.steps_per_epoch;
-  std::uint64_t rng = splitmix64(p.seed * 0x9e3779b97f4a7c15ULL ^ static_cast<std::uint64_t>(step));
+  std::uint64_t rng = splitmix64(p.seed * kSplitMixGamma ^ static_cast<std::uint64_t>(step));
   std::vector<Sample> samples(static_cast<std::size_t>(p.batch));
   for (int b = 0; b < p.batch; ++b) {
     Sample& s = samples[static_cast<std::size_t>(b)];
