@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/osi_bench_scene.h"
 #include "infer/fmu/fmi2.h"
 #include "osi/osi3_subset.pb.h"
 #include "osi/sensor_view.h"
@@ -69,21 +70,7 @@ void make_view(const std::vector<Mover>& movers, double t, osi3::SensorView& v) 
   v.mutable_mounting_position()->mutable_position()->set_z(1.43);
   auto& gt = *v.mutable_global_ground_truth();
   auto add = [&](std::uint64_t id, bool ped, double x, double y, double vx, double vy) {
-    auto* o = gt.add_moving_object();
-    o->mutable_id()->set_value(id);
-    o->set_type(ped ? osi3::MovingObject::TYPE_PEDESTRIAN : osi3::MovingObject::TYPE_VEHICLE);
-    if (!ped) o->mutable_vehicle_classification()->set_type(osi3::MovingObject::VehicleClassification::TYPE_MEDIUM_CAR);
-    auto* b = o->mutable_base();
-    b->mutable_position()->set_x(x);
-    b->mutable_position()->set_y(y);
-    b->mutable_position()->set_z(ped ? 0.9 : 0.75);
-    b->mutable_dimension()->set_length(ped ? 0.6 : 4.5);
-    b->mutable_dimension()->set_width(ped ? 0.6 : 1.8);
-    b->mutable_dimension()->set_height(ped ? 1.8 : 1.5);
-    b->mutable_orientation()->set_yaw(std::atan2(vy, vx));
-    b->mutable_velocity()->set_x(vx);
-    b->mutable_velocity()->set_y(vy);
-    return o;
+    return lidarsim::bench::add_bench_object(gt, id, ped, x, y, vx, vy);
   };
   const double host_x = 10 * t;
   auto* host = add(1000, false, host_x + 1.4, 0, 10, 0);
