@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -135,6 +137,9 @@ std::vector<KittiObjectLabel> read_kitti_object_labels(const fs::path& path) {
     }
     out.push_back(o);
   }
+  if (out.size() > kManyKittiObjects)
+    std::fprintf(stderr, "warning: %s: %zu objects, more than any real scene (KITTI frames list fewer than 100; warned above %zu)\n",
+                 path.string().c_str(), out.size(), kManyKittiObjects);
   return out;
 }
 
@@ -160,27 +165,142 @@ std::vector<KittiObjectFrame> list_kitti_object(const fs::path& dir_in) {
   return frames;
 }
 
+namespace {
+
+// Boxes found by the bird's-eye cells (rectified camera x, z) their footprints touch: a sorted
+// list of (cell, box) pairs, box indices ascending within a cell. A box's axis-aligned footprint,
+// widened by kFootprintMargin against rounding, holds every point contains_rect accepts, so the
+// boxes listed for a point's cell are a superset of the boxes that contain it, in file order.
+class BoxGrid {
+ public:
+  BoxGrid(const std::vector<KittiObjectLabel>& labels, const std::vector<int>& classes);
+  // Indices of the boxes whose footprint touches the cell of (x, z), ascending.
+  std::pair<const std::uint32_t*, const std::uint32_t*> candidates(double x, double z) const;
+  // False only when (x, z) lies outside box k's footprint, where contains_rect is false too.
+  bool may_contain(std::uint32_t k, double x, double z) const {
+    const Footprint& f = footprint_[k];
+    return x >= f.x0 && x <= f.x1 && z >= f.z0 && z <= f.z1;
+  }
+
+ private:
+  static constexpr double kFootprintMargin = 1e-3;  // m; rounding in contains_rect is ~1e-12 m
+  // Per box the footprint rectangle [x0, x1] x [z0, z1].
+  struct Footprint { double x0, x1, z0, z1; std::uint32_t box; };
+  std::int64_t cells_of(const Footprint& f, double cell) const;
+  // |ix|, |iz| < 2^31 (cell_index), so the pair packs into one 64-bit key without collisions.
+  static std::int64_t key(std::int64_t ix, std::int64_t iz) {
+    return static_cast<std::int64_t>((static_cast<std::uint64_t>(ix) << 32) | (static_cast<std::uint64_t>(iz) & 0xffffffffULL));
+  }
+  bool cell_index(double v, std::int64_t& i) const;
+
+  double cell_ = 1;
+  // Labels outside the plausibility limits (possible only when not read by
+  // read_kitti_object_labels): every box is a candidate everywhere, in file order.
+  std::vector<std::uint32_t> every_box_;
+  std::vector<Footprint> footprint_;  // by label index (DontCare: empty)
+  std::vector<std::int64_t> keys_;      // sorted; keys_[i] is the cell of boxes_[i]
+  std::vector<std::uint32_t> boxes_;
+};
+
+bool BoxGrid::cell_index(double v, std::int64_t& i) const {
+  const double f = std::floor(v / cell_);
+  // No box reaches this far (positions are at most kMaxBoxPosition, sizes kMaxBoxSize).
+  if (!(std::abs(f) < 1e9)) return false;
+  i = static_cast<std::int64_t>(f);
+  return true;
+}
+
+std::int64_t BoxGrid::cells_of(const Footprint& f, double cell) const {
+  const auto n = [cell](double a, double b) { return static_cast<std::int64_t>(std::floor(b / cell) - std::floor(a / cell)) + 1; };
+  return n(f.x0, f.x1) * n(f.z0, f.z1);
+}
+
+BoxGrid::BoxGrid(const std::vector<KittiObjectLabel>& labels, const std::vector<int>& classes) {
+  std::vector<Footprint> fp;
+  std::vector<double> extents;
+  for (std::size_t k = 0; k < labels.size(); ++k) {
+    if (classes[k] < 0) continue;
+    const auto& o = labels[k];
+    const double c = std::abs(std::cos(o.rotation_y)), s = std::abs(std::sin(o.rotation_y));
+    const double hx = c * o.l / 2 + s * o.w / 2 + kFootprintMargin;
+    const double hz = s * o.l / 2 + c * o.w / 2 + kFootprintMargin;
+    fp.push_back({o.location.x() - hx, o.location.x() + hx, o.location.z() - hz, o.location.z() + hz, static_cast<std::uint32_t>(k)});
+    extents.push_back(2 * std::max(hx, hz));
+  }
+  if (fp.empty()) return;
+  footprint_.assign(labels.size(), Footprint{1, 0, 1, 0, 0});
+  for (const auto& f : fp) footprint_[f.box] = f;
+  const double reach = 2 * (kMaxBoxPosition + kMaxBoxSize);
+  for (const auto& f : fp)
+    if (!(std::abs(f.x0) < reach && std::abs(f.x1) < reach && std::abs(f.z0) < reach && std::abs(f.z1) < reach)) {
+      for (const auto& g : fp) every_box_.push_back(g.box);
+      for (auto& g : footprint_) g = {-HUGE_VAL, HUGE_VAL, -HUGE_VAL, HUGE_VAL, g.box};
+      return;
+    }
+  // Cells half a typical box: a box touches about nine cells, a point's cell lists the boxes near
+  // it. Coarser cells if oversized boxes would list too many (memory stays O(boxes)).
+  std::nth_element(extents.begin(), extents.begin() + extents.size() / 2, extents.end());
+  cell_ = std::max(extents[extents.size() / 2] / 2, 0.5);
+  const std::int64_t budget = 64 * static_cast<std::int64_t>(fp.size()) + (1 << 20);
+  for (;;) {
+    std::int64_t total = 0;
+    for (const auto& f : fp) total += cells_of(f, cell_);
+    if (total <= budget) break;
+    cell_ *= 2;
+  }
+  std::vector<std::pair<std::int64_t, std::uint32_t>> entries;
+  for (const auto& f : fp) {
+    std::int64_t ix0 = 0, ix1 = 0, iz0 = 0, iz1 = 0;
+    cell_index(f.x0, ix0), cell_index(f.x1, ix1), cell_index(f.z0, iz0), cell_index(f.z1, iz1);
+    for (std::int64_t ix = ix0; ix <= ix1; ++ix)
+      for (std::int64_t iz = iz0; iz <= iz1; ++iz) entries.emplace_back(key(ix, iz), f.box);
+  }
+  std::sort(entries.begin(), entries.end());  // by cell, then box index: file order per cell
+  keys_.reserve(entries.size());
+  boxes_.reserve(entries.size());
+  for (const auto& [k, b] : entries) keys_.push_back(k), boxes_.push_back(b);
+}
+
+std::pair<const std::uint32_t*, const std::uint32_t*> BoxGrid::candidates(double x, double z) const {
+  if (!every_box_.empty()) return {every_box_.data(), every_box_.data() + every_box_.size()};
+  std::int64_t ix = 0, iz = 0;
+  if (keys_.empty() || !cell_index(x, ix) || !cell_index(z, iz)) return {nullptr, nullptr};
+  const auto [lo, hi] = std::equal_range(keys_.begin(), keys_.end(), key(ix, iz));
+  const std::uint32_t* base = boxes_.data();
+  return {base + (lo - keys_.begin()), base + (hi - keys_.begin())};
+}
+
+}  // namespace
+
+std::vector<std::size_t> label_points_from_boxes(std::vector<pgm::Point>& points, const KittiCalib& calib,
+                                                 const std::vector<KittiObjectLabel>& labels) {
+  std::vector<std::size_t> points_in_box(labels.size(), 0);
+  std::vector<int> classes;
+  for (const auto& o : labels) classes.push_back(o.type == "DontCare" ? -1 : pgm::class_from_object_type(o.type));
+  const BoxGrid grid(labels, classes);
+  for (auto& p : points) {
+    p.class_id = pgm::cls::unlabeled;
+    p.material_id = pgm::material::unknown;
+    const Eigen::Vector3d rect = calib.velo_to_rect({p.x, p.y, p.z});
+    const auto [first, last] = grid.candidates(rect.x(), rect.z());
+    for (const std::uint32_t* k = first; k != last; ++k) {
+      if (!grid.may_contain(*k, rect.x(), rect.z()) || !labels[*k].contains_rect(rect)) continue;
+      p.class_id = classes[*k];
+      p.material_id = pgm::default_material(classes[*k]);
+      ++points_in_box[*k];
+      break;
+    }
+  }
+  return points_in_box;
+}
+
 KittiObjectScan read_kitti_object_scan(const KittiObjectFrame& frame) {
   KittiObjectScan scan;
   scan.points = read_velodyne_bin(frame.bin);
   const KittiCalib calib = read_kitti_calib(frame.calib);
   scan.labels = read_kitti_object_labels(frame.label);
   scan.sources = {frame.bin, frame.label, frame.calib};
-  scan.points_in_box.assign(scan.labels.size(), 0);
-  std::vector<int> classes;
-  for (const auto& o : scan.labels) classes.push_back(o.type == "DontCare" ? -1 : pgm::class_from_object_type(o.type));
-  for (auto& p : scan.points) {
-    p.class_id = pgm::cls::unlabeled;
-    p.material_id = pgm::material::unknown;
-    const Eigen::Vector3d rect = calib.velo_to_rect({p.x, p.y, p.z});
-    for (std::size_t k = 0; k < scan.labels.size(); ++k) {
-      if (classes[k] < 0 || !scan.labels[k].contains_rect(rect)) continue;
-      p.class_id = classes[k];
-      p.material_id = pgm::default_material(classes[k]);
-      ++scan.points_in_box[k];
-      break;
-    }
-  }
+  scan.points_in_box = label_points_from_boxes(scan.points, calib, scan.labels);
   return scan;
 }
 

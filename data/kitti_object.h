@@ -40,6 +40,11 @@ struct KittiObjectLabel {
   bool contains_rect(const Eigen::Vector3d& p) const;
 };
 // One object per line, 15 fields (a 16th, score, is allowed); every number must be finite.
+// More than kManyKittiObjects lines print a warning with the count and the file on stderr: real
+// KITTI frames list fewer than 100 objects, so such a file is likely generated or corrupt. It
+// is still read (augmented or simulated scenes may hold that many, and the box index below
+// keeps their import to seconds).
+inline constexpr std::size_t kManyKittiObjects = 1000;
 std::vector<KittiObjectLabel> read_kitti_object_labels(const std::filesystem::path& path);
 
 struct KittiObjectFrame {
@@ -58,5 +63,13 @@ struct KittiObjectScan {
   std::vector<std::filesystem::path> sources;
 };
 KittiObjectScan read_kitti_object_scan(const KittiObjectFrame& frame);
+
+// Sets each point's class (and default material) to that of the first label in file order whose
+// box contains it (contains_rect in the rectified frame), unlabeled/unknown outside every box;
+// returns the points per label. Candidates come from a grid over the boxes' bird's-eye
+// footprints, so the cost grows with the boxes near a point rather than with all boxes; the
+// result equals testing every box in file order.
+std::vector<std::size_t> label_points_from_boxes(std::vector<pgm::Point>& points, const KittiCalib& calib,
+                                                 const std::vector<KittiObjectLabel>& labels);
 
 }  // namespace lidarsim::data
