@@ -231,7 +231,7 @@ KittiTrackingSequence read_kitti_tracking_sequence(const fs::path& root, const s
   std::vector<KittiTrackingObject> truth = read_kitti_tracking_labels(labels, conv);
   std::vector<KittiTrackingObject> dets;
   std::vector<std::pair<fs::path, std::pair<std::size_t, std::size_t>>> det_files;  // file -> range in dets
-  for (const char* cls : {"Car", "Pedestrian", "Cyclist"}) {
+  for (const std::string& cls : sensor::kModelledClasses) {
     const fs::path p = root / "detection" / (detector + "_" + cls + "_val") / (name + ".txt");
     if (!fs::exists(p)) continue;
     auto d = read_ab3dmot_detections(p, conv);
@@ -272,7 +272,7 @@ sensor::CalibrationSequence to_calibration_sequence(const KittiTrackingSequence&
     const KittiTrackingFrame& in = seq.frames[f];
     sensor::CalibrationFrame& fr = out.frames[f];
     for (const auto& o : in.truth) {
-      if (o.type == "Car" || o.type == "Pedestrian" || o.type == "Cyclist") {
+      if (std::find(sensor::kModelledClasses.begin(), sensor::kModelledClasses.end(), o.type) != sensor::kModelledClasses.end()) {
         fr.truth.push_back(o.object);
         fr.occlusion.push_back(o.occluded);
       } else {

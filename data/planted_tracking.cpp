@@ -26,9 +26,10 @@ namespace {
 constexpr double kPi = std::numbers::pi;
 constexpr double kDt = 0.1;  // KITTI tracking: 10 Hz
 constexpr double kDeg = kPi / 180;
-const char* const kClassNames[3] = {"Car", "Pedestrian", "Cyclist"};
+constexpr int kClasses = sensor::kModelledClassCount;
+const auto& kClassNames = sensor::kModelledClasses;
 // A class's typical box (length, width, height; m), for its false positives.
-const Eigen::Vector3d kClassBox[3] = {{3.9, 1.6, 1.5}, {0.8, 0.6, 1.7}, {1.7, 0.6, 1.7}};
+const Eigen::Vector3d kClassBox[kClasses] = {{3.9, 1.6, 1.5}, {0.8, 0.6, 1.7}, {1.7, 0.6, 1.7}};
 
 using Rng = std::mt19937_64;
 
@@ -37,7 +38,7 @@ int pick(Rng& rng, int n) { return std::min(n - 1, static_cast<int>(uni(rng, 0, 
 double gauss(Rng& rng) { return std::normal_distribution<double>(0, 1)(rng); }
 
 int class_index(const std::string& type) {
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kClasses; ++c)
     if (type == kClassNames[c]) return c;
   return -1;
 }
@@ -143,10 +144,11 @@ std::vector<Window> choose_windows(const PlantedTrackingOptions& o, Rng& rng) {
 PlantedBaseModel draw_base(Rng& rng) {
   PlantedBaseModel b;
   // Nominal sigmas per class (Car, Pedestrian, Cyclist), each scaled by its own factor 0.8-1.25.
-  const double along[3] = {0.15, 0.12, 0.15}, across[3] = {0.10, 0.08, 0.10}, length[3] = {0.20, 0.10, 0.15},
-               width[3] = {0.08, 0.06, 0.06}, height[3] = {0.08, 0.06, 0.06}, heading[3] = {0.05, 0.15, 0.10},
-               detection[3] = {0.92, 0.85, 0.85}, fp[3] = {0.3, 0.15, 0.05};
-  for (int c = 0; c < 3; ++c) {
+  const double along[kClasses] = {0.15, 0.12, 0.15}, across[kClasses] = {0.10, 0.08, 0.10},
+               length[kClasses] = {0.20, 0.10, 0.15}, width[kClasses] = {0.08, 0.06, 0.06},
+               height[kClasses] = {0.08, 0.06, 0.06}, heading[kClasses] = {0.05, 0.15, 0.10},
+               detection[kClasses] = {0.92, 0.85, 0.85}, fp[kClasses] = {0.3, 0.15, 0.05};
+  for (int c = 0; c < kClasses; ++c) {
     b.along[c] = along[c] * uni(rng, 0.8, 1.25);
     b.across[c] = across[c] * uni(rng, 0.8, 1.25);
     b.length[c] = length[c] * uni(rng, 0.8, 1.25);
@@ -170,7 +172,7 @@ double base_sigma(const PlantedBaseModel& b, const std::string& target, int c) {
 }
 
 // The effect's parameters, drawn within what the chosen windows hold.
-PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std::array<int, 3>& boxes, Rng& rng) {
+PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std::array<int, kClasses>& boxes, Rng& rng) {
   PlantedEffect e;
   e.family = family;
   auto& p = e.params;
@@ -209,7 +211,7 @@ PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std:
       break;
     case PlantedFamily::ClassBias: {
       std::vector<int> classes;
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < kClasses; ++c)
         if (boxes[c] >= 300) classes.push_back(c);
       const int c = classes.empty() ? 0 : classes[pick(rng, static_cast<int>(classes.size()))];
       e.feature = choose({"speed", "heading_to_line_of_sight", "azimuth"});
@@ -223,7 +225,7 @@ PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std:
       const double width = uni(rng, 10, 30) * kDeg;
       const double lo = uni(rng, d.azimuth_lo, std::max(d.azimuth_lo, d.azimuth_hi - width));
       const double r0 = uni(rng, 5, 40);
-      p["class"] = pick(rng, 3);
+      p["class"] = pick(rng, kClasses);
       p["azimuth_lo_deg"] = lo / kDeg, p["azimuth_hi_deg"] = (lo + width) / kDeg;
       p["range_lo_m"] = r0, p["range_hi_m"] = r0 + uni(rng, 5, 15);
       p["rate_per_frame"] = uni(rng, 0.3, 1.0);
@@ -379,7 +381,7 @@ struct IdealSums {
 void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng, Rng& cell_rng, IdealSums& ideal) {
   fill_truth(w);
   const KittiBoxConverter conv(w.seq.calib);
-  std::array<std::string, 3> dets;
+  std::array<std::string, kClasses> dets;
   size_t next = 0;
   const auto& p = d.effect.params;
   for (int f = 0; f < w.where.frames; ++f) {
@@ -397,7 +399,7 @@ void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng
       const Eigen::Vector3d size = (t.o->object.size + e.size).cwiseMax(0.1);
       dets[t.cls] += ab3dmot_line(f, t.cls, e.score, centre, size, t.o->object.heading + e.heading, conv);
     }
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kClasses; ++c) {
       const int n = std::poisson_distribution<int>(d.base.fp_rate[c])(rng);
       for (int k = 0; k < n; ++k)
         dets[c] += false_positive(f, c, uni(rng, 5, 50), uni(rng, d.azimuth_lo, d.azimuth_hi), rng, conv);
@@ -416,7 +418,7 @@ void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng
   write_file_atomically(dir / "label_02" / (name + ".txt"), window_labels(d.source, w.where));
   fs::copy_file(d.source / "calib" / (name + ".txt"), dir / "calib" / (name + ".txt"),
                 fs::copy_options::overwrite_existing);
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kClasses; ++c)
     write_file_atomically(dir / "detection" / (std::string("pointrcnn_") + kClassNames[c] + "_val") / (name + ".txt"),
                           dets[c]);
 }
@@ -442,7 +444,7 @@ PlantedDraw plan_planted_tracking(PlantedFamily family, const PlantedTrackingOpt
   d.source = o.source, d.seed = o.seed;
   const std::vector<Window> windows = choose_windows(o, rng);
   std::vector<double> az, range;
-  std::array<int, 3> boxes{};
+  std::array<int, kClasses> boxes{};
   for (const Window& w : windows) {
     d.sequences.push_back(w.where);
     for (const Truth& t : w.truth) az.push_back(t.azimuth), range.push_back(t.range), ++boxes[t.cls];

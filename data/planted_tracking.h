@@ -1,5 +1,5 @@
 #pragma once
-// Planted effects on real ground truth (issue 26, the campaign of random planted effects): a
+// Planted effects on real ground truth (the object loop's campaign of random planted effects): a
 // KITTI tracking folder whose labels and calibration are real KITTI tracking ground truth (a few
 // sequences of ../shared/data/kitti-tracking-gt-pointrcnn, optionally a window of frames of each)
 // and whose detections (detection/pointrcnn_{Car,Pedestrian,Cyclist}_val/NNNN.txt, AB3DMOT layout)
@@ -46,6 +46,8 @@
 #include <string>
 #include <vector>
 
+#include "sensor/kpi_model.h"
+
 namespace lidarsim::data {
 
 enum class PlantedFamily { Lag, AspectSize, AnnotationSize, Spread, AzimuthDropout, RangeDropout, ClassBias, FpCell,
@@ -67,12 +69,13 @@ struct PlantedSequence {
   int frames = 0;       // frames in the window
 };
 
-// Per class (Car, Pedestrian, Cyclist).
+// Per class, indexed like sensor::kModelledClasses (Car, Pedestrian, Cyclist).
 struct PlantedBaseModel {
-  std::array<double, 3> along{}, across{}, length{}, width{}, height{}, heading{};  // sigmas, m and rad
-  std::array<double, 3> detection{};  // probability at occlusion level 0
+  using PerClass = std::array<double, sensor::kModelledClassCount>;
+  PerClass along{}, across{}, length{}, width{}, height{}, heading{};  // sigmas, m and rad
+  PerClass detection{};               // probability at occlusion level 0
   double occlusion_loss = 0.1;        // detection probability x (1 - loss x level), level capped at 2
-  std::array<double, 3> fp_rate{};    // false positives per frame
+  PerClass fp_rate{};                 // false positives per frame
 };
 
 struct PlantedEffect {

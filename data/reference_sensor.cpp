@@ -14,6 +14,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "pgm/beam_layout.h"
+#include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;
 
@@ -186,7 +187,7 @@ void plant_error_effects(const ReferenceTrackingOptions& o, const Track& t, cons
 
 // Track t's label line in frame f, and (if drawn detected) its detection line in dets[class].
 void append_track_frame(const ReferenceTrackingOptions& o, const Track& t, int f, TrackingDraws& d,
-                        std::string& labels, std::string dets[3]) {
+                        std::string& labels, std::string dets[sensor::kModelledClassCount]) {
   char line[512];
   const Eigen::Vector3d c = t.p0 + t.v * ((f - t.start) * 0.1);
   const double ry = std::atan2(-std::cos(t.heading), -std::sin(t.heading));
@@ -280,7 +281,7 @@ void write_tracking_sequence(const fs::path& dir, const std::string& name, const
   write_tracking_calib(dir / "calib" / (name + ".txt"));
   const std::vector<Track> tracks = draw_tracks(o, d);
   std::string labels;
-  std::string dets[3];  // Car, Pedestrian, Cyclist
+  std::string dets[sensor::kModelledClassCount];  // indexed like sensor::kModelledClasses
   fp.ghosts.clear();
   for (int f = 0; f < o.frames; ++f) {
     for (const Track& t : tracks)
@@ -294,9 +295,8 @@ void write_tracking_sequence(const fs::path& dir, const std::string& name, const
                 o.frames - 1);
   labels += line;
   write_file_atomically(dir / "label_02" / (name + ".txt"), labels);
-  const char* cls_names[3] = {"Car", "Pedestrian", "Cyclist"};
-  for (int k = 0; k < 3; ++k)
-    write_file_atomically(dir / "detection" / (std::string("pointrcnn_") + cls_names[k] + "_val") / (name + ".txt"),
+  for (int k = 0; k < sensor::kModelledClassCount; ++k)
+    write_file_atomically(dir / "detection" / ("pointrcnn_" + sensor::kModelledClasses[k] + "_val") / (name + ".txt"),
                           dets[k]);
 }
 

@@ -59,7 +59,7 @@ double Effect::mean(int cls, int cell) const {
 }
 double Effect::sd(int cls, int cell) const {
   const auto it = cell_sd.find({cls, cell});
-  return it != cell_sd.end() ? it->second : cls >= 0 && cls < 3 ? class_sd[cls] : 1.0;
+  return it != cell_sd.end() ? it->second : cls >= 0 && cls < kObjectClassCount ? class_sd[cls] : 1.0;
 }
 
 double deviance(double y, double p) {
@@ -166,7 +166,7 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
     case Kind::SpreadTable:
     case Kind::SpreadWindow: {
       std::map<std::pair<int, int>, std::array<double, 3>> acc;  // sum, sum of squares, n
-      std::array<std::array<double, 3>, 3> by_class{};
+      PerClass<std::array<double, 3>> by_class{};
       for (size_t i = 0; i < r.size(); ++i) {
         auto& a = acc[{cls[i], cells[i]}];
         a[0] += r[i], a[1] += r[i] * r[i], a[2] += 1;
@@ -182,7 +182,8 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
         auto& b = by_class[cls[i]];
         b[1] += c * c, b[2] += 1;
       }
-      for (int c = 0; c < 3; ++c) e.class_sd[c] = by_class[c][2] > 0 ? std::sqrt(std::max(by_class[c][1] / by_class[c][2], 1e-18)) : 1;
+      for (int c = 0; c < kObjectClassCount; ++c)
+        e.class_sd[c] = by_class[c][2] > 0 ? std::sqrt(std::max(by_class[c][1] / by_class[c][2], 1e-18)) : 1;
       std::vector<double> u2(r.size());
       for (size_t i = 0; i < r.size(); ++i) {
         const double u = (r[i] - e.mean(cls[i], cells[i])) / e.sd(cls[i], cells[i]);
@@ -280,7 +281,7 @@ Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind k
       } else {
         double m = 0;
         for (double v : e.bias.table.pooled.value) m = std::max(m, std::abs(v));
-        for (int q = 0; q < 3; ++q)
+        for (int q = 0; q < kObjectClassCount; ++q)
           if (e.bias.table.own[q])
             for (double v : e.bias.table.per_class[q].value) m = std::max(m, std::abs(v));
         c.effect_size = m;
@@ -337,7 +338,7 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
   ct.bias.assign(bt.value.size(), 0.0);
   ct.scale = bt.value;
   for (double& s : ct.scale) s = std::max(s, 1e-3);
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end()) continue;
     it->second.errors[int(kTargetParam[e.target])].conditional = ct;
@@ -358,8 +359,8 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
   for (int t = 0; t < kObjectTargetCount; ++t) {
     // The term on t and the classes that carry it (a term may be kept for some classes only).
     const sensor::ConditionalTerm* ct = nullptr;
-    std::array<bool, 3> classes{false, false, false};
-    for (int c = 0; c < 3; ++c) {
+    PerClass<bool> classes{};
+    for (int c = 0; c < kObjectClassCount; ++c) {
       const auto cm = recipe.classes.find(kObjectClasses[c]);
       if (cm == recipe.classes.end()) continue;
       const sensor::ConditionalTerm& ctc =

@@ -47,7 +47,7 @@ struct Effect {
   Refit bias;         // bias forms: the term with its cell offsets
   BinnedTable scale;  // spread forms: sigma multiplier per bin of the feature (pooled over classes)
   std::map<std::pair<int, int>, double> cell_mean, cell_sd;  // spread forms: per (class, range bin), fit split
-  double class_sd[3] = {1, 1, 1};
+  double class_sd[kObjectClassCount] = {1, 1, 1};
   double mean(int cls, int cell) const;
   double sd(int cls, int cell) const;
 };

@@ -4,15 +4,15 @@
 
 namespace lidarsim::qualify::obj {
 
-std::vector<std::array<double, 3>> held_out_intersections_all(const TrackingData& data, const std::array<Fold, 2>& folds,
+std::vector<PerClass<double>> held_out_intersections_all(const TrackingData& data, const std::array<Fold, 2>& folds,
                                                               const std::array<sensor::KpiModel, 2>& models,
                                                               std::uint64_t seed, int seeds) {
   constexpr int nt = kDetectionTarget;  // the error targets
-  std::vector<double> sim[2][nt][3], meas[2][nt][3];
+  std::vector<double> sim[2][nt][kObjectClassCount], meas[2][nt][kObjectClassCount];
   sensor::FitOptions opt;
   for (int k = 0; k < 2; ++k) {
     for (const ObjectRecord& r : folds[k].held_set.records)
-      if (r.detected && r.cls >= 0 && r.cls < 3)
+      if (r.detected && r.cls >= 0 && r.cls < kObjectClassCount)
         for (int t = 0; t < nt; ++t) meas[k][t][r.cls].push_back(r.value[t]);
     opt.range_bin_edges = models[k].range_bin_edges;
     opt.visibility_bin_edges = models[k].visibility_bin_edges;
@@ -24,13 +24,13 @@ std::vector<std::array<double, 3>> held_out_intersections_all(const TrackingData
         },
         [&](int, const ObjectSet& s) {
           for (const ObjectRecord& r : s.records)
-            if (r.detected && r.cls >= 0 && r.cls < 3)
+            if (r.detected && r.cls >= 0 && r.cls < kObjectClassCount)
               for (int t = 0; t < nt; ++t) sim[k][t][r.cls].push_back(r.value[t]);
         });
   }
-  std::vector<std::array<double, 3>> out(nt, {-1, -1, -1});
+  std::vector<PerClass<double>> out(nt, {-1, -1, -1});
   for (int t = 0; t < nt; ++t)
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       if (long(meas[0][t][c].size()) < kDistributionMinSamples || long(meas[1][t][c].size()) < kDistributionMinSamples ||
           sim[0][t][c].empty() || sim[1][t][c].empty())
         continue;

@@ -37,7 +37,7 @@ void in_seed_order(int n, Make make, Use use) {
   }
 }
 
-std::vector<std::array<double, 3>> held_out_intersections_all(const TrackingData& data, const std::array<Fold, 2>& folds,
+std::vector<PerClass<double>> held_out_intersections_all(const TrackingData& data, const std::array<Fold, 2>& folds,
                                                 const std::array<sensor::KpiModel, 2>& models, std::uint64_t seed,
                                                 int seeds);
 

@@ -18,9 +18,9 @@ namespace {
 struct Side {
   FpGrid g;
   FpData fit, held;
-  std::array<double, 3> floor{};
+  PerClass<double> floor{};
   FpModel base;
-  std::array<std::vector<double>, 4> dev_base;  // per judged class (all, Car, Pedestrian, Cyclist), per block
+  std::array<std::vector<double>, kObjectClassCount + 1> dev_base;  // per judged class (all, Car, Pedestrian, Cyclist), per block
 };
 
 bool judged(int c, int cls) { return cls < 0 || c == cls; }
@@ -32,9 +32,9 @@ std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t 
   std::vector<std::vector<double>> Y(nblocks), M(nblocks);
   for (const auto& fr : held.frames) {
     auto &y = Y[fr.block], &mu = M[fr.block];
-    if (y.empty()) y.assign(3 * cells, 0.0), mu.assign(3 * cells, 0.0);
+    if (y.empty()) y.assign(kObjectClassCount * cells, 0.0), mu.assign(kObjectClassCount * cells, 0.0);
     const int b = m.frame_bin(fr);
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       const auto& cm = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)];
       for (int k = 0; k < cells; ++k) mu[c * cells + k] += cm[k];
     }
@@ -51,10 +51,10 @@ std::vector<double> block_deviance(const FpModel& m, const FpData& held, size_t 
 // Per class and cell: (held-out false positives per frame, the model's mean expected count); of class
 // `cls` only, or of every class (-1).
 std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& held, int cells, int cls = -1) {
-  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
+  std::vector<std::array<double, 3>> p(kObjectClassCount * cells, {0, 0, 0});
   for (const auto& fr : held.frames) {
     const int b = m.frame_bin(fr);
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       const auto& mu = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)];
       for (int k = 0; k < cells; ++k) p[c * cells + k][1] += mu[k];
     }
@@ -78,7 +78,7 @@ std::string form_of(const FpModel& m, bool window) {
   o << "; rate per frame (all classes)";
   for (size_t b = 0; b < m.cuts.size() + 1; ++b) {
     double r = 0;
-    for (int c = 0; c < 3; ++c) r += b < m.comps[c].size() ? m.comps[c][b].rate : 0;
+    for (int c = 0; c < kObjectClassCount; ++c) r += b < m.comps[c].size() ? m.comps[c][b].rate : 0;
     o << " " << fmt(r, 3);
   }
   return o.str();
@@ -90,7 +90,7 @@ double change_per_frame(const std::array<double, 3>& s) { return s[2] > 0 ? (s[0
 std::vector<std::array<double, 3>> simulated_pairs(const TrackingData& data, const Fold& fold, const Side& side,
                                                    const sensor::KpiModel& model, std::uint64_t seed) {
   const int cells = side.g.cells();
-  std::vector<std::array<double, 3>> p(3 * cells, {0, 0, 0});
+  std::vector<std::array<double, 3>> p(kObjectClassCount * cells, {0, 0, 0});
   FpModel measured = fp_base(fold.base);  // only for the measured side of the pairs
   measured.compile(side.g, side.floor);
   const auto meas = rate_pairs(measured, side.held, cells);
@@ -186,17 +186,18 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
   blocks.frames.assign(blocks.n, 0.0);
   blocks.fold.assign(blocks.n, 0);
   for (int k = 0; k < 2; ++k) {
-    for (int cls = -1; cls < 3; ++cls)
+    for (int cls = -1; cls < kObjectClassCount; ++cls)
       side[k].dev_base[cls + 1] = block_deviance(side[k].base, side[k].held, blocks.n, side[k].g.cells(), cls);
     for (const auto& fr : side[k].held.frames) blocks.frames[fr.block] += 1, blocks.fold[fr.block] = k;
   }
   // A class's own candidates where both fit splits hold enough of its false positives for a window
   // (kWindowSide inside and outside); below that its table would be its fitting noise.
-  std::array<bool, 3> own{true, true, true};
+  PerClass<bool> own;
+  own.fill(true);
   for (int k = 0; k < 2; ++k) {
-    std::array<long, 3> n{0, 0, 0};
+    PerClass<long> n{};
     for (const auto& r : side[k].fit.fps) ++n[r.cls];
-    for (int c = 0; c < 3; ++c) own[c] = own[c] && n[c] >= 2 * kFpWindowSide;
+    for (int c = 0; c < kObjectClassCount; ++c) own[c] = own[c] && n[c] >= 2 * kFpWindowSide;
   }
   std::vector<std::array<FpModel, 2>> models;  // per candidate, per fold
   for (int f = 0; f < static_cast<int>(kFpFeatures.size()); ++f)
@@ -274,12 +275,12 @@ nlohmann::json fp_candidate_json(const FpCandidate& c) {
 nlohmann::json fp_persistence_candidate_json(const FpPersistence& P) {
   std::ostringstream form;
   form << "ghost share x survival (fold 1)";
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     form << " " << kObjectClasses[c] << " " << fmt(P.classes[c].ghost_share, 3) << " x " << fmt(P.classes[c].survival, 3);
   form << "; jitter";
-  for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].jitter, 3);
+  for (int c = 0; c < kObjectClassCount; ++c) form << " " << fmt(P.classes[c].jitter, 3);
   form << " m; score_ar1";
-  for (int c = 0; c < 3; ++c) form << " " << fmt(P.classes[c].score_ar1, 3);
+  for (int c = 0; c < kObjectClassCount; ++c) form << " " << fmt(P.classes[c].score_ar1, 3);
   return {{"feature", "previous_frame"},
           {"kind", "fp_persistence"},
           {"form_fold1", form.str()},
@@ -303,7 +304,7 @@ nlohmann::json fp_persistence_classes_json(const FpPersistence& P) {
     for (int l = 0; l < kFpTrackBins; ++l) d += std::abs(a[l] - b[l]);
     return 0.5 * d;
   };
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const FpPersistClass& k = P.classes[c];
     pcl[kObjectClasses[c]] = {{"held_out_false_positives", k.held_fps},
                               {"survival_fold1", k.survival},

@@ -1,5 +1,5 @@
 #pragma once
-// The object loop's false-positive analysis (internal to qualify/; issue 11). The KPI manager draws
+// The object loop's false-positive analysis (internal to qualify/). The KPI manager draws
 // a class's false positives as a Poisson count per frame, each placed by independent quantiles of
 // range, azimuth and score (sensor/kpi_model.h). The measured false positives (the calibration's
 // association, objects.h FalsePositiveRecord) are compared with that, per held-out frame, as counts:
@@ -82,9 +82,9 @@ struct FpModel {
   int feature = -1;
   int cls = -1;  // the class the candidate models (its table); -1: every class. Other classes: the base's
   std::vector<double> cuts;  // bin k = [cuts[k-1], cuts[k])
-  std::array<std::vector<FpComponent>, 3> comps;  // per class, per bin
-  std::array<std::vector<std::vector<double>>, 3> mu;  // compiled: per class, bin, cell: expected count
-  void compile(const FpGrid& g, const std::array<double, 3>& floor);
+  PerClass<std::vector<FpComponent>> comps;  // per class, per bin
+  PerClass<std::vector<std::vector<double>>> mu;  // compiled: per class, bin, cell: expected count
+  void compile(const FpGrid& g, const PerClass<double>& floor);
   int frame_bin(const FpData::Frame& f) const;
 };
 
@@ -100,12 +100,12 @@ FpModel fp_base(const sensor::KpiModel& base, const FpData& fit);
 // `cls` only (the window chosen on that class's deviance, the other classes keep the base), or for
 // every class (-1, one window for all).
 FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
-                     const FpGrid& g, const std::array<double, 3>& floor, int cls = -1);
+                     const FpGrid& g, const PerClass<double>& floor, int cls = -1);
 // Poisson deviance of `m` on the frames of `d` (per frame, summed over classes and cells).
 std::vector<double> fp_deviance(const FpModel& m, const FpData& d);
 // The floor added to every cell's expected count (the same for every model of a fold): 0.1 % of the
 // class's fit rate spread over the cells, so an empty cell costs a finite deviance.
-std::array<double, 3> fp_floor(const FpData& fit, int cells);
+PerClass<double> fp_floor(const FpData& fit, int cells);
 
 // The model with each class's fp_table from an attribute candidate.
 sensor::KpiModel with_fp_table(const sensor::KpiModel& m, const FpModel& fp);
@@ -153,13 +153,13 @@ inline constexpr double kFpPersistGate = 1.5;  // m
 inline constexpr int kFpTrackBins = 6;
 
 // Per class: false positives, those with a predecessor, frames, sum of counts, sum of squared counts.
-using FpPersistSums = std::array<std::array<double, 5>, 3>;
+using FpPersistSums = PerClass<std::array<double, 5>>;
 struct FpPersistStats {
   std::map<int, FpPersistSums> blocks;                     // block id (FpData's) -> sums
-  std::array<std::array<double, kFpTrackBins>, 3> tracks{};  // per class: tracks by length bin
-  std::array<std::vector<double>, 3> lateral_step;          // linked pairs: step of y (sensor frame), m
-  std::array<std::vector<std::array<double, 2>>, 3> score_pairs;  // linked pairs: (score, previous score)
-  std::array<double, 3> links{}, links2{};  // per class over tracks of length L: sum (L - 1), sum max(0, L - 2)
+  PerClass<std::array<double, kFpTrackBins>> tracks{};  // per class: tracks by length bin
+  PerClass<std::vector<double>> lateral_step;          // linked pairs: step of y (sensor frame), m
+  PerClass<std::vector<std::array<double, 2>>> score_pairs;  // linked pairs: (score, previous score)
+  PerClass<double> links{}, links2{};  // per class over tracks of length L: sum (L - 1), sum max(0, L - 2)
 };
 FpPersistStats fp_persist_stats(const ObjectSet& set);
 
@@ -173,8 +173,8 @@ struct FpPersistClass {
 };
 
 struct FpPersistence {
-  std::array<FpPersistClass, 3> classes;
-  std::array<std::array<double, 3>, 2> survival{};  // per fold, class
+  PerClass<FpPersistClass> classes;
+  std::array<PerClass<double>, 2> survival{};  // per fold, class
   double effect_size = 0;  // fold 1: share of the simulated false positives that are survivors
   double error_before = 0, error_after = 0, score = 0;
   std::array<double, 2> interval{0, 0}, change{0, 0};

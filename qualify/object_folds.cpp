@@ -110,19 +110,19 @@ void make_fold(Fold& k, const TrackingData& data, std::vector<int> fit_idx, std:
 }
 
 std::vector<std::array<double, 3>> pool_track_spread(sensor::KpiModel& m, const ObjectSet& fit) {
-  std::array<std::map<std::pair<int, int>, int>, 3> frames;  // per class: detected frames per track
+  PerClass<std::map<std::pair<int, int>, int>> frames;  // per class: detected frames per track
   for (const auto& r : fit.records)
-    if (r.detected && r.cls >= 0 && r.cls < 3) ++frames[r.cls][{r.seq, r.track}];
-  std::array<int, 3> tracks{};
-  for (int c = 0; c < 3; ++c)
+    if (r.detected && r.cls >= 0 && r.cls < kObjectClassCount) ++frames[r.cls][{r.seq, r.track}];
+  PerClass<int> tracks{};
+  for (int c = 0; c < kObjectClassCount; ++c)
     for (const auto& [key, n] : frames[c]) tracks[c] += n >= 3;
-  std::vector<std::array<double, 3>> applied(3, {1.0, 1.0, 1.0});
+  std::vector<std::array<double, 3>> applied(kObjectClassCount, {1.0, 1.0, 1.0});
   const sensor::KpiParam params[3] = {sensor::KpiParam::Length, sensor::KpiParam::Width, sensor::KpiParam::Height};
   for (int q = 0; q < 3; ++q) {
-    std::array<double, 3> l{}, v{}, sw{};
-    std::array<bool, 3> use{};
+    PerClass<double> l{}, v{}, sw{};
+    PerClass<bool> use{};
     int m_used = 0;
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       const auto it = m.classes.find(kObjectClasses[c]);
       if (it == m.classes.end() || tracks[c] < 3) continue;
       const sensor::ErrorModel& em = it->second.errors[int(params[q])];
@@ -134,14 +134,14 @@ std::vector<std::array<double, 3>> pool_track_spread(sensor::KpiModel& m, const 
     }
     if (m_used < 2) continue;
     double wsum = 0, mu = 0, mean_l = 0, mean_v = 0;
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (use[c]) wsum += 1 / v[c], mu += l[c] / v[c], mean_l += l[c], mean_v += v[c];
     mu /= wsum, mean_l /= m_used, mean_v /= m_used;
     double spread = 0;
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (use[c]) spread += (l[c] - mean_l) * (l[c] - mean_l);
     const double tau2 = std::max(0.0, spread / (m_used - 1) - mean_v);
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       if (!use[c]) continue;
       const double pooled = mu + (tau2 / (tau2 + v[c])) * (l[c] - mu);
       sensor::ErrorModel& em = m.classes.find(kObjectClasses[c])->second.errors[int(params[q])];

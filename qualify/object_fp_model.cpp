@@ -101,11 +101,11 @@ int FpModel::frame_bin(const FpData::Frame& f) const {
   return cut_bin(cuts, f.feature[feature - kFpAttributeFeatures]);
 }
 
-void FpModel::compile(const FpGrid& g, const std::array<double, 3>& floor) {
+void FpModel::compile(const FpGrid& g, const PerClass<double>& floor) {
   const int nr = static_cast<int>(g.range.size() + 1), na = static_cast<int>(g.azimuth.size() + 1),
             ns = static_cast<int>(g.score.size() + 1);
   const bool frame_feature = feature >= kFpAttributeFeatures;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     mu[c].assign(frame_feature ? comps[c].size() : 1, std::vector<double>(g.cells(), floor[c]));
     for (size_t b = 0; b < comps[c].size(); ++b) {
       const FpComponent& k = comps[c][b];
@@ -123,7 +123,7 @@ void FpModel::compile(const FpGrid& g, const std::array<double, 3>& floor) {
 
 FpModel fp_base(const sensor::KpiModel& base) {
   FpModel m;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = base.classes.find(kObjectClasses[c]);
     FpComponent k;
     if (it != base.classes.end()) {
@@ -137,35 +137,35 @@ FpModel fp_base(const sensor::KpiModel& base) {
 
 FpModel fp_base(const sensor::KpiModel& base, const FpData& fit) {
   FpModel m = fp_base(base);
-  std::array<std::vector<double>, 3> r, a, s;
+  PerClass<std::vector<double>> r, a, s;
   for (const auto& f : fit.fps) r[f.cls].push_back(f.range), a[f.cls].push_back(f.azimuth), s[f.cls].push_back(f.score);
   const double frames = static_cast<double>(std::max<size_t>(1, fit.frames.size()));
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (!base.classes.count(kObjectClasses[c]) && r[c].size() >= 2)
       m.comps[c] = {{r[c].size() / frames, quantiles(r[c]), quantiles(a[c]), quantiles(s[c])}};
   return m;
 }
 
-std::array<double, 3> fp_floor(const FpData& fit, int cells) {
-  std::array<double, 3> n{0, 0, 0};
+PerClass<double> fp_floor(const FpData& fit, int cells) {
+  PerClass<double> n{};
   for (const auto& r : fit.fps) n[r.cls] += 1;
-  std::array<double, 3> out{};
+  PerClass<double> out{};
   const double frames = std::max<size_t>(1, fit.frames.size());
-  for (int c = 0; c < 3; ++c) out[c] = 1e-3 * std::max(n[c], 1.0) / frames / cells;
+  for (int c = 0; c < kObjectClassCount; ++c) out[c] = 1e-3 * std::max(n[c], 1.0) / frames / cells;
   return out;
 }
 
 std::vector<double> fp_deviance(const FpModel& m, const FpData& d) {
   // Per class and bin: the sum of the expected counts over the cells.
-  std::array<std::vector<double>, 3> total;
-  for (int c = 0; c < 3; ++c)
+  PerClass<std::vector<double>> total;
+  for (int c = 0; c < kObjectClassCount; ++c)
     for (const auto& cells : m.mu[c]) total[c].push_back(std::accumulate(cells.begin(), cells.end(), 0.0));
   std::vector<double> dev(d.frames.size());
   for (size_t f = 0; f < d.frames.size(); ++f) {
     const auto& fr = d.frames[f];
     const int b = m.frame_bin(fr);
     double s = 0;
-    for (int c = 0; c < 3; ++c) s += total[c][std::min<size_t>(b, total[c].size() - 1)];
+    for (int c = 0; c < kObjectClassCount; ++c) s += total[c][std::min<size_t>(b, total[c].size() - 1)];
     for (const auto& [c, cell, y] : fr.counts) {
       const double mu = m.mu[c][std::min<size_t>(b, m.mu[c].size() - 1)][cell];
       s += y * std::log(double(y)) - y * std::log(mu) - y;
@@ -180,12 +180,13 @@ namespace {
 // Quantiles of `own` (weight 1 each) pooled with `ref` (kPriorWeight in all), both sorted: a bin's
 // placement shrunk toward a reference. A bin's own few false positives span less than the class's:
 // with their quantiles alone every held-out false positive beyond that span lands where the model has
-// nothing (only the floor, ~20 deviance units each), and tables and windows lost held-out what they
-// gained.
+// nothing (only the floor, ~20 deviance units each), a loss that outweighs what a table or window
+// gains held-out.
 std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::vector<double>& ref) {
   if (own.size() + ref.size() < 2) return {};
   // Merged in (value, weight) order, as sorting the pooled pairs would put them: the window search
-  // calls this for every bin of ~800 windows, and sorting each time was most of the loop's time.
+  // calls this for every bin of ~800 windows, so it must stay linear (a sort per call would
+  // dominate the loop's time).
   const double w = kPriorWeight / static_cast<double>(ref.size());
   std::vector<std::pair<double, double>> v;  // value, weight
   v.reserve(own.size() + ref.size());
@@ -218,7 +219,7 @@ std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::
 struct FpFitContext {
   FpModel b0;
   std::array<std::vector<size_t>, kFpAttributeFeatures> order;
-  std::array<std::array<std::vector<double>, kFpAttributeFeatures>, 3> all;  // per class, attribute
+  PerClass<std::array<std::vector<double>, kFpAttributeFeatures>> all;  // per class, attribute
 };
 
 FpFitContext fit_context(const FpData& fit, const sensor::KpiModel& base) {
@@ -243,8 +244,8 @@ void attribute_components(FpModel& m, const FpData& fit, const FpFitContext& ctx
   const int nb = static_cast<int>(m.cuts.size() + 1);
   std::vector<int> bin(fit.fps.size());
   for (size_t i = 0; i < fit.fps.size(); ++i) bin[i] = cut_bin(m.cuts, feature_of(fit.fps[i], m.feature));
-  std::vector<std::array<std::vector<double>, 3>> pooled(nb);
-  std::array<std::vector<std::array<std::vector<double>, 3>>, 3> own;
+  std::vector<std::array<std::vector<double>, kFpAttributeFeatures>> pooled(nb);
+  PerClass<std::vector<std::array<std::vector<double>, kFpAttributeFeatures>>> own;
   for (auto& v : own) v.resize(nb);
   for (int a = 0; a < kFpAttributeFeatures; ++a)
     for (size_t i : ctx.order[a]) {
@@ -254,11 +255,11 @@ void attribute_components(FpModel& m, const FpData& fit, const FpFitContext& ctx
       own[r.cls][bin[i]][a].push_back(x);
     }
   const double frames = std::max<size_t>(1, fit.frames.size());
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     for (int b = 0; b < nb && (cls < 0 || c == cls); ++b) {
       FpComponent k;
       k.rate = own[c][b][0].size() / frames;
-      std::array<std::vector<double>, 3> q;
+      std::array<std::vector<double>, kFpAttributeFeatures> q;
       for (int a = 0; a < kFpAttributeFeatures; ++a)
         q[a] = shrunk_quantiles(own[c][b][a], a == m.feature ? pooled[b][a] : ctx.all[c][a]);
       // The binned attribute's placement reaches the bin's edges (the KPI manager draws between them).
@@ -284,11 +285,11 @@ FpModel class_components(const FpData& fit, const FpFitContext& ctx, int feature
   if (feature >= kFpAttributeFeatures) {
     // A rate per frame bin; the class's placement.
     std::vector<double> frames(nb, 0.0);
-    std::array<std::vector<double>, 3> n;
+    PerClass<std::vector<double>> n;
     for (auto& v : n) v.assign(nb, 0.0);
     for (const auto& f : fit.frames) frames[m.frame_bin(f)] += 1;
     for (const auto& r : fit.fps) n[r.cls][m.frame_bin(fit.frames[r.slot])] += 1;
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       for (int b = 0; b < nb; ++b) {
         FpComponent k = b0.comps[c][0];
         k.rate = frames[b] > 0 && !k.rq.empty() && !k.aq.empty() ? n[c][b] / frames[b] : 0;
@@ -305,7 +306,7 @@ FpModel components(const FpData& fit, const FpFitContext& ctx, int feature, cons
                    int cls) {
   FpModel m = class_components(fit, ctx, feature, cuts, cls);
   if (cls < 0) return m;
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (c != cls) m.comps[c] = ctx.b0.comps[c];
   m.cls = cls;
   return m;
@@ -325,7 +326,7 @@ std::vector<double> feature_values(const FpData& fit, int feature, int cls) {
 }  // namespace
 
 FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int feature, bool window, int bins,
-                     const FpGrid& g, const std::array<double, 3>& floor, int cls) {
+                     const FpGrid& g, const PerClass<double>& floor, int cls) {
   const std::vector<double> x = feature_values(fit, feature, cls);
   const FpFitContext ctx = fit_context(fit, base);
   if (!window) {
@@ -368,7 +369,7 @@ FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int featur
 sensor::KpiModel with_fp_table(const sensor::KpiModel& base, const FpModel& fp) {
   sensor::KpiModel m = base;
   if (fp.feature < 0 || fp.feature >= kFpAttributeFeatures) return m;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || (fp.cls >= 0 && c != fp.cls)) continue;
     sensor::FalsePositiveTable t;

@@ -37,10 +37,10 @@ ClassSummary summarise(const std::array<double, 5>& s) {
 }
 
 // RMS over the judged classes of simulated minus measured persistence share.
-double share_error(const FpPersistSums& meas, const FpPersistSums& sim, const std::array<bool, 3>& judged) {
+double share_error(const FpPersistSums& meas, const FpPersistSums& sim, const PerClass<bool>& judged) {
   double s = 0;
   int n = 0;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     if (!judged[c]) continue;
     const double d = summarise(sim[c]).share - summarise(meas[c]).share;
     s += d * d, ++n;
@@ -49,7 +49,7 @@ double share_error(const FpPersistSums& meas, const FpPersistSums& sim, const st
 }
 
 void add_to(FpPersistSums& a, const FpPersistSums& b, double w = 1) {
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     for (int k = 0; k < 5; ++k) a[c][k] += w * b[c][k];
 }
 
@@ -81,14 +81,17 @@ ObjectSet simulate_false_positives(const sensor::KpiModel& m, const ObjectSet& l
   return out;
 }
 
-std::array<double, 3> shares(const FpPersistStats& st) {
-  const FpPersistSums t = total(st);
-  return {summarise(t[0]).share, summarise(t[1]).share, summarise(t[2]).share};
+PerClass<double> shares_of(const FpPersistSums& t) {
+  PerClass<double> out{};
+  for (int c = 0; c < kObjectClassCount; ++c) out[c] = summarise(t[c]).share;
+  return out;
 }
 
+PerClass<double> shares(const FpPersistStats& st) { return shares_of(total(st)); }
+
 // The model with each class's persistence set (survival 0: none).
-sensor::KpiModel with_persistence(sensor::KpiModel m, const std::array<sensor::FalsePositivePersistence, 3>& p) {
-  for (int c = 0; c < 3; ++c) {
+sensor::KpiModel with_persistence(sensor::KpiModel m, const PerClass<sensor::FalsePositivePersistence>& p) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it != m.classes.end()) it->second.fp_persistence = p[c].survival > 0 ? p[c] : sensor::FalsePositivePersistence{};
   }
@@ -108,7 +111,7 @@ FpPersistStats simulated_stats(const TrackingData& data, const std::vector<int>&
     const auto sim = sensor::resimulate(only, model, seed + 300 + k);
     const FpPersistStats st = fp_persist_stats(collect_objects(data, held, &sim));
     for (const auto& [b, s] : st.blocks) add_to(out.blocks[b], s, 1.0 / kHeldSeeds);
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       for (int l = 0; l < kFpTrackBins; ++l) out.tracks[c][l] += st.tracks[c][l];
   }
   return out;
@@ -116,13 +119,13 @@ FpPersistStats simulated_stats(const TrackingData& data, const std::vector<int>&
 
 // Jitter and score correlation from the fit split's linked pairs; survival by bisection so that the
 // manager's false positives on the fit frames have the fit split's persistence share.
-std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::KpiModel& m, const TrackingData& data,
+PerClass<sensor::FalsePositivePersistence> fit_persistence(const sensor::KpiModel& m, const TrackingData& data,
                                                                 const std::vector<int>& fit_idx, const ObjectSet& fit,
                                                                 std::uint64_t seed) {
   const FpPersistStats st = fp_persist_stats(fit);
-  const std::array<double, 3> target = shares(st);
-  std::array<sensor::FalsePositivePersistence, 3> p;
-  for (int c = 0; c < 3; ++c) {
+  const PerClass<double> target = shares(st);
+  PerClass<sensor::FalsePositivePersistence> p;
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto& steps = st.lateral_step[c];
     const auto& pairs = st.score_pairs[c];
     if (static_cast<long>(steps.size()) < kMinPairs) continue;
@@ -148,56 +151,56 @@ std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::Kp
   }
   // Survival from the continuation of runs; then the ghost share (or, when all ghosts fall short, the
   // survival) by bisection on the persistence share of the manager's draws on the fit frames.
-  std::array<bool, 3> fitted{};
-  for (int c = 0; c < 3; ++c) {
+  PerClass<bool> fitted{};
+  for (int c = 0; c < kObjectClassCount; ++c) {
     fitted[c] = static_cast<long>(st.lateral_step[c].size()) >= kMinPairs && st.links[c] > 0;
     p[c].survival = fitted[c] ? std::clamp(st.links2[c] / st.links[c], 0.05, 0.95) : 0;
     p[c].ghost_share = 1;
   }
-  auto simulated_shares = [&](const std::array<sensor::FalsePositivePersistence, 3>& q) {
+  auto simulated_shares = [&](const PerClass<sensor::FalsePositivePersistence>& q) {
     const sensor::KpiModel mm = with_persistence(m, q);
     FpPersistSums t{};
     for (int k = 0; k < kFitSeeds; ++k) add_to(t, total(fp_persist_stats(simulate_false_positives(mm, fit, seed + k))));
-    return std::array<double, 3>{summarise(t[0]).share, summarise(t[1]).share, summarise(t[2]).share};
+    return shares_of(t);
   };
   // The bisection for a target share per class (the start p: survival from the runs, ghost share 1).
-  const std::array<sensor::FalsePositivePersistence, 3> start = p;
-  const std::array<bool, 3> usable = fitted;
-  auto solve = [&](const std::array<double, 3>& target) {
-    std::array<sensor::FalsePositivePersistence, 3> p = start;
-    std::array<bool, 3> fitted = usable;
+  const PerClass<sensor::FalsePositivePersistence> start = p;
+  const PerClass<bool> usable = fitted;
+  auto solve = [&](const PerClass<double>& target) {
+    PerClass<sensor::FalsePositivePersistence> p = start;
+    PerClass<bool> fitted = usable;
     {
       auto none = p;
       for (auto& q : none) q.survival = 0;
       const auto at0 = simulated_shares(none);
-      for (int c = 0; c < 3; ++c) fitted[c] = fitted[c] && at0[c] < target[c];
+      for (int c = 0; c < kObjectClassCount; ++c) fitted[c] = fitted[c] && at0[c] < target[c];
     }
     const auto at1 = simulated_shares(p);  // every false positive a ghost
-    std::array<bool, 3> by_share{};
-    std::array<double, 3> lo{}, hi{};
-    for (int c = 0; c < 3; ++c) {
+    PerClass<bool> by_share{};
+    PerClass<double> lo{}, hi{};
+    for (int c = 0; c < kObjectClassCount; ++c) {
       by_share[c] = at1[c] >= target[c];
       lo[c] = by_share[c] ? 0.001 : p[c].survival;
       hi[c] = by_share[c] ? 1.0 : 0.95;
     }
     for (int it = 0; it < kBisection; ++it) {
       auto q = p;
-      for (int c = 0; c < 3; ++c) {
+      for (int c = 0; c < kObjectClassCount; ++c) {
         const double mid = 0.5 * (lo[c] + hi[c]);
         if (!fitted[c]) q[c].survival = 0;
         else if (by_share[c]) q[c].ghost_share = mid;
         else q[c].survival = mid;
       }
       const auto sh = simulated_shares(q);
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < kObjectClassCount; ++c)
         if (fitted[c]) (sh[c] < target[c] ? lo[c] : hi[c]) = 0.5 * (lo[c] + hi[c]);
     }
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       if (!fitted[c]) p[c].survival = 0;
       else if (by_share[c]) p[c].ghost_share = 0.5 * (lo[c] + hi[c]);
       else p[c].survival = 0.5 * (lo[c] + hi[c]);
     }
-    for (int c = 0; c < 3; ++c) p[c].survival = fitted[c] ? p[c].survival : 0;
+    for (int c = 0; c < kObjectClassCount; ++c) p[c].survival = fitted[c] ? p[c].survival : 0;
     return p;
   };
   p = solve(target);
@@ -205,13 +208,13 @@ std::array<sensor::FalsePositivePersistence, 3> fit_persistence(const sensor::Kp
   // placed beyond the gate count as false positives too, and never persist): scale the target by the
   // ratio of the re-simulated fit sequences' share to the false positives' own, then solve again.
   const FpPersistStats resim = simulated_stats(data, fit_idx, with_persistence(m, p), seed + 50);
-  const std::array<double, 3> got = shares(resim);
+  const PerClass<double> got = shares(resim);
   FpPersistSums own{};
   for (int k = 0; k < kFitSeeds; ++k)
     add_to(own, total(fp_persist_stats(simulate_false_positives(with_persistence(m, p), fit, seed + k))));
-  std::array<double, 3> target2 = target;
+  PerClass<double> target2 = target;
   bool again = false;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const double mine = summarise(own[c]).share;
     if (p[c].survival > 0 && got[c] > 0 && mine > 0) target2[c] = std::min(0.99, target[c] * mine / got[c]), again = true;
   }
@@ -251,7 +254,7 @@ FpPersistStats fp_persist_stats(const ObjectSet& set) {
     const bool linked = f > 0 && set.frame_seq[f - 1] == set.frame_seq[f] && set.frame_index[f - 1] + 1 == set.frame_index[f];
     if (f > 0 && !linked) close(f - 1);
     FpPersistSums& b = st.blocks[block_of(set, f)];
-    std::array<int, 3> n{0, 0, 0};
+    PerClass<int> n{};
     pairs.clear();
     for (size_t i = begin[f]; i < begin[f + 1]; ++i) {
       const int c = set.fp_records[order[i]].cls;
@@ -285,7 +288,7 @@ FpPersistStats fp_persist_stats(const ObjectSet& set) {
       st.score_pairs[c].push_back({set.fp_records[order[i]].score, set.fp_records[order[j]].score});
     }
     if (linked) close(f - 1);
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < kObjectClassCount; ++c) {
       b[c][0] += n[c];
       b[c][2] += 1;
       b[c][3] += n[c];
@@ -308,14 +311,14 @@ FpPersistence analyse_fp_persistence(const TrackingData& data, const std::array<
   FpPersistence R;
   // Per held-out block: measured, simulated before, simulated after.
   std::map<int, std::array<FpPersistSums, 3>> blocks;
-  std::array<std::array<std::array<double, kFpTrackBins>, 3>, 3> tracks{};  // which, class, bin
+  std::array<PerClass<std::array<double, kFpTrackBins>>, 3> tracks{};  // which, class, bin
   for (int k = 0; k < 2; ++k) {
     const Fold& fold = folds[k];
     const auto p = fit_persistence(fold.base, data, fold.fit_idx, fold.fit_set, seed + 100 * k);
-    for (int c = 0; c < 3; ++c) R.survival[k][c] = p[c].survival;
+    for (int c = 0; c < kObjectClassCount; ++c) R.survival[k][c] = p[c].survival;
     if (k == 0) {
       double w = 0, sw = 0;
-      for (int c = 0; c < 3; ++c) {
+      for (int c = 0; c < kObjectClassCount; ++c) {
         R.classes[c].survival = p[c].survival, R.classes[c].ghost_share = p[c].ghost_share;
         R.classes[c].jitter = p[c].jitter, R.classes[c].score_ar1 = p[c].score_ar1;
         const auto it = fold.base.classes.find(kObjectClasses[c]);
@@ -329,15 +332,15 @@ FpPersistence analyse_fp_persistence(const TrackingData& data, const std::array<
                                               simulated_stats(data, fold.held_idx, with_persistence(fold.base, p), seed)};
     for (int w = 0; w < 3; ++w) {
       for (const auto& [b, s] : st[w].blocks) add_to(blocks[b][w], s);
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < kObjectClassCount; ++c)
         for (int l = 0; l < kFpTrackBins; ++l) tracks[w][c][l] += st[w].tracks[c][l];
     }
   }
   std::array<FpPersistSums, 3> all{};
   for (const auto& [b, v] : blocks)
     for (int w = 0; w < 3; ++w) add_to(all[w], v[w]);
-  std::array<bool, 3> judged{};
-  for (int c = 0; c < 3; ++c) {
+  PerClass<bool> judged{};
+  for (int c = 0; c < kObjectClassCount; ++c) {
     FpPersistClass& pc = R.classes[c];
     judged[c] = all[0][c][0] >= kMinHeldFps;
     pc.held_fps = static_cast<long>(all[0][c][0]);

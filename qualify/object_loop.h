@@ -83,9 +83,9 @@ struct Judged {
   double candidate_after = kNaN;        // the held-out RMS with it, also when not added
   // Error targets: the re-simulated held-out distribution per class before / after the term
   // (-1: too few samples) and the classes that keep it.
-  std::array<double, 3> dist_before{-1, -1, -1}, dist_after{-1, -1, -1};
-  std::array<bool, 3> classes{true, true, true};
-  std::array<std::pair<double, double>, 3> class_rms{};  // winsorised held-out RMS before, after
+  PerClass<double> dist_before{-1, -1, -1}, dist_after{-1, -1, -1};
+  PerClass<bool> classes{true, true, true};
+  PerClass<std::pair<double, double>> class_rms{};  // winsorised held-out RMS before, after
   bool distribution_rejected = false;
 };
 
@@ -126,7 +126,8 @@ struct ObjectLoopResult {
   std::array<std::vector<std::string>, 2> fit_names, held_names;  // the top one's fold set, per fold
   std::string top_scheme;
   FpAnalysis false_positives;
-  std::vector<std::array<double, 3>> track_spread_factor;  // of the model fitted on every sequence
+  // Per class: length, width, height; of the model fitted on every sequence.
+  std::vector<std::array<double, 3>> track_spread_factor;
   std::string plot;  // the residual PNG's file name in options.plots_dir ("" when none)
 
   const Candidate& top_candidate() const { return candidates[top]; }

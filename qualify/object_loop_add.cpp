@@ -45,7 +45,7 @@ Decision rejected(const Candidate& c, const Judged& J) {
 
 Decision rejected_by_distribution(const Candidate& c, const Judged& J) {
   std::string per_class;
-  for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < kObjectClassCount; ++k) {
     if (J.dist_before[k] < 0 && J.dist_after[k] < 0) continue;
     per_class += (per_class.empty() ? "" : "; ") + kObjectClasses[k] + ": ";
     if (J.dist_after[k] < 0) per_class += "too few held-out samples to re-simulate";
@@ -62,9 +62,9 @@ Decision rejected_by_distribution(const Candidate& c, const Judged& J) {
 
 // The classes a further error term was kept for, when not all.
 std::string kept_for(const Candidate& c, const Judged& J) {
-  if (c.target == kDetectionTarget || (J.classes[0] && J.classes[1] && J.classes[2])) return "";
+  if (c.target == kDetectionTarget || std::all_of(J.classes.begin(), J.classes.end(), [](bool kept) { return kept; })) return "";
   std::string kept, dropped;
-  for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < kObjectClassCount; ++k) {
     std::string& list = J.classes[k] ? kept : dropped;
     list += (list.empty() ? "" : ", ") + kObjectClasses[k];
   }

@@ -1,5 +1,6 @@
 // The object loop's judge step (object_loop.h): one bias form refitted on each fold's fit
 // sequences and judged on its held-out ones.
+#include <algorithm>
 #include <cmath>
 
 #include "qualify/object_distribution.h"
@@ -19,7 +20,7 @@ BlockSums non_empty(const BlockSums& s) {
 // Per held-out record: the residual after each fold's own refit (J.after_r), and per track and per
 // class the winsorised sums (after^2, before^2, n) the acceptance tests use (detection: deviances).
 void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& J, BlockSums& per_track,
-                        std::array<std::array<double, 3>, 3>& per_class) {
+                        PerClass<std::array<double, 3>>& per_class) {
   const int t = c.target, f = c.feature;
   for (int k = 0; k < 2; ++k) {
     const Split& h = S.folds[k].held_r[t];
@@ -41,7 +42,7 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
       } else {
         const double before_w = S.folds[k].win[t](h.r[i]), after_w = before_w - fitted;
         s[0] += after_w * after_w, s[1] += before_w * before_w, s[2] += 1;
-        if (ch[i] >= 0 && ch[i] < 3) {
+        if (ch[i] >= 0 && ch[i] < kObjectClassCount) {
           auto& cs = per_class[ch[i]];
           cs[0] += after_w * after_w, cs[1] += before_w * before_w, cs[2] += 1;
         }
@@ -59,7 +60,7 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
 // tracks to judge; the residual is asked too since the re-simulated distribution carries Monte
 // Carlo noise of the size of the changes judged, the residual none.
 void distribution_check(const LoopContext& L, const FoldSet& S, const Candidate& c,
-                        const std::array<std::array<double, 3>, 3>& per_class, Judged& J) {
+                        const PerClass<std::array<double, 3>>& per_class, Judged& J) {
   const int t = c.target;
   std::array<sensor::KpiModel, 2> after_models;
   for (int k = 0; k < 2; ++k)
@@ -70,7 +71,7 @@ void distribution_check(const LoopContext& L, const FoldSet& S, const Candidate&
   const auto before_i = held_out_intersections_all(*S.data, S.folds, S.current, seed, L.options.distribution_seeds);
   const auto after_i = held_out_intersections_all(*S.data, S.folds, after_models, seed, L.options.distribution_seeds);
   J.dist_before = before_i[t], J.dist_after = after_i[t];
-  for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < kObjectClassCount; ++k) {
     const auto& s = per_class[k];
     J.class_rms[k] = {s[2] > 0 ? std::sqrt(s[1] / s[2]) : kNaN, s[2] > 0 ? std::sqrt(s[0] / s[2]) : kNaN};
     J.classes[k] = J.dist_after[k] >= 0 && J.dist_after[k] >= J.dist_before[k] && s[0] < s[1];
@@ -95,7 +96,7 @@ Judged judge(LoopContext& L, const Candidate& c, bool distribution_decides) {
   J.refs = {fit_effect(S.folds[0], t, f, c.kind, L.nvis, L.options.bins).bias,
             fit_effect(S.folds[1], t, f, c.kind, L.nvis, L.options.bins).bias};
   BlockSums per_track(S.nblocks, {0, 0, 0});
-  std::array<std::array<double, 3>, 3> per_class{};
+  PerClass<std::array<double, 3>> per_class{};
   held_out_residuals(S, c, L.nvis, J, per_track, per_class);
   if (J.candidate) {
     const BlockSums used_blocks = non_empty(per_track);
@@ -113,8 +114,8 @@ Judged judge(LoopContext& L, const Candidate& c, bool distribution_decides) {
   J.add = J.candidate && J.change[1] < 0;
   if (J.add && t != kDetectionTarget && in_manager(kObjectFeatures[f])) {
     distribution_check(L, S, c, per_class, J);
-    const bool any = J.classes[0] || J.classes[1] || J.classes[2];
-    if (!distribution_decides) J.classes = {true, true, true};
+    const bool any = std::any_of(J.classes.begin(), J.classes.end(), [](bool kept) { return kept; });
+    if (!distribution_decides) J.classes.fill(true);
     else if (!any) J.add = false, J.distribution_rejected = true;
   }
   J.candidate_after = rms(J.after_r);

@@ -82,11 +82,11 @@ nlohmann::json bias_effect_json(const ObjectLoopResult& R) {
                                           "samples), refitted jointly with per-class range-bin offsets on every "
                                           "sequence")},
                       {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
   if (R.options.shrink_terms != TermShrink::Off) {  // per bin: the share of the fitted (deviation) kept
     e["pooled"]["shrink_factor"] = R.top_whole.factor.pooled.value;
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (tab.own[c]) e[kObjectClasses[c]]["shrink_factor"] = R.top_whole.factor.per_class[c].value;
   }
   return e;
@@ -122,7 +122,7 @@ void spread_fields(const ObjectLoopResult& R, nlohmann::json& j) {
 // Per class: re-simulated held-out histogram intersection before / after and whether it kept the term.
 nlohmann::json distribution_entry(const Judged& J) {
   nlohmann::json d = nlohmann::json::object();
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (J.dist_before[c] >= 0 || J.dist_after[c] >= 0)
       d[kObjectClasses[c]] = {{"before", J.dist_before[c]},
                               {"after", J.dist_after[c]},
@@ -138,7 +138,7 @@ nlohmann::json shrink_entry(const ObjectLoopResult& R, const Judged& J) {
   nlohmann::json out = nlohmann::json::array();
   for (const Refit& r : J.refs) {
     nlohmann::json f = {{"pooled", {{"factor", r.factor.pooled.value}, {"se", r.se.pooled.value}}}};
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (r.factor.own[c])
         f[kObjectClasses[c]] = {{"factor", r.factor.per_class[c].value}, {"se", r.se.per_class[c].value}};
     out.push_back(f);
@@ -319,7 +319,7 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
                                    "each sequence (tracks kept whole), the others on whole sequences"}};
   if (o.pool_track_spread) {
     nlohmann::json tj = nlohmann::json::object();  // track_std after / before, per class: length, width, height
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (c < static_cast<int>(R.track_spread_factor.size())) tj[kObjectClasses[c]] = R.track_spread_factor[c];
     j["track_spread_pooling"] = tj;
   }

@@ -152,7 +152,7 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                      double(fi - tp.begin()->first)};
         out.records.push_back(std::move(r));
       }
-      std::array<int, 3> fp{0, 0, 0};
+      PerClass<int> fp{};
       for (size_t j = 0; j < fr.detections.size(); ++j) {
         const sensor::Object& d = fr.detections[j];
         if (used[j] || d.score <= opt.min_score) continue;

@@ -10,7 +10,7 @@ ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<dou
                              int bins) {
   ClassTables t;
   t.pooled = fit_binned_mean(x, r, bins);
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     std::vector<double> xc, rc;
     for (size_t i = 0; i < x.size(); ++i)
       if (cls[i] == c) xc.push_back(x[i]), rc.push_back(r[i]);
@@ -113,7 +113,7 @@ namespace {
 // table's bins first, then each class's own table (if any).
 struct Slots {
   int npooled = 0, total = 0;
-  std::array<int, 3> offset{-1, -1, -1};
+  PerClass<int> offset{-1, -1, -1};
   std::vector<int> pooled, own;  // per record; own = -1 when the class uses the pooled table
   int used(size_t i) const { return own[i] >= 0 ? own[i] : pooled[i]; }
 };
@@ -122,13 +122,13 @@ Slots slots_of(const ClassTables& t, const std::vector<double>& x, const std::ve
   Slots s;
   s.npooled = static_cast<int>(t.pooled.value.size());
   s.total = s.npooled;
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (t.own[c]) s.offset[c] = s.total, s.total += static_cast<int>(t.per_class[c].value.size());
   s.pooled.resize(x.size());
   s.own.assign(x.size(), -1);
   for (size_t i = 0; i < x.size(); ++i) {
     s.pooled[i] = t.pooled.bin(x[i]);
-    if (cls[i] >= 0 && cls[i] < 3 && t.own[cls[i]]) s.own[i] = s.offset[cls[i]] + t.per_class[cls[i]].bin(x[i]);
+    if (cls[i] >= 0 && cls[i] < kObjectClassCount && t.own[cls[i]]) s.own[i] = s.offset[cls[i]] + t.per_class[cls[i]].bin(x[i]);
   }
   return s;
 }
@@ -201,7 +201,7 @@ void table_values(const Refit& f, const Slots& s, bool window, int inside, std::
   value.assign(s.total, 0.0);
   held.assign(s.total, false);
   for (int b = 0; b < s.npooled; ++b) value[b] = f.table.pooled.value[b], held[b] = f.table.pooled.count[b] > 0;
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (s.offset[c] >= 0)
       for (size_t b = 0; b < f.table.per_class[c].value.size(); ++b)
         value[s.offset[c] + b] = f.table.per_class[c].value[b], held[s.offset[c] + b] = f.table.per_class[c].count[b] > 0;
@@ -261,9 +261,9 @@ void floor_se(const Refit& f, const Slots& s, bool window, int inside, const std
   const size_t n = r.size();
   std::vector<double> e(n);
   for (size_t i = 0; i < n; ++i) e[i] = r[i] - f(cls[i], rb[i], x[i]);
-  std::array<std::array<double, 2>, 4> comp{};  // pooled, then per class
+  std::array<std::array<double, 2>, kObjectClassCount + 1> comp{};  // pooled, then per class
   comp[0] = track_components(e, tr, cls, -1);
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (s.offset[c] >= 0) comp[c + 1] = track_components(e, tr, cls, c);
   std::map<std::pair<int, int>, double> per_track;  // (slot, track) -> samples
   for (size_t i = 0; i < n; ++i) {
@@ -274,7 +274,7 @@ void floor_se(const Refit& f, const Slots& s, bool window, int inside, const std
   for (const auto& [key, c] : per_track) nb[key.first] += c, nb2[key.first] += c * c;
   auto floor2 = [&](int b) {
     int scope = 0;
-    for (int c = 0; c < 3; ++c)
+    for (int c = 0; c < kObjectClassCount; ++c)
       if (s.offset[c] >= 0 && b >= s.offset[c]) scope = c + 1;
     return nb[b] > 0 ? comp[scope][0] * nb2[b] / (nb[b] * nb[b]) + comp[scope][1] / nb[b] : 0.0;
   };
@@ -308,7 +308,7 @@ void shrink_factors(const Refit& f, const Slots& s, size_t n, const std::vector<
       if (s.own[i] >= 0) acc[s.own[i]] += value[s.pooled[i]] * factor[s.pooled[i]], cnt[s.own[i]] += 1;
     for (int b = s.npooled; b < s.total; ++b) prior[b] = cnt[b] > 0 ? acc[b] / cnt[b] : 0.0;
   }
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (s.offset[c] >= 0)
       pool_towards(value, prior, se, held, s.offset[c], s.offset[c] + static_cast<int>(f.table.per_class[c].value.size()),
                    factor);
@@ -324,7 +324,7 @@ void write_shrunk(Refit& f, const Slots& s, const std::vector<double>& prior, co
       st.value[b] = se[off + b];
   };
   put(f.table.pooled, f.factor.pooled, f.se.pooled, 0);
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < kObjectClassCount; ++c)
     if (s.offset[c] >= 0) put(f.table.per_class[c], f.factor.per_class[c], f.se.per_class[c], s.offset[c]);
 }
 
@@ -373,7 +373,7 @@ std::vector<sensor::ErrorSample> samples_without_term(const Refit& ref, int t, i
 }  // namespace
 
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
-                           const Winsor& w, int nvis, std::array<bool, 3> classes) {
+                           const Winsor& w, int nvis, PerClass<bool> classes) {
   if (t == kDetectionTarget) return;
   const bool track_constant =
       feature == "size" || feature == "box_width" || feature == "box_height" || feature == "class";
@@ -386,7 +386,7 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
   const auto cls = fit.classes();
   const auto cells = fit.cells(t, nvis);
   const auto r = fit.clipped(w);
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || !classes[c]) continue;
     std::vector<double> vals, res;
@@ -411,8 +411,9 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
     // The noise's shape (AR(1), innovation mixture) refitted on the error without the term, as
     // calibration fits it: where the term carried the error's correlation along a track or its
     // tails (a lag on the few fast objects), the base's were fitted to the term itself. The sigmas
-    // keep the variance rule: refitted on the term's in-sample residual they came out narrower, and
-    // the held-out width distribution with box_width fell (Car 0.908 -> 0.894).
+    // keep the variance rule: the term's in-sample residual is narrower than the held-out one, so
+    // sigmas refitted on it would understate the held-out spread (the width distribution's
+    // intersection drops with box_width).
     const auto samples = samples_without_term(ref, t, c, fit, x, cls, cells);
     if (static_cast<int>(samples.size()) >= 2 * opt.min_samples) {
       const sensor::ErrorModel own = sensor::fit_error_model(samples, opt, size_param);
@@ -435,9 +436,9 @@ Refit refit_on(const Fold& k, int t, int f, int nvis, int bins) {
 }
 
 sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
-                           int nvis, std::array<bool, 3> classes) {
+                           int nvis, PerClass<bool> classes) {
   sensor::KpiModel m = base;
-  for (int c = 0; c < 3; ++c) {
+  for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || !classes[c]) continue;
     sensor::ClassModel& cm = it->second;
@@ -472,7 +473,7 @@ sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t
 }
 
 sensor::KpiModel with_term_and_noise(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
-                                     int nvis, const Split& fit, const Winsor& w, std::array<bool, 3> classes) {
+                                     int nvis, const Split& fit, const Winsor& w, PerClass<bool> classes) {
   sensor::KpiModel m = with_term(base, ref, t, feature, nvis, classes);
   shrink_noise_for_term(m, ref, t, feature, fit, w, nvis, classes);
   return m;

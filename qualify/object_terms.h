@@ -18,9 +18,11 @@ namespace lidarsim::qualify::obj {
 // the pooled table for classes with fewer than 200 fit samples.
 struct ClassTables {
   BinnedTable pooled;
-  std::array<BinnedTable, 3> per_class;
-  std::array<bool, 3> own{false, false, false};
-  double operator()(int cls, double x) const { return cls >= 0 && cls < 3 && own[cls] ? per_class[cls](x) : pooled(x); }
+  PerClass<BinnedTable> per_class;
+  PerClass<bool> own{};
+  double operator()(int cls, double x) const {
+    return cls >= 0 && cls < kObjectClassCount && own[cls] ? per_class[cls](x) : pooled(x);
+  }
 };
 
 ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
@@ -36,7 +38,8 @@ struct Refit {
   std::map<std::pair<int, int>, double> d;
   // 0 for errors: a cell's offset is its mean residual. For detection the base's cells are Beta-
   // shrunk (sensor::kDetectionPriorObjects, this value): a cell then takes back only the table's
-  // mean over it, over (n + this); refitted raw, the candidates lost to the base on that alone.
+  // mean over it, over (n + this). The refit shrinks as the base does, so a candidate is judged on
+  // its effect and not on the difference between a raw and a shrunk cell.
   double cell_prior = 0;
   // After shrink_by_track_bootstrap: each bin's factor (fitted value x factor = the value kept) and
   // its bootstrap standard error, laid out like `table`; empty value vectors when not shrunk.
@@ -90,7 +93,7 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
 // refitted (sensor::fit_error_model) on the fit records' errors minus the term (classes with at
 // least 40 of them), so correlation along a track or tails the term carried leave the noise.
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
-                           const Winsor& w, int nvis, std::array<bool, 3> classes = {true, true, true});
+                           const Winsor& w, int nvis, PerClass<bool> classes = {true, true, true});
 
 // The detection probability the KPI manager uses with a rate term (with_term): the cell's
 // probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
@@ -104,12 +107,12 @@ Refit refit_on(const Fold& k, int t, int f, int nvis, int bins);
 // table as its conditional term (on that error, or on detection probability).
 // `classes`: the classes that get the term (the others keep the base's model of t).
 sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
-                           int nvis, std::array<bool, 3> classes = {true, true, true});
+                           int nvis, PerClass<bool> classes = {true, true, true});
 
 // with_term, and for an error target the noise shrunk for the classes that get the term
 // (shrink_noise_for_term on the fit split and its winsor limits).
 sensor::KpiModel with_term_and_noise(const sensor::KpiModel& base, const Refit& ref, int t, const std::string& feature,
                                      int nvis, const Split& fit, const Winsor& w,
-                                     std::array<bool, 3> classes = {true, true, true});
+                                     PerClass<bool> classes = {true, true, true});
 
 }  // namespace lidarsim::qualify::obj

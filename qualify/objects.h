@@ -51,7 +51,12 @@ inline const std::vector<std::string> kObjectFeatures = {
 inline const std::vector<std::string> kObjectTargets = {"position_along", "position_across", "length",
                                                         "width",          "height",          "heading",
                                                         "detection"};
-inline const std::vector<std::string> kObjectClasses = {"Car", "Pedestrian", "Cyclist"};
+// The object loop's classes are the KPI model's: record and table index c is kObjectClasses[c].
+inline constexpr int kObjectClassCount = sensor::kModelledClassCount;
+inline const auto& kObjectClasses = sensor::kModelledClasses;
+// One value per modelled class, indexed like kObjectClasses.
+template <class T>
+using PerClass = std::array<T, kObjectClassCount>;
 inline constexpr int kObjectTargetCount = 7;
 inline constexpr int kDetectionTarget = 6;
 
@@ -74,7 +79,7 @@ struct FalsePositiveRecord {
 
 struct ObjectSet {
   std::vector<ObjectRecord> records;
-  std::vector<std::array<int, 3>> false_positives;  // per frame, per class
+  std::vector<PerClass<int>> false_positives;  // per frame, per class
   std::vector<int> frame_seq;                       // sequence index of each frame
   std::vector<int> frame_index;                     // the frame's index in its sequence
   std::vector<int> frame_truths;                    // ground-truth objects of the three classes in the frame
@@ -101,9 +106,9 @@ ObjectSet collect_objects(const TrackingData& data, const std::vector<int>& sequ
                           const sensor::FitOptions& opt = {});
 
 // How the loop's fitted bias terms are shrunk by their own track-bootstrap uncertainty on the fit
-// sequences (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md):
-// not at all, every table's bins towards 0, or the pooled table towards 0 and each class's own
-// table towards the pooled one.
+// sequences (qualify/object_terms.h shrink_by_track_bootstrap), so that a bin that a few tracks
+// carry cannot enter the model at full size: not at all, every table's bins towards 0, or the
+// pooled table towards 0 and each class's own table towards the pooled one.
 enum class TermShrink { Off, TowardsZero, TowardsPooled };
 
 // `lidar-qualify objects`: the model re-simulated on the ground truth vs the measured
@@ -116,9 +121,9 @@ enum class TermShrink { Off, TowardsZero, TowardsPooled };
 // held_out_seeds: simulation seeds per fold and model in the held-out table. A model with per-track
 // constant errors draws one offset per track and seed, so its simulated histogram carries the
 // Monte Carlo noise of seeds x tracks draws, and noise lowers an intersection; the iid model's
-// samples are all independent. With 32 seeds that alone cost Cyclist length (23 held-out tracks)
-// 0.03 against iid (0.880 -> 0.899 at 256 seeds, iid 0.911 -> 0.903); 256 makes it small beside
-// the held-out tracks' own uncertainty. Tests pass fewer.
+// samples are all independent. The seeds must make that noise small beside the held-out tracks'
+// own uncertainty for the smallest class (Cyclist, ~23 held-out tracks on KITTI), or the table
+// favours the iid model by noise alone: 256 does (32 cost Cyclist length 0.03). Tests pass fewer.
 inline constexpr int kHeldOutSeeds = 256;
 nlohmann::json qualify_objects(const TrackingData& data, const sensor::KpiModel& model,
                                const std::filesystem::path& out_dir, std::uint64_t seed = 1, bool nested = false,
@@ -133,17 +138,17 @@ struct LoopOptions {
   std::uint64_t seed = 1;           // KPI manager seed of the re-simulation
   int max_effects = 0;              // bias forms added per run, at most one per target (0: no limit)
   // Bias terms shrunk towards 0 by their track-bootstrap uncertainty on the fit sequences
-  // (qualify/object_terms.h shrink_by_track_bootstrap; the sixth pass, qualify/README.md).
+  // (qualify/object_terms.h shrink_by_track_bootstrap; TermShrink above).
   TermShrink shrink_terms = TermShrink::Off;
   // The base model's per-track size constants partially pooled across classes (object_folds.h
-  // pool_track_spread; the sixth pass, qualify/README.md).
+  // pool_track_spread), so a class with few tracks borrows the others' ratio of track to frame spread.
   bool pool_track_spread = false;
   // Seeds of the re-simulated distribution check that keeps a term per class
   // (object_distribution.h); fewer is faster and biased against per-track terms.
   int distribution_seeds = kHeldOutSeeds;
   // A candidate is added only when its score's bound simultaneous over the candidates it was picked
-  // from lies above 0 (qualify/object_selection.h); off: its own 95 % interval alone decides, as
-  // before the campaign's controls showed the best of ~200 candidates passing it by chance.
+  // from lies above 0 (qualify/object_selection.h): the best of ~200 candidates clears its own 95 %
+  // interval by chance far more often than 1 run in 40. Off: its own interval alone decides.
   bool selection_bound = true;
 };
 

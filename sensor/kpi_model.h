@@ -21,6 +21,11 @@
 
 namespace lidarsim::sensor {
 
+// The classes the KPI model is fitted for and the object loop judges (KITTI tracking's evaluated
+// classes), in the order of every table indexed by class (0 Car, 1 Pedestrian, 2 Cyclist).
+inline constexpr int kModelledClassCount = 3;
+inline const std::array<std::string, kModelledClassCount> kModelledClasses = {"Car", "Pedestrian", "Cyclist"};
+
 enum class KpiParam {
   PositionAlong,    // along the line of sight (radial), m
   PositionAcross,   // across the line of sight (left of it), m
