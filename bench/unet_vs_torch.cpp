@@ -207,7 +207,7 @@ int main(int argc, char** argv) {
     UNet model(cfg);
     model.init(1);
     OptimizerConfig oc;
-    oc.kind = "adam";
+    oc.kind = nn::OptimizerKind::Adam;
     Optimizer adam(oc, model.params().size());
     struct Row {
       std::string name;

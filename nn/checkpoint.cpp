@@ -100,7 +100,7 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       }
       if (optimizer) {
         const OptimizerConfig& oc = optimizer->config();
-        w.attr(config.get(), "config", "optimizer.kind", oc.kind);
+        w.attr(config.get(), "config", "optimizer.kind", to_string(oc.kind));
         w.attr(config.get(), "config", "optimizer.lr", oc.lr);
         w.attr(config.get(), "config", "optimizer.beta1", oc.beta1);
         w.attr(config.get(), "config", "optimizer.beta2", oc.beta2);
@@ -114,7 +114,7 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
       w.floats("params/" + info.name, param_dims(info), params.values() + info.offset);
     if (optimizer) {
       Handle opt = w.group("optimizer");
-      w.attr(opt.get(), "optimizer", "kind", optimizer->config().kind);
+      w.attr(opt.get(), "optimizer", "kind", to_string(optimizer->config().kind));
       w.attr(opt.get(), "optimizer", "steps", optimizer->steps());
       for (const ParamInfo& info : params.infos()) {
         w.floats("optimizer/m/" + info.name, param_dims(info), optimizer->m().data() + info.offset);
@@ -181,7 +181,10 @@ Checkpoint read_meta(const Reader& r) {
     if (!reserved_attribute(name)) meta.attributes[name] = r.string_attr("config", name);
   if (r.has_attr("config", "optimizer.kind")) {
     OptimizerConfig oc;
-    oc.kind = r.string_attr("config", "optimizer.kind");
+    const std::string kind = r.string_attr("config", "optimizer.kind");
+    const auto parsed = optimizer_kind_from_string(kind);
+    if (!parsed) r.fail("config/optimizer.kind", "expected \"adam\" or \"sgd\", got \"" + kind + "\"");
+    oc.kind = *parsed;
     oc.lr = static_cast<float>(r.double_attr("config", "optimizer.lr"));
     oc.beta1 = static_cast<float>(r.double_attr("config", "optimizer.beta1"));
     oc.beta2 = static_cast<float>(r.double_attr("config", "optimizer.beta2"));
@@ -235,8 +238,9 @@ void load(const Reader& r, UNet& model, Optimizer* optimizer) {
   if (optimizer) {
     if (!r.exists("optimizer")) r.fail("optimizer", "missing group (checkpoint saved without an optimizer)");
     const std::string kind = r.string_attr("optimizer", "kind");
-    if (kind != optimizer->config().kind)
-      r.fail("optimizer/kind", "checkpoint has \"" + kind + "\", the optimizer is \"" + optimizer->config().kind + "\"");
+    if (kind != to_string(optimizer->config().kind))
+      r.fail("optimizer/kind",
+             "checkpoint has \"" + kind + "\", the optimizer is \"" + to_string(optimizer->config().kind) + "\"");
     steps = r.int_attr("optimizer", "steps");
     if (steps < 0) r.fail("optimizer/steps", "expected >= 0, got " + std::to_string(steps));
     if (optimizer->m().size() != params.size() || optimizer->v().size() != params.size())

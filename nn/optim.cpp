@@ -10,9 +10,20 @@ namespace lidarsim::nn {
 using detail::parallel_for;
 using detail::parallel_ranges;
 
+std::string to_string(OptimizerKind kind) {
+  const int k = static_cast<int>(kind);
+  if (k < 0 || k >= kOptimizerKinds) throw Error("optimizer: kind: not an OptimizerKind (" + std::to_string(k) + ")");
+  return kOptimizerKindNames[k];
+}
+
+std::optional<OptimizerKind> optimizer_kind_from_string(const std::string& name) {
+  for (int k = 0; k < kOptimizerKinds; ++k)
+    if (name == kOptimizerKindNames[k]) return static_cast<OptimizerKind>(k);
+  return std::nullopt;
+}
+
 Optimizer::Optimizer(const OptimizerConfig& config, std::size_t num_params) : config_(config) {
-  if (config_.kind != "adam" && config_.kind != "sgd")
-    throw Error("optimizer: kind: expected \"adam\" or \"sgd\", got \"" + config_.kind + "\"");
+  to_string(config_.kind);  // throws for a value outside the enum (a cast from a bad integer)
   if (!std::isfinite(config_.lr) || config_.lr <= 0)
     throw Error("optimizer: lr: expected a finite value > 0, got " + std::to_string(config_.lr));
   m_.assign(num_params, 0.f);
@@ -61,7 +72,7 @@ void Optimizer::step(ParamArena& params) {
   const float* sc = scale_.data();
 
   float* m = m_.data();
-  if (config_.kind == "sgd") {
+  if (config_.kind == OptimizerKind::Sgd) {
     // torch.optim.SGD, dampening 0, no Nesterov: buf = momentum buf + g (buf = g at step 1).
     const float mu = config_.momentum, lr = config_.lr;
     parallel_ranges(static_cast<long>(n), n > (1u << 15), [&](long b, long e) {

@@ -1,6 +1,7 @@
 #pragma once
 // Optimizers over a ParamArena: one loop over one buffer. State is exposed for checkpoints.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -8,8 +9,17 @@
 
 namespace lidarsim::nn {
 
+enum class OptimizerKind { Adam, Sgd /* with momentum */ };
+inline constexpr int kOptimizerKinds = 2;
+// The names checkpoints store (config "optimizer.kind" and /optimizer "kind"), by OptimizerKind.
+inline constexpr const char* kOptimizerKindNames[kOptimizerKinds] = {"adam", "sgd"};
+static_assert(static_cast<int>(OptimizerKind::Sgd) + 1 == kOptimizerKinds, "kOptimizerKindNames: one per OptimizerKind");
+std::string to_string(OptimizerKind kind);
+// The kind of a stored name; nullopt for any other string (the caller names its file and field).
+std::optional<OptimizerKind> optimizer_kind_from_string(const std::string& name);
+
 struct OptimizerConfig {
-  std::string kind = "adam";  // "adam" or "sgd" (with momentum)
+  OptimizerKind kind = OptimizerKind::Adam;
   float lr = 1e-3f;
   float beta1 = 0.9f, beta2 = 0.999f, eps = 1e-8f;  // Adam, PyTorch's defaults
   float momentum = 0.9f;                              // SGD

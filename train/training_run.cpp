@@ -155,7 +155,8 @@ TrainingRun::TrainingRun(const TrainConfig& config, LookupForm lookup_form,
   sector_split = val_set == nullptr;
   in_channels = config.encoder.input_channels();
   arch = nn::UNetConfig{in_channels, 1, config.base, config.depth, config.row_affine ? rows : 0};
-  // "mean" alone stays the single-output model without heads (checkpoint format 1, as before).
+  // "mean" alone is the single-output model without heads: checkpoint format 1, which builds that
+  // predate format 2 still load (they refuse format 2's heads).
   const std::vector<nn::HeadKind> heads = nn::parse_heads(config.heads, "lidar-train: --heads");
   spread = heads.size() > 1;
   if (spread) {
@@ -278,7 +279,7 @@ void TrainingRun::build_model() {
   model = std::make_shared<nn::UNet>(arch);
   model->init(config.seed);
   nn::OptimizerConfig opt_config;
-  opt_config.kind = "adam";
+  opt_config.kind = nn::OptimizerKind::Adam;
   opt_config.lr = config.lr;
   optimizer.emplace(opt_config, model->params().size());
 

@@ -182,7 +182,7 @@ TEST_F(CheckpointTest, MetaRoundTripsConfigAttributesStateAndOptimizerSettings) 
   EXPECT_EQ(m.state.step, 42);
   EXPECT_EQ(m.state.rng, want.state.rng);
   ASSERT_TRUE(m.optimizer.has_value());
-  EXPECT_EQ(m.optimizer->kind, "adam");
+  EXPECT_EQ(m.optimizer->kind, OptimizerKind::Adam);
   EXPECT_FLOAT_EQ(m.optimizer->lr, OptimizerConfig{}.lr);
   EXPECT_FLOAT_EQ(m.optimizer->beta2, OptimizerConfig{}.beta2);
 }
@@ -342,7 +342,7 @@ TEST_F(CheckpointTest, SgdStateRoundTripsAndAKindMismatchIsNamed) {
   UNet model(kSmall);
   model.init(7);
   OptimizerConfig sgd_config;
-  sgd_config.kind = "sgd";
+  sgd_config.kind = OptimizerKind::Sgd;
   sgd_config.lr = 0.01f;
   Optimizer sgd(sgd_config, model.params().size());
   train_one_step(model, sgd);
@@ -353,7 +353,7 @@ TEST_F(CheckpointTest, SgdStateRoundTripsAndAKindMismatchIsNamed) {
   Optimizer loaded_sgd(sgd_config, loaded.params().size());
   load_checkpoint(p, loaded, &loaded_sgd);
   EXPECT_EQ(loaded_sgd.m(), sgd.m());
-  EXPECT_EQ(read_checkpoint_meta(p).optimizer->kind, "sgd");
+  EXPECT_EQ(read_checkpoint_meta(p).optimizer->kind, OptimizerKind::Sgd);
 
   Optimizer adam(OptimizerConfig{}, loaded.params().size());
   try {

@@ -83,7 +83,7 @@ TEST(Adam, FirstStepMovesByLrTimesSignAndSecondFollowsTorchFormula) {
 
 TEST(Sgd, MomentumAccumulatesVelocityAsInTorch) {
   OptimizerConfig c;
-  c.kind = "sgd";
+  c.kind = OptimizerKind::Sgd;
   c.lr = 0.1f;
   c.momentum = 0.9f;
   Optimizer opt(c, 1);
@@ -96,7 +96,7 @@ TEST(Sgd, MomentumAccumulatesVelocityAsInTorch) {
 
 TEST(Optimizer, ClipNormScalesTheGlobalGradientNorm) {
   OptimizerConfig c;
-  c.kind = "sgd";
+  c.kind = OptimizerKind::Sgd;
   c.lr = 1.f;
   c.momentum = 0.f;
   c.clip_norm = 1.f;
@@ -112,12 +112,21 @@ TEST(Optimizer, ClipNormScalesTheGlobalGradientNorm) {
 }
 
 TEST(Optimizer, UnknownKindAndBadLearningRateAreErrors) {
+  EXPECT_EQ(optimizer_kind_from_string("rmsprop"), std::nullopt);
   OptimizerConfig c;
-  c.kind = "rmsprop";
+  c.kind = static_cast<OptimizerKind>(kOptimizerKinds);  // outside the enum
   EXPECT_THROW(Optimizer(c, 1), Error);
-  c.kind = "adam";
+  c.kind = OptimizerKind::Adam;
   c.lr = std::nanf("");
   EXPECT_THROW(Optimizer(c, 1), Error);
+}
+
+// The names are what checkpoints store: renaming one would orphan every saved checkpoint.
+TEST(Optimizer, KindNamesRoundTripAsCheckpointsStoreThem) {
+  EXPECT_EQ(to_string(OptimizerKind::Adam), "adam");
+  EXPECT_EQ(to_string(OptimizerKind::Sgd), "sgd");
+  for (int k = 0; k < kOptimizerKinds; ++k)
+    EXPECT_EQ(optimizer_kind_from_string(kOptimizerKindNames[k]), static_cast<OptimizerKind>(k));
 }
 
 }  // namespace

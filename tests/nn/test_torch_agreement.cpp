@@ -162,7 +162,7 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
 
   // One Adam step (PyTorch defaults).
   OptimizerConfig oc;
-  oc.kind = "adam";
+  oc.kind = OptimizerKind::Adam;
   oc.lr = static_cast<float>(f.attr("config", "lr"));
   oc.beta1 = static_cast<float>(f.attr("config", "beta1"));
   oc.beta2 = static_cast<float>(f.attr("config", "beta2"));
