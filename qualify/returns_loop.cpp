@@ -165,10 +165,12 @@ double mean_deviance(const std::vector<ReturnCell>& target, const std::vector<fl
   return target.empty() ? 0 : d / target.size();
 }
 
-ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::vector<ReturnCell>& reference,
-                              const pgm::BeamLayout& layout, const ReturnLoopOptions& o) {
-  if (reference.empty()) throw Error("return loop: no reference cells to fit the base on");
-  ReturnLoopResult r;
+namespace {
+
+// The target's scans, their groups and the fold of each scan (whole groups per fold); the
+// target's cell and return counts.
+void assign_folds(const std::vector<ReturnCell>& target, const std::vector<ReturnCell>& reference,
+                  const ReturnLoopOptions& o, ReturnLoopResult& r) {
   int max_scan = 0;
   for (const auto& c : target) max_scan = std::max(max_scan, c.scan);
   for (const auto& c : reference) max_scan = std::max(max_scan, c.scan);
@@ -200,7 +202,31 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
     r.fold_of_scan[s] = position[std::lower_bound(groups.begin(), groups.end(), group(s)) - groups.begin()] % r.folds;
   r.cells = static_cast<long long>(target.size());
   for (const auto& c : target) r.returns += c.returned;
+}
 
+// Sums per key of every candidate key over `cells` for which `use(i)`, with the base's p.
+template <class P, class Use>
+std::vector<Sums> key_sums(const std::vector<ReturnCell>& cells, int rows, P&& probability, Use&& use) {
+  std::vector<Sums> sums;
+  for (int k = 0; k < kKeys; ++k) sums.emplace_back(key_size(static_cast<Key>(k), rows));
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const double p = probability(i);
+    if (!use(i)) continue;
+    for (int k = 0; k < kKeys; ++k) {
+      const int key = key_of(static_cast<Key>(k), cells[i]);
+      sums[k].n[key] += 1, sums[k].y[key] += cells[i].returned, sums[k].p[key] += p;
+    }
+  }
+  return sums;
+}
+
+// Per candidate, each target cell's probability predicted from the other folds (the base of the
+// fold without the cell's scan, times the candidate's multipliers fitted on the fit folds);
+// r.p_before gets the base's held-out probability.
+std::vector<std::vector<float>> held_out_predictions(const std::vector<ReturnCell>& target,
+                                                     const std::vector<ReturnCell>& reference,
+                                                     const pgm::BeamLayout& layout, const ReturnLoopOptions& o,
+                                                     ReturnLoopResult& r) {
   const auto& S = specs();
   const int nc = static_cast<int>(S.size());
   r.p_before.assign(target.size(), 1.f);
@@ -208,52 +234,63 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
   std::vector<float> base_p(target.size());
   for (int f = 0; f < r.folds; ++f) {
     const sensor::ReturnModel base = fit_base(reference, layout, r.fold_of_scan, f, o.prior);
-    std::vector<Sums> sums;
-    for (int k = 0; k < kKeys; ++k) sums.emplace_back(key_size(static_cast<Key>(k), layout.rows()));
-    for (std::size_t i = 0; i < target.size(); ++i) {
-      const auto& c = target[i];
-      base_p[i] = base.probability(c.row, c.range, c.class_id);
-      if (r.fold_of_scan[c.scan] == f) continue;
-      for (int k = 0; k < kKeys; ++k) {
-        const int key = key_of(static_cast<Key>(k), c);
-        sums[k].n[key] += 1, sums[k].y[key] += c.returned, sums[k].p[key] += base_p[i];
-      }
-    }
+    auto held = [&](std::size_t i) { return r.fold_of_scan[target[i].scan] == f; };
+    const std::vector<Sums> sums = key_sums(
+        target, layout.rows(),
+        [&](std::size_t i) {
+          const auto& c = target[i];
+          return base_p[i] = base.probability(c.row, c.range, c.class_id);
+        },
+        [&](std::size_t i) { return !held(i); });
     for (int j = 0; j < nc; ++j) {
       const auto m = fit_multipliers(S[j], sums[static_cast<int>(S[j].key)], o.shrink, nullptr);
       for (std::size_t i = 0; i < target.size(); ++i)
-        if (r.fold_of_scan[target[i].scan] == f)
-          p_cand[j][i] = static_cast<float>(std::clamp(m[key_of(S[j].key, target[i])] * base_p[i], kEps, 1 - kEps));
+        if (held(i)) p_cand[j][i] = static_cast<float>(std::clamp(m[key_of(S[j].key, target[i])] * base_p[i], kEps, 1 - kEps));
     }
     for (std::size_t i = 0; i < target.size(); ++i)
-      if (r.fold_of_scan[target[i].scan] == f) r.p_before[i] = base_p[i];
+      if (held(i)) r.p_before[i] = base_p[i];
   }
+  return p_cand;
+}
 
-  // Blocks: 64-column sectors of each held-out scan; sums of the base's and each candidate's deviance.
-  const int sectors = (layout.columns + o.sector_columns - 1) / o.sector_columns;
+// Held-out deviance summed per bootstrap block (sector_columns-wide sectors of each scan): the
+// base's, and each candidate's.
+struct BlockDeviance {
+  std::vector<double> base;
+  std::vector<std::vector<double>> candidate;
+};
+
+BlockDeviance block_deviance(const std::vector<ReturnCell>& target, const std::vector<float>& p_before,
+                             const std::vector<std::vector<float>>& p_cand, int columns, int sector_columns) {
+  const int sectors = (columns + sector_columns - 1) / sector_columns;
   std::map<long long, int> block_index;
   std::vector<int> block_of(target.size());
   for (std::size_t i = 0; i < target.size(); ++i) {
-    const long long key = static_cast<long long>(target[i].scan) * sectors + target[i].col / o.sector_columns;
+    const long long key = static_cast<long long>(target[i].scan) * sectors + target[i].col / sector_columns;
     block_of[i] = block_index.try_emplace(key, static_cast<int>(block_index.size())).first->second;
   }
   const int B = static_cast<int>(block_index.size());
-  std::vector<double> db(B, 0.0);
-  std::vector<std::vector<double>> dc(nc, std::vector<double>(B, 0.0));
+  BlockDeviance d{std::vector<double>(B, 0.0), std::vector<std::vector<double>>(p_cand.size(), std::vector<double>(B, 0.0))};
   for (std::size_t i = 0; i < target.size(); ++i) {
-    db[block_of[i]] += bernoulli_deviance(target[i].returned, r.p_before[i]);
-    for (int j = 0; j < nc; ++j) dc[j][block_of[i]] += bernoulli_deviance(target[i].returned, p_cand[j][i]);
+    d.base[block_of[i]] += bernoulli_deviance(target[i].returned, p_before[i]);
+    for (std::size_t j = 0; j < p_cand.size(); ++j) d.candidate[j][block_of[i]] += bernoulli_deviance(target[i].returned, p_cand[j][i]);
   }
+  return d;
+}
+
+// Each candidate's score 1 - D(candidate) / D(base) and its bootstrap standard error; the family's
+// single-step max-T critical value (the same resampled blocks for every candidate) into r.critical.
+void score_candidates(const BlockDeviance& d, const ReturnLoopOptions& o, std::vector<double>& score,
+                      std::vector<double>& se, ReturnLoopResult& r) {
+  const int nc = static_cast<int>(d.candidate.size()), B = static_cast<int>(d.base.size());
   double Db = 0;
-  for (double v : db) Db += v;
-  r.deviance_before = mean_deviance(target, r.p_before);
-  std::vector<double> score(nc);
+  for (double v : d.base) Db += v;
+  score.assign(nc, 0.0);
   for (int j = 0; j < nc; ++j) {
     double Dc = 0;
-    for (double v : dc[j]) Dc += v;
+    for (double v : d.candidate[j]) Dc += v;
     score[j] = Db > 0 ? 1 - Dc / Db : 0;
   }
-  // Single-step max-T bootstrap over the family: the same resampled blocks for every candidate.
   SplitMix rng(o.seed);
   std::vector<std::vector<double>> reps(nc, std::vector<double>(o.replicates));
   std::vector<int> cnt(B);
@@ -261,14 +298,15 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
     std::fill(cnt.begin(), cnt.end(), 0);
     for (int k = 0; k < B; ++k) ++cnt[rng.next() % B];
     double sb = 0;
-    for (int k = 0; k < B; ++k) sb += cnt[k] * db[k];
+    for (int k = 0; k < B; ++k) sb += cnt[k] * d.base[k];
     for (int j = 0; j < nc; ++j) {
       double sc = 0;
-      for (int k = 0; k < B; ++k) sc += cnt[k] * dc[j][k];
+      for (int k = 0; k < B; ++k) sc += cnt[k] * d.candidate[j][k];
       reps[j][b] = sb > 0 ? 1 - sc / sb : 0;
     }
   }
-  std::vector<double> se(nc, 0.0), rise(o.replicates, -1e300);
+  se.assign(nc, 0.0);
+  std::vector<double> rise(o.replicates, -1e300);
   for (int j = 0; j < nc; ++j) {
     double mean = 0, var = 0;
     for (double v : reps[j]) mean += v / o.replicates;
@@ -279,19 +317,45 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
   }
   std::sort(rise.begin(), rise.end());
   r.critical = std::max(0.0, rise[static_cast<std::size_t>(o.level * (o.replicates - 1))]);
+}
 
-  // Every candidate fitted once more on all target cells (against the base on all reference
-  // cells): what is reported, and what the model gains when the candidate is added.
-  const sensor::ReturnModel full = fit_base(reference, layout, r.fold_of_scan, -1, o.prior);
-  std::vector<Sums> all;
-  for (int k = 0; k < kKeys; ++k) all.emplace_back(key_size(static_cast<Key>(k), layout.rows()));
-  for (const auto& c : target) {
-    const double p = full.probability(c.row, c.range, c.class_id);
-    for (int k = 0; k < kKeys; ++k) {
-      const int key = key_of(static_cast<Key>(k), c);
-      all[k].n[key] += 1, all[k].y[key] += c.returned, all[k].p[key] += p;
-    }
+// The decision on the candidate ranked k (0 = best) and why, in words a user reads.
+void decide(ReturnCandidate& c, std::size_t k, const ReturnLoopOptions& o, ReturnLoopResult& r) {
+  auto pct = [](double v) { return std::to_string(std::lround(v * 10000) / 100.0).substr(0, 5) + " %"; };
+  const bool clears = c.selection_lower > 0 && c.score >= o.min_gain;
+  c.decision = "not added";
+  if (k == 0 && clears) {
+    c.decision = "added";
+    c.reason = "the best held-out deviance cut (" + pct(c.score) + "), above 0 with the family's selection-aware bound (" +
+               pct(c.selection_lower) + ")";
+    r.added = 0;
+    r.added_feature = c.feature;
+  } else if (k > 0 && clears) {
+    c.reason = "one effect is added per run, the best first (" + r.candidates[0].feature + " " + r.candidates[0].form +
+               " cut more); rerun on the corrected model to judge it";
+  } else if (c.score <= 0) {
+    c.reason = "it does not cut the held-out deviance (" + pct(c.score) + "): fitted on the fit scans, it does not carry to the held-out ones";
+  } else if (c.score < o.min_gain) {
+    c.reason = "its held-out cut " + pct(c.score) + " is below the smallest cut worth adding (" + pct(o.min_gain) + ")";
+  } else {
+    c.reason = "the data cannot decide: its cut " + pct(c.score) + " is within what the best of " +
+               std::to_string(specs().size()) + " candidates reaches by chance (bound " + pct(c.selection_lower) + ", " +
+               std::to_string(r.groups) + " scan groups in " + std::to_string(r.folds) + " folds)";
   }
+}
+
+// The candidates ranked by score, each fitted once more on all target cells against the base on
+// all reference cells (what is reported and what the model gains when it is added), and decided.
+// Returns the ranking (indices into specs()).
+std::vector<int> rank_candidates(const std::vector<ReturnCell>& target, const pgm::BeamLayout& layout,
+                                 const std::vector<double>& score, const std::vector<double>& se,
+                                 const ReturnLoopOptions& o, ReturnLoopResult& r) {
+  const auto& S = specs();
+  const int nc = static_cast<int>(S.size());
+  const std::vector<Sums> all = key_sums(
+      target, layout.rows(),
+      [&](std::size_t i) { return r.model.probability(target[i].row, target[i].range, target[i].class_id); },
+      [](std::size_t) { return true; });
   std::vector<int> order(nc);
   for (int j = 0; j < nc; ++j) order[j] = j;
   std::sort(order.begin(), order.end(), [&](int a, int b) { return score[a] > score[b]; });
@@ -306,37 +370,26 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
     c.factor.assign(m.begin(), m.end());
     r.candidates.push_back(std::move(c));
   }
-  auto pct = [](double v) { return std::to_string(std::lround(v * 10000) / 100.0).substr(0, 5) + " %"; };
-  for (std::size_t k = 0; k < r.candidates.size(); ++k) {
-    ReturnCandidate& c = r.candidates[k];
-    const bool clears = c.selection_lower > 0 && c.score >= o.min_gain;
-    if (k == 0 && clears) {
-      c.decision = "added";
-      c.reason = "the best held-out deviance cut (" + pct(c.score) + "), above 0 with the family's selection-aware bound (" +
-                 pct(c.selection_lower) + ")";
-      r.added = 0;
-      r.added_feature = c.feature;
-    } else if (k > 0 && clears) {
-      c.decision = "not added";
-      c.reason = "one effect is added per run, the best first (" + r.candidates[0].feature + " " + r.candidates[0].form +
-                 " cut more); rerun on the corrected model to judge it";
-    } else if (c.score <= 0) {
-      c.decision = "not added";
-      c.reason = "it does not cut the held-out deviance (" + pct(c.score) + "): fitted on the fit scans, it does not carry to the held-out ones";
-    } else if (c.score < o.min_gain) {
-      c.decision = "not added";
-      c.reason = "its held-out cut " + pct(c.score) + " is below the smallest cut worth adding (" + pct(o.min_gain) + ")";
-    } else {
-      c.decision = "not added";
-      c.reason = "the data cannot decide: its cut " + pct(c.score) + " is within what the best of " +
-                 std::to_string(nc) + " candidates reaches by chance (bound " + pct(c.selection_lower) + ", " +
-                 std::to_string(r.groups) + " scan groups in " + std::to_string(r.folds) + " folds)";
-    }
-  }
-  r.model = full;
+  for (std::size_t k = 0; k < r.candidates.size(); ++k) decide(r.candidates[k], k, o, r);
+  return order;
+}
+
+}  // namespace
+
+ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::vector<ReturnCell>& reference,
+                              const pgm::BeamLayout& layout, const ReturnLoopOptions& o) {
+  if (reference.empty()) throw Error("return loop: no reference cells to fit the base on");
+  ReturnLoopResult r;
+  assign_folds(target, reference, o, r);
+  const std::vector<std::vector<float>> p_cand = held_out_predictions(target, reference, layout, o, r);
+  const BlockDeviance blocks = block_deviance(target, r.p_before, p_cand, layout.columns, o.sector_columns);
+  r.deviance_before = mean_deviance(target, r.p_before);
+  std::vector<double> score, se;
+  score_candidates(blocks, o, score, se, r);
+  r.model = fit_base(reference, layout, r.fold_of_scan, -1, o.prior);
+  const std::vector<int> order = rank_candidates(target, layout, score, se, o, r);
   if (r.added >= 0) {
-    const int j = order[0];
-    r.p_after = p_cand[j];
+    r.p_after = p_cand[order[0]];
     const ReturnCandidate& c = r.candidates[0];
     r.model.multipliers.push_back({c.key, c.factor, "loop returns: " + c.feature + " " + c.form + ", held-out deviance cut " +
                                                          std::to_string(c.score)});
