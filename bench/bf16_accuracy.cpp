@@ -1,4 +1,4 @@
-// The bf16 inference path's accuracy gate (issue 16: accepted only if the validation MAE moves
+// The bf16 inference path's accuracy gate (the path is used only while the validation MAE moves
 // by less than 0.0005): a checkpoint scored as `lidar-qualify intensity` scores it (held-out
 // cells of the guarded split of the scans in --semantickitti), once in fp32 and once in bf16,
 // on the same cells in one run. Prints both MAEs, their difference, the largest |bf16 - fp32|

@@ -1,5 +1,5 @@
 #pragma once
-// The objects half of the campaign of random planted effects (issue 26), shared by
+// The objects half of the campaign of random planted effects, shared by
 // bench_loop_campaign_objects and its smoke test (tests/qualify/test_campaign_objects.cpp).
 // One draw: plan and write a planted set (data/planted_tracking.h), run `lidar-qualify loop
 // objects` blind on it (qualify::loop_objects with the command's default options), score it:

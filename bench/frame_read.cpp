@@ -1,4 +1,4 @@
-// What reading one frame costs a lazy training step (issue 12): a dataset's frames read through
+// What reading one frame costs a lazy training step (it must stay small beside the step): a dataset's frames read through
 // data::FrameSource (hyperslabs of one chunk each, decompressed and checksummed), then one
 // training sample cut from each (crop placed, encoded). Wall and CPU milliseconds per frame.
 //   bench_frame_read --data sk.h5 [--passes 20] [--crop 256] [--channels range,class,material]

@@ -1,4 +1,4 @@
-// How cost grows with the size of the work (issue 16): the object-level model against the number
+// How cost grows with the size of the work: the object-level model against the number
 // of objects, UNet inference against the number of columns, and training time per epoch against
 // the number of scans. Each series is timed (median of --reps), its growth exponent fitted on a
 // log-log scale (time ~ size^k by least squares) and compared with the order the algorithm should

@@ -1,4 +1,4 @@
-// The intensity half of the loop's campaign of random planted effects (issue 26): real geometry
+// The intensity half of the loop's campaign of random planted effects: real geometry
 // (SemanticKITTI sequence 00, nuScenes-lidarseg, RELLIS-3D from ../shared/data), intensity from a
 // hidden base model x one planted effect with random parameters (data/planted_scans.h), the loop
 // (qualify::loop_intensity) run blind, and each draw scored:

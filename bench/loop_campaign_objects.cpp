@@ -1,4 +1,4 @@
-// The objects half of the campaign of random planted effects (issue 26): per family, N draws of a
+// The objects half of the campaign of random planted effects: per family, N draws of a
 // planted set built from the real KITTI tracking ground truth (data/planted_tracking.h), the loop run
 // blind on each with the options of `lidar-qualify loop objects`, scored (bench/campaign_objects.h).
 // Prints a table per family and an overall line; writes every draw to --json (rewritten atomically

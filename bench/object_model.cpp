@@ -1,5 +1,5 @@
 // Object-level sensor model throughput: tracking (Kalman + Hungarian) and the KPI manager
-// (calibrated default model) for N objects per frame. The requirement (issue 4) is >= 1000
+// (calibrated default model) for N objects per frame. The requirement is >= 1000
 // frames/s for 100 objects; this prints frames/s and the ratio to that requirement.
 #include <chrono>
 #include <cmath>

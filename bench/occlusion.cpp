@@ -1,4 +1,4 @@
-// The occlusion raster of issue 16 against the per-cell raster it replaced
+// The occlusion raster (per column/row) against the per-cell reference raster
 // (tests/sensor/occlusion_reference.h), timed in the same run on the same frames: the object-level
 // bench's crowd (bench/synthetic_scenario.h) in the sensor frame after the field of view, on the
 // pipeline's grid (one cell per azimuth bin). Process CPU time per frame for each, their ratio,

@@ -116,7 +116,7 @@ std::vector<std::string> read_strings(hid_t file, const std::string& fname, cons
   Id ds(open_checked(file, fname, name, {expect}, dims), H5Dclose);
   Id ftype(H5Dget_type(ds), H5Tclose);
   if (H5Tget_class(ftype) != H5T_STRING) throw input_error(fname, std::string("dataset ") + name, "expected strings");
-  if (H5Tis_variable_str(ftype) <= 0) {  // fixed-length (files since issue 13); older files: variable-length
+  if (H5Tis_variable_str(ftype) <= 0) {  // fixed-length, as this build writes; variable-length below: older files stay readable
     const std::size_t width = H5Tget_size(ftype);
     if (width == 0 || width > (1u << 20)) throw input_error(fname, std::string("dataset ") + name, "implausible string width");
     Id mem(H5Tcopy(ftype), H5Tclose);

@@ -1,6 +1,6 @@
 #pragma once
 // Planted intensity effects on measured geometry: the intensity half of the loop's campaign of
-// random planted effects (issue 26). The geometry (range, class, material, incidence, azimuth,
+// random planted effects. The geometry (range, class, material, incidence, azimuth,
 // rows) of real scans is kept; the measured intensity is replaced by
 //
 //   target = base(class, range) x gain(effect, cell) + N(0, sigma^2)

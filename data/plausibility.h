@@ -1,6 +1,7 @@
 #pragma once
 // Limits beyond which a recorded value cannot be real; the readers reject such input with an
-// Error naming file and field rather than carrying on with garbage (issue 13).
+// Error naming file and field rather than carrying on with garbage, so no downstream number is
+// computed from a value no sensor could record.
 #include <charconv>
 #include <string>
 

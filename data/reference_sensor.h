@@ -99,9 +99,10 @@ struct ReferenceTrackingOptions {
   // KPI model's independent quantiles hold exactly; default: uniform in a rectangle ahead (x 5-60 m,
   // y -20 to 20 m), where range and azimuth depend on each other.
   bool polar_clutter = false;
-  // Planted ghost tracks (issue 11): kFpGhostRate extra Car false positives per frame, each reported
-  // again the next frame with this probability (same place up to kFpGhostJitter, same score), births at
-  // kFpGhostRate x (1 - survival); 0: none. Drawn from a stream of its own, so nothing else moves.
+  // Planted ghost tracks (what the loop's false-positive persistence must find): kFpGhostRate extra
+  // Car false positives per frame, each reported again the next frame with this probability (same
+  // place up to kFpGhostJitter, same score), births at kFpGhostRate x (1 - survival); 0: none.
+  // Drawn from a stream of its own, so nothing else moves.
   double ghost_survival = 0;
   // azimuth_window_dropout's window (rad, atan2(y, x) in the sensor frame).
   double window_azimuth_lo = kWindowAzimuthLo, window_azimuth_hi = kWindowAzimuthHi;
