@@ -215,7 +215,8 @@ Pooled pool(const std::vector<Fold>& folds, int W, double scenery, const TimeBlo
   // as well and would pass for an effect of the cells. Then blocks of consecutive scans are the
   // groups if scans of different blocks do not share it (a drive long enough), else the folds
   // (other columns): a table of a row carries to other columns, a table of azimuth does not (its
-  // held-out columns are columns it never fitted), so azimuth is left undecided.
+  // held-out columns are columns it never fitted), so azimuth is cross-fitted over classes x row
+  // blocks in the same columns instead (scenery_cross_fit), or left undecided.
   const std::set<int> frames(p.frame.begin(), p.frame.end()), regions(region.begin(), region.end());
   std::vector<int> time_block;
   for (int f : p.frame) time_block.push_back(time.block_of_frame.empty() ? 0 : time.block_of_frame.at(f));
@@ -229,15 +230,16 @@ Pooled pool(const std::vector<Fold>& folds, int W, double scenery, const TimeBlo
   } else if (regions.size() >= 2) {
     by = &region, p.group_by = "validation region";
   }
+  std::string columns_reason;
   if (!by || by == &p.fold || by == &region) {
     char corr[96];
     std::snprintf(corr, sizeof corr, "range correlation %.2f between consecutive scans, %.2f between time blocks",
                   scenery, time.cross_correlation);
-    p.azimuth_undecided =
+    columns_reason =
         (frames.size() < 2 ? std::string("1 scan")
                            : std::to_string(frames.size()) + " scans of the same scenery (" + corr + ")") +
         ", so the forms are cross-fitted over columns, and an azimuth form cannot be judged on columns it never "
-        "fitted; scans far apart in time or at other places would decide";
+        "fitted";
   }
   if (by) {
     std::map<int, int> id;
@@ -249,6 +251,8 @@ Pooled pool(const std::vector<Fold>& folds, int W, double scenery, const TimeBlo
     for (long b : p.block) p.group.push_back(static_cast<int>(b % 2));
     p.group_by = "alternate 16-column strips", p.groups = 2;
   }
+  p.azimuth_columns = columns_reason;
+  if (!columns_reason.empty()) scenery_cross_fit(p, columns_reason);
   return p;
 }
 

@@ -221,7 +221,8 @@ std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feat
 }
 
 FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vector<double>& edges,
-                     const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected) {
+                     const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected,
+                     const std::vector<Fold>* folds) {
   const std::vector<double>& x = p.feature[feature];
   const std::vector<double>& range = p.feature[0];  // kIntensityFeatures starts with range
   FormScore s;
@@ -232,9 +233,24 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
   s.corrected = p.base;
   std::map<long, std::array<double, 3>> blocks;  // block -> (sse, sst, n)
   double abs_sum = 0;
-  for (int g = 0; g < p.groups; ++g) {
+  const CrossFit cf = cross_fit_for(p, kIntensityFeatures[feature]);
+  const bool joint = folds && joint_azimuth_gain(p, kIntensityFeatures[feature], form);
+  if (joint) {
+    // Its one-bin version is a gain common to every azimuth, which the refitted levels absorb:
+    // the plain lookup, d0 = 0.
+    s.corrected = lookup_with_azimuth_gain(*folds, p, form, edges, fine);
+    for (size_t i = 0; i < p.size(); ++i) {
+      const double d = s.corrected[i] - p.base[i];
+      auto& b = blocks[p.block[i]];
+      b[0] += (rc[i] - d) * (rc[i] - d), b[1] += rc[i] * rc[i], b[2] += 1;
+    }
+  }
+  for (int g = 0; g < (joint ? 0 : cf.groups); ++g) {
     std::vector<size_t> fit, apply;
-    for (size_t i = 0; i < p.size(); ++i) (p.group[i] == g ? apply : fit).push_back(i);
+    for (size_t i = 0; i < p.size(); ++i) {
+      if (cf.group[i] == g) apply.push_back(i);
+      else if (cf.fits(g, cf.group[i])) fit.push_back(i);
+    }
     if (fit.empty() || apply.empty()) continue;
     const FittedForm f = fit_form(form, edges, fine, x, rc, p.base, range, fit);
     const FittedForm one = fit_form(one_bin(form), {}, {}, x, rc, p.base, range, fit);

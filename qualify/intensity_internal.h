@@ -79,6 +79,19 @@ struct Fold {
   std::vector<size_t> held;  // indices into cells
 };
 
+// Cross-fit groups of the candidate forms. Plain (crossed = false): a group's cells are scored by a
+// form fitted on every other group. Crossed: group = 2 * class group + row block, and a group is
+// scored by a form fitted on the cells that share neither its class group nor its row block.
+struct CrossFit {
+  std::vector<int> group;  // per pooled cell
+  int groups = 0;          // 0: not in use
+  bool crossed = false;
+  std::string by;
+  bool fits(int apply, int cell) const {
+    return crossed ? (apply / 2 != cell / 2 && apply % 2 != cell % 2) : apply != cell;
+  }
+};
+
 // Every held-out cell of every fold, in fold order: with the regions rotated over 4 folds every
 // column is validated once, so these are all the cells with a return, each predicted by a base
 // model that did not see its scenery.
@@ -93,8 +106,12 @@ struct Pooled {
   int groups = 1;
   double scenery_correlation = 0;   // scenery_correlation() of the scans
   double time_block_correlation = 0;  // TimeBlocks::cross_correlation
-  // Why the held-out data cannot decide on azimuth ("" when it can): the groups are columns.
+  // When the groups are columns (scans of one scenery): azimuth forms are cross-fitted over
+  // classes x row blocks in the same columns instead (scenery_cross_fit), or, where that cannot
+  // decide either, azimuth_undecided says why ("" when azimuth can be judged).
+  CrossFit azimuth_scenery;
   std::string azimuth_undecided;
+  std::string azimuth_columns;  // why the column groups cannot judge azimuth ("" when they can)
   std::size_t size() const { return measured.size(); }
 };
 
@@ -123,6 +140,20 @@ TimeBlocks time_blocks(const data::Dataset& ds, int blocks = 4);
 inline constexpr double kSameSceneryCorrelationBetweenBlocks = 0.2;
 // The pooled held-out cells with the lookup's prediction; `base` is left for the caller.
 Pooled pool(const std::vector<Fold>& folds, int columns, double scenery, const TimeBlocks& time);
+// The azimuth cross-fit for scans of one scenery (intensity_scenery.cpp). A sensor-fixed effect at
+// an azimuth scales every material seen there; scenery that mimics it (a dark wall) is one class
+// at some rows. So an azimuth form is fitted on one group of classes in one block of rows and
+// scored on the other classes in the other rows, in the SAME columns (the pooled held-out cells
+// keep the folds' guard bands). Sets p.azimuth_scenery, or p.azimuth_undecided with the reason
+// (one class group or row block, or too few cells of the opposite group at the cells' azimuths).
+// `columns_reason` is what the column groups cannot decide (prefixed to a failure's reason).
+void scenery_cross_fit(Pooled& p, const std::string& columns_reason);
+// The groups the forms of `feature` are cross-fitted over: azimuth_scenery for azimuth when in use.
+CrossFit cross_fit_for(const Pooled& p, const std::string& feature);
+inline constexpr int kSceneryFineBins = 32;        // azimuth bins of the coverage check (the windows' fine bins)
+inline constexpr long kSceneryMinCellsPerBin = 20;  // cells of the opposite group a bin needs to count covered
+inline constexpr double kSceneryMinCoverage = 0.5;  // share of cells in covered bins, else undecided
+
 // Per-fold predictions (indexed by each fold's cells) to pooled held-out cells.
 std::vector<double> pool_prediction(const std::vector<Fold>& folds, const std::vector<std::vector<double>>& per_fold);
 
@@ -181,8 +212,25 @@ struct FormScore {
   std::vector<double> corrected;      // base + correction per pooled cell (when asked for)
   FittedForm shown;                   // fitted on every pooled cell: for the report and the plot
 };
+// `folds` (a lookup base's first round): azimuth gain forms cross-fitted over classes x row blocks
+// are scored by lookup_with_azimuth_gain; without it, as every form.
 FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vector<double>& edges,
-                     const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected = false);
+                     const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected = false,
+                     const std::vector<Fold>* folds = nullptr);
+
+// An azimuth gain form (GainTable or WindowGain) cross-fitted over classes x row blocks, with each
+// fold's lookup refitted jointly: level(class, range bin) = sum m G / sum G^2 over the fold's fit
+// cells, G the gain of the cell's azimuth. The plain lookup's levels average the window's gain
+// over the share of each class's fit cells inside it, a bias per class that no gain common to
+// the classes undoes, and that differs between the class groups, so a gain fitted on one group
+// over the plain lookup is wrong for the other. The gain of a group is fitted on the opposite
+// group's cells over levels refitted with that same gain (kJointRounds alternations), so nothing
+// of the group's own cells enters its prediction. Pooled predictions: G x level.
+std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, const Pooled& p, Form form,
+                                             const std::vector<double>& edges, const std::vector<double>& fine);
+inline constexpr int kJointRounds = 3;
+// Whether `form` of `feature` is scored and refitted so (a lookup base's first round only).
+bool joint_azimuth_gain(const Pooled& p, const std::string& feature, Form form);
 
 // --- One round's typed result (intensity_loop.cpp fills it, intensity_report.cpp writes it) -------
 enum class Decision { Added, NotAdded, Tried, NotTried, NotRanked, CannotDecide };
@@ -208,6 +256,7 @@ struct Refit {
 
 struct RoundResult {
   std::string split, group_by, base_model;
+  std::string azimuth_group_by;  // azimuth's cross-fit when not group_by ("" otherwise)
   int half_width = 0, folds = 1;
   double scenery_correlation = 0, time_block_correlation = 0;
   Errors before, after, tried;

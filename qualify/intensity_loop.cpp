@@ -100,6 +100,12 @@ BaseFit fit_base(Context& cx, const std::vector<double>* prior) {
   return b;
 }
 
+// The folds for the joint refit of a lookup (its first round: a refitted lookup would drop the
+// effects added before), else none.
+const std::vector<Fold>* joint_folds(const Context& cx, const std::vector<std::string>& added_before) {
+  return cx.base == Base::Lookup && added_before.empty() ? &cx.folds : nullptr;
+}
+
 // Why a feature x form is not ranked: the base model already carries it.
 std::string used_reason(Base base, const std::string& feature, Form form, const std::vector<std::string>& added_before) {
   const auto& u = kIntensityFeaturesUsedByModel;
@@ -124,7 +130,7 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       if (form == Form::RangeSlope && !range_interaction_applies(name)) continue;
       Candidate k;
       k.feature = name, k.form = form, k.per_row = per_row;
-      k.score = score_form(form, cx.pool, f, edges, fine, rc);
+      k.score = score_form(form, cx.pool, f, edges, fine, rc, false, joint_folds(cx, added_before));
       if (!k.score.shown.ok()) continue;  // a window needs 3 fine bins (depth_discontinuity has 2)
       k.reason = used_reason(cx.base, name, form, added_before);
       k.used = !k.reason.empty();
@@ -132,6 +138,15 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       if (!k.used && name == "azimuth" && !cx.pool.azimuth_undecided.empty()) {
         k.undecided = true, k.decision = Decision::CannotDecide;
         k.reason = "the data cannot decide: " + cx.pool.azimuth_undecided;
+      } else if (!k.used && cross_fit_for(cx.pool, name).crossed &&
+                 !(joint_folds(cx, added_before) && joint_azimuth_gain(cx.pool, name, form))) {
+        k.undecided = true, k.decision = Decision::CannotDecide;
+        k.reason = std::string("the data cannot decide: on scans of one scenery azimuth is judged across classes x row "
+                               "blocks as a gain with the lookup refitted jointly (") +
+                   (joint_folds(cx, added_before) ? "an additive or affine form fitted on other classes carries the "
+                                                    "plain lookup's bias of theirs, which differs per class"
+                                                  : "a lookup base's first round only") +
+                   ")";
       }
       if (form == Form::Table) r.residual_tables[name] = k.score.shown.table;
       r.candidates.push_back(std::move(k));
@@ -155,7 +170,11 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
   // A feature the data cannot decide on that explains more than the top one: the top one may only
   // stand in for it (a window of azimuth shows up in the heights of the scenery in it), so adding
   // it would be a guess. Nothing is tried, and the report says why.
-  if (r.candidate && !r.undecided.empty() && r.undecided.front().score > r.ranking.front().score) {
+  // (Azimuth on one scenery has ranked gain forms and undecided others; a dark object of one
+  // class shows up in its affine form and in height alike, so the rule holds unless azimuth is
+  // itself the top feature.)
+  if (r.candidate && !r.undecided.empty() && r.undecided.front().feature != r.top_feature &&
+      r.undecided.front().score > r.ranking.front().score) {
     r.candidate = false;
     r.not_tried_why = r.undecided.front().feature + " explains more of the held-out residual (R^2 " +
                       num(r.undecided.front().score) + " vs " + num(r.ranking.front().score) +
@@ -214,12 +233,17 @@ std::vector<double> refit_lookup(RoundResult& r, const Context& cx, const std::v
   double best_mae = errors(cx.pool.base, cx.pool.measured).mae;
   for (Candidate& k : r.candidates) {
     if (k.feature != r.top_feature || k.used) continue;
-    const FormScore s = score_form(k.form, cx.pool, tf, edges, fine, rc, true);
-    const std::string name = k.name() + ": " + refit_kind(k.form);
+    const std::vector<Fold>* folds = cx.base == Base::Lookup && !has_prior ? &cx.folds : nullptr;
+    const FormScore s = score_form(k.form, cx.pool, tf, edges, fine, rc, true, folds);
+    const bool joint = folds && joint_azimuth_gain(cx.pool, k.feature, k.form);
+    const std::string name = k.name() + ": " + (joint ? "gain, the lookup refitted jointly with it" : refit_kind(k.form));
     r.refits.push_back({name, s.mae_after, true});
     if (s.mae_after < best_mae) best_mae = s.mae_after, best = s.corrected, r.method = name;
   }
-  if (cx.base == Base::Lookup && !has_prior) {
+  // The lookup keyed by the bin is fitted on each fold's fit columns: for azimuth cross-fitted over
+  // classes x row blocks (one scenery), it would carry the scenery of the neighbouring columns.
+  const bool scenery = cross_fit_for(cx.pool, r.top_feature).crossed;
+  if (cx.base == Base::Lookup && !has_prior && !scenery) {
     const BinnedTable bins{edges, std::vector<double>(edges.size() + 1, 0.0), {}};
     std::vector<std::vector<double>> per_fold;
     for (const Fold& f : cx.folds) {
@@ -303,6 +327,7 @@ RoundResult loop_round(Context& cx, const std::vector<std::string>& added_before
                                  : std::string());
   r.folds = static_cast<int>(cx.folds.size());
   r.group_by = cx.pool.group_by;
+  r.azimuth_group_by = cx.pool.azimuth_scenery.by;
   r.scenery_correlation = cx.pool.scenery_correlation;
   r.time_block_correlation = cx.pool.time_block_correlation;
   r.half_width = cx.half_width;
@@ -368,6 +393,13 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
              std::move(folds),
              std::move(pooled),
              {0, trainings}};
+  if (cx.base != Base::Lookup && cx.pool.azimuth_scenery.groups > 0) {
+    // Judged across classes x row blocks only as a gain with the lookup's levels refitted jointly.
+    cx.pool.azimuth_scenery = {};
+    cx.pool.azimuth_undecided = cx.pool.azimuth_columns +
+                                "; across classes x row blocks in the same columns only with --base lookup (its levels "
+                                "are refitted jointly with the gain)";
+  }
   std::vector<double> after;
   const RoundResult first = loop_round(cx, {}, nullptr, after);
   nlohmann::json j = to_json(first, options);

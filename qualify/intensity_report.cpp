@@ -55,6 +55,8 @@ nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
   j["split"] = r.split;
   j["validation_folds"] = r.folds;  // not "folds": the object loop's list of sequence folds
   j["cross_fit"] = "candidate forms fitted on the pooled held-out residual of the other groups, by " + r.group_by;
+  if (!r.azimuth_group_by.empty())
+    j["azimuth_cross_fit"] = "azimuth forms fitted on the pooled held-out residual by " + r.azimuth_group_by;
   j["scenery_correlation_between_scans"] = r.scenery_correlation;
   j["scenery_correlation_between_time_blocks"] = r.time_block_correlation;
   j["receptive_field_half_width"] = r.half_width;
