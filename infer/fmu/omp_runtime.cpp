@@ -82,7 +82,8 @@ void GOMP_parallel(void (*fn)(void*), void* data, unsigned num_threads, unsigned
     void* data;
     Region region;
   } ctx{fn, data, {}};
-  // num_threads 1: an if() clause that is false. A region inside a region: one thread.
+  // num_threads 1: an if() clause that is false. A region inside a region: one thread. Other
+  // num_threads clauses get the team's size (the model's code has none).
   const bool enable = num_threads != 1 && t_omp.nt == 1;
   lidarsim::nn::detail::run_team(
       [](void* c, int tid, int nt) {
