@@ -4,7 +4,7 @@
 #include <cmath>
 
 #include "common/error.h"
-#include "nn/checkpoint.h"
+#include "nn/checkpoint_weights.h"
 #include "pgm/projection.h"
 
 namespace lidarsim::infer {
@@ -13,24 +13,28 @@ IntensityModel::IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::
                                std::filesystem::path path)
     : model_(std::move(model)), encoder_(std::move(encoder)), layout_(std::move(layout)), path_(std::move(path)) {}
 
-IntensityModel IntensityModel::load(const std::filesystem::path& checkpoint) {
-  if (!std::filesystem::exists(checkpoint)) throw input_error(checkpoint.string(), "file", "does not exist");
-  const nn::Checkpoint meta = nn::read_checkpoint_meta(checkpoint);
+IntensityModel::Setup IntensityModel::setup_of(const nn::Checkpoint& meta, const std::filesystem::path& path,
+                                               const std::string& attributes, const std::string& in_channels) {
   const auto enc = meta.attributes.find("encoder");
   if (enc == meta.attributes.end())
-    throw input_error(checkpoint.string(), "/config/encoder", "missing: not a lidar-train checkpoint");
-  pgm::EncoderConfig encoder = pgm::EncoderConfig::from_json(enc->second, checkpoint.string() + ": /config/encoder");
+    throw input_error(path.string(), attributes + "encoder", "missing: not a lidar-train checkpoint");
+  pgm::EncoderConfig encoder = pgm::EncoderConfig::from_json(enc->second, path.string() + ": " + attributes + "encoder");
   if (encoder.input_channels() != meta.unet.in_channels)
-    throw input_error(checkpoint.string(), "/config/unet.in_channels",
+    throw input_error(path.string(), in_channels,
                       std::to_string(meta.unet.in_channels) + " but the encoder makes " +
                           std::to_string(encoder.input_channels()));
   const auto layout_text = meta.attributes.find("beam_layout");
   pgm::BeamLayout layout = layout_text != meta.attributes.end()
-                               ? pgm::BeamLayout::from_json(layout_text->second, checkpoint.string() + ": /config/beam_layout")
+                               ? pgm::BeamLayout::from_json(layout_text->second, path.string() + ": " + attributes + "beam_layout")
                                : pgm::BeamLayout::hdl64e();
-  nn::UNet model(meta.unet);
-  nn::load_checkpoint(checkpoint, model, nullptr);
-  return IntensityModel(std::move(model), std::move(encoder), std::move(layout), checkpoint);
+  return {std::move(encoder), std::move(layout)};
+}
+
+IntensityModel IntensityModel::load_weights(const std::filesystem::path& weights) {
+  if (!std::filesystem::exists(weights)) throw input_error(weights.string(), "file", "does not exist");
+  nn::Weights w = nn::read_weights(weights);
+  Setup setup = setup_of(w.meta, weights, "header.attributes.", "header.unet.in_channels");
+  return IntensityModel(std::move(w.model), std::move(setup.encoder), std::move(setup.layout), weights);
 }
 
 std::vector<std::string> IntensityModel::extra_channels() const {

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "infer/intensity_sampling.h"
+#include "nn/checkpoint.h"
 #include "nn/unet.h"
 #include "pgm/beam_layout.h"
 #include "pgm/encoder.h"
@@ -18,9 +19,12 @@ namespace lidarsim::infer {
 
 class IntensityModel {
  public:
-  // Throws lidarsim::Error naming the file and what is wrong (missing, torn, not a lidar-train
-  // checkpoint, shapes that do not match).
+  // A lidar-train checkpoint (HDF5, nn/checkpoint.h) or a weights file (nn/checkpoint_weights.h),
+  // told apart by content. Throws lidarsim::Error naming the file and what is wrong (missing,
+  // torn, not a lidar-train checkpoint, shapes that do not match).
   static IntensityModel load(const std::filesystem::path& checkpoint);
+  // A weights file only; unlike load(), links no HDF5 (intensity_model_load.cpp holds load()).
+  static IntensityModel load_weights(const std::filesystem::path& weights);
 
   const pgm::EncoderConfig& encoder() const { return encoder_; }
   const pgm::BeamLayout& layout() const { return layout_; }
@@ -42,6 +46,14 @@ class IntensityModel {
   void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame = 0);
 
  private:
+  struct Setup {
+    pgm::EncoderConfig encoder;
+    pgm::BeamLayout layout;
+  };
+  // The encoder and beam layout that travel in the checkpoint's attributes; errors name the file
+  // and the field as that file format places it (`attributes` + name, `in_channels`).
+  static Setup setup_of(const nn::Checkpoint& meta, const std::filesystem::path& path, const std::string& attributes,
+                        const std::string& in_channels);
   IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::BeamLayout layout, std::filesystem::path path);
   nn::UNet model_;
   pgm::EncoderConfig encoder_;

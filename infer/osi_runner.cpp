@@ -18,16 +18,6 @@ OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::uniqu
   if (options_.intensity && !intensity_) throw Error("osi runner: an intensity model is required");
 }
 
-OsiRunner OsiRunner::from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
-                                const std::filesystem::path& intensity_checkpoint, SimOptions options) {
-  sensor::Scenario s = sensor::read_scenario(scenario);
-  sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
-  std::unique_ptr<IntensityModel> m;
-  if (options.intensity && options.point_cloud)
-    m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
-  return OsiRunner(s.sensor, std::move(k), std::move(m), options);
-}
-
 void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out) {
   auto fail = [&](const std::string& field, const std::string& what) {
     return Error(source + ": message " + std::to_string(index) + ": " + field + ": " + what);

@@ -34,9 +34,18 @@ class OsiRunner {
   // intensity may be null when options.intensity is false.
   OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::unique_ptr<IntensityModel> intensity,
             SimOptions options = {});
-  // The sensor block of `scenario`, the KPI model and the intensity checkpoint; errors name the file.
+  // The sensor block of `scenario`, the KPI model and the intensity checkpoint (HDF5 or weights
+  // file, IntensityModel::load); errors name the file. Inline, so that only its callers link the
+  // HDF5 reader: the FMU's model library builds its runner with IntensityModel::load_weights.
   static OsiRunner from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
-                              const std::filesystem::path& intensity_checkpoint, SimOptions options = {});
+                              const std::filesystem::path& intensity_checkpoint, SimOptions options = {}) {
+    sensor::Scenario s = sensor::read_scenario(scenario);
+    sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
+    std::unique_ptr<IntensityModel> m;
+    if (options.intensity && options.point_cloud)
+      m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
+    return OsiRunner(s.sensor, std::move(k), std::move(m), options);
+  }
 
   // One frame. Bad input throws lidarsim::Error "<source>: message <index>: <field>: <what>"
   // (see osi::scene_from_sensor_view; also a mount that changes or a timestamp that does not advance).

@@ -8,7 +8,6 @@
 #include <cmath>
 
 #include "common/error.h"
-#include "nn/checkpoint.h"
 #include "nn/unet.h"
 #include "pgm/encoder.h"
 #include "sensor/fov.h"
@@ -90,16 +89,6 @@ void use_sensor(sensor::Scenario& scenario, const pgm::BeamLayout& layout) {
   spec.fov.elevation_min = layout.elevations_rad[n - 1] - margin;
   if (layout.max_range_m > 0) spec.fov.range_max = layout.max_range_m;
   if (layout.min_range_m > 0) spec.fov.range_min = layout.min_range_m;
-}
-
-SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const std::filesystem::path& kpi_model,
-                                    const std::filesystem::path& intensity_checkpoint, SimOptions options) {
-  sensor::Scenario s = sensor::read_scenario(scenario);
-  if (options.sensor) use_sensor(s, *options.sensor);
-  sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
-  std::unique_ptr<IntensityModel> m;
-  if (options.intensity && options.point_cloud) m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
-  return SimPipeline(std::move(s), std::move(k), std::move(m), options);
 }
 
 void SimPipeline::run_frame(int k, SimFrame& out, bool intensity) {
@@ -274,23 +263,6 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
 
   out.total_ms = 0;
   for (double ms : out.stage_ms) out.total_ms += ms;
-}
-
-void write_untrained_checkpoint(const std::filesystem::path& path, int base, int depth, std::uint64_t seed,
-                                const pgm::BeamLayout& layout) {
-  const pgm::EncoderConfig encoder;
-  nn::UNetConfig config;
-  config.in_channels = encoder.input_channels();
-  config.base = base;
-  config.depth = depth;
-  nn::UNet model(config);
-  model.init(seed);
-  nn::Checkpoint meta;
-  meta.unet = config;
-  meta.attributes["encoder"] = encoder.to_json();
-  meta.attributes["beam_layout"] = layout.to_json();
-  meta.attributes["note"] = "untrained (He-initialised) weights for tests and benchmarks; not a model";
-  nn::save_checkpoint(path, model, nullptr, meta);
 }
 
 bool SimPipeline::kpi_model_has_persistence() const {

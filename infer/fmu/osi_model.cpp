@@ -36,8 +36,12 @@ __attribute__((visibility("default"))) void* lidarsim_osi_model_create(const cha
   try {
     const std::filesystem::path r = resources_dir;
     auto m = std::make_unique<Model>();
-    m->runner = std::make_unique<lidarsim::infer::OsiRunner>(lidarsim::infer::OsiRunner::from_files(
-        r / "sensor.json", r / "kpi_pointrcnn.json", r / "intensity_unet.h5"));
+    // The UNet as a weights file (nn/checkpoint_weights.h), so this library links no HDF5.
+    using lidarsim::infer::IntensityModel;
+    m->runner = std::make_unique<lidarsim::infer::OsiRunner>(
+        lidarsim::sensor::read_scenario(r / "sensor.json").sensor,
+        lidarsim::sensor::load_kpi_model(r / "kpi_pointrcnn.json"),
+        std::make_unique<IntensityModel>(IntensityModel::load_weights(r / "intensity_unet.weights")));
     return m.release();
   } catch (const std::exception& e) {
     set_error(error, error_size, e.what());
