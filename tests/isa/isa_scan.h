@@ -5,9 +5,10 @@
 // ymm16-31, an opmask register k0-k7 (the VEX-encoded mask instructions) or an AMX tile.
 // Functions whose name contains "avx512" are the dispatched kernels (nn/isa_avx512_begin.h) and
 // may use them; every other function must not.
+#include <cctype>
 #include <cstdio>
+#include <cstdlib>
 #include <istream>
-#include <regex>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -28,8 +29,18 @@ inline bool beyond_v3(const std::string& bytes, const std::string& text) {
   while (in >> b && (b == "67" || b == "26" || b == "2e" || b == "36" || b == "3e" || b == "64" || b == "65")) {
   }
   if (b == "62") return true;
-  static const std::regex regs(R"(%(zmm\d+|[xy]mm(1[6-9]|2\d|3[01])\b|k[0-7]\b|tmm\d))");
-  return std::regex_search(text, regs);
+  // Registers as AT&T syntax prints them: %zmm5, %ymm17, %k1, %tmm0.
+  for (std::size_t at = text.find('%'); at != std::string::npos; at = text.find('%', at + 1)) {
+    std::size_t end = at + 1;
+    while (end < text.size() && std::isalpha(static_cast<unsigned char>(text[end]))) ++end;
+    const std::string name = text.substr(at + 1, end - at - 1);
+    int number = -1;
+    if (end < text.size() && std::isdigit(static_cast<unsigned char>(text[end]))) number = std::atoi(text.c_str() + end);
+    if (number < 0) continue;
+    if (name == "zmm" || name == "tmm" || (name == "k" && number <= 7)) return true;
+    if ((name == "xmm" || name == "ymm") && number >= 16) return true;
+  }
+  return false;
 }
 
 // The functions of one disassembly (objdump -d -C -w output) that use instructions beyond
