@@ -1,9 +1,12 @@
 #pragma once
-// Small AVX-512 helpers shared by the hand-written kernels (conv3x3.cpp, winograd.cpp).
-#ifdef __AVX512F__
+// Small AVX-512 helpers shared by the hand-written kernels (conv3x3.cpp, winograd.cpp), compiled
+// for AVX-512 in every file that includes them (nn/isa_avx512_begin.h).
+#include "nn/cpu_features.h"
+#if LIDARSIM_AVX512_KERNELS
 #include <immintrin.h>
 
-namespace lidarsim::nn::detail {
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
 
 // Horizontal sum (GCC 12's _mm512_reduce_add_ps trips -Wuninitialized in its own header).
 inline float hsum(__m512 v) {
@@ -41,5 +44,6 @@ inline void transpose16(const __m512 r[16], __m512 col[16]) {
   }
 }
 
-}  // namespace lidarsim::nn::detail
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
 #endif

@@ -18,12 +18,13 @@
 #include "common/error.h"
 #include "nn/avx512_util.h"
 #include "nn/big_alloc.h"
+#include "nn/cpu_features.h"
 #include "nn/parallel.h"
 #include "nn/weight_cache.h"
 #include "nn/staged_tile.h"
 #include "nn/winograd.h"
 
-#ifdef __AVX512F__
+#if LIDARSIM_AVX512_KERNELS
 #include <immintrin.h>
 #endif
 
@@ -57,8 +58,12 @@ bool conv3x3_takes_winograd(int ci, int co) {
   return std::min(ci, co) >= 16;
 }
 
-#ifndef __AVX512F__
-bool conv3x3_available() { return false; }
+bool conv3x3_available() { return isa_at_least(Isa::avx512); }
+
+}  // namespace lidarsim::nn::detail
+
+#if !LIDARSIM_AVX512_KERNELS
+namespace lidarsim::nn::detail::avx512 {
 void conv3x3_forward(float*, const float*, int, int, int, int, const float*, const float*, int, bool) {}
 void conv3x3_backward(float*, float*, float*, const float*, const float*, const float*, const float*, int, int, int,
                       int, int, bool) {}
@@ -66,9 +71,11 @@ void conv3x3_forward_cat(float*, const float*, int, const float*, int, int, int,
                          bool) {}
 void conv3x3_backward_cat(float*, float*, float*, float*, const float*, const float*, const float*, int, const float*,
                           int, const float*, int, int, int, int, bool) {}
+}  // namespace lidarsim::nn::detail::avx512
 #else
 
-bool conv3x3_available() { return true; }
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
 
 namespace {
 
@@ -421,6 +428,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   }
 }
 
-#endif
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
 
-}  // namespace lidarsim::nn::detail
+#endif

@@ -3,7 +3,8 @@
 // path. Inputs are copied into zero-bordered planes whose rows are w + 2 wide, so every output
 // pixel (and every junk pixel in the border columns, computed and then dropped) reads its 3x3
 // window at fixed offsets: the kernel is a flat loop over pixels with no boundary tests.
-// layers.cpp falls back to im2col + GEMM for other kernels or without AVX-512.
+// layers.cpp falls back to im2col + GEMM for other kernels or where the CPU (or LIDARSIM_ISA,
+// nn/cpu_features.h) rules AVX-512 out.
 namespace lidarsim::nn::detail {
 
 bool conv3x3_available();
@@ -18,6 +19,10 @@ Conv3x3Path conv3x3_path();
 // Whether a conv with ci inputs and co outputs takes Winograd now, in all its passes (its input
 // gradient is the conv co -> ci).
 bool conv3x3_takes_winograd(int ci, int co);
+
+// The kernels below are AVX-512 code (nn/isa_avx512_begin.h): call them only when
+// conv3x3_available().
+namespace avx512 {
 
 // in [n, ci, h, w], weight [co, ci, 3, 3], bias [co] or null -> out [n, co, h, w].
 void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
@@ -36,5 +41,10 @@ void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int
 void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias, const float* d_out, const float* out,
                           const float* a, int ca, const float* b, int cb, const float* weight, int n, int h, int w,
                           int co, bool relu);
+}  // namespace avx512
+using avx512::conv3x3_backward;
+using avx512::conv3x3_backward_cat;
+using avx512::conv3x3_forward;
+using avx512::conv3x3_forward_cat;
 
 }  // namespace lidarsim::nn::detail

@@ -7,6 +7,7 @@
 
 #include "nn/conv3x3.h"
 #include "nn/big_alloc.h"
+#include "nn/cpu_features.h"
 #include "nn/parallel.h"
 #include "nn/staged_tile.h"
 #include "nn/weight_cache.h"
@@ -19,29 +20,24 @@
 #include <cstring>
 #include <new>
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-#define LIDARSIM_HAVE_BF16_KERNEL 1
+#if LIDARSIM_AVX512_KERNELS
 #include <immintrin.h>
 #endif
 
 namespace lidarsim::nn::detail {
 
-#ifndef LIDARSIM_HAVE_BF16_KERNEL
-bool conv3x3_bf16_available() { return false; }
+bool conv3x3_bf16_available() { return isa_at_least(Isa::avx512_bf16); }
+
+#if !LIDARSIM_AVX512_KERNELS
 void conv3x3_bf16_forward_cat(float*, const float*, int, const float*, int, int, int, int, const float*, const float*,
                               int, bool) {}
 bool conv3x3_takes_bf16(int, int, int, int, int) { return false; }
 #else
 
-// Only these functions use AVX-512 BF16 instructions; they run only after the CPU check, so the
-// rest of the build (and -DLIDARSIM_NATIVE=OFF) needs no such flags.
+// Only the functions marked so use AVX-512 BF16 instructions (all in namespace avx512_bf16, as
+// the ISA scan of tests/isa expects); they run only after the CPU check, so the rest of the build
+// needs no such flags.
 #define LIDARSIM_BF16_TARGET __attribute__((target("avx512f,avx512bw,avx512bf16")))
-
-bool conv3x3_bf16_available() {
-  static const bool ok = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
-                         __builtin_cpu_supports("avx512bf16");
-  return ok;
-}
 
 bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
   // LIDARSIM_CONV3X3=direct: bf16 everywhere; =winograd: Winograd (fp32) wherever it applies.
@@ -57,6 +53,7 @@ bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
   return pixels < 2048 || pixels >= 32768;
 }
 
+namespace avx512_bf16 {
 namespace {
 
 constexpr int kCB = 8;            // output channels per register block
@@ -197,9 +194,11 @@ LIDARSIM_BF16_TARGET void conv_task(float* out, int co, const std::uint32_t* pim
 }
 
 }  // namespace
+}  // namespace avx512_bf16
 
 void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
                               const float* weight, const float* bias, int co, bool relu) {
+  using namespace avx512_bf16;
   const Geom g(h, w);
   const int ci = ca + cb, pairs = (ci + 1) / 2;
   const std::size_t plane = static_cast<std::size_t>(h) * w;

@@ -9,7 +9,8 @@
 // builds without -march=native keep it and choose at run time.
 namespace lidarsim::nn::detail {
 
-// Whether this build has the kernel and the CPU runs it (AVX-512 F, BW and BF16).
+// Whether this build has the kernel and the CPU runs it (AVX-512 F, BW and BF16), and LIDARSIM_ISA
+// allows it (nn/cpu_features.h).
 bool conv3x3_bf16_available();
 
 // The contract of conv3x3_forward_cat: out [n, co, h, w] = conv([a (ca channels), b (cb)]) with

@@ -10,23 +10,37 @@
 #include <cstddef>
 #include <vector>
 
-#include <Eigen/Core>
-
+#include "nn/big_alloc.h"
+#include "nn/cpu_features.h"
 #include "nn/parallel.h"
 
-#ifdef __AVX512F__
+#if LIDARSIM_AVX512_KERNELS
 #include <immintrin.h>
 #endif
 
 namespace lidarsim::nn::detail {
+bool conv_transpose2x2_available() { return isa_at_least(Isa::avx512); }
+}  // namespace lidarsim::nn::detail
 
-#ifndef __AVX512F__
-bool conv_transpose2x2_available() { return false; }
+#if !LIDARSIM_AVX512_KERNELS
+namespace lidarsim::nn::detail::avx512 {
 void conv_transpose2x2_forward_fast(float*, const float*, int, int, int, int, const float*, const float*, int, int,
                                     int) {}
+}  // namespace lidarsim::nn::detail::avx512
 #else
 
-bool conv_transpose2x2_available() { return true; }
+namespace lidarsim::nn::detail::avx512 {
+namespace {
+// 32 pixels of every input channel, per thread, 64-byte aligned for the aligned AVX-512 stores
+// (Eigen's aligned_allocator aligns to 32 bytes only in an AVX2 build). Outside the AVX-512
+// region: its construction and destruction are baseline code.
+thread_local GrowBuffer tl_pixels;
+std::vector<float> g_taps;  // the weights regrouped by output-channel block
+}  // namespace
+}  // namespace lidarsim::nn::detail::avx512
+
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
 
 namespace {
 
@@ -39,11 +53,6 @@ inline __mmask16 first_lanes(int n) {
   return static_cast<__mmask16>((1u << n) - 1);
 }
 
-// Lane i of the low (high) half of the interleave of e and o: e[i/2] or o[i/2] (plus 8 for high),
-// as _mm512_permutex2var_ps indices (16 + j picks lane j of the second operand).
-const __m512i kInterleaveLo = _mm512_set_epi32(23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1, 16, 0);
-const __m512i kInterleaveHi = _mm512_set_epi32(31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8);
-
 // Output rows 2y and 2y + 1, columns 2 x0 .. 2 x0 + 63, of output channels o .. o + OB - 1: the
 // 4 taps of OB channels over 32 input pixels are 4 OB x 2 accumulators (16 registers at OB = 2),
 // two input loads and 4 OB weight broadcasts per 8 OB multiply-adds and input channel. xs holds
@@ -53,6 +62,10 @@ const __m512i kInterleaveHi = _mm512_set_epi32(31, 15, 30, 14, 29, 13, 28, 12, 2
 template <int OB>
 void forward_block(float* out_img, const float* xs, int ci, int w, int y, int x0, const float* wp, const float* bias,
                    int o, int out_h, int out_w) {
+  // Lane i of the low (high) half of the interleave of e and o: e[i/2] or o[i/2] (plus 8 for
+  // high), as _mm512_permutex2var_ps indices (16 + j picks lane j of the second operand).
+  const __m512i kInterleaveLo = _mm512_set_epi32(23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1, 16, 0);
+  const __m512i kInterleaveHi = _mm512_set_epi32(31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8);
   __m512 acc[2][4 * OB];
   for (int v = 0; v < 2; ++v)
     for (int k = 0; k < 4 * OB; ++k) acc[v][k] = _mm512_setzero_ps();
@@ -81,9 +94,6 @@ void forward_block(float* out_img, const float* xs, int ci, int w, int y, int x0
   }
 }
 
-thread_local std::vector<float, Eigen::aligned_allocator<float>> tl_pixels;  // 32 pixels of every input channel
-std::vector<float> g_taps;                // the weights regrouped by output-channel block
-
 }  // namespace
 
 void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
@@ -107,8 +117,7 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
     const int img = static_cast<int>(task / h), y = static_cast<int>(task % h);
     const float* in_img = in + static_cast<std::size_t>(img) * ci * hw;
     float* out_img = out + static_cast<std::size_t>(img) * co * oplane;
-    if (tl_pixels.size() < static_cast<std::size_t>(ci) * 32) tl_pixels.resize(static_cast<std::size_t>(ci) * 32);
-    float* xs = tl_pixels.data();
+    float* xs = tl_pixels.get(static_cast<std::size_t>(ci) * 32);
     for (int x0 = 0; x0 < w; x0 += 32) {
       const __mmask16 m0 = first_lanes(w - x0), m1 = first_lanes(w - x0 - 16);
       const float* ip = in_img + static_cast<std::size_t>(y) * w + x0;
@@ -135,6 +144,7 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
   });
 }
 
-#endif
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
 
-}  // namespace lidarsim::nn::detail
+#endif

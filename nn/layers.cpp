@@ -7,17 +7,57 @@
 #endif
 #include "nn/layers.h"
 
-#ifdef __AVX512F__
-#include <immintrin.h>
-#endif
-
 #include <algorithm>
 #include <cmath>
 #include <string>
 
 #include "common/error.h"
+#include "nn/cpu_features.h"
 #include "nn/layers_internal.h"
 #include "nn/parallel.h"
+
+#if LIDARSIM_AVX512_KERNELS
+#include <immintrin.h>
+
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
+// Max pooling of one output row, 16 windows at a time, while 16 fit (input rows r0, r1, w wide;
+// output row y, wo wide): even/odd columns split, then the scalar loop's ordered comparisons, so
+// values and argmax are the scalar ones. Returns the first column left to the scalar loop.
+int max_pool2x2_row(float* dst, std::int32_t* am, const float* r0, const float* r1, int wo, int y, int w) {
+  const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+  const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+  int x = 0;
+  for (; x + 16 <= wo; x += 16) {
+    const __m512 a0 = _mm512_loadu_ps(r0 + 2 * x), a1 = _mm512_loadu_ps(r0 + 2 * x + 16);
+    const __m512 b0 = _mm512_loadu_ps(r1 + 2 * x), b1 = _mm512_loadu_ps(r1 + 2 * x + 16);
+    __m512 v = _mm512_permutex2var_ps(a0, even, a1);
+    __m512i idx = _mm512_add_epi32(_mm512_set1_epi32(2 * y * w + 2 * x), even);
+    const __m512 c1 = _mm512_permutex2var_ps(a0, odd, a1);
+    const __m512 c2 = _mm512_permutex2var_ps(b0, even, b1);
+    const __m512 c3 = _mm512_permutex2var_ps(b0, odd, b1);
+    __mmask16 m = _mm512_cmp_ps_mask(c1, v, _CMP_GT_OQ);
+    v = _mm512_mask_blend_ps(m, v, c1);
+    idx = _mm512_mask_add_epi32(idx, m, idx, _mm512_set1_epi32(1));
+    m = _mm512_cmp_ps_mask(c2, v, _CMP_GT_OQ);
+    v = _mm512_mask_blend_ps(m, v, c2);
+    const __m512i i2 = _mm512_add_epi32(_mm512_set1_epi32((2 * y + 1) * w + 2 * x), even);
+    idx = _mm512_mask_blend_epi32(m, idx, i2);
+    m = _mm512_cmp_ps_mask(c3, v, _CMP_GT_OQ);
+    v = _mm512_mask_blend_ps(m, v, c3);
+    idx = _mm512_mask_blend_epi32(m, idx, _mm512_add_epi32(i2, _mm512_set1_epi32(1)));
+    _mm512_storeu_ps(dst + x, v);
+    _mm512_storeu_si512(am + x, idx);
+  }
+  return x;
+}
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
+#else
+namespace lidarsim::nn::detail::avx512 {
+inline int max_pool2x2_row(float*, std::int32_t*, const float*, const float*, int, int, int) { return 0; }
+}  // namespace lidarsim::nn::detail::avx512
+#endif
 
 namespace lidarsim::nn {
 
@@ -40,6 +80,7 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
   ensure(out, Shape{s.n, s.c, ho, wo});
   if (argmax.size() != out.numel()) argmax.resize(out.numel());
   const int planes = s.n * s.c;
+  const bool wide = isa_at_least(Isa::avx512);
   parallel_for(planes, in.numel() > kParallelElems, [&](long p) {
     const float* src = in.data() + p * s.plane();
     float* dst = out.data() + p * out.shape().plane();
@@ -48,32 +89,7 @@ void max_pool2x2_forward(Tensor& out, std::vector<std::int32_t>& argmax, const T
       const float* r0 = src + static_cast<std::size_t>(2 * y) * s.w;
       const float* r1 = r0 + s.w;
       int x = 0;
-#ifdef __AVX512F__
-      // 16 windows at a time: split even/odd columns, then the same ordered comparisons.
-      const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
-      const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
-      for (; x + 16 <= wo; x += 16) {
-        const __m512 a0 = _mm512_loadu_ps(r0 + 2 * x), a1 = _mm512_loadu_ps(r0 + 2 * x + 16);
-        const __m512 b0 = _mm512_loadu_ps(r1 + 2 * x), b1 = _mm512_loadu_ps(r1 + 2 * x + 16);
-        __m512 v = _mm512_permutex2var_ps(a0, even, a1);
-        __m512i idx = _mm512_add_epi32(_mm512_set1_epi32(2 * y * s.w + 2 * x), even);
-        const __m512 c1 = _mm512_permutex2var_ps(a0, odd, a1);
-        const __m512 c2 = _mm512_permutex2var_ps(b0, even, b1);
-        const __m512 c3 = _mm512_permutex2var_ps(b0, odd, b1);
-        __mmask16 m = _mm512_cmp_ps_mask(c1, v, _CMP_GT_OQ);
-        v = _mm512_mask_blend_ps(m, v, c1);
-        idx = _mm512_mask_add_epi32(idx, m, idx, _mm512_set1_epi32(1));
-        m = _mm512_cmp_ps_mask(c2, v, _CMP_GT_OQ);
-        v = _mm512_mask_blend_ps(m, v, c2);
-        const __m512i i2 = _mm512_add_epi32(_mm512_set1_epi32((2 * y + 1) * s.w + 2 * x), even);
-        idx = _mm512_mask_blend_epi32(m, idx, i2);
-        m = _mm512_cmp_ps_mask(c3, v, _CMP_GT_OQ);
-        v = _mm512_mask_blend_ps(m, v, c3);
-        idx = _mm512_mask_blend_epi32(m, idx, _mm512_add_epi32(i2, _mm512_set1_epi32(1)));
-        _mm512_storeu_ps(dst + y * wo + x, v);
-        _mm512_storeu_si512(am + y * wo + x, idx);
-      }
-#endif
+      if (wide) x = detail::avx512::max_pool2x2_row(dst + y * wo, am + y * wo, r0, r1, wo, y, s.w);
       for (; x < wo; ++x) {
         // Row order, first wins on ties (NaN never wins: comparisons with NaN are false).
         int best = 2 * y * s.w + 2 * x;

@@ -10,20 +10,25 @@
 #include <algorithm>
 #include <cstddef>
 
+#include "nn/cpu_features.h"
 #include "nn/parallel.h"
 #include "nn/winograd_tiles.h"
 
 namespace lidarsim::nn::detail {
+bool winograd_available() { return isa_at_least(Isa::avx512); }
+}  // namespace lidarsim::nn::detail
 
-#ifndef __AVX512F__
-bool winograd_available() { return false; }
+#if !LIDARSIM_AVX512_KERNELS
+namespace lidarsim::nn::detail::avx512 {
 void winograd_conv3x3(const OutPlaneSet&, const PlaneSet&, const float*, int, int, int, const float*, bool,
                       const float*, bool) {}
 void winograd_transform_weights(float*, const float*, int, int, bool) {}
 std::size_t winograd_u_stride(int, int) { return 0; }
+}  // namespace lidarsim::nn::detail::avx512
 #else
 
-bool winograd_available() { return true; }
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
 
 namespace wino {
 thread_local Buf tl_v, tl_m;
@@ -281,6 +286,7 @@ void winograd_transform_weights(float* u, const float* weight, int co, int ci, b
   transform_weights(u, weight, co, ci, transpose_flip);
 }
 
-#endif
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
 
-}  // namespace lidarsim::nn::detail
+#endif

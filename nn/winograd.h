@@ -9,6 +9,8 @@
 
 namespace lidarsim::nn::detail {
 
+// Whether the CPU runs the kernels (AVX-512, nn/cpu_features.h); the functions below are
+// AVX-512 code (nn/isa_avx512_begin.h), to be called only then.
 bool winograd_available();
 
 // NCHW planes [n][ca + cb] split over two buffers (the UNet's concat without a copy).
@@ -24,6 +26,8 @@ struct OutPlaneSet {
   float* b = nullptr;
   int cb = 0;
 };
+
+namespace avx512 {
 
 // out = conv3x3(in) with weight [co, ci, 3, 3] (out has co channels, in ci), plus bias [co] (or
 // null), then ReLU when relu. With transpose_flip the weight is [ci, co, 3, 3] read flipped (the
@@ -54,5 +58,12 @@ void winograd_transform_weights(float* u, const float* weight, int co, int ci, b
 // from x = 0 up, the rows from y = 0 down), read in the same pass.
 void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
                           int w, int co, float* sums = nullptr);
+
+}  // namespace avx512
+using avx512::winograd_backward;
+using avx512::winograd_conv3x3;
+using avx512::winograd_transform_weights;
+using avx512::winograd_u_stride;
+using avx512::winograd_weight_grad;
 
 }  // namespace lidarsim::nn::detail

@@ -7,14 +7,15 @@
 #endif
 #include "nn/winograd_tiles.h"
 
-#ifdef __AVX512F__
+#if LIDARSIM_AVX512_KERNELS
 #include <algorithm>
 #include <cstddef>
 
 #include "nn/avx512_util.h"
 #include "nn/parallel.h"
 
-namespace lidarsim::nn::detail::wino {
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512::wino {
 
 namespace {
 
@@ -125,6 +126,7 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
   });
 }
 
-}  // namespace lidarsim::nn::detail::wino
+}  // namespace lidarsim::nn::detail::avx512::wino
+#include "nn/isa_avx512_end.h"
 
 #endif

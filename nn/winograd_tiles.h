@@ -7,12 +7,14 @@
 #include <cstdlib>
 
 #include "nn/big_alloc.h"
+#include "nn/cpu_features.h"
 #include "nn/winograd.h"
 
-#ifdef __AVX512F__
+#if LIDARSIM_AVX512_KERNELS
 #include <immintrin.h>
 
-namespace lidarsim::nn::detail::wino {
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512::wino {
 
 constexpr int kCB = 8;  // output channels per GEMM register block
 
@@ -99,6 +101,7 @@ void to_phases(float* dst, const PlaneSet& in, const float* mask, int n, const G
 void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n, const Geom& g, const float* weight,
                       bool transpose_flip, const float* bias, bool relu);
 
-}  // namespace lidarsim::nn::detail::wino
+}  // namespace lidarsim::nn::detail::avx512::wino
+#include "nn/isa_avx512_end.h"
 
 #endif

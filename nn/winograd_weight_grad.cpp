@@ -14,13 +14,16 @@
 #include "nn/parallel.h"
 #include "nn/winograd_tiles.h"
 
-namespace lidarsim::nn::detail {
-
-#ifndef __AVX512F__
+#if !LIDARSIM_AVX512_KERNELS
+namespace lidarsim::nn::detail::avx512 {
 void winograd_weight_grad(float*, const PlaneSet&, const float*, const float*, int, int, int, int, float*) {}
 void winograd_backward(const OutPlaneSet&, float*, const PlaneSet&, const float*, const float*, int, int, int,
                        const float*, int, float*) {}
+}  // namespace lidarsim::nn::detail::avx512
 #else
+
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::nn::detail::avx512 {
 
 using namespace wino;
 
@@ -312,6 +315,7 @@ void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet&
   conv_from_phases(d_in, pg, co, n, g, weight, true, nullptr, false);
 }
 
-#endif
+}  // namespace lidarsim::nn::detail::avx512
+#include "nn/isa_avx512_end.h"
 
-}  // namespace lidarsim::nn::detail
+#endif

@@ -78,9 +78,13 @@ fi
 load_after=$(cut -d' ' -f1-3 /proc/loadavg)
 
 cpu=$(lscpu 2>/dev/null | sed -n 's/^Model name: *//p' | head -1)
-python3 - "$out" "$rounds" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" <<'PY'
+# The vector extensions the kernels can be chosen by (nn/cpu_features.h), and the level forced, if any.
+flags=$(grep -m1 '^flags' /proc/cpuinfo 2>/dev/null | tr ' ' '\n' |
+  grep -xE 'avx2|fma|avx512f|avx512bw|avx512vl|avx512dq|avx512_bf16|amx_bf16|amx_tile' | tr '\n' ' ' | sed 's/ $//') || flags=""
+isa="${LIDARSIM_ISA:-auto}"
+python3 - "$out" "$rounds" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" "$flags" "$isa" <<'PY'
 import json, os, sys, datetime, statistics
-out, rounds, growth, write_readme, cpu, ncpu, load_before, load_after, blas = sys.argv[1:]
+out, rounds, growth, write_readme, cpu, ncpu, load_before, load_after, blas, flags, isa = sys.argv[1:]
 rounds = int(rounds)
 us = [json.load(open(os.path.join(out, f"round{i}", "unet_vs_torch.json"))) for i in range(1, rounds + 1)]
 ps = [json.load(open(os.path.join(out, f"round{i}", "pipeline.json"))) for i in range(1, rounds + 1)]
@@ -93,7 +97,8 @@ u = us[0]
 torch = u.get("torch") or {}
 lines = []
 lines.append(f"Measured by `scripts/bench.sh` on {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC: "
-             f"{cpu or 'unknown CPU'}, {ncpu} online CPUs, {u['threads']} threads, load average {load_before} before and "
+             f"{cpu or 'unknown CPU'} (flags: {flags or 'unknown'}; LIDARSIM_ISA={isa}), {ncpu} online CPUs, "
+             f"{u['threads']} threads, load average {load_before} before and "
              f"{load_after} after. Peer: PyTorch {torch.get('torch_version', '?')} in the same run (fastest of its "
              f"settings and OpenMP wait policies per row; libblas.so.3 -> {blas}). Each figure is the median of {rounds} rounds; a round "
              f"takes the median of {u['reps']} repetitions (engine) and {ps[0]['runs']} runs (pipeline). Ratios: the "

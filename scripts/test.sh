@@ -6,7 +6,9 @@
 # Which tests run where (labels, tests/CMakeLists.txt; docs/testing.md):
 #   normal pass     labels unit and statistical (every test but the long campaigns)
 #   sanitized pass  label unit (readers, writers, kernels and their gradient checks, checkpoints,
-#                   datasets, OSI and the FMU, the commands' bad input, the loops' smoke runs)
+#                   datasets, OSI and the FMU, the commands' bad input, the loops' smoke runs),
+#                   with LIDARSIM_ISA=avx2: the baseline kernels (nn/cpu_features.h), so the AVX2
+#                   path is tested on every machine and the normal pass tests the CPU's widest
 #   never here      label long: scripts/bench.sh --long, or ctest -L long
 # Budget: CI gives 90 minutes; the whole run must take at most half of that on a 2-core machine
 # three times slower than the fastest we have (measured: docs/testing.md). The time of each phase
@@ -55,6 +57,7 @@ if [ "$asan" = 1 ]; then
     mkdir -p "build-asan/Testing/Temporary" && cp "$build_dir/$costs" "build-asan/$costs"
   fi
   # Leaks are errors too; a sanitizer finding aborts the test (-fno-sanitize-recover).
+  LIDARSIM_ISA=avx2 \
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:strict_string_checks=1 \
   UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   LSAN_OPTIONS=suppressions=$PWD/scripts/lsan.supp \

@@ -4,12 +4,58 @@
 
 #include <algorithm>
 #include <utility>
-#ifdef __AVX512F__
-#include <immintrin.h>
-#endif
 #include <cmath>
 #include <limits>
 #include <numbers>
+
+#include "nn/cpu_features.h"
+
+#if LIDARSIM_AVX512_KERNELS
+#include <immintrin.h>
+
+#include "nn/isa_avx512_begin.h"
+namespace lidarsim::sensor::avx512 {
+namespace {
+// raster_span (below) 16 cells at a time, the last vector masked: the same cells, depths, owners
+// and counts as the scalar loop. Returns n; footprint gains the footprint cells.
+int raster_span_wide(const float* s_in, const float* s_out, int n, float inv_ce, float t_lo, float t_hi, float* depth,
+                     int* owner, int index, int* visible, bool& wrote, int& footprint) {
+  const __m512 v_ice = _mm512_set1_ps(inv_ce), v_lo = _mm512_set1_ps(t_lo), v_hi = _mm512_set1_ps(t_hi);
+  const __m512i v_index = _mm512_set1_epi32(index);
+  int i = 0;
+  for (; i < n; i += 16) {
+    const __mmask16 live = n - i >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (n - i)) - 1);
+    const __m512 t0 = _mm512_max_ps(v_lo, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_in + i), v_ice));
+    const __m512 t1 = _mm512_min_ps(v_hi, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_out + i), v_ice));
+    const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, t0, t1, _CMP_LE_OQ);
+    if (!hit) continue;
+    footprint += __builtin_popcount(hit);
+    const __mmask16 win = _mm512_mask_cmp_ps_mask(hit, t0, _mm512_maskz_loadu_ps(hit, depth + i), _CMP_LT_OQ);
+    if (!win) continue;
+    const __m512i prev = _mm512_maskz_loadu_epi32(win, owner + i);
+    unsigned taken = _mm512_mask_cmpge_epi32_mask(win, prev, _mm512_setzero_si512());
+    while (taken) {  // rare when boxes come front to back: cells taken from a farther box
+      const int j = __builtin_ctz(taken);
+      --visible[owner[i + j]];
+      taken &= taken - 1;
+    }
+    visible[index] += __builtin_popcount(win);
+    _mm512_mask_storeu_ps(depth + i, win, t0);
+    _mm512_mask_storeu_epi32(owner + i, win, v_index);
+    wrote = true;
+  }
+  return n;
+}
+}  // namespace
+}  // namespace lidarsim::sensor::avx512
+#include "nn/isa_avx512_end.h"
+#else
+namespace lidarsim::sensor::avx512 {
+inline int raster_span_wide(const float*, const float*, int, float, float, float, float*, int*, int, int*, bool&, int&) {
+  return 0;
+}
+}  // namespace lidarsim::sensor::avx512
+#endif
 
 namespace lidarsim::sensor {
 
@@ -69,7 +115,7 @@ OcclusionConfig OcclusionConfig::for_fov(const FieldOfView& fov, double resoluti
   return c;
 }
 
-Occlusion::Occlusion(const OcclusionConfig& config) : cfg_(config) {
+Occlusion::Occlusion(const OcclusionConfig& config) : cfg_(config), wide_(nn::isa_at_least(nn::Isa::avx512)) {
   cols_ = std::max(1, static_cast<int>(std::lround(2 * kPi / cfg_.azimuth_resolution)));
   cfg_.azimuth_resolution = 2 * kPi / cols_;
   rows_ = std::max(1, static_cast<int>(std::ceil((cfg_.elevation_max - cfg_.elevation_min) / cfg_.elevation_resolution)));
@@ -118,34 +164,11 @@ namespace {
 // is not empty and the box wins it when it enters nearer than the cell's depth. Returns the
 // footprint cells; `visible` gains the wins and loses what this box takes from others.
 int raster_span(const float* s_in, const float* s_out, int n, float inv_ce, float t_lo, float t_hi, float* depth,
-                int* owner, int index, int* visible, bool& wrote) {
+                int* owner, int index, int* visible, bool& wrote, bool wide) {
   int footprint = 0;
   int i = 0;
-#ifdef __AVX512F__
-  const __m512 v_ice = _mm512_set1_ps(inv_ce), v_lo = _mm512_set1_ps(t_lo), v_hi = _mm512_set1_ps(t_hi);
-  const __m512i v_index = _mm512_set1_epi32(index);
-  for (; i < n; i += 16) {
-    const __mmask16 live = n - i >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (n - i)) - 1);
-    const __m512 t0 = _mm512_max_ps(v_lo, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_in + i), v_ice));
-    const __m512 t1 = _mm512_min_ps(v_hi, _mm512_mul_ps(_mm512_maskz_loadu_ps(live, s_out + i), v_ice));
-    const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, t0, t1, _CMP_LE_OQ);
-    if (!hit) continue;
-    footprint += __builtin_popcount(hit);
-    const __mmask16 win = _mm512_mask_cmp_ps_mask(hit, t0, _mm512_maskz_loadu_ps(hit, depth + i), _CMP_LT_OQ);
-    if (!win) continue;
-    const __m512i prev = _mm512_maskz_loadu_epi32(win, owner + i);
-    unsigned taken = _mm512_mask_cmpge_epi32_mask(win, prev, _mm512_setzero_si512());
-    while (taken) {  // rare when boxes come front to back: cells taken from a farther box
-      const int j = __builtin_ctz(taken);
-      --visible[owner[i + j]];
-      taken &= taken - 1;
-    }
-    visible[index] += __builtin_popcount(win);
-    _mm512_mask_storeu_ps(depth + i, win, t0);
-    _mm512_mask_storeu_epi32(owner + i, win, v_index);
-    wrote = true;
-  }
-#endif
+  if (wide) i = avx512::raster_span_wide(s_in, s_out, n, inv_ce, t_lo, t_hi, depth, owner, index, visible, wrote,
+                                         footprint);
   for (; i < n; ++i) {
     const float t0 = std::max(t_lo, s_in[i] * inv_ce), t1 = std::min(t_hi, s_out[i] * inv_ce);
     if (!(t0 <= t1)) continue;
@@ -295,7 +318,8 @@ void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c)
       const int c = (c_lo + done) % cols_;
       bool wrote = false;
       footprint += raster_span(col_in_.data() + k_lo + done, col_out_.data() + k_lo + done, len, ice, flo, fhi,
-                               depth_.data() + row + c, owner_.data() + row + c, index, visible_.data(), wrote);
+                               depth_.data() + row + c, owner_.data() + row + c, index, visible_.data(), wrote,
+                               wide_);
       if (wrote) written_.push_back({static_cast<int>(row) + c, len});
       done += len;
     }

@@ -71,6 +71,7 @@ class Occlusion {
 
   OcclusionConfig cfg_;
   int rows_ = 0, cols_ = 0;
+  bool wide_ = false;  // raster spans take the AVX-512 kernel (nn/cpu_features.h), decided at construction
   std::vector<double> az_cos_, az_sin_, el_cos_, el_sin_, el_inv_cos_;
   std::vector<float> az_cos_f_, az_sin_f_;  // column directions over two turns (a box's run of columns never wraps)
   std::vector<float> col_in_, col_out_;     // per column of the box being rasterised: 2-D slab interval

@@ -20,7 +20,7 @@ using conv_paths::Conv3x3PathGuard;
 using detail::Conv3x3Path;
 
 TEST(Conv3x3BiasSum, EqualsThePlainOrderedSumBitForBit) {
-  if (!detail::conv3x3_available()) GTEST_SKIP() << "built without AVX-512: no conv3x3 kernel";
+  if (!detail::conv3x3_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no conv3x3 kernel";
   std::mt19937 rng(11);
   std::normal_distribution<float> normal;
   struct Case {

@@ -101,7 +101,7 @@ Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
 }
 
 TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   double worst_fwd = 0, worst_din = 0, worst_dw = 0;
   for (const Case& c : kCases)
     for (bool relu : {false, true}) {
@@ -138,7 +138,7 @@ Outputs run_cat(const Case& c, int ca, Conv3x3Path path, Tensor* d_b) {
 
 // The weight gradient's 16-channel groups straddle the two buffers when ca is not a multiple of 16.
 TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   for (const Case& c : {Case{2, 10, 6, 7, 9}, Case{1, 32, 16, 9, 66}, Case{2, 40, 24, 6, 70}}) {
     Tensor db_direct, db_wino;
     const Outputs direct = run_cat(c, c.ci / 2 - 1, Conv3x3Path::direct, &db_direct);
@@ -154,7 +154,7 @@ TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
 // same bits: on a map with more chunks than slots (and a partial last chunk per row), and on a
 // deep layer with few tiles, where the tasks also split the output channels.
 TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   const int saved = omp_get_max_threads();
   for (const Case& c : {Case{2, 16, 16, 64, 700}, Case{2, 64, 72, 8, 20}}) {
     SCOPED_TRACE("ci " + std::to_string(c.ci) + " co " + std::to_string(c.co));
@@ -187,7 +187,7 @@ TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
 // every product summed) and rounded to float: the factored transform must stay within 1 ulp,
 // for plain and flipped weights and a last block of output channels that is partly empty.
 TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   static constexpr double G[6][3] = {{1.0 / 4, 0, 0},         {-1.0 / 6, -1.0 / 6, -1.0 / 6},
                                      {-1.0 / 6, 1.0 / 6, -1.0 / 6}, {1.0 / 24, 1.0 / 12, 1.0 / 6},
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
@@ -227,7 +227,7 @@ TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
 
 TEST(Winograd, ComparisonCanFail) {
   // The same comparison with one weight changed by 1 % of its scale must exceed the tolerance.
-  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX-512: no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   const Case c{1, 8, 8, 7, 9};
   const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 1);
   std::vector<float> w = he_weights(c.co, c.ci, 2);
