@@ -10,6 +10,8 @@
 // shared object; it and its libz are allowed here by name, nothing else.
 #include <gtest/gtest.h>
 
+#include "tests/support/sanitizer.h"
+
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -75,6 +77,8 @@ void append_message(std::string& trace, const std::string& bytes) {
 }  // namespace
 
 TEST(OsiFmuSelfContained, BinariesNeedOnlyTheCAndCxxRuntime) {
+  // A sanitized FMU needs the sanitizers' runtimes (libasan, libubsan) by construction.
+  if (lidarsim::testing::kSanitized) GTEST_SKIP() << "the sanitized FMU links the sanitizer runtimes";
   lidarsim::testing::TempDir dir;
   const fs::path root = unpack(dir);
   for (const char* name : kLibraries) {
@@ -93,6 +97,8 @@ TEST(OsiFmuSelfContained, BinariesNeedOnlyTheCAndCxxRuntime) {
 }
 
 TEST(OsiFmuSelfContained, ExportsOnlyItsInterfaceAndImportsOnlyFromTheRuntime) {
+  // A sanitized FMU needs the sanitizers' runtimes (libasan, libubsan) by construction.
+  if (lidarsim::testing::kSanitized) GTEST_SKIP() << "the sanitized FMU links the sanitizer runtimes";
   lidarsim::testing::TempDir dir;
   const fs::path root = unpack(dir);
   for (const char* name : kLibraries) {
@@ -125,6 +131,8 @@ TEST(OsiFmuSelfContained, ExportsOnlyItsInterfaceAndImportsOnlyFromTheRuntime) {
 // The importer process (runtime only) loads the FMU's two libraries and nothing else; its
 // SensorData are the in-process model's bytes (HDF5 checkpoint) for the same SensorViews.
 TEST(OsiFmuSelfContained, ImporterLoadsOnlyTheRuntimeAndGetsTheInProcessBytes) {
+  // A sanitized FMU needs the sanitizers' runtimes (libasan, libubsan) by construction.
+  if (lidarsim::testing::kSanitized) GTEST_SKIP() << "the sanitized FMU links the sanitizer runtimes";
   lidarsim::testing::TempDir dir;
   const fs::path root = unpack(dir);
   const auto scenario =

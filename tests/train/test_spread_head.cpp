@@ -2,6 +2,8 @@
 // input, the mean alone stays today's model bit for bit, unsupported combinations are refused.
 #include <gtest/gtest.h>
 
+#include "tests/support/sanitizer.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -213,6 +215,10 @@ TEST(SpreadHead, MeanAloneIsTodaysModelBitForBit) {
     }
     std::printf("this build: %016llx\n", static_cast<unsigned long long>(hash));
   }
+  // The sanitized tree (-O1) rounds the AVX2 path's Eigen GEMM differently (measured: 0x614a… at
+  // -O3, another value at -O1), so the pin holds for the optimised build; the run above is still
+  // checked for memory errors there.
+  if (lidarsim::testing::kSanitized) GTEST_SKIP() << "weights pin is for the optimised build";
   const bool wide = nn::isa_at_least(nn::Isa::avx512);
   EXPECT_EQ(hash, wide ? 0x9dee35e88d5962fbull : 0x614a03b24e3859e0ull) << std::hex << hash << " on the "
                                                                       << nn::to_string(nn::active_isa()) << " path";
