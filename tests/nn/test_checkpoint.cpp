@@ -1,5 +1,7 @@
 // Checkpoints: round trip, byte-identical saves, and clear errors for broken files.
 #include <gtest/gtest.h>
+
+#include "tests/support/file_bytes.h"
 #include <hdf5.h>
 #include <unistd.h>
 
@@ -28,17 +30,10 @@ using namespace lidarsim::nn;
 
 namespace {
 
+using lidarsim::testing::read_bytes;
+using lidarsim::testing::write_bytes;
+
 const UNetConfig kSmall{3, 1, 4, 2};
-
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-void write_bytes(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary | std::ios::trunc);
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
 
 Tensor random_tensor(Shape s, std::uint32_t seed, float lo, float hi) {
   Tensor t(s);

@@ -3,6 +3,8 @@
 // refuse it by name; a one-output model is still format 1 as before, and files written by older
 // builds (the shipped model) load. Unknown or newer formats are refused naming config/format.
 #include <gtest/gtest.h>
+
+#include "tests/support/file_bytes.h"
 #include <hdf5.h>
 #include <unistd.h>
 
@@ -28,14 +30,11 @@ using namespace lidarsim::nn;
 
 namespace {
 
+using lidarsim::testing::read_bytes;
+
 const std::vector<HeadKind> kThree{HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace};
 const UNetConfig kHeads{3, 3, 4, 2, 0, {}, kThree};
 const UNetConfig kOne{3, 1, 4, 2};
-
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
 
 Tensor input(int channels) {
   Tensor t(Shape{1, channels, 8, 12});

@@ -2,6 +2,8 @@
 // clear error naming the file and the field for every broken file.
 #include <gtest/gtest.h>
 
+#include "tests/support/file_bytes.h"
+
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -21,15 +23,8 @@ using lidarsim::testing::error_of;
 
 namespace {
 
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-void write_bytes(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary | std::ios::trunc);
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
+using lidarsim::testing::read_bytes;
+using lidarsim::testing::write_bytes;
 
 // A model with every optional part (heads, per-row affine layer, lookup base), random values.
 UNet full_model() {

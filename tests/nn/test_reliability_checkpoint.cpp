@@ -1,5 +1,7 @@
 // Checkpoints under stress: a full disk during the save, and bit flips in the saved file.
 #include <gtest/gtest.h>
+
+#include "tests/support/file_bytes.h"
 #include <unistd.h>
 
 #include <algorithm>
@@ -21,15 +23,8 @@ using namespace lidarsim::nn;
 
 namespace {
 
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-void write_bytes(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary | std::ios::trunc);
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
+using lidarsim::testing::read_bytes;
+using lidarsim::testing::write_bytes;
 
 fs::path fresh_dir(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() / ("lidarsim_rel_nn_" + name + "_" + std::to_string(::getpid()));
