@@ -9,13 +9,13 @@
 #include <nlohmann/json.hpp>
 #include <numbers>
 
+#include "common/angles.h"
 #include "common/error.h"
 
 namespace lidarsim::data {
 namespace fs = std::filesystem;
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 template <typename T>
 T le(const std::uint8_t* p) {

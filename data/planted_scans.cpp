@@ -5,6 +5,7 @@
 #include <numeric>
 #include <random>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "data/baselines.h"
 #include "pgm/materials.h"
@@ -12,7 +13,6 @@
 namespace lidarsim::data {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 // Portable draws: mt19937_64's output is fixed by the standard, the std:: distributions are not,
 // so uniform and normal are written out here and a seed gives the same draw on every library.

@@ -13,6 +13,7 @@
 #include <set>
 #include <sstream>
 
+#include "common/angles.h"
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "data/kitti_tracking.h"
@@ -23,19 +24,17 @@ namespace lidarsim::data {
 
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kDt = 0.1;  // KITTI tracking: 10 Hz
-constexpr double kDeg = kPi / 180;
 constexpr int kClasses = sensor::kModelledClassCount;
 const auto& kClassNames = sensor::kModelledClasses;
 // A class's typical box (length, width, height; m), for its false positives.
 const Eigen::Vector3d kClassBox[kClasses] = {{3.9, 1.6, 1.5}, {0.8, 0.6, 1.7}, {1.7, 0.6, 1.7}};
 
-using Rng = std::mt19937_64;
+using TrackingRng = std::mt19937_64;
 
-double uni(Rng& rng, double a, double b) { return a + (b - a) * std::uniform_real_distribution<double>(0, 1)(rng); }
-int pick(Rng& rng, int n) { return std::min(n - 1, static_cast<int>(uni(rng, 0, n))); }
-double gauss(Rng& rng) { return std::normal_distribution<double>(0, 1)(rng); }
+double uni(TrackingRng& rng, double a, double b) { return a + (b - a) * std::uniform_real_distribution<double>(0, 1)(rng); }
+int pick(TrackingRng& rng, int n) { return std::min(n - 1, static_cast<int>(uni(rng, 0, n))); }
+double gauss(TrackingRng& rng) { return std::normal_distribution<double>(0, 1)(rng); }
 
 int class_index(const std::string& type) {
   for (int c = 0; c < kClasses; ++c)
@@ -43,11 +42,6 @@ int class_index(const std::string& type) {
   return -1;
 }
 
-double wrap(double a) {
-  a = std::fmod(a + kPi, 2 * kPi);
-  if (a < 0) a += 2 * kPi;
-  return a - kPi;
-}
 
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0;
@@ -90,7 +84,7 @@ void fill_truth(Window& w) {
       t.range = std::max(t.bev.norm(), 1e-6);
       t.u = t.bev / t.range, t.left = Eigen::Vector2d(-t.u.y(), t.u.x());
       t.azimuth = std::atan2(t.bev.y(), t.bev.x());
-      double rel = std::abs(wrap(o.object.heading - t.azimuth));
+      double rel = std::abs(wrap_angle_fmod(o.object.heading - t.azimuth));
       if (rel > kPi / 2) rel = kPi - rel;
       t.aspect = rel / (kPi / 2);
       const auto& tp = track_pos[o.object.id];
@@ -116,7 +110,7 @@ std::vector<std::string> source_sequence_names(const fs::path& source) {
 
 // k sequences in random order, each with a random window of max_frames frames holding at least
 // kPlantedMinTracks modelled tracks (three tries per sequence).
-std::vector<Window> choose_windows(const PlantedTrackingOptions& o, Rng& rng) {
+std::vector<Window> choose_windows(const PlantedTrackingOptions& o, TrackingRng& rng) {
   std::vector<std::string> names = source_sequence_names(o.source);
   std::shuffle(names.begin(), names.end(), rng);
   std::vector<Window> out;
@@ -141,7 +135,7 @@ std::vector<Window> choose_windows(const PlantedTrackingOptions& o, Rng& rng) {
   return out;
 }
 
-PlantedBaseModel draw_base(Rng& rng) {
+PlantedBaseModel draw_base(TrackingRng& rng) {
   PlantedBaseModel b;
   // Nominal sigmas per class (Car, Pedestrian, Cyclist), each scaled by its own factor 0.8-1.25.
   const double along[kClasses] = {0.15, 0.12, 0.15}, across[kClasses] = {0.10, 0.08, 0.10},
@@ -172,7 +166,7 @@ double base_sigma(const PlantedBaseModel& b, const std::string& target, int c) {
 }
 
 // The effect's parameters, drawn within what the chosen windows hold.
-PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std::array<int, kClasses>& boxes, Rng& rng) {
+PlantedEffect draw_effect(PlantedFamily family, const PlantedDraw& d, const std::array<int, kClasses>& boxes, TrackingRng& rng) {
   PlantedEffect e;
   e.family = family;
   auto& p = e.params;
@@ -278,7 +272,7 @@ double target_error(const Errors& e, const std::string& target) {
   return e.heading;
 }
 
-Errors draw_errors(const PlantedDraw& d, const Truth& t, Rng& rng) {
+Errors draw_errors(const PlantedDraw& d, const Truth& t, TrackingRng& rng) {
   const PlantedBaseModel& b = d.base;
   const int c = t.cls;
   Errors e;
@@ -329,7 +323,7 @@ double detection_probability(const PlantedDraw& d, const Truth& t) {
 }
 
 // A false positive of class c at (range, azimuth) on the ground, its class's typical box.
-std::string false_positive(int frame, int c, double range, double az, Rng& rng, const KittiBoxConverter& conv) {
+std::string false_positive(int frame, int c, double range, double az, TrackingRng& rng, const KittiBoxConverter& conv) {
   const Eigen::Vector3d box = kClassBox[c];
   const Eigen::Vector3d centre(range * std::cos(az), range * std::sin(az), -1.73 + box.z() / 2);
   return ab3dmot_line(frame, c, uni(rng, 0.5, 4), centre, box, uni(rng, -kPi, kPi), conv);
@@ -378,7 +372,7 @@ struct IdealSums {
   }
 };
 
-void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, Rng& rng, Rng& cell_rng, IdealSums& ideal) {
+void write_window(const fs::path& dir, const PlantedDraw& d, Window& w, TrackingRng& rng, TrackingRng& cell_rng, IdealSums& ideal) {
   fill_truth(w);
   const KittiBoxConverter conv(w.seq.calib);
   std::array<std::string, kClasses> dets;
@@ -439,7 +433,7 @@ PlantedFamily planted_family_from_string(const std::string& name) {
 PlantedDraw plan_planted_tracking(PlantedFamily family, const PlantedTrackingOptions& o) {
   if (o.sequences < 1) throw Error("planted tracking: sequences must be >= 1, got " + std::to_string(o.sequences));
   if (o.max_frames < 0) throw Error("planted tracking: max_frames must be >= 0, got " + std::to_string(o.max_frames));
-  Rng rng(o.seed);
+  TrackingRng rng(o.seed);
   PlantedDraw d;
   d.source = o.source, d.seed = o.seed;
   const std::vector<Window> windows = choose_windows(o, rng);
@@ -461,7 +455,7 @@ PlantedStats write_planted_tracking(const fs::path& dir, const PlantedDraw& d) {
                           "detection/pointrcnn_Cyclist_val"})
     fs::create_directories(dir / sub);
   // Streams of their own: the base noise (the same for every family at one seed) and the fp cell's.
-  Rng rng(d.seed ^ 0x9a7e5eed0b1ec75ULL), cell_rng(d.seed ^ 0xfce11c0ffee5ULL);
+  TrackingRng rng(d.seed ^ 0x9a7e5eed0b1ec75ULL), cell_rng(d.seed ^ 0xfce11c0ffee5ULL);
   std::string seqmap;
   IdealSums ideal;
   for (const PlantedSequence& where : d.sequences) {

@@ -11,6 +11,7 @@
 #include <random>
 #include <vector>
 
+#include "common/angles.h"
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "pgm/beam_layout.h"
@@ -22,13 +23,7 @@ namespace lidarsim::data {
 
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 
-double wrap(double a) {
-  a = std::fmod(a + kPi, 2 * kPi);
-  if (a < 0) a += 2 * kPi;
-  return a - kPi;
-}
 
 std::string seq_name(int s, int width) {
   char buf[16];
@@ -166,13 +161,13 @@ void plant_error_effects(const ReferenceTrackingOptions& o, const Track& t, cons
     case ObjectEffect::TruncationSize: sz.x() -= 0.45 * t.truncated * t.size.x(); break;
     case ObjectEffect::OcclusionSize: sz.x() -= kOcclusionSizeShare * t.occluded * t.size.x(); break;
     case ObjectEffect::AspectAcross: {
-      double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+      double rel = std::abs(wrap_angle_fmod(t.heading - std::atan2(bev.y(), bev.x())));
       if (rel > kPi / 2) rel = kPi - rel;
       across += 1.2 * (rel / (kPi / 2)) - 0.6;
       break;
     }
     case ObjectEffect::AspectSpread: {
-      double rel = std::abs(wrap(t.heading - std::atan2(bev.y(), bev.x())));
+      double rel = std::abs(wrap_angle_fmod(t.heading - std::atan2(bev.y(), bev.x())));
       if (rel > kPi / 2) rel = kPi - rel;
       across *= kSpreadBase + kSpreadPerAspect * rel / (kPi / 2);
       break;

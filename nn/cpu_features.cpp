@@ -29,7 +29,7 @@ Isa require(Isa level, const std::string& field) {
   return level;
 }
 
-Isa read_env() {
+Isa read_isa_env() {
   const char* env = std::getenv("LIDARSIM_ISA");
   const std::string v = env ? env : "";
   if (v.empty() || v == "auto") return cpu_isa();
@@ -37,7 +37,7 @@ Isa read_env() {
 }
 
 Isa& active() {
-  static Isa level = read_env();
+  static Isa level = read_isa_env();
   return level;
 }
 

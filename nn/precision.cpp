@@ -10,14 +10,14 @@
 namespace lidarsim::nn {
 
 namespace {
-InferencePrecision read_env() {
+InferencePrecision read_precision_env() {
   const char* env = std::getenv("LIDARSIM_INFER_PRECISION");
   if (!env || !*env) return InferencePrecision::fp32;
   return parse_inference_precision(env, "environment: LIDARSIM_INFER_PRECISION");
 }
 // Read on first use (not at static initialisation), so a bad value is the command's one-line error.
 InferencePrecision& requested() {
-  static InferencePrecision p = read_env();
+  static InferencePrecision p = read_precision_env();
   return p;
 }
 bool g_forced_unsupported = false;

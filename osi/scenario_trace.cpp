@@ -11,12 +11,6 @@ namespace lidarsim::osi {
 
 namespace {
 
-void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v) {
-  v.set_x(p.x());
-  v.set_y(p.y());
-  v.set_z(p.z());
-}
-
 // Roll, pitch, yaw of R = Rz(yaw) Ry(pitch) Rx(roll).
 void set_orientation(const Eigen::Matrix3d& r, osi3::Orientation3d& o) {
   o.set_yaw(std::atan2(r(1, 0), r(0, 0)));

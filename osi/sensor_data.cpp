@@ -13,13 +13,13 @@ void set_version(osi3::InterfaceVersion& v) {
   v.set_version_patch(kOsiVersion[2]);
 }
 
-namespace {
-
 void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v) {
   v.set_x(p.x());
   v.set_y(p.y());
   v.set_z(p.z());
 }
+
+namespace {
 
 osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t) {
   using C = osi3::LaneBoundary::Classification;

@@ -54,5 +54,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
                        std::uint64_t cycle, osi3::SensorData& out);
 
 void set_version(osi3::InterfaceVersion& v);
+// An OSI vector from ours (x, y, z in metres or their derivatives).
+void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v);
 
 }  // namespace lidarsim::osi

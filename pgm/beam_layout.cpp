@@ -8,13 +8,12 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/angles.h"
 #include "common/error.h"
 
 namespace lidarsim::pgm {
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
-constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
 // Median elevation (deg) of each row of KITTI seq 00 scans 000000-000005, rows cut where the
 // stored azimuth wraps (points beyond 2 m horizontally); see BeamLayout::hdl64e.

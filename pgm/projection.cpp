@@ -5,12 +5,11 @@
 #include <limits>
 #include <numbers>
 
+#include "common/angles.h"
 #include "common/error.h"
 
 namespace lidarsim::pgm {
 namespace {
-constexpr double kPi = std::numbers::pi;
-constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
 double azimuth(double x, double y) {
   double az = std::atan2(y, x);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <string>
 
+#include "common/angles.h"
 #include "common/error.h"
 
 namespace lidarsim::pgm {
@@ -23,7 +24,6 @@ const char* to_string(ReturnRule rule) {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 const float* need_channel(const PolarGridMap& pgm, const char* name) {
   if (!pgm.has_channel(name))

@@ -56,7 +56,7 @@ out=${out:-$build_dir/bench-results}
 mkdir -p "$out"
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-passive}
 if ((build)); then
-  cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} >/dev/null
+  cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} -DLIDARSIM_BENCH=ON >/dev/null  # scripts/test.sh turns them off
   targets=(bench_unet_vs_torch bench_pipeline)
   ((growth)) && targets+=(bench_growth)
   cmake --build "$build_dir" --target "${targets[@]}" -j"$(nproc)"

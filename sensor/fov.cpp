@@ -3,12 +3,12 @@
 
 #include <algorithm>
 #include <limits>
+#include "common/angles.h"
 
 namespace lidarsim::sensor {
 
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 
 
 bool full_circle(const FieldOfView& fov) { return fov.azimuth_max - fov.azimuth_min >= 2 * kPi - 1e-12; }

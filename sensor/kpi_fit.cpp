@@ -7,6 +7,7 @@
 #include <numeric>
 #include <tuple>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "sensor/hungarian.h"
 
@@ -15,7 +16,6 @@ namespace lidarsim::sensor {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kPi = std::numbers::pi;
 
 double wrap(double a) {
   a = std::fmod(a + kPi, 2 * kPi);

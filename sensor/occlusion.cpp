@@ -48,6 +48,7 @@ int raster_span_wide(const float* s_in, const float* s_out, int n, float inv_ce,
 }
 }  // namespace
 }  // namespace lidarsim::sensor::avx512
+#include "common/angles.h"
 #include "nn/isa_avx512_end.h"
 #else
 namespace lidarsim::sensor::avx512 {
@@ -60,7 +61,6 @@ inline int raster_span_wide(const float*, const float*, int, float, float, float
 namespace lidarsim::sensor {
 
 namespace {
-constexpr double kPi = std::numbers::pi;
 }  // namespace
 
 RayBox RayBox::of(const Object& o) {

@@ -5,6 +5,7 @@
 #include <limits>
 #include <numbers>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "pgm/materials.h"
 #include "pgm/projection.h"
@@ -16,7 +17,6 @@
 namespace lidarsim::sensor {
 
 namespace {
-constexpr double kPi = std::numbers::pi;
 }  // namespace
 
 PclConfig PclConfig::from_fov(const FieldOfView& fov) {

@@ -10,6 +10,7 @@
 #include <set>
 #include <sstream>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "pgm/materials.h"
 #include "sensor/frames.h"
@@ -19,7 +20,6 @@ namespace lidarsim::sensor {
 namespace {
 
 using nlohmann::json;
-constexpr double kDeg = std::numbers::pi / 180.0;
 // Limits that keep a scenario within what a simulation can hold (1e8 columns or 10,000 objects
 // would end in bad_alloc or minutes of work): beyond them the reader refuses, naming the field.
 constexpr std::size_t kMaxObjects = 2000;

@@ -13,12 +13,13 @@
 #include "tests/support/temp_path.h"
 
 #include <functional>
+#include "common/angles.h"
 
 namespace lidarsim::data {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kPi = std::numbers::pi;
+using lidarsim::kPi;
 
 // The textbook mounting: camera x = -velo y, camera y = -velo z, camera z = velo x, plus a
 // translation t (x_cam = R x_velo + t), R0_rect = identity.

@@ -20,7 +20,7 @@ ClassTable bundled_table() {
 }
 
 // A scan of `labels.size()` points in nuScenes' own layout (x right, y forward), ring = i % 32.
-void write_scan(const fs::path& dir, const std::string& id, const std::vector<std::uint8_t>& labels) {
+void write_nuscenes_scan(const fs::path& dir, const std::string& id, const std::vector<std::uint8_t>& labels) {
   fs::create_directories(dir / "velodyne");
   fs::create_directories(dir / "labels");
   std::ofstream pcd(dir / "velodyne" / (id + ".pcd.bin"), std::ios::binary);
@@ -44,7 +44,7 @@ TEST(NuscenesLidarseg, TableMapsEveryClassButTheEgo) {
 
 TEST(NuscenesLidarseg, CountsMatchAndEgoIsDropped) {
   lidarsim::testing::TempDir tmp;
-  write_scan(tmp.path(), "000000", {24, 31, 17, 31, 29, 30});
+  write_nuscenes_scan(tmp.path(), "000000", {24, 31, 17, 31, 29, 30});
   const auto files = list_nuscenes_lidarseg(tmp.path());
   ASSERT_EQ(files.size(), 1u);
   const auto scan = read_nuscenes_lidarseg_scan(files[0], bundled_table());
@@ -62,7 +62,7 @@ TEST(NuscenesLidarseg, CountsMatchAndEgoIsDropped) {
 
 TEST(NuscenesLidarseg, TruncatedLabelFileIsAnErrorNamingIt) {
   lidarsim::testing::TempDir tmp;
-  write_scan(tmp.path(), "000004", {24, 24, 24, 24});
+  write_nuscenes_scan(tmp.path(), "000004", {24, 24, 24, 24});
   fs::resize_file(tmp / "labels/000004.lidarseg.bin", 3);
   const auto files = list_nuscenes_lidarseg(tmp.path());
   try {
@@ -77,7 +77,7 @@ TEST(NuscenesLidarseg, TruncatedLabelFileIsAnErrorNamingIt) {
 
 TEST(NuscenesLidarseg, BadLabelAndMissingFileAreErrors) {
   lidarsim::testing::TempDir tmp;
-  write_scan(tmp.path(), "000000", {24, 32});
+  write_nuscenes_scan(tmp.path(), "000000", {24, 32});
   try {
     read_nuscenes_lidarseg_labels(tmp / "labels/000000.lidarseg.bin", 2);
     FAIL();
@@ -95,8 +95,8 @@ TEST(NuscenesLidarseg, BadLabelAndMissingFileAreErrors) {
 
 TEST(NuscenesLidarseg, ImportCountsTheDroppedEgoAndPointIndexIsTheFilesIndex) {
   lidarsim::testing::TempDir tmp;
-  write_scan(tmp.path(), "000000", {31, 24, 31, 17, 29, 30});
-  write_scan(tmp.path(), "000002", {24, 24, 31});
+  write_nuscenes_scan(tmp.path(), "000000", {31, 24, 31, 17, 29, 30});
+  write_nuscenes_scan(tmp.path(), "000002", {24, 24, 31});
   ImportOptions o;
   o.layout = pgm::BeamLayout::from_file((lidarsim::testing::source_dir() / "data/sensors/hdl32e-nuscenes.json").string());
   o.class_table = lidarsim::testing::source_dir() / "data/ontologies/nuscenes-lidarseg.csv";

@@ -53,7 +53,7 @@ std::string scan_error(const TempDir& dir, const std::vector<float>& values) {
   return error_of([&] { data::read_velodyne_bin(p); });
 }
 
-data::KittiCalib axis_calib() {
+data::KittiCalib readers_axis_calib() {
   data::KittiCalib c;
   c.R0_rect.setIdentity();
   c.Tr_velo_to_cam << 0, -1, 0, 0, 0, 0, -1, 0, 1, 0, 0, 0;
@@ -98,7 +98,7 @@ TEST(ReaderReliability, VelodyneScanRejectsAbsurdCoordinatesReflectanceAndEmptyS
 
 TEST(ReaderReliability, KittiTrackingRejectsNegativeTrackIdsHugeFramesAndAbsurdBoxes) {
   TempDir dir;
-  const data::KittiBoxConverter conv(axis_calib());
+  const data::KittiBoxConverter conv(readers_axis_calib());
   auto labels = [&](const std::string& line) {
     const fs::path p = write_text(dir / "label_02.txt", line);
     return error_of([&] { data::read_kitti_tracking_labels(p, conv); });

@@ -13,7 +13,7 @@ using namespace lidarsim;
 
 namespace {
 
-int circular_distance(int a, int b, int n) {
+int leak_circular_distance(int a, int b, int n) {
   const int d = std::abs(a - b) % n;
   return std::min(d, n - d);
 }
@@ -31,7 +31,7 @@ TEST(GuardedSplit, NoInputColumnIsSeenByATrainingAndAScoredCell) {
       for (int v = 0; v < 1024; ++v) {
         if (roles[v] != data::kValidation) continue;
         // Receptive fields [t - h, t + h] and [v - h, v + h] share no column.
-        ASSERT_GT(circular_distance(t, v, 1024), 2 * half) << "half-width " << half << ", columns " << t << ", " << v;
+        ASSERT_GT(leak_circular_distance(t, v, 1024), 2 * half) << "half-width " << half << ", columns " << t << ", " << v;
       }
     }
     val = std::count(roles.begin(), roles.end(), data::kValidation);

@@ -16,26 +16,24 @@
 #include "data/point_cloud_io.h"
 #include "infer/scan_prediction.h"
 #include "pgm/polar_grid_map.h"
-#include "tests/support/shared_data.h"
+#include "tests/support/file_bytes.h"
 #include "tests/support/image_checks.h"
+#include "tests/support/shared_data.h"
 #include "tests/support/temp_path.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
 // Runs lidar-infer with `args`; returns the exit code and leaves stderr in `err`.
 int run_infer(const std::string& args, std::string& err) {
   const fs::path exe = lidarsim::testing::binary_dir() / "infer" / "lidar-infer";
   const fs::path err_file = lidarsim::testing::temp_path("predict_err.txt");
   const int rc = std::system((exe.string() + " " + args + " >/dev/null 2>" + err_file.string()).c_str());
-  err = read_text(err_file);
+  err = read_bytes(err_file);
   return WEXITSTATUS(rc);
 }
 
@@ -52,11 +50,11 @@ TEST(PredictCli, BundledModelOnTheBundledScanWritesCloudImageAndSummary) {
                       err),
             0)
       << err;
-  const std::string cloud = read_text(out / "00_000000.pcd");
+  const std::string cloud = read_bytes(out / "00_000000.pcd");
   EXPECT_NE(cloud.find("FIELDS x y z intensity predicted_intensity abs_error class"), std::string::npos);
   EXPECT_NE(cloud.find("POINTS 124668"), std::string::npos);  // every point of the scan
   EXPECT_TRUE(fs::exists(out / "00_000000_intensity.png"));
-  const auto summary = nlohmann::json::parse(read_text(out / "summary.json"));
+  const auto summary = nlohmann::json::parse(read_bytes(out / "summary.json"));
   // All cells of the scan, training sectors included: far better than the global mean (~0.11).
   EXPECT_LT(summary.at("mae").get<double>(), 0.08);
   EXPECT_GT(summary.at("cells").get<long>(), 50000);
@@ -126,7 +124,7 @@ TEST(PointCloudIo, PcdAndPlyHeadersDescribeTheFieldsAndTheBinaryBodyHasEveryValu
   fs::create_directories(dir);
   data::write_point_cloud(dir / "a.pcd", cloud);
   data::write_point_cloud(dir / "a.ply", cloud);
-  const std::string pcd = read_text(dir / "a.pcd"), ply = read_text(dir / "a.ply");
+  const std::string pcd = read_bytes(dir / "a.pcd"), ply = read_bytes(dir / "a.ply");
   const std::string pcd_header_end = "DATA binary\n";
   ASSERT_NE(pcd.find(pcd_header_end), std::string::npos);
   EXPECT_NE(pcd.find("SIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 2\n"), std::string::npos);

@@ -13,26 +13,24 @@
 #include <nlohmann/json.hpp>
 
 #include "nn/precision.h"
+#include "tests/support/file_bytes.h"
 #include "tests/support/shared_data.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
 // Runs lidar-infer with `args`; returns the exit code, stdout in `out`, stderr in `err`.
-int run_infer(const std::string& args, std::string& out, std::string& err) {
+int run_infer_capturing(const std::string& args, std::string& out, std::string& err) {
   const fs::path exe = lidarsim::testing::binary_dir() / "infer" / "lidar-infer";
   const fs::path out_file = fs::temp_directory_path() / "lidarsim_precision_out.txt";
   const fs::path err_file = fs::temp_directory_path() / "lidarsim_precision_err.txt";
   const int rc = std::system((exe.string() + " " + args + " >" + out_file.string() + " 2>" + err_file.string()).c_str());
-  out = read_text(out_file);
-  err = read_text(err_file);
+  out = read_bytes(out_file);
+  err = read_bytes(err_file);
   return WEXITSTATUS(rc);
 }
 
@@ -47,7 +45,7 @@ TEST(PredictCli, Bf16PrecisionStaysWithinTheMaeGateOfFp32) {
     const fs::path dir = fs::temp_directory_path() / ("lidarsim_predict_" + precision);
     fs::remove_all(dir);
     std::string out, err;
-    ASSERT_EQ(run_infer("predict --quiet --precision " + precision + " --model " + model.string() + " --semantickitti " +
+    ASSERT_EQ(run_infer_capturing("predict --quiet --precision " + precision + " --model " + model.string() + " --semantickitti " +
                             scans.string() + " --out " + dir.string(),
                         out, err),
               0)
@@ -58,7 +56,7 @@ TEST(PredictCli, Bf16PrecisionStaysWithinTheMaeGateOfFp32) {
     if (p && !ran_bf16) {
       EXPECT_NE(err.find("running fp32"), std::string::npos) << err;
     }
-    mae[p] = nlohmann::json::parse(read_text(dir / "summary.json")).at("mae").get<double>();
+    mae[p] = nlohmann::json::parse(read_bytes(dir / "summary.json")).at("mae").get<double>();
   }
   std::printf("[ measured ] bundled scan, all cells: MAE fp32 %.6f, bf16 %.6f\n", mae[0], mae[1]);
   EXPECT_LT(std::abs(mae[1] - mae[0]), 5e-4);
@@ -66,7 +64,7 @@ TEST(PredictCli, Bf16PrecisionStaysWithinTheMaeGateOfFp32) {
 
 TEST(PredictCli, UnknownPrecisionIsOneLineNamingTheOption) {
   std::string out, err;
-  const int rc = run_infer("predict --quiet --precision fp16 --model /nonexistent/model.h5 --scan /nonexistent.bin", out,
+  const int rc = run_infer_capturing("predict --quiet --precision fp16 --model /nonexistent/model.h5 --scan /nonexistent.bin", out,
                            err);
   EXPECT_NE(rc, 0);
   EXPECT_NE(err.find("--precision"), std::string::npos) << err;

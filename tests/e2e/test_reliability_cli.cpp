@@ -15,17 +15,15 @@
 #include <vector>
 
 #include "data/dataset.h"
+#include "tests/support/file_bytes.h"
 #include "tests/support/shared_data.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
 
 fs::path exe(const std::string& folder, const std::string& name) { return lidarsim::testing::binary_dir() / folder / name; }
 
@@ -35,13 +33,13 @@ struct CmdResult {
 };
 
 // Runs `command` under bash (so `ulimit` works); SIGXFSZ ignored, as a full disk would give EFBIG/ENOSPC.
-CmdResult run(const std::string& command, const fs::path& dir) {
+CmdResult run_cli(const std::string& command, const fs::path& dir) {
   const fs::path err = dir / "stderr.txt";
   const std::string line = "bash -c 'trap \"\" XFSZ; " + command + "' >/dev/null 2>" + err.string();
   const int rc = std::system(line.c_str());
   CmdResult r;
   r.code = WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + WTERMSIG(rc);
-  r.err = read_text(err);
+  r.err = read_bytes(err);
   return r;
 }
 
@@ -99,37 +97,37 @@ TEST(CliReliability, ImportOnAFullDiskGivesOneErrorAndKeepsThePreviousDataset) {
   const fs::path out = dir / "sk.h5";
   const std::string import = exe("data", "lidar-data").string() + " import --quiet --semantickitti " + sample_scans() +
                              " --out " + out.string();
-  ASSERT_EQ(run(import, dir.path).code, 0);
-  const std::string before = read_text(out);
-  const CmdResult full = run("ulimit -f 64; " + import + " --columns 512", dir.path);
+  ASSERT_EQ(run_cli(import, dir.path).code, 0);
+  const std::string before = read_bytes(out);
+  const CmdResult full = run_cli("ulimit -f 64; " + import + " --columns 512", dir.path);
   EXPECT_EQ(full.code, 1) << full.err;
   EXPECT_EQ(error_lines(full.err), 1) << full.err;
   EXPECT_NE(full.err.find(out.string()), std::string::npos) << full.err;
-  EXPECT_EQ(read_text(out), before);
+  EXPECT_EQ(read_bytes(out), before);
 }
 
 TEST(CliReliability, TrainOnAFullDiskGivesOneErrorAndKeepsThePreviousCheckpoint) {
   Dir dir("train_full");
   const fs::path data = small_dataset(dir), out = dir / "ck.h5";
-  ASSERT_EQ(run(train_cmd(data, out), dir.path).code, 0);
-  const std::string before = read_text(out);
-  const CmdResult full = run("ulimit -f 4; " + train_cmd(data, out, "--seed 9"), dir.path);
+  ASSERT_EQ(run_cli(train_cmd(data, out), dir.path).code, 0);
+  const std::string before = read_bytes(out);
+  const CmdResult full = run_cli("ulimit -f 4; " + train_cmd(data, out, "--seed 9"), dir.path);
   EXPECT_EQ(full.code, 1) << full.err;
   EXPECT_EQ(error_lines(full.err), 1) << full.err;
-  EXPECT_EQ(read_text(out), before);
+  EXPECT_EQ(read_bytes(out), before);
 }
 
 TEST(CliReliability, SimOnAFullDiskGivesOneErrorAndKeepsThePreviousSummary) {
   Dir dir("sim_full");
   const std::string sim =
       exe("infer", "lidar-infer").string() + " sim --quiet --frames 1 --threads 1 --out " + (dir / "sim").string();
-  ASSERT_EQ(run(sim, dir.path).code, 0);
-  const std::string before = read_text(dir / "sim" / "summary.json");
+  ASSERT_EQ(run_cli(sim, dir.path).code, 0);
+  const std::string before = read_bytes(dir / "sim" / "summary.json");
   ASSERT_FALSE(before.empty());
-  const CmdResult full = run("ulimit -f 8; " + sim + " --seed 5", dir.path);
+  const CmdResult full = run_cli("ulimit -f 8; " + sim + " --seed 5", dir.path);
   EXPECT_EQ(full.code, 1) << full.err;
   EXPECT_EQ(error_lines(full.err), 1) << full.err;
-  EXPECT_EQ(read_text(dir / "sim" / "summary.json"), before);
+  EXPECT_EQ(read_bytes(dir / "sim" / "summary.json"), before);
 }
 
 TEST(CliReliability, SecondTrainerOnTheSameOutputIsRefused) {
@@ -139,7 +137,7 @@ TEST(CliReliability, SecondTrainerOnTheSameOutputIsRefused) {
   const std::string first = train_cmd(data, out, "--epochs 400 --steps-per-epoch 5") + " >/dev/null 2>&1 &";
   std::system(("bash -c '" + first + " echo $! > " + (dir / "pid").string() + "'").c_str());
   ::usleep(700 * 1000);
-  const CmdResult second = run(train_cmd(data, out), dir.path);
+  const CmdResult second = run_cli(train_cmd(data, out), dir.path);
   std::system(("kill $(cat " + (dir / "pid").string() + ") 2>/dev/null; sleep 0.2").c_str());
   EXPECT_NE(second.code, 0) << second.err;
   EXPECT_NE(second.err.find("another"), std::string::npos) << second.err;
@@ -152,7 +150,7 @@ TEST(CliReliability, StaleTemporariesOfDeadRunsAreRemoved) {
   const fs::path stale = dir / "ck.h5.tmp.4194304", alive = dir / ("ck.h5.tmp." + std::to_string(::getpid()));
   std::ofstream(stale) << "torn";
   std::ofstream(alive) << "in flight";
-  ASSERT_EQ(run(train_cmd(data, out), dir.path).code, 0);
+  ASSERT_EQ(run_cli(train_cmd(data, out), dir.path).code, 0);
   EXPECT_FALSE(fs::exists(stale));
   EXPECT_TRUE(fs::exists(alive)) << "a temporary of a live process must stay";
 }
@@ -162,20 +160,20 @@ TEST(CliReliability, ImpossibleNumbersOnTheCommandLineAreRefused) {
   const fs::path data = small_dataset(dir), out = dir / "ck.h5";
   for (const std::string bad : {"--steps-per-epoch -5", "--crop -64", "--crop 7", "--threads 0", "--depth 0",
                                 "--batch 1000000000", "--epochs -1", "--lr -1"}) {
-    const CmdResult r = run(train_cmd(data, out, bad), dir.path);
+    const CmdResult r = run_cli(train_cmd(data, out, bad), dir.path);
     EXPECT_NE(r.code, 0) << "lidar-train " << bad;
     EXPECT_EQ(error_lines(r.err), 1) << bad << ": " << r.err;
   }
   const std::string import = exe("data", "lidar-data").string() + " import --quiet --semantickitti " + sample_scans() +
                              " --out " + (dir / "d.h5").string();
   for (const std::string bad : {"--first -1", "--max-frames -1", "--columns 1048576"}) {
-    const CmdResult r = run(import + " " + bad, dir.path);
+    const CmdResult r = run_cli(import + " " + bad, dir.path);
     EXPECT_NE(r.code, 0) << "lidar-data import " << bad;
     EXPECT_EQ(error_lines(r.err), 1) << bad << ": " << r.err;
   }
   const std::string sim = exe("infer", "lidar-infer").string() + " sim --quiet --no-outputs --out " + (dir / "sim").string();
   for (const std::string bad : {"--frames -1", "--threads 0"}) {
-    const CmdResult r = run(sim + " " + bad, dir.path);
+    const CmdResult r = run_cli(sim + " " + bad, dir.path);
     EXPECT_NE(r.code, 0) << "lidar-infer sim " << bad;
     EXPECT_EQ(error_lines(r.err), 1) << bad << ": " << r.err;
   }
@@ -183,12 +181,12 @@ TEST(CliReliability, ImpossibleNumbersOnTheCommandLineAreRefused) {
 
 TEST(CliReliability, SimWarningNamesTheColumnCountWhenOnlyItDiffers) {
   Dir dir("columns");
-  std::string scenario = read_text(lidarsim::testing::source_dir() / "data/scenarios/demo_urban.json");
+  std::string scenario = read_bytes(lidarsim::testing::source_dir() / "data/scenarios/demo_urban.json");
   const std::size_t at = scenario.find("\"columns\": 1024");
   ASSERT_NE(at, std::string::npos);
   scenario.replace(at, 15, "\"columns\": 512");
   std::ofstream(dir / "s.json") << scenario;
-  const CmdResult r = run(exe("infer", "lidar-infer").string() + " sim --quiet --no-outputs --frames 1 --scenario " +
+  const CmdResult r = run_cli(exe("infer", "lidar-infer").string() + " sim --quiet --no-outputs --frames 1 --scenario " +
                         (dir / "s.json").string() + " --out " + (dir / "sim").string(),
                     dir.path);
   ASSERT_EQ(r.code, 0) << r.err;
@@ -208,10 +206,10 @@ TEST(CliReliability, UnreadableScansAreAnErrorOrWithTheOptionSkippedAndCounted) 
   fs::copy_file(sample / "labels/000000.label", seq / "labels/000001.label");
   const std::string import = exe("data", "lidar-data").string() + " import --quiet --semantickitti " +
                              (dir / "sk").string() + " --out " + (dir / "d.h5").string();
-  const CmdResult strict = run(import, dir.path);
+  const CmdResult strict = run_cli(import, dir.path);
   EXPECT_EQ(strict.code, 1) << strict.err;
   EXPECT_NE(strict.err.find("000001.bin"), std::string::npos) << strict.err;
-  const CmdResult lenient = run(import + " --skip-unreadable", dir.path);
+  const CmdResult lenient = run_cli(import + " --skip-unreadable", dir.path);
   EXPECT_EQ(lenient.code, 0) << lenient.err;
   EXPECT_NE(lenient.err.find("found 2 scans, read 1, skipped 1"), std::string::npos) << lenient.err;
   EXPECT_NE(lenient.err.find("000001.bin"), std::string::npos) << lenient.err;
@@ -220,11 +218,11 @@ TEST(CliReliability, UnreadableScansAreAnErrorOrWithTheOptionSkippedAndCounted) 
 TEST(CliReliability, PredictNamesLabelsOutsideTheClassTable) {
   Dir dir("labels");
   const fs::path sample = lidarsim::testing::source_dir() / "data/samples/semantickitti/sequences/00";
-  std::string labels = read_text(sample / "labels/000000.label");
+  std::string labels = read_bytes(sample / "labels/000000.label");
   const std::uint32_t odd = 9999;
   std::memcpy(labels.data(), &odd, 4);
   std::ofstream(dir / "odd.label", std::ios::binary) << labels;
-  const CmdResult r = run(exe("infer", "lidar-infer").string() + " predict --quiet --model " +
+  const CmdResult r = run_cli(exe("infer", "lidar-infer").string() + " predict --quiet --model " +
                         (lidarsim::testing::source_dir() / "data/models/intensity_unet.h5").string() + " --scan " +
                         (sample / "velodyne/000000.bin").string() + " --label " + (dir / "odd.label").string() +
                         " --out " + (dir / "p").string(),
@@ -236,7 +234,7 @@ TEST(CliReliability, PredictNamesLabelsOutsideTheClassTable) {
 TEST(CliReliability, TrainingsKilledAtRandomMomentsResumeToTheUninterruptedCheckpoint) {
   Dir dir("crash");
   // scripts/crash_test.sh: 5 runs here, up to 3 SIGKILLs each; `--count 20` by hand.
-  const CmdResult r = run((lidarsim::testing::source_dir() / "scripts/crash_test.sh").string() + " --count 5 --build " +
+  const CmdResult r = run_cli((lidarsim::testing::source_dir() / "scripts/crash_test.sh").string() + " --count 5 --build " +
                               lidarsim::testing::binary_dir().string() + " 2>&1 | tee " + (dir / "log.txt").string() +
                               " >&2; exit ${PIPESTATUS[0]}",
                           dir.path);

@@ -17,15 +17,15 @@ using namespace lidarsim;
 
 namespace {
 
-struct CliRun {
+struct ReturnsCliRun {
   int code = -1;
   std::string out;  // stdout + stderr
 };
 
-CliRun run_returns(const std::string& args) {
+ReturnsCliRun run_returns(const std::string& args) {
   const std::string cmd =
       (lidarsim::testing::binary_dir() / "qualify" / "lidar-qualify").string() + " returns " + args + " 2>&1";
-  CliRun r;
+  ReturnsCliRun r;
   FILE* p = popen(cmd.c_str(), "r");
   if (!p) return r;
   std::array<char, 4096> buf{};

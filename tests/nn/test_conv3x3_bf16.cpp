@@ -211,10 +211,10 @@ TEST(InferencePrecision, FallsBackToFp32WithOneLineWhenTheCpuLacksBf16) {
   EXPECT_FALSE(bf16_supported());
   EXPECT_EQ(effective_inference_precision(), InferencePrecision::fp32);
   testhook::force_bf16_unsupported(true);  // re-arm the message for the predict calls below
-  testing::internal::CaptureStderr();
+  ::testing::internal::CaptureStderr();
   model.predict(x, y);
   model.predict(x, y);
-  const std::string err = testing::internal::GetCapturedStderr();
+  const std::string err = ::testing::internal::GetCapturedStderr();
   testhook::force_bf16_unsupported(false);
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
   EXPECT_NE(err.find("bf16"), std::string::npos) << err;

@@ -110,11 +110,11 @@ TEST(HeadsTorchAgreement, SigmoidIncludingExtremeInputs) {
   EXPECT_LT(worst, 1e-7);
 }
 
-struct NllErrors {
+struct TorchNllErrors {
   double loss = 0, d_mean = 0, d_log_scale = 0;
 };
 
-NllErrors nll_errors(const Fixture& f, const std::string& name, Spread family) {
+TorchNllErrors nll_errors(const Fixture& f, const std::string& name, Spread family) {
   const Tensor mu = f.tensor(name + "/mean"), s = f.tensor(name + "/log_scale"), y = f.tensor(name + "/target"),
                m = f.tensor(name + "/mask");
   const LogScaleClamp clamp{static_cast<float>(f.attr(name, "clamp_min")), static_cast<float>(f.attr(name, "clamp_max"))};
@@ -131,7 +131,7 @@ TEST(HeadsTorchAgreement, GaussianAndLaplaceNllLossAndBothGradientsWithTheClamp)
   ASSERT_EQ(f.attr("gaussian", "clamp_max"), LogScaleClamp{}.max);
   for (const auto& [name, family] : {std::pair{"gaussian", Spread::gaussian}, std::pair{"laplace", Spread::laplace}}) {
     SCOPED_TRACE(name);
-    const NllErrors e = nll_errors(f, name, family);
+    const TorchNllErrors e = nll_errors(f, name, family);
     std::printf("[ measured ] %s vs PyTorch: loss %.1e, d_mean %.1e, d_log_scale %.1e\n", name, e.loss, e.d_mean,
                 e.d_log_scale);
     EXPECT_LT(e.loss, kLossTol);
@@ -143,7 +143,7 @@ TEST(HeadsTorchAgreement, GaussianAndLaplaceNllLossAndBothGradientsWithTheClamp)
 // The fixture tells the families apart: each one's answer fails the other's reference.
 TEST(HeadsTorchAgreement, TheWrongFamilyFailsTheCheck) {
   OPEN_FIXTURE(f);
-  const NllErrors a = nll_errors(f, "gaussian", Spread::laplace), b = nll_errors(f, "laplace", Spread::gaussian);
+  const TorchNllErrors a = nll_errors(f, "gaussian", Spread::laplace), b = nll_errors(f, "laplace", Spread::gaussian);
   EXPECT_GT(std::max({a.loss, a.d_mean, a.d_log_scale}), 1e-2);
   EXPECT_GT(std::max({b.loss, b.d_mean, b.d_log_scale}), 1e-2);
 }

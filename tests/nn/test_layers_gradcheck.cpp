@@ -19,18 +19,18 @@ namespace {
 
 using namespace reference;
 
-constexpr double kTol = 1e-4;
-constexpr double kFaultMin = 1e-2;  // 100x the tolerance
+constexpr double kLayerTol = 1e-4;
+constexpr double kLayerFaultMin = 1e-2;  // 100x the tolerance
 
 struct FaultGuard {
   explicit FaultGuard(testhook::Fault f) { testhook::fault = f; }
   ~FaultGuard() { testhook::fault = testhook::Fault::none; }
 };
 
-std::vector<double> to_double(const std::vector<float>& v) { return {v.begin(), v.end()}; }
-std::vector<double> to_double(const Tensor& t) { return {t.begin(), t.end()}; }
+std::vector<double> as_doubles(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+std::vector<double> as_doubles(const Tensor& t) { return {t.begin(), t.end()}; }
 
-struct Errors {
+struct LayerErrors {
   double forward = 0, d_in = 0, d_weight = 0, d_bias = 0;
   double worst_backward() const { return std::max({d_in, d_weight, d_bias}); }
 };
@@ -40,22 +40,22 @@ struct ConvCase {
   bool relu;
 };
 
-Errors check_conv2d(const ConvCase& c) {
+LayerErrors check_conv2d(const ConvCase& c) {
   const Tensor x = random_tensor(Shape{c.n, c.ci, c.h, c.w}, 1);
   const std::vector<float> w = random_vector(std::size_t(c.co) * c.ci * c.k * c.k, 2, 0.5f);
   const std::vector<float> b = random_vector(std::size_t(c.co), 3, 0.3f);
   Tensor y;
   conv2d_forward(y, x, w.data(), b.data(), c.co, c.k, c.pad, c.relu);
   const Tensor r = random_tensor(y.shape(), 4);
-  const std::vector<double> rd = to_double(r);
+  const std::vector<double> rd = as_doubles(r);
   Tensor d_in;
   std::vector<float> dw(w.size(), 0.f), db(b.size(), 0.f);
   conv2d_backward(&d_in, dw.data(), db.data(), r, y, x, w.data(), c.k, c.pad, c.relu);
 
   DT xd = from(x);
-  std::vector<double> wd = to_double(w), bd = to_double(b);
+  std::vector<double> wd = as_doubles(w), bd = as_doubles(b);
   auto f = [&] { return dot(conv2d(xd, wd, bd, c.co, c.k, c.pad, c.relu), rd); };
-  Errors e;
+  LayerErrors e;
   e.forward = max_rel_error(y.data(), conv2d(xd, wd, bd, c.co, c.k, c.pad, c.relu).v);
   e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
   e.d_weight = max_rel_error(dw.data(), numeric_gradient(wd, f));
@@ -78,15 +78,15 @@ TEST(Conv2dGradCheck, EveryKernelPaddingAndReluMatchesFiniteDifferences) {
   for (const ConvCase& c : cases) {
     SCOPED_TRACE("k " + std::to_string(c.k) + " pad " + std::to_string(c.pad) + " relu " + std::to_string(c.relu) +
                  " input " + std::to_string(c.h) + "x" + std::to_string(c.w));
-    const Errors e = check_conv2d(c);
+    const LayerErrors e = check_conv2d(c);
     EXPECT_LT(e.forward, 1e-5);
-    EXPECT_LT(e.d_in, kTol);
-    EXPECT_LT(e.d_weight, kTol);
-    EXPECT_LT(e.d_bias, kTol);
+    EXPECT_LT(e.d_in, kLayerTol);
+    EXPECT_LT(e.d_weight, kLayerTol);
+    EXPECT_LT(e.d_bias, kLayerTol);
   }
 }
 
-Errors check_conv_transpose(int out_h, int out_w) {
+LayerErrors check_conv_transpose(int out_h, int out_w) {
   const int n = 2, ci = 3, h = 3, w = 4, co = 2;
   const Tensor x = random_tensor(Shape{n, ci, h, w}, 11);
   const std::vector<float> wt = random_vector(std::size_t(ci) * co * 4, 12, 0.5f);
@@ -99,10 +99,10 @@ Errors check_conv_transpose(int out_h, int out_w) {
   conv_transpose2x2_backward(d_in, dw.data(), db.data(), r, x, wt.data());
 
   DT xd = from(x);
-  std::vector<double> wd = to_double(wt), bd = to_double(b);
-  const std::vector<double> rd = to_double(r);
+  std::vector<double> wd = as_doubles(wt), bd = as_doubles(b);
+  const std::vector<double> rd = as_doubles(r);
   auto f = [&] { return dot(conv_transpose2x2(xd, wd, bd, co, out_h, out_w), rd); };
-  Errors e;
+  LayerErrors e;
   e.forward = max_rel_error(y.data(), conv_transpose2x2(xd, wd, bd, co, out_h, out_w).v);
   e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
   e.d_weight = max_rel_error(dw.data(), numeric_gradient(wd, f));
@@ -118,20 +118,20 @@ TEST(Conv2dGradCheck, WinogradPathMatchesFiniteDifferences) {
   const ConvCase cases[] = {{2, 3, 7, 9, 4, 3, 1, true}, {2, 3, 5, 11, 5, 3, 1, false}, {1, 9, 6, 13, 10, 3, 1, true}};
   for (const ConvCase& c : cases) {
     SCOPED_TRACE("relu " + std::to_string(c.relu) + " input " + std::to_string(c.h) + "x" + std::to_string(c.w));
-    const Errors e = check_conv2d(c);
+    const LayerErrors e = check_conv2d(c);
     EXPECT_LT(e.forward, 1e-5);
-    EXPECT_LT(e.d_in, kTol);
-    EXPECT_LT(e.d_weight, kTol);
-    EXPECT_LT(e.d_bias, kTol);
+    EXPECT_LT(e.d_in, kLayerTol);
+    EXPECT_LT(e.d_weight, kLayerTol);
+    EXPECT_LT(e.d_bias, kLayerTol);
   }
 }
 
 TEST(ConvTransposeGradCheck, ExactAndZeroPaddedOutputsMatchFiniteDifferences) {
   for (auto [oh, ow] : {std::pair{6, 8}, std::pair{7, 9}}) {
     SCOPED_TRACE("output " + std::to_string(oh) + "x" + std::to_string(ow));
-    const Errors e = check_conv_transpose(oh, ow);
+    const LayerErrors e = check_conv_transpose(oh, ow);
     EXPECT_LT(e.forward, 1e-5);
-    EXPECT_LT(e.worst_backward(), kTol);
+    EXPECT_LT(e.worst_backward(), kLayerTol);
   }
 }
 
@@ -162,7 +162,7 @@ TEST(ConvTranspose, BlockedKernelMatchesTheReferenceAtEveryEdge) {
     const std::vector<float> b = random_vector(std::size_t(c.co), 33, 0.3f);
     Tensor y;
     conv_transpose2x2_forward(y, x, wt.data(), b.data(), c.co, c.out_h, c.out_w);
-    const DT ref = conv_transpose2x2(from(x), to_double(wt), to_double(b), c.co, c.out_h, c.out_w);
+    const DT ref = conv_transpose2x2(from(x), as_doubles(wt), as_doubles(b), c.co, c.out_h, c.out_w);
     EXPECT_LT(max_rel_error(y.data(), ref.v), 1e-5);
   }
 }
@@ -176,14 +176,14 @@ double check_max_pool(int h, int w) {
   Tensor d_in;
   max_pool2x2_backward(d_in, r, am, x.shape());
   DT xd = from(x);
-  const std::vector<double> rd = to_double(r);
+  const std::vector<double> rd = as_doubles(r);
   EXPECT_LT(max_rel_error(y.data(), max_pool2x2(xd).v), 1e-7);
   return max_rel_error(d_in.data(), numeric_gradient(xd.v, [&] { return dot(max_pool2x2(xd), rd); }));
 }
 
 TEST(MaxPoolGradCheck, EvenAndOddInputsMatchFiniteDifferences) {
-  EXPECT_LT(check_max_pool(6, 8), kTol);
-  EXPECT_LT(check_max_pool(7, 9), kTol);  // the last row/column is dropped (floor)
+  EXPECT_LT(check_max_pool(6, 8), kLayerTol);
+  EXPECT_LT(check_max_pool(7, 9), kLayerTol);  // the last row/column is dropped (floor)
 }
 
 TEST(MaxPool, ArgmaxIsTheFlatIndexOfTheMaximumInTheInputPlane) {
@@ -205,11 +205,11 @@ double check_relu() {
   const Tensor r = random_tensor(y.shape(), 32);
   relu_backward(d_in, r, y);
   DT xd = from(x);
-  const std::vector<double> rd = to_double(r);
+  const std::vector<double> rd = as_doubles(r);
   return max_rel_error(d_in.data(), numeric_gradient(xd.v, [&] { return dot(relu(xd), rd); }));
 }
 
-TEST(ReluGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_relu(), kTol); }
+TEST(ReluGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_relu(), kLayerTol); }
 
 double check_concat() {
   const Tensor a = random_tensor(Shape{2, 2, 3, 5}, 41), b = random_tensor(Shape{2, 3, 3, 5}, 42);
@@ -219,14 +219,14 @@ double check_concat() {
   Tensor da(a.shape()), db;
   concat_backward(da, db, r);
   DT ad = from(a), bd = from(b);
-  const std::vector<double> rd = to_double(r);
+  const std::vector<double> rd = as_doubles(r);
   auto f = [&] { return dot(concat(ad, bd), rd); };
   EXPECT_LT(max_rel_error(y.data(), concat(ad, bd).v), 1e-7);
   return std::max(max_rel_error(da.data(), numeric_gradient(ad.v, f)),
                   max_rel_error(db.data(), numeric_gradient(bd.v, f)));
 }
 
-TEST(ConcatGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_concat(), kTol); }
+TEST(ConcatGradCheck, MatchesFiniteDifferences) { EXPECT_LT(check_concat(), kLayerTol); }
 
 // Reference: y = gain[c, h] * x + offset[c, h], written out in double.
 DT row_affine(const DT& x, const std::vector<double>& gain, const std::vector<double>& offset) {
@@ -241,7 +241,7 @@ DT row_affine(const DT& x, const std::vector<double>& gain, const std::vector<do
   return y;
 }
 
-Errors check_row_affine() {
+LayerErrors check_row_affine() {
   const Tensor x = random_tensor(Shape{2, 3, 5, 7}, 51);
   std::vector<float> gain = random_vector(15, 52, 0.5f), offset = random_vector(15, 53, 0.3f);
   for (float& g : gain) g += 1.f;
@@ -251,10 +251,10 @@ Errors check_row_affine() {
   std::vector<float> dg(gain.size(), 0.f), db(offset.size(), 0.f);
   row_affine_backward(d_in, dg.data(), db.data(), r, x, gain.data());
   DT xd = from(x);
-  std::vector<double> gd = to_double(gain), od = to_double(offset);
-  const std::vector<double> rd = to_double(r);
+  std::vector<double> gd = as_doubles(gain), od = as_doubles(offset);
+  const std::vector<double> rd = as_doubles(r);
   auto f = [&] { return dot(row_affine(xd, gd, od), rd); };
-  Errors e;
+  LayerErrors e;
   e.forward = max_rel_error(y.data(), row_affine(xd, gd, od).v);
   e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
   e.d_weight = max_rel_error(dg.data(), numeric_gradient(gd, f));
@@ -265,9 +265,9 @@ Errors check_row_affine() {
 }
 
 TEST(RowAffineGradCheck, InputGainAndOffsetGradientsMatchFiniteDifferences) {
-  const Errors e = check_row_affine();
+  const LayerErrors e = check_row_affine();
   EXPECT_LT(e.forward, 1e-6);
-  EXPECT_LT(e.worst_backward(), kTol);
+  EXPECT_LT(e.worst_backward(), kLayerTol);
 }
 
 // A lookup-base input: 3 one-hot class channels (some cells in none), a range channel with
@@ -291,7 +291,7 @@ LookupCase lookup_case() {
   return k;
 }
 
-Errors check_lookup_base() {
+LayerErrors check_lookup_base() {
   const LookupCase k = lookup_case();
   const std::vector<float> table = random_vector(16, 63), beam = random_vector(5, 64, 0.3f);
   Tensor y;
@@ -300,10 +300,10 @@ Errors check_lookup_base() {
   std::vector<float> dt(table.size(), 0.f), db(beam.size(), 0.f);
   lookup_base_backward(dt.data(), db.data(), r, k.x, k.c);
   const DT xd = from(k.x);
-  std::vector<double> td = to_double(table), bd = to_double(beam);
-  const std::vector<double> rd = to_double(r);
+  std::vector<double> td = as_doubles(table), bd = as_doubles(beam);
+  const std::vector<double> rd = as_doubles(r);
   auto f = [&] { return dot(lookup_base(xd, k.c, td, bd), rd); };
-  Errors e;
+  LayerErrors e;
   e.forward = max_rel_error(y.data(), lookup_base(xd, k.c, td, bd).v);
   e.d_weight = max_rel_error(dt.data(), numeric_gradient(td, f));
   e.d_bias = max_rel_error(db.data(), numeric_gradient(bd, f));
@@ -312,9 +312,9 @@ Errors check_lookup_base() {
 }
 
 TEST(LookupBaseGradCheck, TableAndBeamGradientsMatchFiniteDifferences) {
-  const Errors e = check_lookup_base();
+  const LayerErrors e = check_lookup_base();
   EXPECT_LT(e.forward, 1e-6);
-  EXPECT_LT(e.worst_backward(), kTol);
+  EXPECT_LT(e.worst_backward(), kLayerTol);
 }
 
 TEST(LookupBase, KeysFollowTheFirstHotClassAndTheRangeBinAndSkipEmptyCells) {
@@ -350,43 +350,43 @@ TEST(LookupBase, KeysFollowTheFirstHotClassAndTheRangeBinAndSkipEmptyCells) {
 
 TEST(GradCheckCatchesFaults, WrongIndexInConv2dInputGradient) {
   FaultGuard g(testhook::Fault::conv2d_input);
-  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_in, kFaultMin);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_in, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConv2dWeightGradient) {
   FaultGuard g(testhook::Fault::conv2d_weight);
-  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_weight, kFaultMin);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_weight, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConv2dBiasGradient) {
   FaultGuard g(testhook::Fault::conv2d_bias);
-  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_bias, kFaultMin);
+  EXPECT_GT(check_conv2d({2, 3, 7, 9, 4, 3, 1, false}).d_bias, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConvTransposeGradients) {
   {
     FaultGuard g(testhook::Fault::conv_transpose_input);
-    EXPECT_GT(check_conv_transpose(7, 9).d_in, kFaultMin);
+    EXPECT_GT(check_conv_transpose(7, 9).d_in, kLayerFaultMin);
   }
   FaultGuard g(testhook::Fault::conv_transpose_weight);
-  EXPECT_GT(check_conv_transpose(7, 9).d_weight, kFaultMin);
+  EXPECT_GT(check_conv_transpose(7, 9).d_weight, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInMaxPoolGradient) {
   FaultGuard g(testhook::Fault::max_pool);
-  EXPECT_GT(check_max_pool(6, 8), kFaultMin);
+  EXPECT_GT(check_max_pool(6, 8), kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInReluGradient) {
   FaultGuard g(testhook::Fault::relu);
-  EXPECT_GT(check_relu(), kFaultMin);
+  EXPECT_GT(check_relu(), kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInRowAffineGainGradient) {
   FaultGuard g(testhook::Fault::row_affine);
-  EXPECT_GT(check_row_affine().d_weight, kFaultMin);
+  EXPECT_GT(check_row_affine().d_weight, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInLookupBaseBeamGradient) {
   FaultGuard g(testhook::Fault::lookup_base);
-  EXPECT_GT(check_lookup_base().d_bias, kFaultMin);
+  EXPECT_GT(check_lookup_base().d_bias, kLayerFaultMin);
 }
 TEST(GradCheckCatchesFaults, WrongIndexInConcatGradient) {
   FaultGuard g(testhook::Fault::concat);
-  EXPECT_GT(check_concat(), kFaultMin);
+  EXPECT_GT(check_concat(), kLayerFaultMin);
 }
 
 }  // namespace

@@ -24,18 +24,18 @@ namespace {
 // Tolerances from the issue; float32 PyTorch itself lands at ~1e-6 (forward) and ~4e-8 (after
 // the step) from the float64 reference, as make_torch_fixture.py prints.
 constexpr double kForwardTol = 1e-4;
-constexpr double kLossTol = 1e-4;
-constexpr double kGradTol = 1e-3;
+constexpr double kTorchLossTol = 1e-4;
+constexpr double kTorchGradTol = 1e-3;
 constexpr double kAfterStepTol = 1e-3;
 
-class Fixture {
+class TorchFixture {
  public:
-  Fixture() {
+  TorchFixture() {
     H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
     path_ = (lidarsim::testing::source_dir() / "tests/fixtures/unet_small_torch.h5").string();
     file_ = H5Fopen(path_.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   }
-  ~Fixture() {
+  ~TorchFixture() {
     if (file_ >= 0) H5Fclose(file_);
   }
   bool ok() const { return file_ >= 0; }
@@ -84,7 +84,7 @@ class Fixture {
 };
 
 // ||a - b|| / ||b|| in double.
-double rel_error(const float* a, const double* b, std::size_t n) {
+double torch_rel_error(const float* a, const double* b, std::size_t n) {
   double num = 0, den = 0;
   for (std::size_t i = 0; i < n; ++i) {
     num += (a[i] - b[i]) * (a[i] - b[i]);
@@ -93,13 +93,13 @@ double rel_error(const float* a, const double* b, std::size_t n) {
   return std::sqrt(num) / std::max(std::sqrt(den), 1e-30);
 }
 
-UNetConfig fixture_config(const Fixture& f) {
+UNetConfig fixture_config(const TorchFixture& f) {
   return UNetConfig{static_cast<int>(f.attr("config", "in_channels")), static_cast<int>(f.attr("config", "out_channels")),
                     static_cast<int>(f.attr("config", "base")), static_cast<int>(f.attr("config", "depth"))};
 }
 
 // Loads the fixture's initial weights into `model` by name, checking each size.
-void load_initial_weights(const Fixture& f, UNet& model) {
+void load_initial_weights(const TorchFixture& f, UNet& model) {
   ParamArena& params = model.params();
   for (const ParamInfo& info : params.infos()) {
     const std::vector<double> v = f.read("params/" + info.name);
@@ -110,7 +110,7 @@ void load_initial_weights(const Fixture& f, UNet& model) {
 
 void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv3x3Path::direct) {
   conv_paths::Conv3x3PathGuard guard(path);
-  Fixture f;
+  TorchFixture f;
   ASSERT_TRUE(f.ok()) << "cannot open " << f.path() << " (regenerate: /usr/bin/python3 tests/fixtures/make_torch_fixture.py)";
   const std::string c = "cases/" + name + "/";
   ASSERT_TRUE(f.has("cases/" + name)) << f.path() << ": no case " << name;
@@ -128,13 +128,13 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
   model.forward(x, y);
   ASSERT_EQ(y.shape(), (Shape{static_cast<int>(out_dims[0]), static_cast<int>(out_dims[1]),
                               static_cast<int>(out_dims[2]), static_cast<int>(out_dims[3])}));
-  const double fwd = rel_error(y.data(), ref_out.data(), ref_out.size());
+  const double fwd = torch_rel_error(y.data(), ref_out.data(), ref_out.size());
   EXPECT_LT(fwd, kForwardTol) << "forward output vs PyTorch";
 
   // predict() must give the same answer as forward().
   Tensor y_pred;
   model.predict(x, y_pred);
-  EXPECT_LT(rel_error(y_pred.data(), ref_out.data(), ref_out.size()), kForwardTol) << "predict vs PyTorch";
+  EXPECT_LT(torch_rel_error(y_pred.data(), ref_out.data(), ref_out.size()), kForwardTol) << "predict vs PyTorch";
 
   // Loss: masked MSE + lambda * sum(w^2).
   const float lambda = static_cast<float>(f.attr("config", "lambda"));
@@ -143,11 +143,11 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
   const double l2 = l2_penalty(model.params(), lambda, true);
   const double loss = parts.data + l2, ref_loss = f.attr("cases/" + name, "loss");
   EXPECT_LT(std::abs(parts.data - f.attr("cases/" + name, "loss_data")) / f.attr("cases/" + name, "loss_data"),
-            kLossTol)
+            kTorchLossTol)
       << "data term " << parts.data;
-  EXPECT_LT(std::abs(l2 - f.attr("cases/" + name, "loss_l2")) / f.attr("cases/" + name, "loss_l2"), kLossTol)
+  EXPECT_LT(std::abs(l2 - f.attr("cases/" + name, "loss_l2")) / f.attr("cases/" + name, "loss_l2"), kTorchLossTol)
       << "L2 term " << l2;
-  EXPECT_LT(std::abs(loss - ref_loss) / ref_loss, kLossTol) << "loss " << loss << " vs PyTorch " << ref_loss;
+  EXPECT_LT(std::abs(loss - ref_loss) / ref_loss, kTorchLossTol) << "loss " << loss << " vs PyTorch " << ref_loss;
 
   // Gradients (a diagnostic between the loss and the step: names the first wrong layer).
   model.backward(dy);
@@ -155,8 +155,8 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
   for (const ParamInfo& info : model.params().infos()) {
     const std::vector<double> g = f.read(c + "grads/" + info.name);
     ASSERT_EQ(g.size(), info.shape.numel());
-    const double e = rel_error(model.params().grad(model.params().find(info.name)), g.data(), g.size());
-    EXPECT_LT(e, kGradTol) << "gradient of " << info.name;
+    const double e = torch_rel_error(model.params().grad(model.params().find(info.name)), g.data(), g.size());
+    EXPECT_LT(e, kTorchGradTol) << "gradient of " << info.name;
     worst_grad = std::max(worst_grad, e);
   }
 
@@ -174,7 +174,7 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
   for (const ParamInfo& info : model.params().infos()) {
     const std::vector<double> w = f.read(c + "params_after/" + info.name);
     ASSERT_EQ(w.size(), info.shape.numel());
-    const double e = rel_error(model.params().value(model.params().find(info.name)), w.data(), w.size());
+    const double e = torch_rel_error(model.params().value(model.params().find(info.name)), w.data(), w.size());
     EXPECT_LT(e, kAfterStepTol) << "weights after one Adam step: " << info.name;
     worst_after = std::max(worst_after, e);
   }
@@ -201,7 +201,7 @@ void check_case(const std::string& name, detail::Conv3x3Path path = detail::Conv
 }  // namespace
 
 TEST(TorchAgreement, FixtureHoldsEveryParameterOfTheModel) {
-  Fixture f;
+  TorchFixture f;
   ASSERT_TRUE(f.ok()) << f.path();
   UNet model(fixture_config(f));
   EXPECT_EQ(model.params().infos().size(), 26u);  // depth 2: 5 double convs + 2 ups + head, weight + bias

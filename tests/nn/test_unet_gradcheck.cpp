@@ -9,12 +9,12 @@
 
 #include "common/error.h"
 #include "conv_path.h"
+#include "nn/heads.h"
 #include "nn/layers.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/unet.h"
 #include "nn/winograd.h"
-#include "nn/heads.h"
 #include "reference.h"
 #include "reference_losses.h"
 
@@ -23,7 +23,7 @@ namespace {
 
 using namespace reference;
 
-struct Case {
+struct UnetCase {
   UNetConfig cfg;
   Shape x;
   float lambda;
@@ -33,7 +33,7 @@ struct Result {
   double forward = 0, grad = 0;
 };
 
-Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path::direct) {
+Result check_unet(const UnetCase& c, detail::Conv3x3Path path = detail::Conv3x3Path::direct) {
   conv_paths::Conv3x3PathGuard guard(path);
   UNet model(c.cfg);
   model.init(7);
@@ -147,18 +147,18 @@ Result check_unet(const Case& c, detail::Conv3x3Path path = detail::Conv3x3Path:
   return r;
 }
 
-const Case kOdd7x9{{3, 1, 2, 2}, {2, 3, 7, 9}, 1e-2f};
-const Case kOdd5x11{{2, 2, 3, 2}, {2, 2, 5, 11}, 1e-2f};
-const Case kRowAffine7x9{{3, 2, 2, 2, 7}, {2, 3, 7, 9}, 1e-2f};  // two outputs, a gain and offset each per row
+const UnetCase kOdd7x9{{3, 1, 2, 2}, {2, 3, 7, 9}, 1e-2f};
+const UnetCase kOdd5x11{{2, 2, 3, 2}, {2, 2, 5, 11}, 1e-2f};
+const UnetCase kRowAffine7x9{{3, 2, 2, 2, 7}, {2, 3, 7, 9}, 1e-2f};  // two outputs, a gain and offset each per row
 // Lookup base on 3 "class" channels from 1 and range in channel 0 (random inputs: cells with
 // range <= 0 are empty, cells with no class channel above 0.5 take the no-group row).
-const Case kLookup7x9{{4, 1, 2, 2, 0, {3, 1, 0, 4, 0.25f, 7}}, {2, 4, 7, 9}, 1e-2f};
+const UnetCase kLookup7x9{{4, 1, 2, 2, 0, {3, 1, 0, 4, 0.25f, 7}}, {2, 4, 7, 9}, 1e-2f};
 // Three heads (mean, return logit, Laplace log-scale) over the lookup base and the row affine:
 // the base goes onto channel 0 only, each channel has its own loss.
-const Case kHeads7x9{{4, 3, 2, 2, 7, {3, 1, 0, 4, 0.25f, 7}, {HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace}},
+const UnetCase kHeads7x9{{4, 3, 2, 2, 7, {3, 1, 0, 4, 0.25f, 7}, {HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_laplace}},
                      {2, 4, 7, 9},
                      1e-2f};
-const Case kHeadsGauss5x11{{2, 3, 3, 2, 0, {}, {HeadKind::mean, HeadKind::log_scale_gaussian, HeadKind::return_logit}},
+const UnetCase kHeadsGauss5x11{{2, 3, 3, 2, 0, {}, {HeadKind::mean, HeadKind::log_scale_gaussian, HeadKind::return_logit}},
                            {2, 2, 5, 11},
                            1e-2f};
 
@@ -183,7 +183,7 @@ TEST(UNetGradCheck, RowAffineLayerAndEveryParameterBelowItMatchFiniteDifferences
 // Every parameter again with the 3x3 convolutions forced onto Winograd F(4x4, 3x3).
 TEST(UNetGradCheck, WinogradPathOddSizesAllParametersMatchFiniteDifferences) {
   if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
-  for (const Case& c : {kOdd7x9, kOdd5x11}) {
+  for (const UnetCase& c : {kOdd7x9, kOdd5x11}) {
     const Result r = check_unet(c, detail::Conv3x3Path::winograd);
     EXPECT_LT(r.forward, 1e-5);
     EXPECT_LT(r.grad, 1e-4);
@@ -197,7 +197,7 @@ TEST(UNetGradCheck, LookupBaseInputChannelAndEveryTrainedParameterMatchFiniteDif
 }
 
 TEST(UNetGradCheck, ThreeHeadsEachWithItsLossAndEveryParameterMatchFiniteDifferences) {
-  for (const Case& c : {kHeads7x9, kHeadsGauss5x11}) {
+  for (const UnetCase& c : {kHeads7x9, kHeadsGauss5x11}) {
     const Result r = check_unet(c);
     EXPECT_LT(r.forward, 1e-5);
     EXPECT_LT(r.grad, 1e-4);

@@ -21,7 +21,7 @@ namespace {
 using conv_paths::Conv3x3PathGuard;
 using detail::Conv3x3Path;
 
-Tensor input(Shape s) {
+Tensor cache_input(Shape s) {
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0.f, 1.f);
   Tensor t(s);
@@ -43,20 +43,20 @@ int largest_conv3x3(const ParamArena& p) {
   return best;
 }
 
-struct PrecisionGuard {
-  explicit PrecisionGuard(InferencePrecision p) : old(inference_precision()) { set_inference_precision(p); }
-  ~PrecisionGuard() { set_inference_precision(old); }
+struct CachePrecisionGuard {
+  explicit CachePrecisionGuard(InferencePrecision p) : old(inference_precision()) { set_inference_precision(p); }
+  ~CachePrecisionGuard() { set_inference_precision(old); }
   InferencePrecision old;
 };
 
 void check(Conv3x3Path path, InferencePrecision precision) {
   SCOPED_TRACE(std::string(conv_paths::path_name(path)) + " " + to_string(precision));
   Conv3x3PathGuard guard(path);
-  PrecisionGuard pg(precision);
+  CachePrecisionGuard pg(precision);
   const UNetConfig cfg{3, 1, 8, 2};
   UNet model(cfg);
   model.init(7);
-  const Tensor x = input(Shape{2, 3, 16, 40});
+  const Tensor x = cache_input(Shape{2, 3, 16, 40});
   Tensor y1, y1b, y2, y3, yf;
   model.predict(x, y1);
   const std::size_t hits = detail::testhook::weight_cache_hits();

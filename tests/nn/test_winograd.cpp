@@ -28,9 +28,9 @@ namespace {
 using detail::Conv3x3Path;
 using conv_paths::Conv3x3PathGuard;
 
-constexpr double kTol = 2e-5;
+constexpr double kWinogradTol = 2e-5;
 
-Tensor activations(Shape s, std::uint32_t seed) {
+Tensor winograd_activations(Shape s, std::uint32_t seed) {
   std::mt19937 rng(seed);
   std::normal_distribution<float> normal;
   Tensor t(s);
@@ -38,7 +38,7 @@ Tensor activations(Shape s, std::uint32_t seed) {
   return t;
 }
 
-std::vector<float> he_weights(int co, int ci, std::uint32_t seed) {
+std::vector<float> winograd_he_weights(int co, int ci, std::uint32_t seed) {
   std::mt19937 rng(seed);
   std::normal_distribution<float> normal(0.f, std::sqrt(2.f / (9.f * ci)));
   std::vector<float> w(static_cast<std::size_t>(co) * ci * 9);
@@ -71,13 +71,13 @@ Diff compare(const Tensor& a, const Tensor& ref) {
   return d;
 }
 
-struct Case {
+struct WinogradCase {
   int n, ci, co, h, w;
 };
 
 // Odd sizes: partial tiles in both directions, rows shorter and longer than one 16-tile vector,
 // a 1 x 1 map, and more channels than one 8-channel register block.
-const Case kCases[] = {{2, 5, 11, 7, 9},   {1, 16, 24, 13, 37}, {1, 3, 8, 1, 1},   {2, 32, 16, 5, 70},
+const WinogradCase kWinogradCases[] = {{2, 5, 11, 7, 9},   {1, 16, 24, 13, 37}, {1, 3, 8, 1, 1},   {2, 32, 16, 5, 70},
                        {1, 8, 8, 4, 64},   {1, 20, 9, 9, 100},  {3, 7, 5, 6, 3},   {1, 12, 40, 2, 250}};
 
 struct Outputs {
@@ -85,16 +85,16 @@ struct Outputs {
   std::vector<float> d_w;
 };
 
-Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
+Outputs run_plain(const WinogradCase& c, bool relu, Conv3x3Path path) {
   Conv3x3PathGuard guard(path);
   EXPECT_EQ(detail::conv3x3_takes_winograd(c.ci, c.co), path == Conv3x3Path::winograd);
-  const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 1);
-  const std::vector<float> w = he_weights(c.co, c.ci, 2);
+  const Tensor x = winograd_activations(Shape{c.n, c.ci, c.h, c.w}, 1);
+  const std::vector<float> w = winograd_he_weights(c.co, c.ci, 2);
   std::vector<float> b(static_cast<std::size_t>(c.co));
   for (int o = 0; o < c.co; ++o) b[o] = 0.05f * (o % 5) - 0.1f;
   Outputs r;
   conv2d_forward(r.y, x, w.data(), b.data(), c.co, 3, 1, relu);
-  const Tensor g = activations(r.y.shape(), 3);
+  const Tensor g = winograd_activations(r.y.shape(), 3);
   r.d_w.assign(w.size(), 0.f);
   conv2d_backward(&r.d_in, r.d_w.data(), nullptr, g, r.y, x, w.data(), 3, 1, relu);
   return r;
@@ -103,16 +103,16 @@ Outputs run_plain(const Case& c, bool relu, Conv3x3Path path) {
 TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
   if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   double worst_fwd = 0, worst_din = 0, worst_dw = 0;
-  for (const Case& c : kCases)
+  for (const WinogradCase& c : kWinogradCases)
     for (bool relu : {false, true}) {
       SCOPED_TRACE("n " + std::to_string(c.n) + " ci " + std::to_string(c.ci) + " co " + std::to_string(c.co) + " " +
                    std::to_string(c.h) + "x" + std::to_string(c.w) + " relu " + std::to_string(relu));
       const Outputs direct = run_plain(c, relu, Conv3x3Path::direct);
       const Outputs wino = run_plain(c, relu, Conv3x3Path::winograd);
       const Diff f = compare(wino.y, direct.y), d = compare(wino.d_in, direct.d_in), dw = compare(wino.d_w, direct.d_w);
-      EXPECT_LT(f.rel(), kTol) << "forward: max abs " << f.max_abs << " of " << f.scale;
-      EXPECT_LT(d.rel(), kTol) << "input gradient: max abs " << d.max_abs << " of " << d.scale;
-      EXPECT_LT(dw.rel(), kTol) << "weight gradient: max abs " << dw.max_abs << " of " << dw.scale;
+      EXPECT_LT(f.rel(), kWinogradTol) << "forward: max abs " << f.max_abs << " of " << f.scale;
+      EXPECT_LT(d.rel(), kWinogradTol) << "input gradient: max abs " << d.max_abs << " of " << d.scale;
+      EXPECT_LT(dw.rel(), kWinogradTol) << "weight gradient: max abs " << dw.max_abs << " of " << dw.scale;
       worst_fwd = std::max(worst_fwd, f.rel());
       worst_din = std::max(worst_din, d.rel());
       worst_dw = std::max(worst_dw, dw.rel());
@@ -123,14 +123,14 @@ TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
       worst_fwd, worst_din, worst_dw);
 }
 
-Outputs run_cat(const Case& c, int ca, Conv3x3Path path, Tensor* d_b) {
+Outputs run_cat(const WinogradCase& c, int ca, Conv3x3Path path, Tensor* d_b) {
   Conv3x3PathGuard guard(path);
-  const Tensor a = activations(Shape{c.n, ca, c.h, c.w}, 4), b = activations(Shape{c.n, c.ci - ca, c.h, c.w}, 5);
-  const std::vector<float> w = he_weights(c.co, c.ci, 6);
+  const Tensor a = winograd_activations(Shape{c.n, ca, c.h, c.w}, 4), b = winograd_activations(Shape{c.n, c.ci - ca, c.h, c.w}, 5);
+  const std::vector<float> w = winograd_he_weights(c.co, c.ci, 6);
   const std::vector<float> bias(static_cast<std::size_t>(c.co), 0.02f);
   Outputs r;
   conv2d_cat_forward(r.y, a, b, w.data(), bias.data(), c.co, true);
-  const Tensor g = activations(r.y.shape(), 7);
+  const Tensor g = winograd_activations(r.y.shape(), 7);
   r.d_w.assign(w.size(), 0.f);
   conv2d_cat_backward(r.d_in, *d_b, r.d_w.data(), nullptr, g, r.y, a, b, w.data(), true);
   return r;
@@ -139,14 +139,14 @@ Outputs run_cat(const Case& c, int ca, Conv3x3Path path, Tensor* d_b) {
 // The weight gradient's 16-channel groups straddle the two buffers when ca is not a multiple of 16.
 TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
   if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
-  for (const Case& c : {Case{2, 10, 6, 7, 9}, Case{1, 32, 16, 9, 66}, Case{2, 40, 24, 6, 70}}) {
+  for (const WinogradCase& c : {WinogradCase{2, 10, 6, 7, 9}, WinogradCase{1, 32, 16, 9, 66}, WinogradCase{2, 40, 24, 6, 70}}) {
     Tensor db_direct, db_wino;
     const Outputs direct = run_cat(c, c.ci / 2 - 1, Conv3x3Path::direct, &db_direct);
     const Outputs wino = run_cat(c, c.ci / 2 - 1, Conv3x3Path::winograd, &db_wino);
-    EXPECT_LT(compare(wino.y, direct.y).rel(), kTol);
-    EXPECT_LT(compare(wino.d_in, direct.d_in).rel(), kTol);
-    EXPECT_LT(compare(db_wino, db_direct).rel(), kTol);
-    EXPECT_LT(compare(wino.d_w, direct.d_w).rel(), kTol);
+    EXPECT_LT(compare(wino.y, direct.y).rel(), kWinogradTol);
+    EXPECT_LT(compare(wino.d_in, direct.d_in).rel(), kWinogradTol);
+    EXPECT_LT(compare(db_wino, db_direct).rel(), kWinogradTol);
+    EXPECT_LT(compare(wino.d_w, direct.d_w).rel(), kWinogradTol);
   }
 }
 
@@ -156,10 +156,10 @@ TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
 TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
   if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
   const int saved = omp_get_max_threads();
-  for (const Case& c : {Case{2, 16, 16, 64, 700}, Case{2, 64, 72, 8, 20}}) {
+  for (const WinogradCase& c : {WinogradCase{2, 16, 16, 64, 700}, WinogradCase{2, 64, 72, 8, 20}}) {
     SCOPED_TRACE("ci " + std::to_string(c.ci) + " co " + std::to_string(c.co));
-    const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 21);
-    const Tensor g = activations(Shape{c.n, c.co, c.h, c.w}, 22);
+    const Tensor x = winograd_activations(Shape{c.n, c.ci, c.h, c.w}, 21);
+    const Tensor g = winograd_activations(Shape{c.n, c.co, c.h, c.w}, 22);
     std::vector<float> first;
     for (int threads : {1, 2, 3}) {
       omp_set_num_threads(threads);
@@ -170,11 +170,11 @@ TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
         // and it is the gradient: against the direct kernel
         Conv3x3PathGuard guard(Conv3x3Path::direct);
         std::vector<float> ref(dw.size(), 0.f);
-        const std::vector<float> w = he_weights(c.co, c.ci, 23);
+        const std::vector<float> w = winograd_he_weights(c.co, c.ci, 23);
         Tensor y;
         conv2d_forward(y, x, w.data(), nullptr, c.co, 3, 1, false);
         conv2d_backward(nullptr, ref.data(), nullptr, g, y, x, w.data(), 3, 1, false);
-        EXPECT_LT(compare(dw, ref).rel(), kTol);
+        EXPECT_LT(compare(dw, ref).rel(), kWinogradTol);
       } else {
         EXPECT_EQ(std::memcmp(first.data(), dw.data(), dw.size() * sizeof(float)), 0) << threads << " threads";
       }
@@ -194,7 +194,7 @@ TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
   double worst_ulps = 0;
   for (const bool flip : {false, true}) {
     const int co = 13, ci = 5;  // of the conv that runs: flipped, the weight is [ci][co][3][3]
-    const std::vector<float> w = he_weights(flip ? ci : co, flip ? co : ci, 9);
+    const std::vector<float> w = winograd_he_weights(flip ? ci : co, flip ? co : ci, 9);
     const int blocks = (co + 7) / 8;
     const std::size_t per_e = detail::winograd_u_stride(co, ci);
     ASSERT_GE(per_e, static_cast<std::size_t>(blocks) * ci * 8);
@@ -228,9 +228,9 @@ TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
 TEST(Winograd, ComparisonCanFail) {
   // The same comparison with one weight changed by 1 % of its scale must exceed the tolerance.
   if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
-  const Case c{1, 8, 8, 7, 9};
-  const Tensor x = activations(Shape{c.n, c.ci, c.h, c.w}, 1);
-  std::vector<float> w = he_weights(c.co, c.ci, 2);
+  const WinogradCase c{1, 8, 8, 7, 9};
+  const Tensor x = winograd_activations(Shape{c.n, c.ci, c.h, c.w}, 1);
+  std::vector<float> w = winograd_he_weights(c.co, c.ci, 2);
   Tensor direct, wino;
   {
     Conv3x3PathGuard guard(Conv3x3Path::direct);
@@ -241,7 +241,7 @@ TEST(Winograd, ComparisonCanFail) {
     Conv3x3PathGuard guard(Conv3x3Path::winograd);
     conv2d_forward(wino, x, w.data(), nullptr, c.co, 3, 1, false);
   }
-  EXPECT_GT(compare(wino, direct).rel(), 10 * kTol);
+  EXPECT_GT(compare(wino, direct).rel(), 10 * kWinogradTol);
 }
 
 }  // namespace

@@ -13,6 +13,9 @@
 #include "../data/temp_dir.h"
 #include "osi/osi3_subset.pb.h"
 #include "osi/trace.h"
+#include "tests/support/file_bytes.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace {
 
@@ -25,21 +28,14 @@ int run(const std::string& args, const fs::path& err) {
   return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
 }
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 }  // namespace
 
 TEST(OsiCli, ScenarioTraceThroughLidarInferOsiGivesOneSensorDataPerFrame) {
   lidarsim::testing::TempDir dir;
   const fs::path in = dir / "in.osi", out = dir / "out.osi", err = dir / "err.txt";
-  ASSERT_EQ(run("osi-trace --frames 4 --out " + in.string(), err), 0) << slurp(err);
-  ASSERT_EQ(run("osi --in " + in.string() + " --out " + out.string() + " --threads 1", err), 0) << slurp(err);
-  EXPECT_NE(slurp(err).find("4 frames:"), std::string::npos) << slurp(err);
+  ASSERT_EQ(run("osi-trace --frames 4 --out " + in.string(), err), 0) << read_bytes(err);
+  ASSERT_EQ(run("osi --in " + in.string() + " --out " + out.string() + " --threads 1", err), 0) << read_bytes(err);
+  EXPECT_NE(read_bytes(err).find("4 frames:"), std::string::npos) << read_bytes(err);
 
   std::ifstream sv(in, std::ios::binary), sd(out, std::ios::binary);
   lidarsim::osi::TraceReader views(sv, in.string()), datas(sd, out.string());
@@ -65,21 +61,21 @@ TEST(OsiCli, ScenarioTraceThroughLidarInferOsiGivesOneSensorDataPerFrame) {
 TEST(OsiCli, StdinToStdoutGivesTheSameBytesAsFiles) {
   lidarsim::testing::TempDir dir;
   const fs::path in = dir / "in.osi", out = dir / "out.osi", piped = dir / "piped.osi", err = dir / "err.txt";
-  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << slurp(err);
-  ASSERT_EQ(run("osi --no-point-cloud --in " + in.string() + " --out " + out.string(), err), 0) << slurp(err);
+  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << read_bytes(err);
+  ASSERT_EQ(run("osi --no-point-cloud --in " + in.string() + " --out " + out.string(), err), 0) << read_bytes(err);
   ASSERT_EQ(run("osi --no-point-cloud --in - --out - < " + in.string() + " > " + piped.string(), err), 0)
-      << slurp(err);
-  EXPECT_FALSE(slurp(out).empty());
-  EXPECT_EQ(slurp(piped), slurp(out));
+      << read_bytes(err);
+  EXPECT_FALSE(read_bytes(out).empty());
+  EXPECT_EQ(read_bytes(piped), read_bytes(out));
 }
 
 TEST(OsiCli, TxthOutputIsTheTextFormat) {
   lidarsim::testing::TempDir dir;
   const fs::path in = dir / "in.osi", out = dir / "out.txth", err = dir / "err.txt";
-  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << slurp(err);
+  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << read_bytes(err);
   ASSERT_EQ(run("osi --no-point-cloud --format txth --in " + in.string() + " --out " + out.string(), err), 0)
-      << slurp(err);
-  const std::string text = slurp(out);
+      << read_bytes(err);
+  const std::string text = read_bytes(out);
   EXPECT_NE(text.find("version {\n  version_major: 3"), std::string::npos);
   EXPECT_NE(text.find("moving_object {"), std::string::npos);
 }
@@ -87,11 +83,11 @@ TEST(OsiCli, TxthOutputIsTheTextFormat) {
 TEST(OsiCli, TornTraceFailsNamingTheMessageAndWritesNoOutput) {
   lidarsim::testing::TempDir dir;
   const fs::path in = dir / "in.osi", torn = dir / "torn.osi", out = dir / "out.osi", err = dir / "err.txt";
-  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << slurp(err);
-  const std::string t = slurp(in);
+  ASSERT_EQ(run("osi-trace --frames 3 --out " + in.string(), err), 0) << read_bytes(err);
+  const std::string t = read_bytes(in);
   std::ofstream(torn, std::ios::binary) << t.substr(0, t.size() - 10);
   EXPECT_EQ(run("osi --no-point-cloud --in " + torn.string() + " --out " + out.string(), err), 1);
-  EXPECT_NE(slurp(err).find("torn.osi: message 2: torn"), std::string::npos) << slurp(err);
+  EXPECT_NE(read_bytes(err).find("torn.osi: message 2: torn"), std::string::npos) << read_bytes(err);
   EXPECT_FALSE(fs::exists(out));
   for (const auto& e : fs::directory_iterator(dir.path()))
     EXPECT_EQ(e.path().filename().string().find("out.osi"), std::string::npos) << e.path();
@@ -101,5 +97,5 @@ TEST(OsiCli, BadFormatIsOneClearError) {
   lidarsim::testing::TempDir dir;
   const fs::path err = dir / "err.txt";
   EXPECT_NE(run("osi --in x.osi --out y.osi --format json", err), 0);
-  EXPECT_NE(slurp(err).find("--format: must be binary or txth, got 'json'"), std::string::npos) << slurp(err);
+  EXPECT_NE(read_bytes(err).find("--format: must be binary or txth, got 'json'"), std::string::npos) << read_bytes(err);
 }

@@ -20,6 +20,9 @@
 #include "infer/osi_runner.h"
 #include "osi/sensor_data.h"
 #include "osi/trace.h"
+#include "tests/support/file_bytes.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace {
 
@@ -78,7 +81,7 @@ OsiRunner make_runner(bool point_cloud, bool ideal = true) {
 }
 
 // The serialized SensorData of each frame of `views` through a fresh runner.
-std::vector<std::string> run(const std::vector<osi3::SensorView>& views, bool point_cloud) {
+std::vector<std::string> run_conventions_cli(const std::vector<osi3::SensorView>& views, bool point_cloud) {
   OsiRunner runner = make_runner(point_cloud);
   std::vector<std::string> out;
   osi3::SensorData d;
@@ -100,13 +103,6 @@ std::string error_of(const osi3::SensorView& v) {
   return "";
 }
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 }  // namespace
 
 TEST(OsiConventions, MountOnlyInLidarViewConfigurationGivesTheSameSensorDataAsTheTopLevelMount) {
@@ -119,7 +115,7 @@ TEST(OsiConventions, MountOnlyInLidarViewConfigurationGivesTheSameSensorDataAsTh
     c->mutable_sensor_id()->set_value(70);
     set_mount(*c->mutable_mounting_position(), 1.0, 1.43);
   }
-  const auto a = run(top, true), b = run(lidar, true);
+  const auto a = run_conventions_cli(top, true), b = run_conventions_cli(lidar, true);
   ASSERT_EQ(a.size(), b.size());
   for (std::size_t k = 0; k < a.size(); ++k) EXPECT_TRUE(a[k] == b[k]) << "frame " << k;
   osi3::SensorData d;
@@ -134,7 +130,7 @@ TEST(OsiConventions, FirstLidarViewWithAMountIsUsedWhenTheTopLevelOneIsAbsent) {
   set_mount(*v.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.0, 1.2);
   set_mount(*v.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 3.0, 1.0);
   set_mount(*ref.mutable_mounting_position(), 2.0, 1.2);
-  EXPECT_TRUE(run({v}, false) == run({ref}, false));
+  EXPECT_TRUE(run_conventions_cli({v}, false) == run_conventions_cli({ref}, false));
 }
 
 TEST(OsiConventions, TopLevelMountWinsOverTheLidarViewConfigurationsWhenBothAreGiven) {
@@ -152,7 +148,7 @@ TEST(OsiConventions, TopLevelMountWinsOverTheLidarViewConfigurationsWhenBothAreG
     set_mount(*lidar_only.back().add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(),
               2.5, 1.1, 0.3);
   }
-  const auto b = run(both, true), t = run(top_only, true), l = run(lidar_only, true);
+  const auto b = run_conventions_cli(both, true), t = run_conventions_cli(top_only, true), l = run_conventions_cli(lidar_only, true);
   for (std::size_t k = 0; k < b.size(); ++k) {
     EXPECT_TRUE(b[k] == t[k]) << "frame " << k;
     EXPECT_FALSE(b[k] == l[k]) << "frame " << k << ": the two mounts give the same output, the rule is untested";
@@ -244,7 +240,7 @@ TEST(OsiConventions, FmuDeclaresTheSameVersionItWrites) {
   ASSERT_EQ(std::system(("cd " + dir.path().string() + " && cmake -E tar xf " + fmu.string() +
                          " modelDescription.xml").c_str()),
             0);
-  const std::string xml = slurp(dir / "modelDescription.xml");
+  const std::string xml = read_bytes(dir / "modelDescription.xml");
   const std::string version = std::to_string(lidarsim::osi::kOsiVersion[0]) + "." +
                               std::to_string(lidarsim::osi::kOsiVersion[1]) + "." +
                               std::to_string(lidarsim::osi::kOsiVersion[2]);
@@ -284,10 +280,10 @@ TEST(OsiConventions, LidarInferOsiIdealReportsObjectsInItsFirstSensorData) {
     const int rc = std::system((exe.string() + " " + args + " 2>" + err.string()).c_str());
     return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
   };
-  ASSERT_EQ(run_cli("osi-trace --frames 1 --out " + in.string()), 0) << slurp(err);
+  ASSERT_EQ(run_cli("osi-trace --frames 1 --out " + in.string()), 0) << read_bytes(err);
   ASSERT_EQ(run_cli("osi --no-point-cloud --quiet --ideal --in " + in.string() + " --out " + ideal.string()), 0)
-      << slurp(err);
-  ASSERT_EQ(run_cli("osi --no-point-cloud --quiet --in " + in.string() + " --out " + plain.string()), 0) << slurp(err);
+      << read_bytes(err);
+  ASSERT_EQ(run_cli("osi --no-point-cloud --quiet --in " + in.string() + " --out " + plain.string()), 0) << read_bytes(err);
   auto tracked_in_first = [](const fs::path& p) {
     std::ifstream f(p, std::ios::binary);
     lidarsim::osi::TraceReader reader(f, p.string());

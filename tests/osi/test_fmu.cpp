@@ -19,17 +19,13 @@
 #include "osi/osi3_subset.pb.h"
 #include "osi/scenario_trace.h"
 #include "sensor/scenario.h"
+#include "tests/support/file_bytes.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 std::string attribute(const std::string& xml, const std::string& name) {
   const auto at = xml.find(" " + name + "=\"");
@@ -62,7 +58,7 @@ TEST(OsiFmu, ImporterGetsSensorDataForEachSensorViewThroughOsmpPointers) {
   ASSERT_TRUE(fs::exists(fmu)) << fmu;
   ASSERT_EQ(std::system(("cd " + dir.path().string() + " && cmake -E tar xf " + fmu.string()).c_str()), 0);
 
-  const std::string xml = slurp(dir / "modelDescription.xml");
+  const std::string xml = read_bytes(dir / "modelDescription.xml");
   EXPECT_EQ(attribute(xml, "fmiVersion"), "2.0");
   EXPECT_EQ(attribute(xml, "variableNamingConvention"), "structured");
   EXPECT_NE(xml.find("<osmp:osmp version="), std::string::npos);

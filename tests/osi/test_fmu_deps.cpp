@@ -10,6 +10,7 @@
 // shared object; it and its libz are allowed here by name, nothing else.
 #include <gtest/gtest.h>
 
+#include "tests/support/file_bytes.h"
 #include "tests/support/sanitizer.h"
 
 #include <cstdio>
@@ -27,6 +28,8 @@
 #include "osi/osi3_subset.pb.h"
 #include "osi/scenario_trace.h"
 #include "sensor/scenario.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace {
 
@@ -52,13 +55,6 @@ std::vector<std::string> lines_of(const std::string& command) {
   }
   EXPECT_EQ(pclose(p), 0) << command;
   return lines;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
 }
 
 // The FMU unpacked into `dir` (what an importer does first).
@@ -155,13 +151,13 @@ TEST(OsiFmuSelfContained, ImporterLoadsOnlyTheRuntimeAndGetsTheInProcessBytes) {
                               LIDARSIM_FMU_IMPORTER + " " + root.string() + " " + (dir / "sv.osi").string() + " " +
                               (dir / "sd.osi").string();
   ASSERT_EQ(std::system(command.c_str()), 0) << command;
-  EXPECT_TRUE(slurp(dir / "sd.osi") == expected) << "the FMU's SensorData differ from the in-process model's";
+  EXPECT_TRUE(read_bytes(dir / "sd.osi") == expected) << "the FMU's SensorData differ from the in-process model's";
 
   // LD_DEBUG=files: "file=<name> [0];  generating link map" for every object the loader maps.
   std::set<std::string> loaded;
   for (const auto& entry : fs::directory_iterator(dir.path()))
     if (entry.path().filename().string().rfind("ld.", 0) == 0) {
-      std::istringstream log(slurp(entry.path()));
+      std::istringstream log(read_bytes(entry.path()));
       for (std::string line; std::getline(log, line);) {
         const auto at = line.find("file="), end = line.find(" [");
         if (at == std::string::npos || end == std::string::npos || line.find("generating link map") == std::string::npos)

@@ -16,15 +16,16 @@
 #include <map>
 #include <string>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "infer/osi_runner.h"
 #include "osi/sensor_data.h"
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using lidarsim::kPi;
 
-void add_object(osi3::GroundTruth& gt, std::uint64_t id, osi3::MovingObject::Type type, double x, double y, double z,
+void scene_add_object(osi3::GroundTruth& gt, std::uint64_t id, osi3::MovingObject::Type type, double x, double y, double z,
                 double l, double w, double h, double vy = 0) {
   auto* o = gt.add_moving_object();
   o->mutable_id()->set_value(id);
@@ -43,7 +44,7 @@ void add_object(osi3::GroundTruth& gt, std::uint64_t id, osi3::MovingObject::Typ
   b->mutable_velocity()->set_y(vy);
 }
 
-osi3::SensorView scene_at(double t) {
+osi3::SensorView scene_frame_at(double t) {
   osi3::SensorView v;
   v.mutable_timestamp()->set_seconds(static_cast<std::int64_t>(std::floor(t)));
   v.mutable_timestamp()->set_nanos(static_cast<std::uint32_t>(std::lround((t - std::floor(t)) * 1e9)));
@@ -52,13 +53,13 @@ osi3::SensorView scene_at(double t) {
   v.mutable_mounting_position()->mutable_position()->set_x(1.0);   // 1 m ahead of the rear axle,
   v.mutable_mounting_position()->mutable_position()->set_z(1.43);  // which is 0.3 m above the road
   auto& gt = *v.mutable_global_ground_truth();
-  add_object(gt, 99, osi3::MovingObject::TYPE_VEHICLE, 1.4, 0, 0.75, 4.5, 1.8, 1.5);
+  scene_add_object(gt, 99, osi3::MovingObject::TYPE_VEHICLE, 1.4, 0, 0.75, 4.5, 1.8, 1.5);
   auto* r = gt.mutable_moving_object(0)->mutable_vehicle_attributes()->mutable_bbcenter_to_rear();
   r->set_x(-1.4);
   r->set_z(-0.45);
-  add_object(gt, 11, osi3::MovingObject::TYPE_VEHICLE, 15, 0, 1.1, 5, 2, 2.2);
-  add_object(gt, 12, osi3::MovingObject::TYPE_VEHICLE, 25, 0, 0.75, 4.5, 1.8, 1.5);
-  add_object(gt, 13, osi3::MovingObject::TYPE_PEDESTRIAN, 10, 5 - 1.5 * t, 0.9, 0.6, 0.6, 1.8, -1.5);
+  scene_add_object(gt, 11, osi3::MovingObject::TYPE_VEHICLE, 15, 0, 1.1, 5, 2, 2.2);
+  scene_add_object(gt, 12, osi3::MovingObject::TYPE_VEHICLE, 25, 0, 0.75, 4.5, 1.8, 1.5);
+  scene_add_object(gt, 13, osi3::MovingObject::TYPE_PEDESTRIAN, 10, 5 - 1.5 * t, 0.9, 0.6, 0.6, 1.8, -1.5);
   auto* lane = gt.add_lane_boundary();
   lane->mutable_id()->set_value(500);
   lane->mutable_classification()->set_type(osi3::LaneBoundary::Classification::TYPE_SOLID_LINE);
@@ -81,7 +82,7 @@ TEST(OsiScene, PlainViewVanAndCrossingPedestrianReportedHiddenCarAndHostAbsent) 
                                              src + "/data/models/kpi_pointrcnn.json",
                                              src + "/data/models/intensity_unet.h5", options);
   osi3::SensorData out;
-  for (int k = 0; k < 3; ++k) runner.step(scene_at(0.1 * k), k, "hand", out);
+  for (int k = 0; k < 3; ++k) runner.step(scene_frame_at(0.1 * k), k, "hand", out);
 
   EXPECT_EQ(out.version().version_major(), 3u);
   EXPECT_EQ(out.timestamp().nanos(), 200000000u);
@@ -156,9 +157,9 @@ TEST(OsiScene, TimestampThatDoesNotAdvanceIsAnErrorNamingTheMessage) {
   auto runner = infer::OsiRunner::from_files(src + "/data/scenarios/demo_urban.json",
                                              src + "/data/models/kpi_pointrcnn.json", "", options);
   osi3::SensorData out;
-  runner.step(scene_at(0.1), 0, "hand", out);
+  runner.step(scene_frame_at(0.1), 0, "hand", out);
   try {
-    runner.step(scene_at(0.1), 1, "hand", out);
+    runner.step(scene_frame_at(0.1), 1, "hand", out);
     FAIL();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("hand: message 1: timestamp: does not advance"), std::string::npos) << e.what();

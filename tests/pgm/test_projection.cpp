@@ -5,12 +5,13 @@
 #include <numbers>
 #include <random>
 
+#include "common/angles.h"
 #include "common/error.h"
 #include "pgm/materials.h"
 #include "pgm/projection.h"
 
 using namespace lidarsim::pgm;
-constexpr double kPi = std::numbers::pi;
+using lidarsim::kPi;
 
 namespace {
 Point at(double range, double el_deg, double az_rad, float intensity = 0, int cls = 0) {

@@ -25,12 +25,12 @@ using namespace lidarsim;
 
 namespace {
 
-struct LoopRun {
+struct FpLoopRun {
   nlohmann::json report;
   sensor::KpiModel model;  // the refitted model the loop wrote
 };
 
-LoopRun loop_on(data::ObjectEffect effect, int sequences, int tracks, double false_positives, bool polar) {
+FpLoopRun fp_loop_on(data::ObjectEffect effect, int sequences, int tracks, double false_positives, bool polar) {
   const std::string tag = data::to_string(effect) + "_" + std::to_string(sequences) + "_" + std::to_string(::getpid());
   const fs::path dir = fs::temp_directory_path() / ("lidarsim_qualify_fp_" + tag);
   const fs::path model = fs::temp_directory_path() / ("lidarsim_qualify_fp_" + tag + ".json");
@@ -45,7 +45,7 @@ LoopRun loop_on(data::ObjectEffect effect, int sequences, int tracks, double fal
   data::write_reference_tracking(dir, o);
   qualify::LoopOptions lo;
   lo.out_model = model;
-  LoopRun r;
+  FpLoopRun r;
   r.report = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   r.model = sensor::load_kpi_model(model);
   fs::remove_all(dir);
@@ -70,7 +70,7 @@ bool any_fp_table(const sensor::KpiModel& m) {
 }  // namespace
 
 TEST(LoopFalsePositivesStatistical, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsTheHeldOutRateErrorAndIsPlaced) {
-  const LoopRun run = loop_on(data::ObjectEffect::FalsePositiveHotspot, 4, 48, 0.6, true);
+  const FpLoopRun run = fp_loop_on(data::ObjectEffect::FalsePositiveHotspot, 4, 48, 0.6, true);
   const nlohmann::json& fp = run.report["false_positives"];
   print(fp);
   ASSERT_FALSE(fp["added"].is_null());
@@ -107,14 +107,14 @@ TEST(LoopFalsePositivesStatistical, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsT
 }
 
 TEST(LoopFalsePositivesStatistical, ControlWithoutHotspotAddsNoTable) {
-  const LoopRun run = loop_on(data::ObjectEffect::None, 4, 48, 0.6, true);
+  const FpLoopRun run = fp_loop_on(data::ObjectEffect::None, 4, 48, 0.6, true);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());
   EXPECT_FALSE(any_fp_table(run.model));
 }
 
 TEST(LoopFalsePositivesStatistical, ControlWithTwoSequencesAddsNoTable) {
-  const LoopRun run = loop_on(data::ObjectEffect::None, 2, 24, 0.2, false);
+  const FpLoopRun run = fp_loop_on(data::ObjectEffect::None, 2, 24, 0.2, false);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());
   EXPECT_FALSE(any_fp_table(run.model));
@@ -124,7 +124,7 @@ TEST(LoopFalsePositivesStatistical, ControlWithTwoSequencesAddsNoTable) {
 // its small range-azimuth tie stays below the threshold, so the error and detection tests' runs add no
 // false-positive table either.
 TEST(LoopFalsePositivesStatistical, DefaultClutterOfTheOtherTestsAddsNoTable) {
-  const LoopRun run = loop_on(data::ObjectEffect::None, 4, 48, 0.2, false);
+  const FpLoopRun run = fp_loop_on(data::ObjectEffect::None, 4, 48, 0.2, false);
   print(run.report["false_positives"]);
   EXPECT_TRUE(run.report["false_positives"]["added"].is_null());
   EXPECT_FALSE(any_fp_table(run.model));

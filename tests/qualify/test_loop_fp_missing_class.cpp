@@ -16,6 +16,7 @@
 #include <sstream>
 #include <string>
 
+#include "common/angles.h"
 #include "common/atomic_file.h"
 #include "data/reference_sensor.h"
 #include "qualify/object_folds.h"
@@ -28,7 +29,7 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using lidarsim::kPi;
 constexpr int kFrames = 200;
 constexpr double kCellRangeLo = 15, kCellRangeHi = 25, kCellAzLo = -35 * kPi / 180, kCellAzHi = -15 * kPi / 180;
 

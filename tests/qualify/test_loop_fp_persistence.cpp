@@ -19,13 +19,13 @@ using namespace lidarsim;
 
 namespace {
 
-struct LoopRun {
+struct PersistenceLoopRun {
   nlohmann::json report;
   sensor::KpiModel model;
   bool track_png_ok = false;  // plots_dir's fp_track_lengths.png is a PNG of a plausible size
 };
 
-LoopRun loop_on(double ghost_survival) {
+PersistenceLoopRun persistence_loop_on(double ghost_survival) {
   const std::string tag = std::to_string(int(ghost_survival * 100)) + "_" + std::to_string(::getpid());
   const fs::path dir = fs::temp_directory_path() / ("lidarsim_qualify_ghost_" + tag);
   const fs::path model = fs::temp_directory_path() / ("lidarsim_qualify_ghost_" + tag + ".json");
@@ -41,7 +41,7 @@ LoopRun loop_on(double ghost_survival) {
   qualify::LoopOptions lo;
   lo.out_model = model;
   lo.plots_dir = dir / "plots";
-  LoopRun r;
+  PersistenceLoopRun r;
   r.report = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   r.model = sensor::load_kpi_model(model);
   // The track-length picture: a PNG (its signature) of a plausible size.
@@ -64,7 +64,7 @@ const nlohmann::json& persistence_row(const nlohmann::json& fp) {
   return none;
 }
 
-void print(const nlohmann::json& fp) {
+void print_persistence(const nlohmann::json& fp) {
   const auto& p = fp["persistence"];
   std::cout << "  persistence: score " << p["score"] << " " << p["interval95"] << " change " << p["change_interval95"]
             << " error " << p["error_before"] << " -> " << p["error_after"] << " added " << p["added"] << "\n  Car "
@@ -74,9 +74,9 @@ void print(const nlohmann::json& fp) {
 }  // namespace
 
 TEST(LoopFpPersistenceStatistical, PlantedGhostsAreNamedCutTheHeldOutPersistenceErrorAndAreWritten) {
-  const LoopRun run = loop_on(0.8);
+  const PersistenceLoopRun run = persistence_loop_on(0.8);
   const nlohmann::json& fp = run.report["false_positives"];
-  print(fp);
+  print_persistence(fp);
   const nlohmann::json& row = persistence_row(fp);
   ASSERT_FALSE(row.is_null()) << "listed among the false-positive candidates";
   EXPECT_EQ(row["decision"], "added");
@@ -104,9 +104,9 @@ TEST(LoopFpPersistenceStatistical, PlantedGhostsAreNamedCutTheHeldOutPersistence
 }
 
 TEST(LoopFpPersistenceStatistical, ControlWithoutGhostsAddsNothing) {
-  const LoopRun run = loop_on(0);
+  const PersistenceLoopRun run = persistence_loop_on(0);
   const nlohmann::json& fp = run.report["false_positives"];
-  print(fp);
+  print_persistence(fp);
   EXPECT_FALSE(fp["persistence"]["added"].get<bool>());
   EXPECT_NE(persistence_row(fp)["decision"], "added");
   for (const auto& [name, c] : run.model.classes) EXPECT_FALSE(c.fp_persistence.present()) << name;

@@ -29,7 +29,7 @@ data::Dataset reference_geometry() {
   return lidarsim::testing::reference_scans(o, "loop_range");
 }
 
-nlohmann::json lookup_loop(const data::Dataset& ds) {
+nlohmann::json range_lookup_loop(const data::Dataset& ds) {
   qualify::IntensityLoopOptions lo;
   lo.base_model = "lookup";
   const auto j = qualify::loop_intensity(ds, lo);
@@ -47,7 +47,7 @@ TEST(LoopIntensityRange, FallOffChangedOnABlockOfLasersIsNamedAndCut) {
   draw.effect.row_first = geometry.rows() / 3;
   draw.effect.row_last = draw.effect.row_first + geometry.rows() / 3 - 1;
   draw.effect.exponent = 0.4;
-  const nlohmann::json j = lookup_loop(data::plant(geometry, draw));
+  const nlohmann::json j = range_lookup_loop(data::plant(geometry, draw));
   const data::PlantedScore s = data::score_planted(draw, j);
   std::cout << "  excess " << s.excess_before << " -> " << s.excess_after << "\n";
   EXPECT_TRUE(s.named) << "added " << j["added_effect"] << "; ranking " << j["ranking"].dump();
@@ -55,7 +55,7 @@ TEST(LoopIntensityRange, FallOffChangedOnABlockOfLasersIsNamedAndCut) {
   EXPECT_NE(j["method"].get<std::string>().find("range slope"), std::string::npos) << j["method"];
 
   const data::PlantedScanDraw control = data::draw_planted(data::PlantedScanFamily::Control, 7, geometry);
-  const nlohmann::json c = lookup_loop(data::plant(geometry, control));
+  const nlohmann::json c = range_lookup_loop(data::plant(geometry, control));
   EXPECT_TRUE(c["added_effect"].is_null()) << c["added_effect"] << " via " << c["method"];
 }
 
@@ -67,7 +67,7 @@ TEST(LoopIntensityRangeStatistical, SemanticKittiCampaignDrawIsCutToTheRule) {
   const data::Dataset geometry = qualify::import_for_qualify(dir);
   const data::PlantedScanDraw draw = data::draw_planted(data::PlantedScanFamily::RangeFalloff, 1003010, geometry, 0.03);
   ASSERT_EQ(draw.effect.row_first, 15);
-  const nlohmann::json j = lookup_loop(data::plant(geometry, draw));
+  const nlohmann::json j = range_lookup_loop(data::plant(geometry, draw));
   const data::PlantedScore s = data::score_planted(draw, j);
   std::cout << "  excess " << s.excess_before << " -> " << s.excess_after << "\n";
   EXPECT_TRUE(s.named) << j["added_effect"];

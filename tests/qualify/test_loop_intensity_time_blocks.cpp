@@ -20,7 +20,7 @@ using namespace lidarsim;
 
 namespace {
 
-data::Dataset reference_geometry(int scans) {
+data::Dataset blocks_reference_geometry(int scans) {
   data::ReferenceScanOptions o;
   o.scans = scans;
   o.seed = 31;
@@ -45,7 +45,7 @@ data::PlantedScanDraw window_draw(const data::Dataset& geometry) {
   return d;
 }
 
-nlohmann::json lookup_loop(const data::Dataset& ds) {
+nlohmann::json blocks_lookup_loop(const data::Dataset& ds) {
   qualify::IntensityLoopOptions lo;
   lo.base_model = "lookup";
   const auto j = qualify::loop_intensity(ds, lo);
@@ -58,10 +58,10 @@ nlohmann::json lookup_loop(const data::Dataset& ds) {
 }  // namespace
 
 TEST(LoopIntensityTimeBlocksStatistical, WindowOfAzimuthIsNamedAndCutOnBlocksOfScansAtDifferentPlaces) {
-  const data::Dataset geometry = each_scan_twice(reference_geometry(4));
+  const data::Dataset geometry = each_scan_twice(blocks_reference_geometry(4));
   ASSERT_EQ(geometry.size(), 8);
   const data::PlantedScanDraw draw = window_draw(geometry);
-  const nlohmann::json j = lookup_loop(data::plant(geometry, draw));
+  const nlohmann::json j = blocks_lookup_loop(data::plant(geometry, draw));
   // Consecutive scans share their scenery half the time: not independent scans, but the blocks are.
   EXPECT_GE(j["scenery_correlation_between_scans"].get<double>(), 0.5);
   EXPECT_LT(j["scenery_correlation_between_time_blocks"].get<double>(), 0.2);
@@ -75,9 +75,9 @@ TEST(LoopIntensityTimeBlocksStatistical, WindowOfAzimuthIsNamedAndCutOnBlocksOfS
 // cross-fitted over classes x row blocks in the same columns instead, and a gain of the sensor
 // there (every class, every row) is named and cut.
 TEST(LoopIntensityTimeBlocks, OneScanNamesAWindowOfAzimuthAcrossClassesAndRowBlocks) {
-  const data::Dataset geometry = reference_geometry(1);
+  const data::Dataset geometry = blocks_reference_geometry(1);
   const data::PlantedScanDraw draw = window_draw(geometry);
-  const nlohmann::json j = lookup_loop(data::plant(geometry, draw));
+  const nlohmann::json j = blocks_lookup_loop(data::plant(geometry, draw));
   ASSERT_TRUE(j.contains("azimuth_cross_fit")) << j["cross_fit"];
   EXPECT_NE(j["azimuth_cross_fit"].get<std::string>().find("classes x row blocks"), std::string::npos);
   const data::PlantedScore s = data::score_planted(draw, j);
@@ -88,7 +88,7 @@ TEST(LoopIntensityTimeBlocks, OneScanNamesAWindowOfAzimuthAcrossClassesAndRowBlo
 // Scenery that mimics a window: one class darker than its class's mean over 60 deg (a dark wall).
 // Fitted on the other classes in the other rows, the window carries nothing of it.
 TEST(LoopIntensityTimeBlocks, OneScanDarkObjectOfOneClassInAWindowAddsNothing) {
-  const data::Dataset geometry = reference_geometry(1);
+  const data::Dataset geometry = blocks_reference_geometry(1);
   const data::PlantedScanDraw control = data::draw_planted(data::PlantedScanFamily::Control, 5, geometry);
   data::Dataset ds = data::plant(geometry, control);
   const int ic = ds.channel_index("class"), iaz = ds.channel_index("azimuth");
@@ -106,18 +106,18 @@ TEST(LoopIntensityTimeBlocks, OneScanDarkObjectOfOneClassInAWindowAddsNothing) {
       if (ds.mask.at(0, 0, r, c) > 0 && in_window(ds.pgm.at(0, iaz, r, c)) && int(ds.pgm.at(0, ic, r, c)) == dark)
         ds.target.at(0, 0, r, c) *= 0.5f, ++darkened;
   EXPECT_GT(darkened, 500);
-  const nlohmann::json j = lookup_loop(ds);
+  const nlohmann::json j = blocks_lookup_loop(ds);
   EXPECT_TRUE(j["added_effect"].is_null()) << j["added_effect"] << "; ranking " << j["ranking"].dump();
 }
 
 // Where even classes x row blocks cannot decide (every return of one class), the report says so
 // instead of ruling azimuth out.
 TEST(LoopIntensityTimeBlocks, OneClassCannotDecideOnAzimuthAndSaysSo) {
-  data::Dataset geometry = reference_geometry(1);
+  data::Dataset geometry = blocks_reference_geometry(1);
   const int ic = geometry.channel_index("class");
   for (int r = 0; r < geometry.rows(); ++r)
     for (int c = 0; c < geometry.cols(); ++c) geometry.pgm.at(0, ic, r, c) = 1;
-  const nlohmann::json j = lookup_loop(data::plant(geometry, window_draw(geometry)));
+  const nlohmann::json j = blocks_lookup_loop(data::plant(geometry, window_draw(geometry)));
   EXPECT_NE(j["added_effect"], "azimuth");
   int azimuth = 0;
   for (const auto& k : j["candidates_tested"])

@@ -21,12 +21,12 @@ using namespace lidarsim;
 
 namespace {
 
-struct LoopRun {
+struct LocalLoopRun {
   nlohmann::json report;
   sensor::KpiModel model;  // the refitted model the loop wrote
 };
 
-LoopRun loop_on(data::ObjectEffect effect, int sequences, int tracks, int frames = 200) {
+LocalLoopRun local_loop_on(data::ObjectEffect effect, int sequences, int tracks, int frames = 200) {
   const std::string tag = data::to_string(effect) + "_" + std::to_string(sequences) + "_" + std::to_string(::getpid());
   const fs::path dir = fs::temp_directory_path() / ("lidarsim_qualify_local_" + tag);
   const fs::path model = fs::temp_directory_path() / ("lidarsim_qualify_local_" + tag + ".json");
@@ -40,7 +40,7 @@ LoopRun loop_on(data::ObjectEffect effect, int sequences, int tracks, int frames
   data::write_reference_tracking(dir, o);
   qualify::LoopOptions lo;
   lo.out_model = model;
-  LoopRun r;
+  LocalLoopRun r;
   r.report = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
   r.model = sensor::load_kpi_model(model);
   fs::remove_all(dir);
@@ -48,14 +48,14 @@ LoopRun loop_on(data::ObjectEffect effect, int sequences, int tracks, int frames
   return r;
 }
 
-void print(const nlohmann::json& j) {
+void print_local(const nlohmann::json& j) {
   std::cout << "  ranking " << j["ranking"].dump().substr(0, 200) << "\n  spread ranking "
             << j["spread_ranking"].dump().substr(0, 200) << "\n  added " << j["added_effect"] << " ("
             << j["added_kind"] << ") " << j["error_metric"] << " " << j["error_before"] << " -> " << j["error_after"]
             << "; simulated " << j["before_simulated"] << " -> " << j["after_simulated"] << "\n";
 }
 
-void expect_nothing_added(const LoopRun& run) {
+void expect_nothing_added(const LocalLoopRun& run) {
   const nlohmann::json& j = run.report;
   EXPECT_TRUE(j["added_effect"].is_null()) << j["ranking"].dump() << "\n" << j["spread_ranking"].dump();
   EXPECT_TRUE(j["model_term"].is_null());
@@ -73,9 +73,9 @@ void expect_nothing_added(const LoopRun& run) {
 }  // namespace
 
 TEST(LoopLocalStatistical, NamesAzimuthWindowOfDetectionDropoutAndCutsHeldOutDevianceBelow70Percent) {
-  const LoopRun run = loop_on(data::ObjectEffect::AzimuthWindowDropout, 4, 48);
+  const LocalLoopRun run = local_loop_on(data::ObjectEffect::AzimuthWindowDropout, 4, 48);
   const nlohmann::json& j = run.report;
-  print(j);
+  print_local(j);
   ASSERT_FALSE(j["ranking"].empty());
   EXPECT_EQ(j["ranking"][0]["feature"], "azimuth") << j["ranking"].dump();
   EXPECT_EQ(j["ranking"][0]["target"], "detection");
@@ -93,9 +93,9 @@ TEST(LoopLocalStatistical, NamesAzimuthWindowOfDetectionDropoutAndCutsHeldOutDev
 }
 
 TEST(LoopLocalStatistical, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpreadErrorBelow70Percent) {
-  const LoopRun run = loop_on(data::ObjectEffect::AspectSpread, 4, 48);
+  const LocalLoopRun run = local_loop_on(data::ObjectEffect::AspectSpread, 4, 48);
   const nlohmann::json& j = run.report;
-  print(j);
+  print_local(j);
   EXPECT_TRUE(j["added_kind"] == "spread_table" || j["added_kind"] == "spread_window") << j["added_kind"];
   EXPECT_EQ(j["added_effect"], "heading_to_line_of_sight") << j["spread_ranking"].dump();
   EXPECT_EQ(j["model_term_on"], "errors.position_across.scale");
@@ -112,9 +112,9 @@ TEST(LoopLocalStatistical, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpread
 }
 
 TEST(LoopLocalStatistical, ControlWithoutHiddenEffectAddsNoLocalOrSpreadTerm) {
-  expect_nothing_added(loop_on(data::ObjectEffect::None, 4, 48));
+  expect_nothing_added(local_loop_on(data::ObjectEffect::None, 4, 48));
 }
 
 TEST(LoopLocalStatistical, ControlWithLittleDataAddsNothing) {
-  expect_nothing_added(loop_on(data::ObjectEffect::None, 2, 10, 120));
+  expect_nothing_added(local_loop_on(data::ObjectEffect::None, 2, 10, 120));
 }

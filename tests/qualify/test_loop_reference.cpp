@@ -20,7 +20,7 @@ using namespace lidarsim;
 
 namespace {
 
-fs::path fresh_dir(const std::string& name) {
+fs::path reference_fresh_dir(const std::string& name) {
   const fs::path p = fs::temp_directory_path() / ("lidarsim_qualify_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(p);
   return p;
@@ -28,7 +28,7 @@ fs::path fresh_dir(const std::string& name) {
 
 nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model = {}, double threshold = 0.05,
                            data::ObjectEffect second_effect = data::ObjectEffect::None, bool selection_bound = true) {
-  const fs::path dir = fresh_dir("objects_" + data::to_string(effect) + "_" + data::to_string(second_effect));
+  const fs::path dir = reference_fresh_dir("objects_" + data::to_string(effect) + "_" + data::to_string(second_effect));
   data::ReferenceTrackingOptions o;
   o.effect = effect;
   o.second_effect = second_effect;
@@ -47,7 +47,7 @@ nlohmann::json object_loop(data::ObjectEffect effect, const fs::path& out_model 
 }
 
 nlohmann::json intensity_loop(data::IntensityEffect effect, const qualify::IntensityLoopOptions& options) {
-  const fs::path dir = fresh_dir("intensity_" + data::to_string(effect));
+  const fs::path dir = reference_fresh_dir("intensity_" + data::to_string(effect));
   data::ReferenceScanOptions o;
   o.effect = effect;
   o.seed = 23;
@@ -75,7 +75,7 @@ qualify::IntensityLoopOptions unet_base() {
   return o;
 }
 
-void expect_found(const nlohmann::json& j, const std::string& feature) {
+void reference_expect_found(const nlohmann::json& j, const std::string& feature) {
   ASSERT_FALSE(j["ranking"].empty());
   std::cout << "  ranking " << j["ranking"].dump().substr(0, 200) << "\n  before " << j["before"] << " after "
             << j["after"] << "\n";
@@ -100,9 +100,9 @@ void expect_simulated(const nlohmann::json& j) {
 }  // namespace
 
 TEST(LoopObjectsStatistical, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) {
-  const fs::path model = fresh_dir("velocity_lag_model.json");
+  const fs::path model = reference_fresh_dir("velocity_lag_model.json");
   const auto j = object_loop(data::ObjectEffect::VelocityLag, model);
-  expect_found(j, "radial_velocity");
+  reference_expect_found(j, "radial_velocity");
   expect_simulated(j);
   // The written model carries the term on the loop's target, and loads (validated).
   const sensor::KpiModel m = sensor::load_kpi_model(model);
@@ -114,9 +114,9 @@ TEST(LoopObjectsStatistical, NamesVelocityLagAndCutsHeldOutErrorBelow70Percent) 
 }
 
 TEST(LoopObjectsStatistical, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70Percent) {
-  const fs::path model = fresh_dir("truncation_model.json");
+  const fs::path model = reference_fresh_dir("truncation_model.json");
   const auto j = object_loop(data::ObjectEffect::TruncationSize, model);
-  expect_found(j, "truncation");
+  reference_expect_found(j, "truncation");
   // sensor::Object carries truncation, so the term goes into the KPI model and the manager with it
   // does what the loop claimed.
   expect_simulated(j);
@@ -136,7 +136,7 @@ TEST(LoopObjectsStatistical, NamesTruncationSizeErrorAndCutsHeldOutErrorBelow70P
 // an error's mean: a length error by occlusion level must be ranked, named and cut like any other.
 TEST(LoopObjectsStatistical, NamesOcclusionSizeErrorAndCutsHeldOutErrorBelow70Percent) {
   const auto j = object_loop(data::ObjectEffect::OcclusionSize);
-  expect_found(j, "occlusion");
+  reference_expect_found(j, "occlusion");
   EXPECT_EQ(j["ranking"][0]["target"], "length") << j["ranking"].dump();
   if (j.contains("model_term_absent_because"))
     std::cout << "  no model term: " << j["model_term_absent_because"] << "\n";
@@ -155,7 +155,7 @@ TEST(LoopObjectsStatistical, NamesOcclusionSizeErrorAndCutsHeldOutErrorBelow70Pe
 
 TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorBelow70Percent) {
   const auto j = object_loop(data::ObjectEffect::AspectAcross);
-  expect_found(j, "heading_to_line_of_sight");
+  reference_expect_found(j, "heading_to_line_of_sight");
   expect_simulated(j);
 }
 
@@ -163,7 +163,7 @@ TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorB
 // loop adds the best accepted effect per target, so both become terms of the written model, each
 // cuts its own held-out error to <= 0.7, and the model re-simulated with both terms does so too.
 TEST(LoopObjectsStatistical, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOutError) {
-  const fs::path model = fresh_dir("two_effects_model.json");
+  const fs::path model = reference_fresh_dir("two_effects_model.json");
   const auto j = object_loop(data::ObjectEffect::TruncationSize, model, 0.05, data::ObjectEffect::AspectAcross);
   std::cout << "  added " << j["added_effects"].dump() << "\n";
   ASSERT_TRUE(j["added_effects"].is_array());
@@ -222,15 +222,15 @@ TEST(LoopObjectsStatistical, ControlCandidateIsRejectedByTheChangeTest) {
 }
 
 TEST(LoopIntensity, NamesIncidenceFalloffAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Incidence, lookup_base()), "incidence_angle");
+  reference_expect_found(intensity_loop(data::IntensityEffect::Incidence, lookup_base()), "incidence_angle");
 }
 
 TEST(LoopIntensity, NamesHeightGainAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Height, lookup_base()), "height");
+  reference_expect_found(intensity_loop(data::IntensityEffect::Height, lookup_base()), "height");
 }
 
 TEST(LoopIntensity, NamesAzimuthGainAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Azimuth, lookup_base()), "azimuth");
+  reference_expect_found(intensity_loop(data::IntensityEffect::Azimuth, lookup_base()), "azimuth");
 }
 
 TEST(LoopIntensity, ControlWithoutHiddenEffectAddsNothing) {
@@ -243,13 +243,13 @@ TEST(LoopIntensity, ControlWithoutHiddenEffectAddsNothing) {
 // The UNet loop: the hidden effect becomes a new PGM channel and the UNet is retrained with it.
 TEST(LoopIntensityUnetStatistical, NamesAzimuthGainAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
   const auto j = intensity_loop(data::IntensityEffect::Azimuth, unet_base());
-  expect_found(j, "azimuth");
+  reference_expect_found(j, "azimuth");
   EXPECT_NE(j["method"].get<std::string>().find("\"azimuth\""), std::string::npos) << j["method"];
   EXPECT_LE(j["seeds_after"][0].get<double>(), 0.7 * j["seeds_before"][0].get<double>());
 }
 
 TEST(LoopIntensityUnetStatistical, NamesIncidenceFalloffAddsItAsAChannelAndCutsHeldOutErrorBelow70Percent) {
-  expect_found(intensity_loop(data::IntensityEffect::Incidence, unet_base()), "incidence_angle");
+  reference_expect_found(intensity_loop(data::IntensityEffect::Incidence, unet_base()), "incidence_angle");
 }
 
 TEST(LoopIntensityUnetStatistical, ControlWithoutHiddenEffectAddsNothing) {

@@ -12,6 +12,7 @@
 #include <set>
 #include <string>
 
+#include "common/angles.h"
 #include "data/reference_sensor.h"
 #include "qualify/object_folds.h"
 #include "qualify/objects.h"
@@ -21,7 +22,7 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr double kDeg = 3.14159265358979323846 / 180;
+using lidarsim::kDeg;
 
 fs::path reference_data(const std::string& tag, const data::ReferenceTrackingOptions& o) {
   const fs::path dir =
@@ -31,7 +32,7 @@ fs::path reference_data(const std::string& tag, const data::ReferenceTrackingOpt
   return dir;
 }
 
-nlohmann::json loop_on(const std::string& tag, const data::ReferenceTrackingOptions& o) {
+nlohmann::json folds_loop_on(const std::string& tag, const data::ReferenceTrackingOptions& o) {
   const fs::path dir = reference_data(tag, o);
   qualify::LoopOptions lo;
   lo.distribution_seeds = 16;  // only the further error terms' check uses them
@@ -121,7 +122,7 @@ TEST(LoopTimeFolds, ReportsThatTheDataCannotDecideWithOneSequencePerFold) {
     o.tracks = 16;
     o.frames = 120;
     o.seed = 7;
-    const nlohmann::json j = loop_on("undecided", o);
+    const nlohmann::json j = folds_loop_on("undecided", o);
     ASSERT_TRUE(j["candidates"].is_array());
     int undecided = 0, time_blocks = 0;
     for (const auto& c : j["candidates"]) {
@@ -156,7 +157,7 @@ TEST(LoopTimeFoldsStatistical, NamesAzimuthWindowOfDetectionDropoutWithTwoSequen
   o.tracks = 48;
   o.frames = 200;
   o.seed = 31;
-  const nlohmann::json j = loop_on("window", o);
+  const nlohmann::json j = folds_loop_on("window", o);
   std::cout << "  top " << j["ranking"][0].dump() << "\n  added " << j["added_effect"] << " " << j["error_metric"]
             << " " << j["error_before"] << " -> " << j["error_after"] << "\n";
   ASSERT_FALSE(j["ranking"].empty());

@@ -12,6 +12,7 @@
 #include <numbers>
 #include <random>
 
+#include "common/angles.h"
 #include "pgm/materials.h"
 #include "qualify/range_noise_cli.h"
 #include "qualify/range_noise_fit.h"
@@ -25,7 +26,7 @@ namespace pgm = lidarsim::pgm;
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180;
+using lidarsim::kDeg;
 
 struct SyntheticScan {
   std::vector<pgm::Point> points;
@@ -217,9 +218,9 @@ TEST(RangeNoiseFit, CommandWritesTheModelItMeasuresOnARecordedScan) {
   std::vector<std::string> args = {"range-noise", "--semantickitti", sk, "--classes", "road,building", "--out", out};
   std::vector<char*> argv;
   for (auto& a : args) argv.push_back(a.data());
-  testing::internal::CaptureStdout();
+  ::testing::internal::CaptureStdout();
   ASSERT_EQ(run_range_noise(static_cast<int>(argv.size()), argv.data()), 0);
-  const std::string printed = testing::internal::GetCapturedStdout();
+  const std::string printed = ::testing::internal::GetCapturedStdout();
   EXPECT_NE(printed.find("spread by range"), std::string::npos);
   const auto model = lidarsim::sensor::load_range_noise_model(out);
   EXPECT_EQ(model.sensor, "hdl64e");

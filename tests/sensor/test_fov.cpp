@@ -4,10 +4,11 @@
 #include <cmath>
 #include <numbers>
 
+#include "common/angles.h"
 #include "sensor/fov.h"
 
 using namespace lidarsim::sensor;
-constexpr double kDeg = std::numbers::pi / 180;
+using lidarsim::kDeg;
 
 namespace {
 // A 1 m cube whose centre is at (range, azimuth, elevation) in the sensor frame.

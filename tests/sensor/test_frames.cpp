@@ -6,10 +6,11 @@
 #include <random>
 #include <vector>
 
+#include "common/angles.h"
 #include "sensor/frames.h"
 
 using namespace lidarsim::sensor;
-constexpr double kPi = std::numbers::pi;
+using lidarsim::kPi;
 
 TEST(Frames, RpyRotationMatchesHandWorkedAxes) {
   // yaw 90 deg: x -> y; pitch 90 deg: x -> -z; roll 90 deg: y -> z.

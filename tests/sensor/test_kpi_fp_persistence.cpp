@@ -227,7 +227,7 @@ TEST(KpiFpPersistence, AbsentFieldIsNotWrittenAndTheFieldRoundTrips) {
   EXPECT_FALSE(back.classes.at("Car").fp_persistence.present());
 }
 
-std::string parse_error(const nlohmann::json& j) {
+std::string persistence_parse_error(const nlohmann::json& j) {
   try {
     parse_kpi_model(j.dump(), "m.json");
   } catch (const Error& e) {
@@ -244,9 +244,9 @@ TEST(KpiFpPersistence, BadFieldsAreOneErrorNamingFileAndField) {
   auto with = [&](const char* key, nlohmann::json v) {
     auto j = good;
     j["classes"]["Car"]["fp_persistence"][key] = v;
-    return parse_error(j);
+    return persistence_parse_error(j);
   };
-  EXPECT_EQ(parse_error(good), "(no error)");
+  EXPECT_EQ(persistence_parse_error(good), "(no error)");
   EXPECT_NE(with("survival", 1.0).find(f + ".survival: must be in [0, 0.999]"), std::string::npos) << with("survival", 1.0);
   EXPECT_NE(with("survival", -0.1).find(f + ".survival: must be in"), std::string::npos);
   EXPECT_NE(with("survival", "high").find(f + ".survival"), std::string::npos);
@@ -255,10 +255,10 @@ TEST(KpiFpPersistence, BadFieldsAreOneErrorNamingFileAndField) {
   EXPECT_NE(with("score_ar1", 1.5).find(f + ".score_ar1: must be in [0, 1]"), std::string::npos);
   auto j = good;
   j["classes"]["Car"]["fp_persistence"].erase("survival");
-  EXPECT_NE(parse_error(j).find(f + ".survival"), std::string::npos) << parse_error(j);
+  EXPECT_NE(persistence_parse_error(j).find(f + ".survival"), std::string::npos) << persistence_parse_error(j);
   j = good;
   j["classes"]["Car"]["fp_persistence"] = 0.5;
-  EXPECT_NE(parse_error(j).find(f + ": must be an object"), std::string::npos) << parse_error(j);
+  EXPECT_NE(persistence_parse_error(j).find(f + ": must be an object"), std::string::npos) << persistence_parse_error(j);
 }
 
 }  // namespace

@@ -24,7 +24,7 @@ FalsePositiveTable two_bins() {
   return t;
 }
 
-Object car(int id, double x, double y) {
+Object fp_car(int id, double x, double y) {
   Object o;
   o.id = id;
   o.position = {x, y, -0.9};
@@ -38,7 +38,7 @@ TEST(KpiFpTable, EachBinDrawsItsOwnPoissonCountAndPlacementOver4000Frames) {
   KpiOptions opt;
   opt.misses = false;
   KpiManager kpi(m, 3, opt);
-  std::vector<Object> truth{car(1, 20, 0)}, out;
+  std::vector<Object> truth{fp_car(1, 20, 0)}, out;
   const int frames = 4000;
   double n[2] = {0, 0};
   for (int f = 0; f < frames; ++f) {
@@ -71,7 +71,7 @@ TEST(KpiFpTable, ATableOnOneClassLeavesEveryOtherDrawUnchanged) {
   KpiManager a(plain, 5), b(changed, 5);
   std::vector<Object> truth, oa, ob;
   for (int i = 0; i < 5; ++i) {
-    truth.push_back(car(i, 8.0 + 9 * i, 3.0 - i));
+    truth.push_back(fp_car(i, 8.0 + 9 * i, 3.0 - i));
     if (i % 2) truth.back().cls = ObjectClass::Pedestrian;
   }
   int ped_differs = 0;
@@ -110,7 +110,7 @@ TEST(KpiFpTable, AbsentTableIsNotWrittenAndATableRoundTrips) {
   EXPECT_EQ(back.classes.at("Car").fp_table.bin(-9), 0);
 }
 
-std::string parse_error(const nlohmann::json& j) {
+std::string fp_table_parse_error(const nlohmann::json& j) {
   try {
     parse_kpi_model(j.dump(), "m.json");
   } catch (const Error& e) {
@@ -127,9 +127,9 @@ TEST(KpiFpTable, BadTablesAreOneErrorNamingFileAndField) {
   auto with = [&](const char* key, nlohmann::json v) {
     auto j = good;
     j["classes"]["Car"]["fp_table"][key] = v;
-    return parse_error(j);
+    return fp_table_parse_error(j);
   };
-  EXPECT_EQ(parse_error(good), "(no error)");
+  EXPECT_EQ(fp_table_parse_error(good), "(no error)");
   EXPECT_NE(with("feature", "speed").find(f + ".feature: must be range, azimuth or score"), std::string::npos);
   EXPECT_NE(with("rate", {0.5}).find(f + ".rate: must have 2 entries, got 1"), std::string::npos);
   EXPECT_NE(with("rate", {0.5, -1}).find(f + ".rate[1]: must be in"), std::string::npos);
@@ -142,7 +142,7 @@ TEST(KpiFpTable, BadTablesAreOneErrorNamingFileAndField) {
   j["classes"]["Car"]["fp_table"]["range_quantiles"] = {nlohmann::json::array(), {40, 50}};
   j["classes"]["Car"]["fp_range_quantiles"] = nlohmann::json::array();
   j["classes"]["Car"]["false_positive_rate"] = 0;
-  EXPECT_NE(parse_error(j).find(f + ".range_quantiles[0]: needed"), std::string::npos) << parse_error(j);
+  EXPECT_NE(fp_table_parse_error(j).find(f + ".range_quantiles[0]: needed"), std::string::npos) << fp_table_parse_error(j);
 }
 
 }  // namespace

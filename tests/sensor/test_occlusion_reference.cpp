@@ -7,6 +7,7 @@
 #include <numbers>
 #include <random>
 
+#include "common/angles.h"
 #include "sensor/occlusion.h"
 #include "tests/sensor/occlusion_reference.h"
 
@@ -14,7 +15,7 @@ using namespace lidarsim::sensor;
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180;
+using lidarsim::kDeg;
 
 // n boxes of the bench's classes, uniform over a ring of 6..60 m around the sensor (1.73 m above
 // the road), random headings: they overlap in angle and often intersect each other. `odd`

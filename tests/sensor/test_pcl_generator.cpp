@@ -5,13 +5,14 @@
 #include <numbers>
 #include <set>
 
+#include "common/angles.h"
 #include "pgm/materials.h"
 #include "sensor/frames.h"
 #include "sensor/pcl_generator.h"
 
 using namespace lidarsim::sensor;
 namespace pgm = lidarsim::pgm;
-constexpr double kDeg = std::numbers::pi / 180;
+using lidarsim::kDeg;
 
 namespace {
 // 16 rows at +7.5, 6.5, ..., -7.5 deg; 360 columns of 1 deg whose centres are at 0.5 + c deg.

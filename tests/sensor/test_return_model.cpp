@@ -34,7 +34,7 @@ ReturnModel rowwise_model() {
   return ReturnModel::fit(c, layout16(), 20);
 }
 
-std::vector<Object> cars() {
+std::vector<Object> return_cars() {
   std::vector<Object> objects;
   for (int k = 0; k < 6; ++k) {
     Object o;
@@ -50,7 +50,7 @@ pgm::PolarGridMap run(const PclConfig& cfg, std::uint64_t frame) {
   PclGenerator gen(layout16(), make_pose({0, 0, 1.73}, 0, 0, 0), cfg);
   gen.set_frame(frame);
   auto map = gen.make_map({"height", "incidence"});
-  gen.generate(cars(), {}, map);
+  gen.generate(return_cars(), {}, map);
   return map;
 }
 
@@ -137,10 +137,10 @@ TEST(ReturnModel, GeneratedReturnRatePerLaserMatchesTheModel) {
   PclGenerator gen(layout16(), make_pose({0, 0, 1.73}, 0, 0, 0), cfg);
   PclGenerator ideal_gen(layout16(), make_pose({0, 0, 1.73}, 0, 0, 0), PclConfig{});
   auto map = gen.make_map(), ideal = ideal_gen.make_map();
-  ideal_gen.generate(cars(), {}, ideal);
+  ideal_gen.generate(return_cars(), {}, ideal);
   std::vector<double> n(16, 0), kept(16, 0), expected(16, 0);
   for (int f = 0; f < 40; ++f) {  // generate() counts frames on
-    gen.generate(cars(), {}, map);
+    gen.generate(return_cars(), {}, map);
     for (std::size_t i = 0; i < map.cells(); ++i) {
       if (ideal.channel("mask")[i] < 0.5f) continue;
       const int r = static_cast<int>(i / map.cols());

@@ -39,7 +39,7 @@ const char* kValid = R"({
 })";
 
 // The error message of parsing `text` (empty when it parses).
-std::string error_of(const std::string& text) {
+std::string scenario_error_of(const std::string& text) {
   try {
     parse_scenario(text, "demo.json");
   } catch (const lidarsim::Error& e) {
@@ -88,53 +88,53 @@ TEST(Scenario, BeamLayoutsFromNameUniformSpecOrElevationList) {
   const auto ll = list.sensor.beams.layout();
   ASSERT_EQ(ll.rows(), 3);
   EXPECT_NEAR(ll.elevations_rad[0], 3 * std::numbers::pi / 180, 1e-12);  // sorted, top first
-  EXPECT_EQ(error_of(replaced(kValid, R"({"rows": 32, "top_deg": 10, "bottom_deg": -20})", R"({"elevations_deg": [1, 1]})")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"({"rows": 32, "top_deg": 10, "bottom_deg": -20})", R"({"elevations_deg": [1, 1]})")),
             "demo.json: sensor.beams.elevations_deg[1]: repeats the elevation 1");
-  EXPECT_EQ(error_of(replaced(kValid, R"("top_deg": 10)", R"("top_deg": -30)")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("top_deg": 10)", R"("top_deg": -30)")),
             "demo.json: sensor.beams.top_deg: must be above bottom_deg (-20), got -30");
 }
 
 TEST(Scenario, MissingFieldNamesItsPath) {
-  const auto msg = error_of(replaced(kValid, R"("velocity": [0, -1, 0], "heading_deg": -90},
+  const auto msg = scenario_error_of(replaced(kValid, R"("velocity": [0, -1, 0], "heading_deg": -90},
                 {"t": 1.5)", R"("heading_deg": -90},
                 {"t": 1.5)"));
   EXPECT_EQ(msg, "demo.json: objects[1].states[0].velocity: missing (required field)");
-  EXPECT_EQ(error_of(replaced(kValid, R"("max_range": 80)", R"("range": 80)")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("max_range": 80)", R"("range": 80)")),
             "demo.json: sensor.max_range: missing (required field)");
 }
 
 TEST(Scenario, NegativeSizeNamesItsPath) {
-  EXPECT_EQ(error_of(replaced(kValid, "[10, 2.5, 3.5]", "[10, 2.5, -1.5]")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, "[10, 2.5, 3.5]", "[10, 2.5, -1.5]")),
             "demo.json: objects[2].size[2]: must be positive, got -1.5");
 }
 
 TEST(Scenario, NonFiniteNumbersNameTheirPath) {
   // NaN/Infinity as Python's json module writes them, and an overflowing literal.
-  EXPECT_EQ(error_of(replaced(kValid, R"("position": [10, 4, 0.9])", R"("position": [10, NaN, 0.9])")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("position": [10, 4, 0.9])", R"("position": [10, NaN, 0.9])")),
             "demo.json: objects[1].states[1].position[1]: must be a finite number, got NaN");
-  EXPECT_EQ(error_of(replaced(kValid, R"("yaw_deg": 0)", R"("yaw_deg": -Infinity)")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("yaw_deg": 0)", R"("yaw_deg": -Infinity)")),
             "demo.json: sensor.mount.yaw_deg: must be a finite number, got -Infinity");
-  EXPECT_EQ(error_of(replaced(kValid, R"("duration": 2.0)", R"("duration": 1e999)")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("duration": 2.0)", R"("duration": 1e999)")),
             "demo.json: duration: must be a finite number, got 1e999");
 }
 
 TEST(Scenario, UnknownClassAndMaterialAndLaneType) {
-  const auto msg = error_of(replaced(kValid, R"("class": "Truck")", R"("class": "Spaceship")"));
+  const auto msg = scenario_error_of(replaced(kValid, R"("class": "Truck")", R"("class": "Spaceship")"));
   EXPECT_EQ(msg.rfind("demo.json: objects[2].class: unknown object class 'Spaceship'", 0), 0u) << msg;
-  const auto mat = error_of(replaced(kValid, R"("material": "skin_fabric")", R"("material": "cheese")"));
+  const auto mat = scenario_error_of(replaced(kValid, R"("material": "skin_fabric")", R"("material": "cheese")"));
   EXPECT_EQ(mat.rfind("demo.json: objects[1].material: ", 0), 0u) << mat;
-  EXPECT_EQ(error_of(replaced(kValid, R"("type": "dashed")", R"("type": "dotted")")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("type": "dashed")", R"("type": "dotted")")),
             "demo.json: lanes[0].type: must be \"solid\", \"dashed\" or \"road_edge\", got \"dotted\"");
 }
 
 TEST(Scenario, OtherBadInputs) {
-  EXPECT_EQ(error_of(replaced(kValid, R"("id": 2,)", R"("id": 1,)")), "demo.json: objects[1].id: must be unique, got 1 twice");
-  EXPECT_EQ(error_of(replaced(kValid, R"({"t": 1.5, "position": [10, 4, 0.9])", R"({"t": 0.5, "position": [10, 4, 0.9])")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("id": 2,)", R"("id": 1,)")), "demo.json: objects[1].id: must be unique, got 1 twice");
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"({"t": 1.5, "position": [10, 4, 0.9])", R"({"t": 0.5, "position": [10, 4, 0.9])")),
             "demo.json: objects[1].states[1].t: must be greater than the previous state's t (0.5), got 0.5");
-  EXPECT_EQ(error_of(replaced(kValid, R"("size": [0.6, 0.6, 1.8])", R"("size": [0.6, 0.6])")),
+  EXPECT_EQ(scenario_error_of(replaced(kValid, R"("size": [0.6, 0.6, 1.8])", R"("size": [0.6, 0.6])")),
             "demo.json: objects[1].size: must be an array of 3 numbers, got [0.6,0.6]");
-  EXPECT_EQ(error_of("{\"duration\": 1,"), error_of("{\"duration\": 1,"));
-  EXPECT_EQ(error_of("{\"duration\": 1,").rfind("demo.json: (json): not valid JSON", 0), 0u);
+  EXPECT_EQ(scenario_error_of("{\"duration\": 1,"), scenario_error_of("{\"duration\": 1,"));
+  EXPECT_EQ(scenario_error_of("{\"duration\": 1,").rfind("demo.json: (json): not valid JSON", 0), 0u);
   try {
     read_scenario("/nonexistent/dir/x.json");
     FAIL() << "no error for a missing file";

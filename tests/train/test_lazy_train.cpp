@@ -16,9 +16,12 @@
 #include "data/dataset_writer.h"
 #include "data/frame_source.h"
 #include "tests/data/temp_dir.h"
+#include "tests/support/file_bytes.h"
 #include "tests/support/sanitizer.h"
 #include "train/frame_batches.h"
 #include "train/trainer.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
@@ -71,11 +74,6 @@ train::TrainConfig small_config(const fs::path& data, const fs::path& out) {
   return c;
 }
 
-std::string file_bytes(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
 bool same_weights(const train::TrainResult& a, const train::TrainResult& b) {
   const auto& pa = a.model->params();
   const auto& pb = b.model->params();
@@ -117,7 +115,7 @@ TEST(LazyTrain, FramesReadPerStepGiveTheInMemoryRunBitForBit) {
   expect_same_epochs(lazy, eager);
   EXPECT_TRUE(same_weights(lazy, eager));
   // Everything the checkpoint records but the output name is the same too.
-  EXPECT_EQ(file_bytes(dir / "lazy.h5").size(), file_bytes(dir / "eager.h5").size());
+  EXPECT_EQ(read_bytes(dir / "lazy.h5").size(), read_bytes(dir / "eager.h5").size());
   ASSERT_EQ(lazy.epochs.size(), 3u);
   EXPECT_GT(lazy.epochs[0].validation.cells, 0);
 }
@@ -141,7 +139,7 @@ TEST(LazyTrain, PrefetchingThreadAndSynchronousReadsGiveTheSameRunWithASeparateV
   expect_same_epochs(background, cached);
   EXPECT_TRUE(same_weights(background, synchronous));
   EXPECT_TRUE(same_weights(background, cached));
-  EXPECT_EQ(file_bytes(dir / "a.h5"), file_bytes(dir / "b.h5"));
+  EXPECT_EQ(read_bytes(dir / "a.h5"), read_bytes(dir / "b.h5"));
 }
 
 TEST(LazyTrain, StreamingValidationScoresExactlyAsEvaluatePredictionOnTheSetInMemory) {
@@ -285,7 +283,7 @@ TEST(LazyTrain, CtrlCEndsThePrefetchingThreadAndKeepsTheResumeExact) {
   EXPECT_EQ(thread_count(), threads_before) << "the prefetching thread outlived the run";
   split.resume = true;
   train::train(split);
-  EXPECT_EQ(file_bytes(dir / "straight.h5"), file_bytes(dir / "split.h5"));
+  EXPECT_EQ(read_bytes(dir / "straight.h5"), read_bytes(dir / "split.h5"));
 }
 
 // The run's peak memory holds a step's frames, not the dataset: 2,000 frames of 16 x 256 are

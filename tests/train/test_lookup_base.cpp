@@ -18,20 +18,20 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kRows = 8, kCols = 256, kFrames = 3;
+constexpr int kLookupRows = 8, kCols = 256, kFrames = 3;
 
-data::Dataset synthetic() {
+data::Dataset lookup_synthetic() {
   data::Dataset d;
   d.channels = {"range", "class"};
-  d.layout = pgm::BeamLayout::uniform(kRows, 1.0, -1.0, kCols);
-  d.pgm.resize({kFrames, 2, kRows, kCols});
-  d.target.resize({kFrames, 1, kRows, kCols});
-  d.mask.resize({kFrames, 1, kRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kLookupRows, 1.0, -1.0, kCols);
+  d.pgm.resize({kFrames, 2, kLookupRows, kCols});
+  d.target.resize({kFrames, 1, kLookupRows, kCols});
+  d.mask.resize({kFrames, 1, kLookupRows, kCols});
   const int classes[3] = {pgm::cls::road, pgm::cls::building, pgm::cls::vegetation};
   for (int n = 0; n < kFrames; ++n) {
     d.frames.push_back("synthetic/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kLookupRows; ++r)
       for (int c = 0; c < kCols; ++c) {
         const unsigned h = static_cast<unsigned>(n * 7919 + r * 131 + c * 31) * 2654435761u;
         const int k = static_cast<int>((c / 5 + r + n) % 3);
@@ -47,7 +47,7 @@ data::Dataset synthetic() {
   return d;
 }
 
-train::TrainConfig config() {
+train::TrainConfig lookup_config() {
   train::TrainConfig c;
   c.encoder.channels = {"range", "class"};
   c.base = 4, c.depth = 1;  // receptive-field half-width 9: the guarded split fits at 256 columns
@@ -61,25 +61,25 @@ train::TrainConfig config() {
 }  // namespace
 
 TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
-  data::Dataset d = synthetic();
+  data::Dataset d = lookup_synthetic();
   const data::SectorSplit split = data::guarded_split(9, kCols);
   auto fit_of = [&](const data::Dataset& set) {
     const auto source = data::memory_frame_source(set, "synthetic");
-    const train::TrainingFrames frames({source.get()}, config().encoder, split);
-    return train::fit_lookup_base(train::lookup_base_config(config().encoder, kRows), frames, kCols);
+    const train::TrainingFrames frames({source.get()}, lookup_config().encoder, split);
+    return train::fit_lookup_base(train::lookup_base_config(lookup_config().encoder, kLookupRows), frames, kCols);
   };
   const train::LookupFit fit = fit_of(d);
   // Independently: road (group "road") at 10-15 m, and the row residuals.
-  const nn::LookupBaseConfig lc = train::lookup_base_config(config().encoder, kRows);
+  const nn::LookupBaseConfig lc = train::lookup_base_config(lookup_config().encoder, kLookupRows);
   int road = -1;
   for (int g = 0; g < lc.classes; ++g)
-    if (config().encoder.class_groups[g].name == "road") road = g;
+    if (lookup_config().encoder.class_groups[g].name == "road") road = g;
   ASSERT_GE(road, 0);
   double sum = 0;
   long n = 0, cells = 0;
   for (int f = 0; f < kFrames; ++f) {
     const auto roles = split.roles(kCols, d.frames[f]);
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kLookupRows; ++r)
       for (int c = 0; c < kCols; ++c) {
         if (d.mask.at(f, 0, r, c) <= 0 || roles[c] != data::kTrain) continue;
         ++cells;
@@ -95,7 +95,7 @@ TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
   // Leak-free: what the validation and guard columns hold does not change the fit.
   for (int f = 0; f < kFrames; ++f) {
     const auto roles = split.roles(kCols, d.frames[f]);
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kLookupRows; ++r)
       for (int c = 0; c < kCols; ++c)
         if (roles[c] != data::kTrain) d.target.at(f, 0, r, c) = 5.f;
   }
@@ -105,8 +105,8 @@ TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
 }
 
 TEST(LookupBase, TrainingStartsAtTheLookupAndLearnsTheLocalEffectBeyondIt) {
-  const data::Dataset d = synthetic();
-  const train::TrainResult r = train::train_on(config(), {&d}, {"synthetic"});
+  const data::Dataset d = lookup_synthetic();
+  const train::TrainResult r = train::train_on(lookup_config(), {&d}, {"synthetic"});
   ASSERT_TRUE(r.lookup_validation.has_value());
   const double lookup = r.lookup_validation->mae, after = r.epochs.back().validation.mae;
   // The table alone equals the class x range lookup scored the same way (groups = classes here;

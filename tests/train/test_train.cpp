@@ -11,25 +11,23 @@
 #include "data/baselines.h"
 #include "data/dataset.h"
 #include "data/import.h"
+#include "tests/support/file_bytes.h"
 #include "tests/support/shared_data.h"
 #include "tests/support/temp_path.h"
 #include "train/trainer.h"
+
+using lidarsim::testing::read_bytes;
 
 namespace fs = std::filesystem;
 using namespace lidarsim;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
+fs::path train_temp_dir(const std::string& name) {
   const fs::path dir = lidarsim::testing::temp_path("train_" + name);
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
-}
-
-std::string file_bytes(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 // A small synthetic dataset: 16 x 64 grids where intensity depends on class and range.
@@ -60,7 +58,7 @@ fs::path synthetic_dataset(const fs::path& dir, int frames) {
   return path;
 }
 
-train::TrainConfig small_config(const fs::path& data, const fs::path& out) {
+train::TrainConfig train_small_config(const fs::path& data, const fs::path& out) {
   train::TrainConfig c;
   c.data = {data};
   c.base = 4;
@@ -82,14 +80,14 @@ train::TrainConfig small_config(const fs::path& data, const fs::path& out) {
 }  // namespace
 
 TEST(Train, ResumedRunEndsWithByteIdenticalCheckpoint) {
-  const fs::path dir = temp_dir("resume");
+  const fs::path dir = train_temp_dir("resume");
   const fs::path data = synthetic_dataset(dir, 3);
 
-  train::TrainConfig straight = small_config(data, dir / "straight.h5");
+  train::TrainConfig straight = train_small_config(data, dir / "straight.h5");
   train::train(straight);
 
   // The same run, stopped after its second epoch (as Ctrl-C would), then resumed.
-  train::TrainConfig split = small_config(data, dir / "split.h5");
+  train::TrainConfig split = train_small_config(data, dir / "split.h5");
   const auto first = train::train(split, [](const train::EpochReport& r) {
     if (r.epoch == 2) train::stop_requested().store(true);
   });
@@ -100,17 +98,17 @@ TEST(Train, ResumedRunEndsWithByteIdenticalCheckpoint) {
   const auto second = train::train(split);
   EXPECT_FALSE(second.interrupted);
   EXPECT_EQ(second.steps, 12);
-  EXPECT_EQ(file_bytes(dir / "straight.h5"), file_bytes(dir / "split.h5"));
+  EXPECT_EQ(read_bytes(dir / "straight.h5"), read_bytes(dir / "split.h5"));
 }
 
 TEST(Train, InterruptMidEpochSavesTheCurrentStepAndResumesExactly) {
-  const fs::path dir = temp_dir("midepoch");
+  const fs::path dir = train_temp_dir("midepoch");
   const fs::path data = synthetic_dataset(dir, 3);
-  train::TrainConfig straight = small_config(data, dir / "straight.h5");
+  train::TrainConfig straight = train_small_config(data, dir / "straight.h5");
   straight.epochs = 2;
   train::train(straight);
 
-  train::TrainConfig split = small_config(data, dir / "split.h5");
+  train::TrainConfig split = train_small_config(data, dir / "split.h5");
   split.epochs = 2;
   train::stop_requested().store(true);  // stops after the very first step
   const auto first = train::train(split);
@@ -119,12 +117,12 @@ TEST(Train, InterruptMidEpochSavesTheCurrentStepAndResumesExactly) {
   ASSERT_EQ(first.steps, 1);
   split.resume = true;
   train::train(split);
-  EXPECT_EQ(file_bytes(dir / "straight.h5"), file_bytes(dir / "split.h5"));
+  EXPECT_EQ(read_bytes(dir / "straight.h5"), read_bytes(dir / "split.h5"));
 }
 
 TEST(Train, ValidationErrorFallsOnASyntheticClassRangeRule) {
-  const fs::path dir = temp_dir("learns");
-  train::TrainConfig c = small_config(synthetic_dataset(dir, 3), dir / "ck.h5");
+  const fs::path dir = train_temp_dir("learns");
+  train::TrainConfig c = train_small_config(synthetic_dataset(dir, 3), dir / "ck.h5");
   c.epochs = 30;
   c.steps_per_epoch = 10;
   c.base = 8;
@@ -140,8 +138,8 @@ TEST(Train, ValidationErrorFallsOnASyntheticClassRangeRule) {
 }
 
 TEST(Train, ResumingWithAnotherArchitectureNamesTheCheckpoint) {
-  const fs::path dir = temp_dir("mismatch");
-  train::TrainConfig c = small_config(synthetic_dataset(dir, 2), dir / "ck.h5");
+  const fs::path dir = train_temp_dir("mismatch");
+  train::TrainConfig c = train_small_config(synthetic_dataset(dir, 2), dir / "ck.h5");
   c.epochs = 1;
   train::train(c);
   c.base = 8;
@@ -156,8 +154,8 @@ TEST(Train, ResumingWithAnotherArchitectureNamesTheCheckpoint) {
 }
 
 TEST(Train, MissingInputChannelNamesTheDatasetAndTheChannel) {
-  const fs::path dir = temp_dir("channel");
-  train::TrainConfig c = small_config(synthetic_dataset(dir, 1), dir / "ck.h5");
+  const fs::path dir = train_temp_dir("channel");
+  train::TrainConfig c = train_small_config(synthetic_dataset(dir, 1), dir / "ck.h5");
   c.encoder.channels = {"range", "class", "incidence"};
   try {
     train::train(c);
@@ -173,7 +171,7 @@ TEST(Train, MissingInputChannelNamesTheDatasetAndTheChannel) {
 // per-class-mean baseline on the same cells.
 TEST(TrainStatistical, SmokeOnARealScanBeatsThePerClassMeanBaseline) {
   LIDARSIM_REQUIRE_SHARED_DATA(scans, "semantickitti-seq00-sample");
-  const fs::path dir = temp_dir("smoke");
+  const fs::path dir = train_temp_dir("smoke");
   data::ImportOptions import;
   import.max_frames = 1;
   import.extra_channels = {};

@@ -12,19 +12,19 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kRows = 4, kCols = 256;
+constexpr int kAlsoRows = 4, kCols = 256;
 
 data::Dataset flat(float intensity, const std::string& place) {
   data::Dataset d;
   d.channels = {"range"};
-  d.layout = pgm::BeamLayout::uniform(kRows, 1.0, -1.0, kCols);
-  d.pgm.resize({2, 1, kRows, kCols});
-  d.target.resize({2, 1, kRows, kCols});
-  d.mask.resize({2, 1, kRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kAlsoRows, 1.0, -1.0, kCols);
+  d.pgm.resize({2, 1, kAlsoRows, kCols});
+  d.target.resize({2, 1, kAlsoRows, kCols});
+  d.mask.resize({2, 1, kAlsoRows, kCols});
   for (int n = 0; n < 2; ++n) {
     d.frames.push_back(place + "/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kAlsoRows; ++r)
       for (int c = 0; c < kCols; ++c) {
         d.pgm.at(n, 0, r, c) = 10.f + c % 7;
         d.target.at(n, 0, r, c) = intensity;
@@ -43,7 +43,7 @@ TEST(TrainAlso, OtherPlacesTrainInEveryColumnAndAreNeverScored) {
   pgm::EncoderConfig encoder;
   encoder.channels = {"range"};
   const train::TrainingFrames frames({a.get(), b.get()}, encoder, split, 1);
-  nn::Tensor x(nn::Shape{1, 1, kRows, kCols}), y(nn::Shape{1, 1, kRows, kCols}), m(nn::Shape{1, 1, kRows, kCols});
+  nn::Tensor x(nn::Shape{1, 1, kAlsoRows, kCols}), y(nn::Shape{1, 1, kAlsoRows, kCols}), m(nn::Shape{1, 1, kAlsoRows, kCols});
   const auto roles = split.roles(kCols, "here/0");
   long trained_here = 0, trained_there = 0;
   frames.fill(train::Sample{0, 0, false}, x, y, m, 0);
@@ -52,8 +52,8 @@ TEST(TrainAlso, OtherPlacesTrainInEveryColumnAndAreNeverScored) {
   for (float v : m) trained_there += v > 0;
   long train_columns = 0, validation_columns = 0;
   for (auto role : roles) train_columns += role == data::kTrain, validation_columns += role == data::kValidation;
-  EXPECT_EQ(trained_here, train_columns * kRows);
-  EXPECT_EQ(trained_there, static_cast<long>(kCols) * kRows);
+  EXPECT_EQ(trained_here, train_columns * kAlsoRows);
+  EXPECT_EQ(trained_there, static_cast<long>(kCols) * kAlsoRows);
 
   // Scored: the validation columns of "here" only (both of its frames).
   train::TrainConfig c;
@@ -63,5 +63,5 @@ TEST(TrainAlso, OtherPlacesTrainInEveryColumnAndAreNeverScored) {
   c.threads = 1, c.out.clear(), c.progress = false;
   c.train_also = {"there.h5"};
   const train::TrainResult r = train::train_on(c, {&here, &there}, {"here", "there"});
-  EXPECT_EQ(r.epochs.back().validation.cells, 2 * validation_columns * kRows);
+  EXPECT_EQ(r.epochs.back().validation.cells, 2 * validation_columns * kAlsoRows);
 }
