@@ -109,6 +109,10 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
       throw Error("UNet config: lookup.bin_width: expected a finite number > 0, got " + std::to_string(lk.bin_width));
   }
   check_heads(config.heads, config.out_channels, "UNet config: heads");
+  if (!(config.spread_scale > 0) || !std::isfinite(config.spread_scale))
+    throw Error("UNet config: spread_scale: expected a finite number > 0, got " + std::to_string(config.spread_scale));
+  if (config.spread_scale != 1.f && !has_spread_head(config.heads))
+    throw Error("UNet config: spread_scale: " + std::to_string(config.spread_scale) + " without a spread head");
   const int in_net = config.in_channels + (lk.classes > 0 ? 1 : 0);  // enc0.conv1 also sees the base
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
@@ -151,6 +155,13 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
     ws.beam = params_.add("lookup/beam", Shape{1, 1, lk.rows, 1}, false, 0.f, 0.f);
   }
   params_.finalize();
+}
+
+void UNet::set_spread_scale(float factor) {
+  if (!(factor > 0) || !std::isfinite(factor))
+    throw Error("UNet::set_spread_scale: expected a finite number > 0, got " + std::to_string(factor));
+  if (factor != 1.f && !has_spread_head(config_.heads)) throw Error("UNet::set_spread_scale: the model has no spread head");
+  config_.spread_scale = factor;
 }
 
 UNet::~UNet() = default;

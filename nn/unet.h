@@ -51,6 +51,10 @@ struct UNetConfig {
   int row_affine_rows = 0;  // 0: no per-row affine layer
   LookupBaseConfig lookup{};  // classes 0: no lookup base
   std::vector<HeadKind> heads{};  // empty, or one per output channel (nn/heads.h check_heads)
+  // Calibration factor of the spread head's scale (nn/heads.h): the scale at inference is
+  // spread_scale * exp(clamp(s)). Fitted after training on cells the mean never trained on
+  // (train/spread_calibration.h); 1 = uncalibrated (every model without a spread head).
+  float spread_scale = 1.f;
   bool operator==(const UNetConfig&) const = default;
 };
 
@@ -62,6 +66,8 @@ class UNet {
   UNet& operator=(UNet&&) noexcept;
 
   const UNetConfig& config() const { return config_; }
+  // Sets config().spread_scale (finite, > 0); the weights are not touched.
+  void set_spread_scale(float factor);
   ParamArena& params() { return params_; }
   const ParamArena& params() const { return params_; }
 
