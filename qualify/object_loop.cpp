@@ -67,7 +67,6 @@ std::string cannot_decide(const FoldSet& S, const Candidate& c) {
 std::string how_the_model_uses(const Candidate& c) {
   const std::string& f = kObjectFeatures[c.feature];
   if (f == "class") return "it holds one model per class";
-  if (f == "range") return "it holds the mean, sigma and detection probability per range bin";
   return c.target == kDetectionTarget ? "its detection probability is per range x visibility (occlusion) bin"
                                       : "its sigma is scaled per visibility (occlusion) bin";
 }
