@@ -4,11 +4,13 @@
 // predicted distribution (infer/intensity_sampling.h, the seeds given), beside the real-vs-real
 // ceiling computed as `lidar-qualify intensity` computes it (the held-out cells of alternate scans
 // against each other, qualify/similarity.h). Same cells, same import, same split as that command.
-//   bench_intensity_spread --model ck.h5 --semantickitti DIR [--seeds 1,2,3] [--out spread.json]
+//   bench_intensity_spread --model ck.h5 --semantickitti DIR [--seeds 1,2,3] [--spread-scale F] [--out spread.json]
+// --spread-scale replaces the checkpoint's calibration factor of the spread (1: uncalibrated).
 #include <cstdio>
 #include <cxxopts.hpp>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -42,6 +44,7 @@ int main(int argc, char** argv) {
   options.add_options()("model", "checkpoint with a spread head", cxxopts::value<std::string>())(
       "semantickitti", "SemanticKITTI folder", cxxopts::value<std::string>())(
       "seeds", "sampling seeds", cxxopts::value<std::string>()->default_value("1,2,3"))(
+      "spread-scale", "replace the checkpoint's spread calibration factor (1: uncalibrated)", cxxopts::value<float>())(
       "out", "JSON report", cxxopts::value<std::string>()->default_value(""));
   try {
     const auto args = options.parse(argc, argv);
@@ -74,12 +77,17 @@ int main(int argc, char** argv) {
     std::printf("held-out cells %zu; ceiling (alternate scans) %.3f\nmean:    MAE %.4f  intersection %.3f [%.3f, %.3f]  = %.3f x ceiling\n",
                 measured.size(), ceiling, mae, sm.intersection, sm.interval.lo, sm.interval.hi, sm.intersection / ceiling);
     if (model.spread()) {
+      const float factor = args.count("spread-scale") ? args["spread-scale"].as<float>()
+                                                      : nn::read_checkpoint_meta(checkpoint).unet.spread_scale;
+      j["spread_scale"] = factor;
+      std::printf("spread scale factor %.4f (%s)\n", factor, args.count("spread-scale") ? "--spread-scale" : "the checkpoint's");
       std::string seeds = args["seeds"].as<std::string>();
       for (std::size_t start = 0; start < seeds.size();) {
         const std::size_t comma = std::min(seeds.find(',', start), seeds.size());
         const std::uint64_t seed = std::stoull(seeds.substr(start, comma - start));
         start = comma + 1;
-        model.sample_from_spread({seed}, "bench_intensity_spread");
+        model.sample_from_spread({seed, 0.f, 1.f}, "bench_intensity_spread --spread-scale",
+                                 args.count("spread-scale") ? std::optional(args["spread-scale"].as<float>()) : std::nullopt);
         const std::vector<double> drawn = held_out_prediction(model, ds, c);
         double dmae = 0;
         for (std::size_t i = 0; i < drawn.size(); ++i) dmae += std::abs(drawn[i] - measured[i]);

@@ -51,16 +51,20 @@ std::optional<nn::HeadKind> IntensityModel::spread() const {
   return std::nullopt;
 }
 
-void IntensityModel::sample_from_spread(const IntensitySampling& sampling, const std::string& where) {
+void IntensityModel::sample_from_spread(const IntensitySampling& sampling, const std::string& where,
+                                        std::optional<float> scale_factor) {
   if (!spread())
     throw input_error(path_.string(), "/config/unet.heads",
                       where + " needs a spread head (heads: " +
                           (model_.config().heads.empty() ? std::string("mean") : nn::heads_text(model_.config().heads)) +
                           "); train with lidar-train --heads mean,log_scale_laplace");
+  if (scale_factor && !(*scale_factor > 0 && std::isfinite(*scale_factor)))
+    throw Error(where + ": the scale factor must be a finite number > 0, got " + std::to_string(*scale_factor));
   if (!(sampling.min < sampling.max))
     throw Error(where + ": the intensity range must have min < max, got [" + std::to_string(sampling.min) + ", " +
                 std::to_string(sampling.max) + "]");
   sampling_ = sampling;
+  spread_scale_ = scale_factor.value_or(model_.config().spread_scale);
 }
 
 void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame) {
@@ -85,9 +89,11 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
   const auto at = std::find(heads.begin(), heads.end(), *spread()) - heads.begin();
   const float* log_scale = mean + static_cast<std::size_t>(at) * pgm.cells();
   const nn::LogScaleClamp clamp{};  // as in training (nn/loss.h)
+  // The calibration factor fitted after training (1 for checkpoints without one, formats 1-2).
+  const float factor = spread_scale_;
   for (std::size_t i = 0; i < pgm.cells(); ++i) {
     if (mask[i] <= 0) continue;
-    const float scale = std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
+    const float scale = factor * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
     out[i] = sample_intensity(*spread(), mean[i], scale, *sampling_, frame, i);
   }
 }

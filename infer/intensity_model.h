@@ -35,9 +35,12 @@ class IntensityModel {
   // The checkpoint's spread head (log_scale_gaussian / log_scale_laplace), if it has one.
   std::optional<nn::HeadKind> spread() const;
   // From now on predict() draws intensity from the spread head's distribution around the mean
-  // (infer/intensity_sampling.h) instead of the mean. Throws naming the checkpoint when it has no
-  // spread head. `where` names the option in that error.
-  void sample_from_spread(const IntensitySampling& sampling, const std::string& where);
+  // (infer/intensity_sampling.h) instead of the mean, its scale times the checkpoint's calibration
+  // factor (nn::UNetConfig::spread_scale), or `scale_factor` in its place when given (1: the
+  // uncalibrated model, for comparisons). Throws naming the checkpoint when it has no spread head.
+  // `where` names the option in that error.
+  void sample_from_spread(const IntensitySampling& sampling, const std::string& where,
+                          std::optional<float> scale_factor = std::nullopt);
   bool sampling() const { return sampling_.has_value(); }
 
   // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0. By
@@ -61,6 +64,7 @@ class IntensityModel {
   std::filesystem::path path_;
   nn::Tensor input_, output_;
   std::optional<IntensitySampling> sampling_;
+  float spread_scale_ = 1.f;  // applied to the spread head's scale when sampling
 };
 
 }  // namespace lidarsim::infer

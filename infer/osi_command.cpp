@@ -125,8 +125,8 @@ int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
     latency_ms.push_back(std::chrono::duration<double, std::milli>(clock::now() - t0).count());
     model_ms.push_back(runner.last_frame().total_ms);
     objects += static_cast<std::size_t>(data.moving_object_size());
-    if (data.feature_data().lidar_sensor_size() > 0)
-      detections += static_cast<std::size_t>(data.feature_data().lidar_sensor(0).detection_size());
+    for (const auto& lidar : data.feature_data().lidar_sensor())  // every detector
+      detections += static_cast<std::size_t>(lidar.detection_size());
   }
   if (reader.index() < 0) throw Error(source + ": no message (an empty trace)");
   output.commit();

@@ -11,9 +11,33 @@ void make_ideal(SimOptions& options) {
   options.tracker.confirm_hits = 1;
 }
 
+namespace {
+
+bool same_pose(const sensor::Pose& a, const sensor::Pose& b) {
+  return (a.translation - b.translation).norm() <= 1e-3 && (a.rotation - b.rotation).norm() <= 1e-4;
+}
+
+osi::CloudRef cloud_of(const SimFrame& f) {
+  osi::CloudRef cloud;
+  cloud.size = f.cloud.size();
+  cloud.range = f.cloud.range.data();
+  cloud.intensity = f.cloud.intensity.data();
+  cloud.object_id = f.cloud.object_id.data();
+  cloud.cell = f.cloud.cell.data();
+  cloud.layout = &f.pgm.layout();
+  return cloud;
+}
+
+}  // namespace
+
 OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::unique_ptr<IntensityModel> intensity,
-                     SimOptions options)
-    : sensor_(std::move(sensor)), kpi_(std::move(kpi)), intensity_(std::move(intensity)), options_(options) {
+                     SimOptions options, IntensityLoader loader)
+    : sensor_(std::move(sensor)),
+      kpi_(kpi),
+      intensity_(std::move(intensity)),
+      options_(options),
+      loader_(std::move(loader)),
+      kpi_spare_(std::move(kpi)) {
   if (!options_.point_cloud) options_.intensity = false;
   if (options_.intensity && !intensity_) throw Error("osi runner: an intensity model is required");
 }
@@ -24,25 +48,24 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
   };
   osi::scene_from_sensor_view(in, index, source, ids_, scene_);
   if (!pipeline_) {
-    sensor::Scenario s;
-    s.name = "osi";
-    s.source = source;
-    s.duration = 0;
-    s.sensor = sensor_;
-    s.sensor.mount = scene_.mount;
-    pipeline_.emplace(std::move(s), std::move(*kpi_), std::move(intensity_), options_);
-    kpi_.reset();
+    build(source, index);
   } else {
-    const sensor::Pose& first = pipeline_->scenario().sensor.mount;
-    if ((first.translation - scene_.mount.translation).norm() > 1e-3 ||
-        (first.rotation - scene_.mount.rotation).norm() > 1e-4)
+    if (!same_pose(pipeline_->scenario().sensor.mount, scene_.mount))
       throw fail("mounting_position", "differs from the first message's (the sensor is built for one mount)");
+    if (scene_.detectors.size() != detector_mounts_.size())
+      throw fail("lidar_sensor_view", std::to_string(scene_.detectors.size()) + " detectors, the first message had " +
+                                          std::to_string(detector_mounts_.size()));
+    for (std::size_t i = 0; i < detector_mounts_.size(); ++i)
+      if (!same_pose(detector_mounts_[i], scene_.detectors[i].mount))
+        throw fail("lidar_sensor_view[" + std::to_string(i) + "].view_configuration.mounting_position",
+                   "differs from the first message's (each detector is built for one mount)");
     if (!(scene_.time > last_time_))
       throw fail("timestamp", "does not advance (" + std::to_string(scene_.time) + " s after " +
                                   std::to_string(last_time_) + " s)");
   }
   last_time_ = scene_.time;
   pipeline_->run_ground_truth(static_cast<int>(frames_), scene_.map, frame_);
+  for (auto& o : own_) o->pipeline.run_ground_truth(static_cast<int>(frames_), scene_.map, o->frame);
 
   detections_.resize(frame_.reported.size());
   for (std::size_t i = 0; i < frame_.reported.size(); ++i) {
@@ -50,16 +73,52 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
     detections_[i].truth_id = frame_.reported[i].truth_id;
     detections_[i].coasting = frame_.reported[i].coasting;
   }
-  const SimCloud& c = frame_.cloud;
-  osi::CloudRef cloud;
-  cloud.size = c.size();
-  cloud.range = c.range.data();
-  cloud.intensity = c.intensity.data();
-  cloud.object_id = c.object_id.data();
-  cloud.cell = c.cell.data();
-  cloud.layout = &frame_.pgm.layout();
-  osi::build_sensor_data(scene_, detections_, frame_.lanes, cloud, ids_, static_cast<std::uint64_t>(frames_), out);
+  clouds_.clear();
+  for (int k : cloud_of_) {
+    const SimFrame& f = k < 0 ? frame_ : own_[static_cast<std::size_t>(k)]->frame;
+    clouds_.push_back(options_.point_cloud ? cloud_of(f) : osi::CloudRef{});
+  }
+  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out);
   ++frames_;
+}
+
+// The pipelines, on the first message: the virtual sensor's, and one per detector at a mount of
+// its own (only with the point cloud: without it detectors report no features).
+void OsiRunner::build(const std::string& source, long index) {
+  const auto scenario_at = [&](const sensor::Pose& mount) {
+    sensor::Scenario s;
+    s.name = "osi";
+    s.source = source;
+    s.duration = 0;
+    s.sensor = sensor_;
+    s.sensor.mount = mount;
+    return s;
+  };
+  cloud_of_.clear();
+  detector_mounts_.clear();
+  std::vector<std::unique_ptr<OwnMount>> own;
+  for (std::size_t i = 0; i < scene_.detectors.size(); ++i) {
+    const sensor::Pose& mount = scene_.detectors[i].mount;
+    detector_mounts_.push_back(mount);
+    if (!options_.point_cloud || same_pose(mount, scene_.mount)) {
+      cloud_of_.push_back(-1);
+      continue;
+    }
+    std::unique_ptr<IntensityModel> m;
+    if (options_.intensity) {
+      if (!loader_)
+        throw Error(source + ": message " + std::to_string(index) + ": lidar_sensor_view[" + std::to_string(i) +
+                    "].view_configuration.mounting_position: a detector away from the virtual mount needs an "
+                    "intensity model of its own, and this runner has no loader");
+      m = loader_();
+    }
+    cloud_of_.push_back(static_cast<int>(own.size()));
+    own.push_back(std::make_unique<OwnMount>(
+        OwnMount{SimPipeline(scenario_at(mount), kpi_spare_, std::move(m), options_), SimFrame{}}));
+  }
+  pipeline_.emplace(scenario_at(scene_.mount), std::move(*kpi_), std::move(intensity_), options_);
+  kpi_.reset();
+  own_ = std::move(own);
 }
 
 }  // namespace lidarsim::infer

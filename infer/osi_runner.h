@@ -7,6 +7,14 @@
 // The sensor's beams, field of view and range come from a scenario file's "sensor" block (the
 // bundled demo's by default); its mount is replaced by the SensorView's mounting_position. The
 // pipeline is built on the first SensorView, so the mount must not change during a run.
+//
+// Several detectors (lidar_sensor_view entries, osi::Detector): the objects and lanes are the
+// virtual sensor's (SensorView.mounting_position), and each detector gets its own point cloud in
+// its own frame as feature_data.lidar_sensor[i] with its sensor_id. Detectors at the virtual mount
+// share the main pipeline's cloud; one at another mount runs a pipeline of its own (same sensor,
+// KPI model and seed; its objects are not reported), whose intensity model comes from the
+// runner's loader. The detectors and their mounts must not change during a run either.
+#include <functional>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -31,9 +39,12 @@ void make_ideal(SimOptions& options);
 
 class OsiRunner {
  public:
+  // Another intensity model, for a detector at a mount of its own; empty: such detectors are an error.
+  using IntensityLoader = std::function<std::unique_ptr<IntensityModel>()>;
+
   // intensity may be null when options.intensity is false.
   OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::unique_ptr<IntensityModel> intensity,
-            SimOptions options = {});
+            SimOptions options = {}, IntensityLoader loader = {});
   // The sensor block of `scenario`, the KPI model and the intensity checkpoint (HDF5 or weights
   // file, IntensityModel::load); errors name the file. Inline, so that only its callers link the
   // HDF5 reader: the FMU's model library builds its runner with IntensityModel::load_weights.
@@ -42,9 +53,11 @@ class OsiRunner {
     sensor::Scenario s = sensor::read_scenario(scenario);
     sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
     std::unique_ptr<IntensityModel> m;
-    if (options.intensity && options.point_cloud)
-      m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
-    return OsiRunner(s.sensor, std::move(k), std::move(m), options);
+    IntensityLoader loader = [intensity_checkpoint] {
+      return std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
+    };
+    if (options.intensity && options.point_cloud) m = loader();
+    return OsiRunner(s.sensor, std::move(k), std::move(m), options, std::move(loader));
   }
 
   // One frame. Bad input throws lidarsim::Error "<source>: message <index>: <field>: <what>"
@@ -61,7 +74,19 @@ class OsiRunner {
   std::optional<sensor::KpiModel> kpi_;               // moved into the pipeline on the first frame
   std::unique_ptr<IntensityModel> intensity_;         // idem
   SimOptions options_;
+  IntensityLoader loader_;
+  sensor::KpiModel kpi_spare_;                        // for the pipelines of detectors at other mounts
   std::optional<SimPipeline> pipeline_;
+  // A detector at a mount other than the virtual sensor's, with its own pipeline.
+  struct OwnMount {
+    SimPipeline pipeline;
+    SimFrame frame;
+  };
+  std::vector<std::unique_ptr<OwnMount>> own_;
+  std::vector<int> cloud_of_;                 // per detector: -1 the main pipeline's cloud, else index in own_
+  std::vector<sensor::Pose> detector_mounts_;  // the first message's
+  std::vector<osi::CloudRef> clouds_;
+  void build(const std::string& source, long index);
   osi::IdMap ids_;
   osi::SceneFrame scene_;
   SimFrame frame_;

@@ -23,11 +23,15 @@ using namespace checkpoint_h5;
 // count is `unet.outputs` and `unet.out_channels` is left out, so builds that predate format 2
 // (they read `unet.out_channels` and never read `format`) reject the file naming that attribute
 // instead of loading a several-output model as a one-output one. A model format 1 describes is
-// still written as format 1, byte for byte as before.
+// still written as format 1, byte for byte as before. Format 3 is format 2 with
+// `unet.spread_scale`, the spread head's calibration factor (UNetConfig::spread_scale): builds that
+// read formats 1-2 would load the weights and sample with the uncalibrated scale, so they refuse it
+// by its format number; a model whose factor is 1 is still written as format 1 or 2.
 constexpr const char* kFormatPrefix = "lidarsim-checkpoint ";
-constexpr int kNewestFormat = 2;
+constexpr int kNewestFormat = 3;
 
 bool needs_format2(const UNetConfig& c) { return c.out_channels != 1 || !c.heads.empty(); }
+bool needs_format3(const UNetConfig& c) { return c.spread_scale != 1.f; }
 
 bool reserved_attribute(const std::string& key) {
   return key == "format" || key.rfind("unet.", 0) == 0 || key.rfind("optimizer.", 0) == 0;
@@ -79,12 +83,13 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     Writer w(path);
     {
       Handle config = w.group("config");
-      const bool v2 = needs_format2(model.config());
-      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v2 ? 2 : 1));
+      const bool v2 = needs_format2(model.config()), v3 = needs_format3(model.config());
+      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v3 ? 3 : v2 ? 2 : 1));
       w.attr(config.get(), "config", "unet.in_channels", std::int64_t{model.config().in_channels});
       if (!v2) w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       if (v2) w.attr(config.get(), "config", "unet.outputs", std::int64_t{model.config().out_channels});
       if (!model.config().heads.empty()) w.attr(config.get(), "config", "unet.heads", heads_text(model.config().heads));
+      if (v3) w.attr(config.get(), "config", "unet.spread_scale", static_cast<double>(model.config().spread_scale));
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
       // Only when present: a model without the layer writes no trace of it (read back as no layer).
@@ -151,7 +156,7 @@ int format_of(const Reader& r) {
 }
 
 // The output channel count and heads: `unet.out_channels` in format 1, `unet.outputs` and the
-// optional `unet.heads` in format 2.
+// optional `unet.heads` in formats 2 and 3; format 3 also `unet.spread_scale` (absent: 1).
 void outputs_of(const Reader& r, UNetConfig& c) {
   const int format = format_of(r);
   c.out_channels = positive_int_attr(r, format == 1 ? "unet.out_channels" : "unet.outputs");
@@ -165,6 +170,17 @@ void outputs_of(const Reader& r, UNetConfig& c) {
     } catch (const Error& e) {
       r.fail("config/unet.heads", e.what());
     }
+  }
+  c.spread_scale = 1.f;
+  if (format >= 3) {
+    const double v = r.double_attr("config", "unet.spread_scale");
+    const bool spread = has_spread_head(c.heads);
+    if (!(v > 0) || !std::isfinite(v) || v > 1e6)
+      r.fail("config/unet.spread_scale", "expected a finite number > 0, got " + std::to_string(v));
+    if (!spread) r.fail("config/unet.spread_scale", "present, but unet.heads has no spread head");
+    c.spread_scale = static_cast<float>(v);
+  } else if (r.has_attr("config", "unet.spread_scale")) {
+    r.fail("config/unet.spread_scale", "present in a format-" + std::to_string(format) + " checkpoint (format 3 carries it)");
   }
 }
 

@@ -1,10 +1,12 @@
 #pragma once
 // HDF5 checkpoints, readable with h5py:
-//   /config          attributes: format ("lidarsim-checkpoint 1" or "... 2"; absent = 1; a number
-//                    above 2 is refused by name), unet.in_channels, unet.out_channels (format 1:
+//   /config          attributes: format ("lidarsim-checkpoint 1", "... 2" or "... 3"; absent = 1;
+//                    a number above 3 is refused by name), unet.in_channels, unet.out_channels (format 1:
 //                    one output, no heads) or unet.outputs and unet.heads (format 2: several
 //                    outputs or named heads, nn/heads.h; builds before format 2 refuse these
-//                    files as missing unet.out_channels), unet.base, unet.depth,
+//                    files as missing unet.out_channels), unet.spread_scale (format 3 only: the
+//                    spread head's calibration factor; builds that read 1-2 refuse the format),
+//                    unet.base, unet.depth,
 //                    unet.row_affine_rows (only when the model has the per-row affine layer;
 //                    absent = no layer, so files without it load),
 //                    unet.lookup.{classes, class_channel, range_channel, range_bins, rows,

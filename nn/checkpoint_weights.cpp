@@ -18,7 +18,10 @@ namespace lidarsim::nn {
 namespace {
 
 static_assert(std::endian::native == std::endian::little, "the value bytes are written as in memory");
-constexpr int kFormat = 1;
+// Format 2 is format 1 with header.unet.spread_scale (the spread head's calibration factor,
+// UNetConfig::spread_scale): a format-1 reader would sample with the uncalibrated scale, so it
+// refuses the file by its magic line. A model whose factor is 1 is still written as format 1.
+constexpr int kNewestFormat = 2;
 constexpr std::size_t kMaxHeader = std::size_t{64} << 20;
 
 std::uint64_t fnv1a64(const unsigned char* p, std::size_t n) {
@@ -35,8 +38,10 @@ std::string hex16(std::uint64_t v) {
 
 nlohmann::json shape_json(const Shape& s) { return nlohmann::json::array({s.n, s.c, s.h, s.w}); }
 
+int format_for(const UNetConfig& c) { return c.spread_scale != 1.f ? 2 : 1; }
+
 nlohmann::json unet_json(const UNetConfig& c) {
-  return {{"in_channels", c.in_channels},
+  nlohmann::json u = {{"in_channels", c.in_channels},
           {"outputs", c.out_channels},
           {"base", c.base},
           {"depth", c.depth},
@@ -49,6 +54,8 @@ nlohmann::json unet_json(const UNetConfig& c) {
             {"range_bins", c.lookup.range_bins},
             {"rows", c.lookup.rows},
             {"bin_width", c.lookup.bin_width}}}};
+  if (format_for(c) >= 2) u["spread_scale"] = c.spread_scale;
+  return u;
 }
 
 // Typed access to the header: every lookup names the field ("header.unet.base") in its error.
@@ -81,7 +88,7 @@ class Fields {
   std::string file_;
 };
 
-UNetConfig unet_from(const Fields& f, const nlohmann::json& h) {
+UNetConfig unet_from(const Fields& f, const nlohmann::json& h, int format) {
   using V = nlohmann::json::value_t;
   const nlohmann::json& u = f.member(h, "header", "unet", V::object);
   UNetConfig c;
@@ -109,6 +116,14 @@ UNetConfig unet_from(const Fields& f, const nlohmann::json& h) {
     c.lookup.bin_width = f.member(lk, "header.unet.lookup", "bin_width", V::number_float).get<float>();
     if (!(c.lookup.bin_width > 0) || !std::isfinite(c.lookup.bin_width))
       f.fail("header.unet.lookup.bin_width", "expected a finite number > 0");
+  }
+  if (format >= 2) {
+    const double v = f.member(u, "header.unet", "spread_scale", V::number_float).get<double>();
+    if (!(v > 0) || !std::isfinite(v) || v > 1e6) f.fail("header.unet.spread_scale", "expected a finite number > 0");
+    if (!has_spread_head(c.heads)) f.fail("header.unet.spread_scale", "present, but header.unet.heads has no spread head");
+    c.spread_scale = static_cast<float>(v);
+  } else if (u.contains("spread_scale")) {
+    f.fail("header.unet.spread_scale", "present in a format-1 file (format 2 carries it)");
   }
   return c;
 }
@@ -154,7 +169,7 @@ void save_weights(const std::filesystem::path& path, const UNet& model,
                                  {"values", params.size()},
                                  {"fnv1a64", hex16(fnv1a64(values, value_bytes))}};
   const std::string text = header.dump();
-  std::string bytes = std::string(kWeightsMagic) + std::to_string(kFormat) + "\n";
+  std::string bytes = std::string(kWeightsMagic) + std::to_string(format_for(model.config())) + "\n";
   const std::uint64_t length = text.size();
   bytes.append(reinterpret_cast<const char*>(&length), sizeof length);
   bytes += text;
@@ -173,11 +188,13 @@ Weights read_weights(const std::filesystem::path& path) {
   const Fields f(file);
   const std::string bytes = read_all(path);
   const std::size_t eol = bytes.find('\n');
-  const std::string magic = std::string(kWeightsMagic) + std::to_string(kFormat);
   if (eol == std::string::npos || eol > 64 || bytes.compare(0, std::strlen(kWeightsMagic), kWeightsMagic) != 0)
     f.fail("magic", "not a lidarsim weights file (it begins with \"" + std::string(kWeightsMagic) + "<format>\")");
-  if (bytes.substr(0, eol) != magic)
-    f.fail("magic", "\"" + bytes.substr(0, eol) + "\": this build reads format " + std::to_string(kFormat));
+  int format = 0;
+  for (int v = 1; v <= kNewestFormat; ++v)
+    if (bytes.substr(0, eol) == std::string(kWeightsMagic) + std::to_string(v)) format = v;
+  if (format == 0)
+    f.fail("magic", "\"" + bytes.substr(0, eol) + "\": this build reads formats 1 to " + std::to_string(kNewestFormat));
   std::size_t at = eol + 1;
   std::uint64_t length = 0;
   if (bytes.size() - at < sizeof length) f.fail("header length", "torn: the file ends after " + std::to_string(bytes.size()) + " bytes");
@@ -190,7 +207,7 @@ Weights read_weights(const std::filesystem::path& path) {
   if (h.is_discarded() || !h.is_object()) f.fail("header", "not a JSON object");
   at += length;
 
-  Weights w{{}, UNet(unet_from(f, h))};
+  Weights w{{}, UNet(unet_from(f, h, format))};
   w.meta.unet = w.model.config();
   using V = nlohmann::json::value_t;
   for (const auto& [name, value] : f.member(h, "header", "attributes", V::object).items()) {

@@ -39,15 +39,16 @@ Conv3x3Path read_path_env() {
   if (v == "winograd") return Conv3x3Path::winograd;
   throw Error("environment: LIDARSIM_CONV3X3: expected direct, winograd or auto, got \"" + v + "\"");
 }
+// The process default only (nn/conv_settings.h): each call takes the algorithm from its ConvSettings.
 Conv3x3Path g_path = read_path_env();
 }  // namespace
 
 void set_conv3x3_path(Conv3x3Path path) { g_path = path; }
 Conv3x3Path conv3x3_path() { return g_path; }
 
-bool conv3x3_takes_winograd(int ci, int co) {
-  if (!winograd_available() || g_path == Conv3x3Path::direct) return false;
-  if (g_path == Conv3x3Path::winograd) return true;
+bool conv3x3_takes_winograd(int ci, int co, Conv3x3Path path) {
+  if (!winograd_available() || path == Conv3x3Path::direct) return false;
+  if (path == Conv3x3Path::winograd) return true;
   // Measured in the network (LIDARSIM_PROFILE=cpu, one thread, batch 1 and 4), with the weight
   // gradient streaming its tiles (nn/winograd.h): every conv with 16 or more
   // channels on both sides took less time on Winograd in all its passes, the 64 x 1024 ones
@@ -64,13 +65,14 @@ bool conv3x3_available() { return isa_at_least(Isa::avx512); }
 
 #if !LIDARSIM_AVX512_KERNELS
 namespace lidarsim::nn::detail::avx512 {
-void conv3x3_forward(float*, const float*, int, int, int, int, const float*, const float*, int, bool) {}
+void conv3x3_forward(float*, const float*, int, int, int, int, const float*, const float*, int, bool,
+                     const ConvSettings&) {}
 void conv3x3_backward(float*, float*, float*, const float*, const float*, const float*, const float*, int, int, int,
-                      int, int, bool) {}
+                      int, int, bool, const ConvSettings&) {}
 void conv3x3_forward_cat(float*, const float*, int, const float*, int, int, int, int, const float*, const float*, int,
-                         bool) {}
+                         bool, const ConvSettings&) {}
 void conv3x3_backward_cat(float*, float*, float*, float*, const float*, const float*, const float*, int, const float*,
-                          int, const float*, int, int, int, int, bool) {}
+                          int, const float*, int, int, int, int, bool, const ConvSettings&) {}
 }  // namespace lidarsim::nn::detail::avx512
 #else
 
@@ -132,7 +134,11 @@ struct Cat {
 
 using Buf = GrowBuffer;  // nn/big_alloc.h
 
-Buf g_pad_in, g_pad_g, g_wpack, g_sums;
+// Scratch of one call, grown to the largest layer and reused (no allocation in steady state). Per
+// thread: a pure cache whose contents do not outlive the call, and models that run in several
+// threads at once (one FMU instance per lidar) must not share it. Only the calling thread touches
+// these objects; the team's workers get the pointers.
+thread_local Buf tl_pad_in, tl_pad_g, tl_wpack, tl_sums;
 
 // The sum of rows [0, rows) of a plane (row stride `stride`, w values each; only where mask > 0
 // when mask is given, same strides), for the bias gradient, in the order it has always been
@@ -314,53 +320,54 @@ constexpr WgradFn kWgrad[kCB + 1] = {nullptr,        wgrad_task<1>, wgrad_task<2
 }  // namespace
 
 void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, const float* weight,
-                     const float* bias, int co, bool relu) {
-  conv3x3_forward_cat(out, in, ci, nullptr, 0, n, h, w, weight, bias, co, relu);
+                     const float* bias, int co, bool relu, const ConvSettings& cs) {
+  conv3x3_forward_cat(out, in, ci, nullptr, 0, n, h, w, weight, bias, co, relu, cs);
 }
 
 void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
-                         const float* weight, const float* bias, int co, bool relu) {
+                         const float* weight, const float* bias, int co, bool relu, const ConvSettings& cs) {
   const int ci = ca + cb;
-  if (conv3x3_takes_winograd(ci, co)) {
+  if (conv3x3_takes_winograd(ci, co, cs.conv3x3)) {
     winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
     return;
   }
   const Geom g(h, w);
-  float* pin = g_pad_in.get(g.stride * ci * n);
+  float* pin = tl_pad_in.get(g.stride * ci * n);
   const bool par = static_cast<std::size_t>(n) * ci * h * w > (1u << 15);
   pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
   const std::size_t wp_floats = static_cast<std::size_t>((co + kCB - 1) / kCB) * kCB * ci * 9;
   bool valid = false;
-  float* wp = weight_cache_active()
-                  ? static_cast<float*>(cached_weight_form(WeightForm::direct, weight, static_cast<std::size_t>(co) * ci * 9,
-                                                           co, ci, wp_floats * sizeof(float), &valid))
-                  : g_wpack.get(wp_floats);
+  float* wp = cs.weight_cache ? static_cast<float*>(cs.weight_cache->get(WeightForm::direct, weight,
+                                                                          static_cast<std::size_t>(co) * ci * 9, co, ci,
+                                                                          wp_floats * sizeof(float), &valid))
+                              : tl_wpack.get(wp_floats);
   if (!valid) pack_weights(wp, weight, co, ci, false);
   conv_padded(Cat<float>{out, co}, pin, n, ci, g, wp, bias, relu);
 }
 
 void conv3x3_backward(float* d_in, float* d_weight, float* d_bias, const float* d_out, const float* out,
-                      const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu) {
-  conv3x3_backward_cat(d_in, nullptr, d_weight, d_bias, d_out, out, in, ci, nullptr, 0, weight, n, h, w, co, relu);
+                      const float* in, const float* weight, int n, int ci, int h, int w, int co, bool relu,
+                      const ConvSettings& cs) {
+  conv3x3_backward_cat(d_in, nullptr, d_weight, d_bias, d_out, out, in, ci, nullptr, 0, weight, n, h, w, co, relu, cs);
 }
 
 void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias, const float* d_out, const float* out,
                           const float* a, int ca, const float* b, int cb, const float* weight, int n, int h, int w,
-                          int co, bool relu) {
+                          int co, bool relu, const ConvSettings& cs) {
   const Geom g(h, w);
   const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
-  const bool wino_w = d_weight && conv3x3_takes_winograd(ci, co);
-  const bool wino_d = d_a && conv3x3_takes_winograd(co, ci);
+  const bool wino_w = d_weight && conv3x3_takes_winograd(ci, co, cs.conv3x3);
+  const bool wino_d = d_a && conv3x3_takes_winograd(co, ci, cs.conv3x3);
   // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
   // for the direct kernels; with only Winograd ones the bias needs just its sums (same order),
   // which the by-phase copy for Winograd's weight gradient also gives.
   float* gp = nullptr;
-  float* sums = g_sums.get(static_cast<std::size_t>(co) * n);
+  float* sums = tl_sums.get(static_cast<std::size_t>(co) * n);
   const bool needs_gp = (d_weight && !wino_w) || (d_a && !wino_d);
   float* phase_sums = d_bias && wino_w && !needs_gp ? sums : nullptr;
   if (needs_gp) {
-    gp = g_pad_g.get(g.stride * co * n);
+    gp = tl_pad_g.get(g.stride * co * n);
     pad_planes(gp, Cat<const float>{d_out, co}, relu ? out : nullptr, n, g, par, sums);
   } else if (d_bias && !phase_sums) {
     const float* mask = relu ? out : nullptr;
@@ -386,7 +393,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
 
   if (wino_w && wino_d) return;
   if (!wino_w && d_weight) {
-    float* pin = g_pad_in.get(g.stride * ci * n);
+    float* pin = tl_pad_in.get(g.stride * ci * n);
     pad_planes(pin, Cat<const float>{a, ca, b, cb}, nullptr, n, g, par);
     const int blocks = (co + kCB - 1) / kCB;
     const int q_stop = g.qa + (g.q_end - g.qa + 15) / 16 * 16;
@@ -422,7 +429,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
     winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
                      nullptr, false);
   } else if (d_a) {
-    float* wp = g_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
+    float* wp = tl_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
     pack_weights(wp, weight, co, ci, true);
     conv_padded(Cat<float>{d_a, ca, d_b, cb}, gp, n, co, g, wp, nullptr, false);
   }

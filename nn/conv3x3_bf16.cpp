@@ -30,8 +30,8 @@ bool conv3x3_bf16_available() { return isa_at_least(Isa::avx512_bf16); }
 
 #if !LIDARSIM_AVX512_KERNELS
 void conv3x3_bf16_forward_cat(float*, const float*, int, const float*, int, int, int, int, const float*, const float*,
-                              int, bool) {}
-bool conv3x3_takes_bf16(int, int, int, int, int) { return false; }
+                              int, bool, WeightCache*) {}
+bool conv3x3_takes_bf16(int, int, int, int, int, Conv3x3Path) { return false; }
 #else
 
 // Only the functions marked so use AVX-512 BF16 instructions (all in namespace avx512_bf16, as
@@ -39,12 +39,12 @@ bool conv3x3_takes_bf16(int, int, int, int, int) { return false; }
 // needs no such flags.
 #define LIDARSIM_BF16_TARGET __attribute__((target("avx512f,avx512bw,avx512bf16")))
 
-bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w) {
-  // LIDARSIM_CONV3X3=direct: bf16 everywhere; =winograd: Winograd (fp32) wherever it applies.
-  if (conv3x3_path() == Conv3x3Path::winograd && winograd_available()) return false;
+bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w, Conv3x3Path path) {
+  // Path direct: bf16 everywhere; winograd: Winograd (fp32) wherever it applies.
+  if (path == Conv3x3Path::winograd && winograd_available()) return false;
   // The fp32 rule's 16-channel Winograd layers (enc1.conv1) run faster still in bf16 (1.2-1.3x at
   // batch 4, even at batch 1).
-  if (!conv3x3_takes_winograd(ci, co) || std::min(ci, co) < 32) return true;
+  if (!conv3x3_takes_winograd(ci, co, path) || std::min(ci, co) < 32) return true;
   // Where the fp32 rule takes Winograd, from bench_conv3x3 --forward-only (unet-ref, batch 1
   // and 4, CPU time): bf16 took 1.6-2.2x less time than the fp32 direct kernel on every layer,
   // and less than Winograd at 1,024 pixels per channel (1.1x, its few tiles) and at 65,536
@@ -95,7 +95,9 @@ struct Buf {
   }
   ~Buf() { std::free(p); }
 };
-Buf g_pad, g_wpack;
+// Scratch of one call, per thread: a pure cache, and models running in several threads at once must
+// not share it (only the calling thread touches these objects; the workers get the pointers).
+thread_local Buf tl_pad, tl_wpack;
 
 // Round to nearest even, as the hardware conversion does for the activations.
 std::uint32_t bf16_bits(float f) {
@@ -197,7 +199,7 @@ LIDARSIM_BF16_TARGET void conv_task(float* out, int co, const std::uint32_t* pim
 }  // namespace avx512_bf16
 
 void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
-                              const float* weight, const float* bias, int co, bool relu) {
+                              const float* weight, const float* bias, int co, bool relu, WeightCache* cache) {
   using namespace avx512_bf16;
   const Geom g(h, w);
   const int ci = ca + cb, pairs = (ci + 1) / 2;
@@ -206,7 +208,7 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
     return c < ca ? a + (static_cast<std::size_t>(img) * ca + c) * plane
                   : b + (static_cast<std::size_t>(img) * cb + (c - ca)) * plane;
   };
-  std::uint32_t* pin = g_pad.get(g.stride * pairs * n);
+  std::uint32_t* pin = tl_pad.get(g.stride * pairs * n);
   const bool pad_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
   parallel_for(n * pairs, pad_par, [&](long tl) {
     const int t = static_cast<int>(tl), img = t / pairs, p = t % pairs;
@@ -215,11 +217,10 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
   const int blocks = (co + kCB - 1) / kCB;
   const std::size_t wp_lanes = static_cast<std::size_t>(blocks) * kCB * pairs * 9;
   bool valid = false;
-  std::uint32_t* wp = weight_cache_active()
-                          ? static_cast<std::uint32_t*>(cached_weight_form(WeightForm::bf16, weight,
-                                                                           static_cast<std::size_t>(co) * ci * 9, co,
-                                                                           ci, wp_lanes * 4, &valid))
-                          : g_wpack.get(wp_lanes);
+  std::uint32_t* wp = cache ? static_cast<std::uint32_t*>(cache->get(WeightForm::bf16, weight,
+                                                                      static_cast<std::size_t>(co) * ci * 9, co, ci,
+                                                                      wp_lanes * 4, &valid))
+                             : tl_wpack.get(wp_lanes);
   if (!valid) pack_weights(wp, weight, co, ci);
   const int strips = (g.q_end - g.qa + kStrip - 1) / kStrip;
   const int chunks = (strips + kChunkStrips - 1) / kChunkStrips;

@@ -7,6 +7,8 @@
 // pixels), so a vector instruction does twice the multiply-adds; bias and ReLU are fused on the
 // way out and outputs are fp32. The code is compiled for AVX-512 BF16 by function attributes, so
 // builds without -march=native keep it and choose at run time.
+#include "nn/conv_settings.h"
+
 namespace lidarsim::nn::detail {
 
 // Whether this build has the kernel and the CPU runs it (AVX-512 F, BW and BF16), and LIDARSIM_ISA
@@ -15,11 +17,12 @@ bool conv3x3_bf16_available();
 
 // The contract of conv3x3_forward_cat: out [n, co, h, w] = conv([a (ca channels), b (cb)]) with
 // weight [co, ca + cb, 3, 3], plus bias [co] (or null), then ReLU when relu. b may be null (cb 0).
+// The packed weights come from `cache` when given (kept across calls), else are packed per call.
 void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
-                              const float* weight, const float* bias, int co, bool relu);
+                              const float* weight, const float* bias, int co, bool relu, WeightCache* cache = nullptr);
 
 // Whether a conv of ci -> co channels on n images of h x w takes the bf16 kernel under bf16
-// inference (else the fp32 rule of conv3x3_takes_winograd).
-bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w);
+// inference (else the fp32 rule of conv3x3_takes_winograd under `path`).
+bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w, Conv3x3Path path = conv3x3_path());
 
 }  // namespace lidarsim::nn::detail

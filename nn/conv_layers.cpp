@@ -19,7 +19,6 @@
 #include "nn/conv_transpose2x2.h"
 #include "nn/layers_internal.h"
 #include "nn/parallel.h"
-#include "nn/precision.h"
 
 namespace lidarsim::nn {
 
@@ -45,11 +44,14 @@ float* grow(std::vector<float>& v, std::size_t n) {
   return v.data();
 }
 
-// Per-thread im2col tiles and the shared buffers of one op at a time (ops run one after another).
+// Scratch, per thread: im2col tiles (each team thread its own), and the buffers of one op, which
+// only the calling thread touches (the workers get the pointers). Pure caches whose contents do
+// not outlive the call: models running in several threads at once (one FMU instance per lidar)
+// must not share them.
 thread_local std::vector<float> tl_col;
-std::vector<float> g_masked;    // relu-masked d_out
-std::vector<float> g_wflip;     // flipped, transposed conv weights for the input gradient
-std::vector<float> g_partials;  // per-thread weight-gradient partials
+thread_local std::vector<float> tl_masked;    // relu-masked d_out
+thread_local std::vector<float> tl_wflip;     // flipped, transposed conv weights for the input gradient
+thread_local std::vector<float> tl_partials;  // per-thread weight-gradient partials
 
 
 constexpr std::size_t kColFloats = 1 << 17;  // one thread's im2col tile: 512 KB, stays in L2
@@ -141,7 +143,7 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
 }  // namespace
 
 void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
-                    bool relu) {
+                    bool relu, const detail::ConvSettings& cs) {
   check_finite_shape(in, "conv2d_forward", "in");
   const Shape s = in.shape();
   const int ho = s.h + 2 * pad - k + 1, wo = s.w + 2 * pad - k + 1;
@@ -150,12 +152,13 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
                 " does not fit input " + s.str());
   ensure(out, Shape{s.n, co, ho, wo});
   // UNet::predict in bf16 (nn/precision.h): the bf16 kernel, where it is the faster choice.
-  if (k == 3 && pad == 1 && detail::bf16_convs_active() && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w)) {
-    detail::conv3x3_bf16_forward_cat(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu);
+  if (k == 3 && pad == 1 && cs.bf16 && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w, cs.conv3x3)) {
+    detail::conv3x3_bf16_forward_cat(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu,
+                                     cs.weight_cache);
     return;
   }
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
-    detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu);
+    detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu, cs);
     return;
   }
   conv_core(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, k, pad, relu);
@@ -163,10 +166,10 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
 
 namespace {
 
-// g = d_out masked by the ReLU (d pre-activation), in the scratch g_masked.
+// g = d_out masked by the ReLU (d pre-activation), in the scratch tl_masked.
 const float* relu_masked(const Tensor& d_out, const Tensor& out) {
   const std::size_t total = d_out.shape().numel();
-  float* m = grow(g_masked, total);
+  float* m = grow(tl_masked, total);
   const float* o = out.data();
   const float* d = d_out.data();
   parallel_ranges(static_cast<long>(total), total > kParallelElems, [&](long b, long e) {
@@ -200,7 +203,7 @@ void conv_weight_grad(float* d_weight, const float* g, const Tensor& in, int co,
   const int tiles = (hw + t - 1) / t;
   const int threads = detail::team_threads();
   const std::size_t wsize = static_cast<std::size_t>(kdim) * co;
-  float* parts = grow(g_partials, wsize * threads);
+  float* parts = grow(tl_partials, wsize * threads);
   std::fill(parts, parts + wsize * threads, 0.f);
   const std::size_t in_image = s.image();
   parallel(par, [&](int tid, int nt) {
@@ -231,7 +234,7 @@ void conv_input_grad(Tensor& d_in, const float* g, Shape s, const float* weight,
                      int wo) {
   ensure(d_in, s);
   const int ci = s.c, kk = k * k;
-  float* wf = grow(g_wflip, static_cast<std::size_t>(co) * kk * ci);
+  float* wf = grow(tl_wflip, static_cast<std::size_t>(co) * kk * ci);
   // wf as [co k k, ci] column-major: wf[c * (co k k) + (o k + kh) k + kw] = W[o, c, k-1-kh, k-1-kw]
   for (int c = 0; c < ci; ++c)
     for (int o = 0; o < co; ++o)
@@ -245,7 +248,7 @@ void conv_input_grad(Tensor& d_in, const float* g, Shape s, const float* weight,
 }  // namespace
 
 void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
-                     const Tensor& in, const float* weight, int k, int pad, bool relu) {
+                     const Tensor& in, const float* weight, int k, int pad, bool relu, const detail::ConvSettings& cs) {
   const Shape s = in.shape(), so = d_out.shape();
   const int n = s.n, ci = s.c, co = so.c, ho = so.h, wo = so.w, hw = ho * wo;
   const int kdim = ci * k * k;
@@ -257,7 +260,7 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
     if (d_in) ensure(*d_in, s);
     detail::conv3x3_backward(d_in ? d_in->data() : nullptr, d_weight, d_bias, d_out.data(), relu ? out.data() : nullptr,
-                             in.data(), weight, n, ci, s.h, s.w, co, relu);
+                             in.data(), weight, n, ci, s.h, s.w, co, relu, cs);
     if (fault(testhook::Fault::conv2d_bias) && d_bias && co > 1) d_bias[1] = d_bias[0];
     if (fault(testhook::Fault::conv2d_weight) && d_weight && kdim * co > 1) d_weight[kdim * co - 1] = d_weight[0];
     if (fault(testhook::Fault::conv2d_input) && d_in && d_in->numel() > 1) d_in->data()[1] = d_in->data()[0];
@@ -286,45 +289,46 @@ void check_cat(const Tensor& a, const Tensor& b, const char* op) {
   if (sa.n != sb.n || sa.h != sb.h || sa.w != sb.w || a.numel() == 0)
     throw Error(std::string(op) + ": b: shape " + sb.str() + " does not match a " + sa.str());
 }
-Tensor g_cat, g_dcat;  // the copy-based fallback's buffers
+thread_local Tensor tl_cat, tl_dcat;  // the copy-based fallback's buffers (per thread, as above)
 }  // namespace
 
 void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const float* weight, const float* bias, int co,
-                        bool relu) {
+                        bool relu, const detail::ConvSettings& cs) {
   check_cat(a, b, "conv2d_cat_forward");
   const Shape sa = a.shape();
-  if (detail::bf16_convs_active() && detail::conv3x3_takes_bf16(sa.n, sa.c + b.shape().c, co, sa.h, sa.w)) {
+  if (cs.bf16 && detail::conv3x3_takes_bf16(sa.n, sa.c + b.shape().c, co, sa.h, sa.w, cs.conv3x3)) {
     ensure(out, Shape{sa.n, co, sa.h, sa.w});
     detail::conv3x3_bf16_forward_cat(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias,
-                                     co, relu);
+                                     co, relu, cs.weight_cache);
     return;
   }
   if (!detail::conv3x3_available()) {
-    concat_forward(g_cat, a, b);
-    conv2d_forward(out, g_cat, weight, bias, co, 3, 1, relu);
+    concat_forward(tl_cat, a, b);
+    conv2d_forward(out, tl_cat, weight, bias, co, 3, 1, relu, cs);
     return;
   }
   ensure(out, Shape{sa.n, co, sa.h, sa.w});
   detail::conv3x3_forward_cat(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias, co,
-                              relu);
+                              relu, cs);
 }
 
 void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bias, const Tensor& d_out,
-                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu) {
+                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu,
+                         const detail::ConvSettings& cs) {
   check_cat(a, b, "conv2d_cat_backward");
   const Shape sa = a.shape(), sb = b.shape(), so = d_out.shape();
   if (so.n != sa.n || so.h != sa.h || so.w != sa.w || (relu && !(out.shape() == so)))
     throw Error("conv2d_cat_backward: d_out: shape " + so.str() + " does not match input " + sa.str());
   if (!detail::conv3x3_available()) {
-    concat_forward(g_cat, a, b);
-    conv2d_backward(&g_dcat, d_weight, d_bias, d_out, out, g_cat, weight, 3, 1, relu);
-    concat_backward(d_a, d_b, g_dcat, sa.c, false);
+    concat_forward(tl_cat, a, b);
+    conv2d_backward(&tl_dcat, d_weight, d_bias, d_out, out, tl_cat, weight, 3, 1, relu, cs);
+    concat_backward(d_a, d_b, tl_dcat, sa.c, false);
     return;
   }
   ensure(d_a, sa);
   ensure(d_b, sb);
   detail::conv3x3_backward_cat(d_a.data(), d_b.data(), d_weight, d_bias, d_out.data(), relu ? out.data() : nullptr,
-                               a.data(), sa.c, b.data(), sb.c, weight, sa.n, sa.h, sa.w, so.c, relu);
+                               a.data(), sa.c, b.data(), sb.c, weight, sa.n, sa.h, sa.w, so.c, relu, cs);
   if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
 }
 
@@ -390,7 +394,7 @@ void conv_transpose2x2_backward(Tensor& d_in, float* d_weight, float* d_bias, co
   const std::size_t wsize = static_cast<std::size_t>(ci) * co4;
   // Per-thread partials: weight gradient, then bias gradient.
   const std::size_t psize = wsize + co;
-  float* parts = grow(g_partials, psize * threads);
+  float* parts = grow(tl_partials, psize * threads);
   std::fill(parts, parts + psize * threads, 0.f);
   Eigen::Map<const RowMat> wm(weight, ci, co4);
   const bool par = 2.0 * n * hw * ci * co4 > kParallelFlops;

@@ -35,7 +35,10 @@ namespace {
 // (Eigen's aligned_allocator aligns to 32 bytes only in an AVX2 build). Outside the AVX-512
 // region: its construction and destruction are baseline code.
 thread_local GrowBuffer tl_pixels;
-std::vector<float> g_taps;  // the weights regrouped by output-channel block
+// The weights regrouped by output-channel block: scratch of one call, per calling thread (a pure
+// cache; models running in several threads at once must not share it). Workers write through
+// the pointer taken on the caller, never through this object.
+thread_local std::vector<float> tl_taps;
 }  // namespace
 }  // namespace lidarsim::nn::detail::avx512
 
@@ -100,7 +103,8 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
                                     const float* bias, int co, int out_h, int out_w) {
   const std::size_t hw = static_cast<std::size_t>(h) * w, oplane = static_cast<std::size_t>(out_h) * out_w;
   // Taps by block: [o / 2][c][2 channels x 4 taps], then the odd channel out [c][4].
-  g_taps.resize(static_cast<std::size_t>(ci) * co * 4);
+  tl_taps.resize(static_cast<std::size_t>(ci) * co * 4);
+  float* const taps_out = tl_taps.data();
   const int pairs = co / 2;
   // On the team too: serially, the deepest layer's 131K taps kept the other thread waiting
   // long enough to fall asleep.
@@ -108,10 +112,10 @@ void conv_transpose2x2_forward_fast(float* out, const float* in, int n, int ci, 
     for (int o = 0; o < co; ++o) {
       const std::size_t dst = o < 2 * pairs ? (static_cast<std::size_t>(o / 2) * ci + c) * 8 + (o % 2) * 4
                                             : (static_cast<std::size_t>(pairs) * ci * 2 + c) * 4;
-      std::copy_n(weight + (static_cast<std::size_t>(c) * co + o) * 4, 4, g_taps.data() + dst);
+      std::copy_n(weight + (static_cast<std::size_t>(c) * co + o) * 4, 4, taps_out + dst);
     }
   });
-  const float* taps = g_taps.data();
+  const float* taps = taps_out;
   const bool par = 8.0 * n * hw * ci * co > kParallelFlops;
   parallel_for(n * h, par, [&](long task) {
     const int img = static_cast<int>(task / h), y = static_cast<int>(task % h);

@@ -143,7 +143,12 @@ void sigmoid_forward(Tensor& out, const Tensor& in) {
   }
 }
 
-void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp) {
+bool has_spread_head(const std::vector<HeadKind>& heads) {
+  return std::any_of(heads.begin(), heads.end(),
+                     [](HeadKind h) { return h == HeadKind::log_scale_gaussian || h == HeadKind::log_scale_laplace; });
+}
+
+void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp, float spread_scale) {
   if (heads.empty()) return;
   const Shape s = y.shape();
   if (s.c != static_cast<int>(heads.size()))
@@ -157,7 +162,7 @@ void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogSc
           v[i] = v[i] >= 0 ? 1.f / (1.f + e) : e / (1.f + e);
         }
       else if (heads[c] == HeadKind::log_scale_gaussian || heads[c] == HeadKind::log_scale_laplace)
-        for (std::size_t i = 0; i < s.plane(); ++i) v[i] = std::exp(std::clamp(v[i], clamp.min, clamp.max));
+        for (std::size_t i = 0; i < s.plane(); ++i) v[i] = spread_scale * std::exp(std::clamp(v[i], clamp.min, clamp.max));
     }
 }
 

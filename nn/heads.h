@@ -57,10 +57,15 @@ struct HeadsLoss {
 HeadsLoss heads_loss(const std::vector<HeadKind>& heads, const Tensor& pred, const std::vector<HeadTarget>& targets,
                      Tensor* d_pred, const HeadsLossConfig& config = {});
 
+// True when one of the heads is log_scale_gaussian or log_scale_laplace.
+bool has_spread_head(const std::vector<HeadKind>& heads);
+
 // Numerically stable logistic function, elementwise: in and out any shape (out may be in).
 void sigmoid_forward(Tensor& out, const Tensor& in);
 // Inference: in place on y [N, K, H, W], return_logit channels become probabilities and log-scale
-// channels scales (exp of the clamped log-scale); mean channels stay.
-void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp = {});
+// channels scales (spread_scale * exp of the clamped log-scale: UNetConfig::spread_scale, the
+// calibration factor); mean channels stay.
+void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp = {},
+                            float spread_scale = 1.f);
 
 }  // namespace lidarsim::nn

@@ -4,15 +4,17 @@
 // parameter gradients. Shapes in comments: N batch, C/Ci/Co channels, H/W height/width.
 // Output tensors are reshaped when their shape differs (that allocates only when they grow).
 // Parallel with OpenMP; reductions over pixels go through per-thread partials summed in thread
-// order, so a fixed thread count gives bit-identical results. The ops share grow-only scratch
-// buffers (no allocation in steady state), so one process runs one op at a time: do not call
-// them from several threads at once (parallelism lives inside each op).
+// order, so a fixed thread count gives bit-identical results. The ops keep grow-only scratch
+// buffers per calling thread (no allocation in steady state; parallelism lives inside each op),
+// so several threads may run ops at once on their own tensors.
 // 3x3/padding-1 convolutions take a direct AVX-512 kernel (nn/conv3x3.h) when compiled for it;
-// everything else goes through im2col + Eigen GEMM. While UNet::predict runs in bf16
-// (nn/precision.h), their forward passes take the bf16 kernel (nn/conv3x3_bf16.h).
+// everything else goes through im2col + Eigen GEMM. The conv ops take the caller's settings
+// (nn/conv_settings.h: algorithm, bf16 forward, packed-weight cache), which a model owns; the
+// default is the process default algorithm in fp32.
 #include <cstdint>
 #include <vector>
 
+#include "nn/conv_settings.h"
 #include "nn/tensor.h"
 
 namespace lidarsim::nn {
@@ -21,19 +23,21 @@ namespace lidarsim::nn {
 //   in [N, Ci, H, W], weight [Co, Ci, k, k], bias [Co] (may be null) -> out [N, Co, Ho, Wo],
 //   Ho = H + 2 pad - k + 1. `relu` fuses a ReLU after the bias.
 void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
-                    bool relu);
+                    bool relu, const detail::ConvSettings& cs = {});
 // d_out is the gradient w.r.t. the (post-ReLU when relu) output; `out` is the forward output
 // (used for the ReLU mask). d_in may be null (first layer); d_bias may be null.
 void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
-                     const Tensor& in, const float* weight, int k, int pad, bool relu);
+                     const Tensor& in, const float* weight, int k, int pad, bool relu,
+                     const detail::ConvSettings& cs = {});
 
 // conv2d (3x3, padding 1) over the channel concat [a, b] without materialising it (the UNet's
 // decoder input). a [N, Ca, H, W], b [N, Cb, H, W], weight [Co, Ca + Cb, 3, 3].
 void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const float* weight, const float* bias, int co,
-                        bool relu);
+                        bool relu, const detail::ConvSettings& cs = {});
 // Writes the input gradient split as d_a, d_b.
 void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bias, const Tensor& d_out,
-                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu);
+                         const Tensor& out, const Tensor& a, const Tensor& b, const float* weight, bool relu,
+                         const detail::ConvSettings& cs = {});
 
 // Transposed conv 2x2, stride 2 (no overlap): in [N, Ci, H, W], weight [Ci, Co, 2, 2], bias [Co]
 //   -> out [N, Co, out_h, out_w] with out_h >= 2H, out_w >= 2W (extra rows/cols are zero: the

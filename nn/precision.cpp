@@ -22,8 +22,6 @@ InferencePrecision& requested() {
 }
 bool g_forced_unsupported = false;
 std::atomic<bool> g_warned{false};
-bool g_active = false;
-int g_predict_depth = 0;
 }  // namespace
 
 InferencePrecision parse_inference_precision(const std::string& text, const std::string& field) {
@@ -39,8 +37,9 @@ InferencePrecision inference_precision() { return requested(); }
 
 bool bf16_supported() { return !g_forced_unsupported && detail::conv3x3_bf16_available(); }
 
-InferencePrecision effective_inference_precision() {
-  const InferencePrecision p = requested();
+InferencePrecision effective_inference_precision() { return effective_inference_precision(requested()); }
+
+InferencePrecision effective_inference_precision(InferencePrecision p) {
   if (p != InferencePrecision::bf16 || bf16_supported()) return p;
   if (!g_warned.exchange(true))
     std::fprintf(stderr, "lidarsim: bf16 inference requested but this CPU has no AVX-512 BF16: running fp32\n");
@@ -53,18 +52,5 @@ void force_bf16_unsupported(bool force) {
   g_warned = false;
 }
 }  // namespace testhook
-
-namespace detail {
-bool bf16_convs_active() { return g_active; }
-bool predict_active() { return g_predict_depth > 0; }
-Bf16ConvScope::Bf16ConvScope(bool on) : old(g_active) {
-  g_active = on;
-  ++g_predict_depth;
-}
-Bf16ConvScope::~Bf16ConvScope() {
-  g_active = old;
-  --g_predict_depth;
-}
-}  // namespace detail
 
 }  // namespace lidarsim::nn

@@ -1,8 +1,10 @@
 #pragma once
 // Inference precision of the UNet: fp32 (default) or bf16, where the 3x3
 // convolutions of UNet::predict take bf16 inputs and weights with fp32 accumulation
-// (nn/conv3x3_bf16.h). Training (forward/backward) is always fp32. The first use reads
-// LIDARSIM_INFER_PRECISION (fp32 or bf16); commands may set it from a --precision flag.
+// (nn/conv3x3_bf16.h). Training (forward/backward) is always fp32. Each UNet runs predict() in its
+// own precision (UNet::set_inference_precision); one that was not given any takes the process
+// default below: LIDARSIM_INFER_PRECISION (fp32 or bf16) read on first use, or what a command set
+// from its --precision flag (before any thread runs a model: a plain value, not synchronised).
 // bf16 needs AVX-512 BF16 at run time: without it inference stays fp32 and one line on stderr
 // says so (once per process).
 #include <string>
@@ -15,15 +17,16 @@ enum class InferencePrecision { fp32, bf16 };
 InferencePrecision parse_inference_precision(const std::string& text, const std::string& field);
 const char* to_string(InferencePrecision p);
 
-// The requested precision (LIDARSIM_INFER_PRECISION until set).
+// The process default (LIDARSIM_INFER_PRECISION until set).
 void set_inference_precision(InferencePrecision p);
 InferencePrecision inference_precision();
 
 // Whether this CPU (and this build) runs the bf16 kernels.
 bool bf16_supported();
 
-// The precision predict() runs in: the requested one, or fp32 with the one-line message when
-// bf16 is requested and unsupported.
+// The precision predict() runs in for a request: `requested`, or fp32 with the one-line message
+// when bf16 is requested and unsupported. Without an argument: for the process default.
+InferencePrecision effective_inference_precision(InferencePrecision requested);
 InferencePrecision effective_inference_precision();
 
 namespace testhook {
@@ -31,19 +34,5 @@ namespace testhook {
 void force_bf16_unsupported(bool force);
 }  // namespace testhook
 
-namespace detail {
-// Set while UNet::predict runs in bf16: the 3x3 convolutions then take the bf16 kernel.
-bool bf16_convs_active();
-// Set while UNet::predict runs (any precision, by the same scope): the convolutions may keep
-// their derived weights (nn/weight_cache.h).
-bool predict_active();
-struct Bf16ConvScope {
-  explicit Bf16ConvScope(bool on);
-  ~Bf16ConvScope();
-  Bf16ConvScope(const Bf16ConvScope&) = delete;
-  Bf16ConvScope& operator=(const Bf16ConvScope&) = delete;
-  bool old;
-};
-}  // namespace detail
 
 }  // namespace lidarsim::nn

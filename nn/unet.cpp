@@ -14,6 +14,7 @@
 #include "nn/layers.h"
 #include "nn/parallel.h"
 #include "nn/precision.h"
+#include "nn/weight_cache.h"
 
 namespace lidarsim::nn {
 
@@ -49,6 +50,8 @@ struct UNet::Workspace {
   int table = -1, beam = -1;   // lookup-base parameters (-1: none)
   Tensor base;                 // [N, 1, H, W] the lookup base of the last forward
   bool have_forward = false;
+  detail::ConvSettings conv;          // of the call that runs (conv_settings)
+  detail::WeightCache weight_cache;  // packed conv weights, kept across predict() calls
   std::vector<ConvIds> enc1, enc2, up, dec1, dec2;
   ConvIds head;
 
@@ -106,6 +109,10 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
       throw Error("UNet config: lookup.bin_width: expected a finite number > 0, got " + std::to_string(lk.bin_width));
   }
   check_heads(config.heads, config.out_channels, "UNet config: heads");
+  if (!(config.spread_scale > 0) || !std::isfinite(config.spread_scale))
+    throw Error("UNet config: spread_scale: expected a finite number > 0, got " + std::to_string(config.spread_scale));
+  if (config.spread_scale != 1.f && !has_spread_head(config.heads))
+    throw Error("UNet config: spread_scale: " + std::to_string(config.spread_scale) + " without a spread head");
   const int in_net = config.in_channels + (lk.classes > 0 ? 1 : 0);  // enc0.conv1 also sees the base
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
@@ -150,6 +157,13 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
   params_.finalize();
 }
 
+void UNet::set_spread_scale(float factor) {
+  if (!(factor > 0) || !std::isfinite(factor))
+    throw Error("UNet::set_spread_scale: expected a finite number > 0, got " + std::to_string(factor));
+  if (factor != 1.f && !has_spread_head(config_.heads)) throw Error("UNet::set_spread_scale: the model has no spread head");
+  config_.spread_scale = factor;
+}
+
 UNet::~UNet() = default;
 UNet::UNet(UNet&&) noexcept = default;
 UNet& UNet::operator=(UNet&&) noexcept = default;
@@ -186,7 +200,10 @@ void UNet::init(std::uint64_t seed) {
   params_.zero_grads();
 }
 
-void UNet::forward(const Tensor& x, Tensor& y) {
+void UNet::forward(const Tensor& x, Tensor& y) { run_forward(x, y, conv_settings(false)); }
+
+void UNet::run_forward(const Tensor& x, Tensor& y, const detail::ConvSettings& cs) {
+  ws_->conv = cs;
   ++ws_->forwards;
   check_input(x.shape());
   take_input(x);
@@ -270,10 +287,10 @@ const Tensor& UNet::forward_encoder() {
     L.w = cur->shape().w;
     const int c = channels(config_, l);
     ws.tic();
-    conv2d_forward(L.a1, *cur, W(ws.enc1[l].w), W(ws.enc1[l].b), c, 3, 1, true);
+    conv2d_forward(L.a1, *cur, W(ws.enc1[l].w), W(ws.enc1[l].b), c, 3, 1, true, ws.conv);
     ws.toc("fwd enc" + std::to_string(l) + ".conv1");
     ws.tic();
-    conv2d_forward(L.a2, L.a1, W(ws.enc2[l].w), W(ws.enc2[l].b), c, 3, 1, true);
+    conv2d_forward(L.a2, L.a1, W(ws.enc2[l].w), W(ws.enc2[l].b), c, 3, 1, true, ws.conv);
     ws.toc("fwd enc" + std::to_string(l) + ".conv2");
   }
   return ws.levels[depth].a2;
@@ -294,10 +311,10 @@ const Tensor& UNet::forward_decoder(const Tensor& deepest) {
     conv_transpose2x2_forward(L.up, *below, W(ws.up[l].w), W(ws.up[l].b), c, L.h, L.w);
     ws.toc("fwd " + d + ".up");
     ws.tic();
-    conv2d_cat_forward(L.d1, L.a2, L.up, W(ws.dec1[l].w), W(ws.dec1[l].b), c, true);  // on [skip, up]
+    conv2d_cat_forward(L.d1, L.a2, L.up, W(ws.dec1[l].w), W(ws.dec1[l].b), c, true, ws.conv);  // on [skip, up]
     ws.toc("fwd " + d + ".conv1");
     ws.tic();
-    conv2d_forward(L.d2, L.d1, W(ws.dec2[l].w), W(ws.dec2[l].b), c, 3, 1, true);
+    conv2d_forward(L.d2, L.d1, W(ws.dec2[l].w), W(ws.dec2[l].b), c, 3, 1, true, ws.conv);
     ws.toc("fwd " + d + ".conv2");
     below = &L.d2;
   }
@@ -311,13 +328,13 @@ void UNet::forward_head(const Tensor& below, Tensor& y) {
   const auto W = [&](int id) { return pv + params_.info(id).offset; };
   ws.tic();
   if (ws.gain >= 0) {
-    conv2d_forward(ws.head_out, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    conv2d_forward(ws.head_out, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false, ws.conv);
     ws.toc("fwd head");
     ws.tic();
     row_affine_forward(y, ws.head_out, W(ws.gain), W(ws.offset));
     ws.toc("fwd row_affine");
   } else {
-    conv2d_forward(y, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false);
+    conv2d_forward(y, below, W(ws.head.w), W(ws.head.b), config_.out_channels, 1, 0, false, ws.conv);
     ws.toc("fwd head");
   }
   if (ws.table >= 0) {  // onto channel 0, the mean
@@ -330,15 +347,26 @@ void UNet::forward_head(const Tensor& below, Tensor& y) {
   }
 }
 
+detail::ConvSettings UNet::conv_settings(bool inference) const {
+  detail::ConvSettings cs;
+  cs.conv3x3 = has_conv3x3_ ? conv3x3_ : detail::conv3x3_path();
+  if (inference) {
+    const InferencePrecision p = has_precision_ ? precision_ : inference_precision();
+    cs.bf16 = effective_inference_precision(p) == InferencePrecision::bf16;
+    cs.weight_cache = &ws_->weight_cache;
+  }
+  return cs;
+}
+
 void UNet::predict(const Tensor& x, Tensor& y) {
-  // The graph keeps every activation anyway (they are reused buffers), so inference is forward(),
-  // with the 3x3 convolutions in bf16 when that precision is on (nn/precision.h).
-  const detail::Bf16ConvScope scope(effective_inference_precision() == InferencePrecision::bf16);
-  forward(x, y);
+  // The graph keeps every activation anyway (they are reused buffers), so inference is forward()
+  // with the inference settings (bf16 when that precision is on, packed weights kept).
+  run_forward(x, y, conv_settings(true));
 }
 
 void UNet::backward(const Tensor& dy) {
   Workspace& ws = *ws_;
+  const detail::ConvSettings cs = conv_settings(false);
   if (!ws.have_forward) throw Error("UNet backward: called before forward()");
   const int depth = config_.depth;
   // The added base passes dy through unchanged; its table is fitted, not trained (no gradient).
@@ -362,7 +390,7 @@ void UNet::backward(const Tensor& dy) {
     const Tensor& top = depth > 0 ? ws.levels[0].d2 : ws.levels[0].a2;
     Tensor& g_top = depth > 0 ? ws.levels[0].g_d2 : ws.levels[0].g_a2;
     ws.tic();
-    conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), *g_head, *g_head, top, W(ws.head.w), 1, 0, false);
+    conv2d_backward(&g_top, G(ws.head.w), G(ws.head.b), *g_head, *g_head, top, W(ws.head.w), 1, 0, false, cs);
     ws.toc("bwd head");
   }
   for (int l = 0; l < depth; ++l) {
@@ -370,11 +398,11 @@ void UNet::backward(const Tensor& dy) {
     auto& B = ws.levels[l + 1];
     const std::string d = "dec" + std::to_string(l);
     ws.tic();
-    conv2d_backward(&L.g_d1, G(ws.dec2[l].w), G(ws.dec2[l].b), L.g_d2, L.d2, L.d1, W(ws.dec2[l].w), 3, 1, true);
+    conv2d_backward(&L.g_d1, G(ws.dec2[l].w), G(ws.dec2[l].b), L.g_d2, L.d2, L.d1, W(ws.dec2[l].w), 3, 1, true, cs);
     ws.toc("bwd " + d + ".conv2");
     ws.tic();
     conv2d_cat_backward(L.g_a2, L.g_up, G(ws.dec1[l].w), G(ws.dec1[l].b), L.g_d1, L.d1, L.a2, L.up, W(ws.dec1[l].w),
-                        true);
+                        true, cs);
     ws.toc("bwd " + d + ".conv1");
     const bool bottom = l + 1 == depth;
     ws.tic();
@@ -386,19 +414,19 @@ void UNet::backward(const Tensor& dy) {
     auto& L = ws.levels[l];
     const std::string e = "enc" + std::to_string(l);
     ws.tic();
-    conv2d_backward(&L.g_a1, G(ws.enc2[l].w), G(ws.enc2[l].b), L.g_a2, L.a2, L.a1, W(ws.enc2[l].w), 3, 1, true);
+    conv2d_backward(&L.g_a1, G(ws.enc2[l].w), G(ws.enc2[l].b), L.g_a2, L.a2, L.a1, W(ws.enc2[l].w), 3, 1, true, cs);
     ws.toc("bwd " + e + ".conv2");
     ws.tic();
     if (l > 0) {
       auto& P = ws.levels[l - 1];
       conv2d_backward(&P.g_pool, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, P.pool, W(ws.enc1[l].w), 3, 1,
-                      true);
+                      true, cs);
       ws.toc("bwd " + e + ".conv1");
       ws.tic();
       max_pool2x2_backward(P.g_a2, P.g_pool, P.argmax, P.a2.shape(), true);
       ws.toc("bwd pool");
     } else {
-      conv2d_backward(nullptr, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, ws.x, W(ws.enc1[l].w), 3, 1, true);
+      conv2d_backward(nullptr, G(ws.enc1[l].w), G(ws.enc1[l].b), L.g_a1, L.a1, ws.x, W(ws.enc1[l].w), 3, 1, true, cs);
       ws.toc("bwd " + e + ".conv1");
     }
   }

@@ -38,6 +38,7 @@
 #include "nn/heads.h"
 #include "nn/layers.h"
 #include "nn/params.h"
+#include "nn/precision.h"
 #include "nn/tensor.h"
 
 namespace lidarsim::nn {
@@ -50,6 +51,10 @@ struct UNetConfig {
   int row_affine_rows = 0;  // 0: no per-row affine layer
   LookupBaseConfig lookup{};  // classes 0: no lookup base
   std::vector<HeadKind> heads{};  // empty, or one per output channel (nn/heads.h check_heads)
+  // Calibration factor of the spread head's scale (nn/heads.h): the scale at inference is
+  // spread_scale * exp(clamp(s)). Fitted after training on cells the mean never trained on
+  // (train/spread_calibration.h); 1 = uncalibrated (every model without a spread head).
+  float spread_scale = 1.f;
   bool operator==(const UNetConfig&) const = default;
 };
 
@@ -61,6 +66,8 @@ class UNet {
   UNet& operator=(UNet&&) noexcept;
 
   const UNetConfig& config() const { return config_; }
+  // Sets config().spread_scale (finite, > 0); the weights are not touched.
+  void set_spread_scale(float factor);
   ParamArena& params() { return params_; }
   const ParamArena& params() const { return params_; }
 
@@ -71,7 +78,15 @@ class UNet {
   void forward(const Tensor& x, Tensor& y);
   // Inference only: same result as forward(), without keeping what backward() needs; with bf16
   // inference on (nn/precision.h) the 3x3 convolutions run in bf16 with fp32 sums instead.
+  // Keeps the packed weights of its convolutions across calls (nn/weight_cache.h).
   void predict(const Tensor& x, Tensor& y);
+
+  // This model's inference precision and 3x3 algorithm; until set, the process defaults
+  // (nn/precision.h, nn/conv_settings.h) at each call. A model owns everything its calls use
+  // (activations, packed weights, these settings) and the ops keep their scratch per thread, so
+  // different models may run in different threads at once; one model runs one call at a time.
+  void set_inference_precision(InferencePrecision p) { precision_ = p; has_precision_ = true; }
+  void set_conv3x3_path(detail::Conv3x3Path p) { conv3x3_ = p; has_conv3x3_ = true; }
   // dy: [N, out_channels, H, W] of the last forward(); accumulates (+=) into params().grads().
   void backward(const Tensor& dy);
 
@@ -80,9 +95,16 @@ class UNet {
  private:
   UNetConfig config_;
   ParamArena params_;
-  struct Workspace;  // activations, caches, argmax indices; reused across calls
+  struct Workspace;  // activations, caches, argmax indices, packed weights; reused across calls
   std::unique_ptr<Workspace> ws_;
+  InferencePrecision precision_ = InferencePrecision::fp32;
+  bool has_precision_ = false;
+  detail::Conv3x3Path conv3x3_ = detail::Conv3x3Path::automatic;
+  bool has_conv3x3_ = false;
+  // What the conv ops of one call run with (inference: precision and the packed-weight cache).
+  detail::ConvSettings conv_settings(bool inference) const;
   // The steps of forward().
+  void run_forward(const Tensor& x, Tensor& y, const detail::ConvSettings& cs);
   void check_input(const Shape& s) const;
   void take_input(const Tensor& x);
   const Tensor& forward_encoder();

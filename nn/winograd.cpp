@@ -38,7 +38,9 @@ using namespace wino;
 
 namespace {
 
-Buf g_phase, g_u;
+// Scratch of one call, per calling thread: pure caches (models running in several threads at
+// once must not share them); the team's workers get the pointers.
+thread_local Buf tl_phase, tl_u;
 
 // G = diag(1/4, -1/6, -1/6, 1/24, 1/24, 1) G' with the integer rows of G' (1 0 0), (1 1 1),
 // (1 -1 1), (1 2 4), (1 -2 4), (0 0 1): G' applied to 3 values (6 adds), exact in double for
@@ -259,7 +261,7 @@ void conv_from_phases(const OutPlaneSet& out, const float* phases, int ci, int n
   const int co = out.ca + out.cb;
   // Per call, even in predict(): a per-layer cache (nn/weight_cache.h) would bring four times
   // the weights back from memory, costing what the transform saves.
-  float* u = g_u.get(36 * u_stride(co, ci));
+  float* u = tl_u.get(36 * u_stride(co, ci));
   transform_weights(u, weight, co, ci, transpose_flip);
   if (g.nv == 3)
     run<3>(out, phases, n, ci, g, u, bias, relu);
@@ -275,7 +277,7 @@ void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* m
                       const float* weight, bool transpose_flip, const float* bias, bool relu) {
   const Geom g(h, w);
   const int ci = in.ca + in.cb;
-  float* phases = g_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
+  float* phases = tl_phase.get(static_cast<std::size_t>(n) * ci * g.plane);
   to_phases(phases, in, mask, n, g);
   conv_from_phases(out, phases, ci, n, g, weight, transpose_flip, bias, relu);
 }

@@ -29,7 +29,8 @@ using namespace wino;
 
 namespace {
 
-Buf g_phase_grad, g_du;
+// Scratch of one call, per calling thread (as in winograd.cpp); workers get the pointers.
+thread_local Buf tl_phase_grad, tl_du;
 thread_local Buf tl_rows;
 
 // A applied to 4 values (the transpose of at6): the output gradient's 1-D step.
@@ -280,7 +281,7 @@ void add_weight_grad_from_du(float* d_weight, const float* du, const ChunkPlan& 
 
 void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg, int co, int n, const Geom& g) {
   const ChunkPlan pl(in, co, n, g);
-  float* du = g_du.get(pl.slots * pl.du_floats);
+  float* du = tl_du.get(pl.slots * pl.du_floats);
   parallel_shared(pl.slots * pl.parts, pl.par, [&](int tid, int nt, Shares& shares) {
     float* rows = tl_rows.get(static_cast<std::size_t>(pl.cgs) * 6 * pl.cols * 16);
     float* v = tl_v.get(36 * pl.v_e);
@@ -295,7 +296,7 @@ void weight_grad_streaming(float* d_weight, const PlaneSet& in, const float* pg,
 // the latter, which the input gradient reads too.
 const float* weight_grad_via_phases(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n,
                                     int co, const Geom& g, float* sums) {
-  float* pg = g_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
+  float* pg = tl_phase_grad.get(static_cast<std::size_t>(n) * co * g.plane);
   to_phases(pg, PlaneSet{d_out, co}, mask, n, g, sums);
   weight_grad_streaming(d_weight, in, pg, co, n, g);
   return pg;

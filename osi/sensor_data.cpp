@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/error.h"
 #include "sensor/frames.h"
 
 namespace lidarsim::osi {
@@ -32,11 +33,37 @@ osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t) {
 
 std::uint64_t osi_id_of(int model_id, const IdMap& ids) { return ids.known(model_id) ? ids.to_osi(model_id) : kNoObject; }
 
+// Detector det's header and its cloud's detections into `lidar`.
+void add_detections(const Detector& det, const osi3::Timestamp& time, const CloudRef& cloud, const IdMap& ids,
+                    std::uint64_t cycle, osi3::LidarDetectionData& lidar) {
+  auto* dh = lidar.mutable_header();
+  *dh->mutable_measurement_time() = time;
+  dh->set_cycle_counter(cycle);
+  *dh->mutable_mounting_position() = det.mounting_position;
+  dh->set_data_qualifier(osi3::SensorDetectionHeader::DATA_QUALIFIER_AVAILABLE);
+  dh->set_number_of_valid_detections(static_cast<std::uint32_t>(cloud.size));
+  *dh->mutable_sensor_id() = det.sensor_id;
+  if (cloud.size == 0) return;
+  const int W = cloud.layout->columns;
+  lidar.mutable_detection()->Reserve(static_cast<int>(cloud.size));
+  for (std::size_t i = 0; i < cloud.size; ++i) {
+    auto* d = lidar.add_detection();
+    const int row = cloud.cell[i] / W, col = cloud.cell[i] % W;
+    d->set_existence_probability(1);
+    d->mutable_object_id()->set_value(osi_id_of(static_cast<int>(std::lround(cloud.object_id[i])), ids));
+    auto* p = d->mutable_position();
+    p->set_distance(cloud.range[i]);
+    p->set_azimuth(sensor::wrap_pi(cloud.layout->azimuth_of_column(col)));
+    p->set_elevation(cloud.layout->elevations_rad[static_cast<std::size_t>(row)]);
+    d->set_intensity(100.0 * cloud.intensity[i]);
+  }
+}
+
 }  // namespace
 
 void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetection>& objects,
-                       const std::vector<sensor::LanePolynomial>& lanes, const CloudRef& cloud, const IdMap& ids,
-                       std::uint64_t cycle, osi3::SensorData& out) {
+                       const std::vector<sensor::LanePolynomial>& lanes, const std::vector<CloudRef>& clouds,
+                       const IdMap& ids, std::uint64_t cycle, osi3::SensorData& out) {
   out.Clear();
   set_version(*out.mutable_version());
   *out.mutable_timestamp() = scene.timestamp;
@@ -111,28 +138,11 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
 
   auto* fd = out.mutable_feature_data();
   set_version(*fd->mutable_version());
-  auto* lidar = fd->add_lidar_sensor();
-  auto* dh = lidar->mutable_header();
-  *dh->mutable_measurement_time() = scene.timestamp;
-  dh->set_cycle_counter(cycle);
-  *dh->mutable_mounting_position() = scene.mounting_position;
-  dh->set_data_qualifier(osi3::SensorDetectionHeader::DATA_QUALIFIER_AVAILABLE);
-  dh->set_number_of_valid_detections(static_cast<std::uint32_t>(cloud.size));
-  *dh->mutable_sensor_id() = scene.sensor_id;
-  if (cloud.size == 0) return;
-  const int W = cloud.layout->columns;
-  lidar->mutable_detection()->Reserve(static_cast<int>(cloud.size));
-  for (std::size_t i = 0; i < cloud.size; ++i) {
-    auto* d = lidar->add_detection();
-    const int row = cloud.cell[i] / W, col = cloud.cell[i] % W;
-    d->set_existence_probability(1);
-    d->mutable_object_id()->set_value(osi_id_of(static_cast<int>(std::lround(cloud.object_id[i])), ids));
-    auto* p = d->mutable_position();
-    p->set_distance(cloud.range[i]);
-    p->set_azimuth(sensor::wrap_pi(cloud.layout->azimuth_of_column(col)));
-    p->set_elevation(cloud.layout->elevations_rad[static_cast<std::size_t>(row)]);
-    d->set_intensity(100.0 * cloud.intensity[i]);
-  }
+  if (clouds.size() != scene.detectors.size())
+    throw Error("build_sensor_data: clouds: " + std::to_string(clouds.size()) + " for " +
+                std::to_string(scene.detectors.size()) + " detectors");
+  for (std::size_t i = 0; i < clouds.size(); ++i)
+    add_detections(scene.detectors[i], scene.timestamp, clouds[i], ids, cycle, *fd->add_lidar_sensor());
 }
 
 }  // namespace lidarsim::osi

@@ -12,10 +12,11 @@
 //                               ground minus the host's), one classification candidate (probability 1)
 //   lane_boundary               one per lane polynomial: points every 1 m (at least 2) over its
 //                               valid range in the sensor frame, the boundary type as candidate
-//   feature_data.lidar_sensor[0] the point cloud: spherical position in the sensor frame
-//                               (azimuth about z from x, elevation positive upwards), intensity in
-//                               percent, object_id = the OSI id of the object hit (MAX(uint64)
-//                               for road and paint)
+//   feature_data.lidar_sensor[i] the point cloud of detector i (SceneFrame::detectors, one per
+//                               lidar_sensor_view): header sensor_id and mounting_position the
+//                               detector's, spherical position in its frame (azimuth about z from
+//                               x, elevation positive upwards), intensity in percent, object_id =
+//                               the OSI id of the object hit (MAX(uint64) for road and paint)
 #include <cstdint>
 #include <limits>
 #include <vector>
@@ -48,10 +49,11 @@ struct CloudRef {
   const pgm::BeamLayout* layout = nullptr;
 };
 
-// Fills `out` (cleared first). `cycle` is the frame counter written into the headers.
+// Fills `out` (cleared first): clouds[i] is the cloud of scene.detectors[i] (same count). `cycle`
+// is the frame counter written into the headers.
 void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetection>& objects,
-                       const std::vector<sensor::LanePolynomial>& lanes, const CloudRef& cloud, const IdMap& ids,
-                       std::uint64_t cycle, osi3::SensorData& out);
+                       const std::vector<sensor::LanePolynomial>& lanes, const std::vector<CloudRef>& clouds,
+                       const IdMap& ids, std::uint64_t cycle, osi3::SensorData& out);
 
 void set_version(osi3::InterfaceVersion& v);
 // An OSI vector from ours (x, y, z in metres or their derivatives).

@@ -167,9 +167,27 @@ void scene_from_sensor_view(const osi3::SensorView& view, long index, const std:
   out.map.ego_in_map = sensor::make_pose(rear_axle - axle_height * Eigen::Vector3d::UnitZ(), 0, 0, yaw);
   out.host_velocity = Eigen::Vector3d(hb.velocity().x(), hb.velocity().y(), hb.velocity().z());
   out.host_acceleration = Eigen::Vector3d(hb.acceleration().x(), hb.acceleration().y(), hb.acceleration().z());
-  out.mount = sensor::make_pose(
-      Eigen::Vector3d(mp.position().x(), mp.position().y(), mp.position().z() + axle_height),
-      mp.orientation().roll(), mp.orientation().pitch(), mp.orientation().yaw());
+  const auto to_ego = [&](const osi3::MountingPosition& m) {
+    return sensor::make_pose(Eigen::Vector3d(m.position().x(), m.position().y(), m.position().z() + axle_height),
+                             m.orientation().roll(), m.orientation().pitch(), m.orientation().yaw());
+  };
+  out.mount = to_ego(mp);
+  out.detectors.resize(static_cast<std::size_t>(std::max(1, view.lidar_sensor_view_size())));
+  for (std::size_t i = 0; i < out.detectors.size(); ++i) {
+    Detector& d = out.detectors[i];
+    d.sensor_id = view.sensor_id();
+    d.mounting_position = mp;
+    if (static_cast<int>(i) >= view.lidar_sensor_view_size()) break;
+    const auto& c = view.lidar_sensor_view(static_cast<int>(i)).view_configuration();
+    if (c.has_sensor_id()) d.sensor_id = c.sensor_id();
+    if (c.has_mounting_position()) {
+      const auto& m = c.mounting_position();
+      if (!finite(m.position()) || !finite(m.orientation()))
+        throw fail("lidar_sensor_view[" + std::to_string(i) + "].view_configuration.mounting_position", "not finite");
+      d.mounting_position = m;
+    }
+  }
+  for (Detector& d : out.detectors) d.mount = to_ego(d.mounting_position);
 
   out.map.objects.clear();
   for (int i = 0; i < gt.moving_object_size(); ++i) {

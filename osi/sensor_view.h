@@ -37,6 +37,16 @@ class IdMap {
   std::vector<std::uint64_t> to_osi_;
 };
 
+// One physical detector of the SensorView: lidar_sensor_view[i] (OSI: the technology-specific
+// views, one per physical detector, each with its own mount and sensor id in its
+// view_configuration; its features are given in its own frame). Without any lidar_sensor_view
+// the virtual sensor is the one detector.
+struct Detector {
+  osi3::Identifier sensor_id;                // view_configuration.sensor_id, else SensorView.sensor_id
+  osi3::MountingPosition mounting_position;  // view_configuration.mounting_position, else the virtual mount
+  sensor::Pose mount;                        // the same in our ego frame
+};
+
 struct SceneFrame {
   double time = 0;                 // s (SensorView timestamp, else the ground truth's)
   sensor::Frame map;               // map frame: ego pose, objects (host excluded), lanes
@@ -47,6 +57,7 @@ struct SceneFrame {
   osi3::Identifier sensor_id;
   osi3::Timestamp timestamp;
   osi3::MountingPosition mounting_position;  // as given (host vehicle frame; see sensor_mount)
+  std::vector<Detector> detectors;           // one per lidar_sensor_view, at least one
 };
 
 // The sensor's mount (host vehicle frame). OSI gives two: SensorView.mounting_position, the

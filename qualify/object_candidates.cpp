@@ -37,9 +37,14 @@ struct ModelCondition {
   bool error_spread;    // ErrorModel::sigma and visibility_std_scale (spread forms)
   bool detection_rate;  // ClassModel::detection_probability (rate forms)
 };
+// Only discrete features whose every level is a cell of the model: a form on them can only refit
+// what the model has. Range is not one: the model holds it in fixed bins (sensor::FitOptions
+// range_bin_edges, 10 m), and every candidate is fitted net of those cells (bias forms backfitted
+// with the cell offsets, object_terms.h; spread forms in units of the cell's sd), so a range
+// candidate scores only what lies between the model's edges (a detection edge at 47 m, a spread
+// that grows within a bin) and is ranked like any other feature.
 constexpr ModelCondition kObjectModelConditions[] = {
     {"class", true, true, true},       // one ClassModel per class
-    {"range", true, true, true},       // mean[range bin], sigma[range bin], detection_probability[range bin][.]
     {"occlusion", false, true, true},  // visibility_std_scale[visibility bin], detection_probability[.][visibility bin]
 };
 }  // namespace

@@ -35,10 +35,11 @@ std::vector<Kind> kinds_for(int target);  // errors: mean and spread forms; dete
 
 // Whether the base KPI model (sensor/kpi_model.h) already conditions target t on the feature in
 // the form `kind`, so the candidate would only refit what the model has (kObjectModelConditions):
-// class and range condition everything (a model per class; error mean and sigma per range bin,
-// detection probability per range bin); occlusion (the visibility bin) conditions detection
-// (probability per range x visibility bin) and the errors' spread (sigma x visibility_std_scale),
-// not an error's mean. Such candidates are judged and listed but never ranked or added.
+// class conditions everything (a model per class); occlusion (the visibility bin) conditions
+// detection (probability per range x visibility bin) and the errors' spread (sigma x
+// visibility_std_scale), not an error's mean. Range is held only in the model's fixed bins, and
+// candidates are fitted net of them, so no range form is held. Such candidates are judged and
+// listed but never ranked or added.
 bool used_by_model(const std::string& feature, int target, Kind kind);
 
 struct Effect {

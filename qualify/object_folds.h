@@ -79,9 +79,10 @@ std::vector<std::string> names_of(const TrackingData& data, const std::vector<in
 // Features fixed to the sensor: an effect on them (a soiled patch of the window, a weak laser)
 // is the same in every place and at every time, so folds may be blocks of time within a
 // sequence. Every other feature can depend on the place or the time (traffic, road, weather)
-// and is judged on folds of whole sequences. Range is fixed to the sensor too, but the base
-// model conditions on it already.
-inline const std::vector<std::string> kSensorFixedFeatures = {"azimuth"};
+// and is judged on folds of whole sequences. Range is fixed to the sensor too (a detection edge,
+// a spread that grows with distance), and the base model's range bins leave what lies between
+// their edges to the loop (object_candidates.h used_by_model).
+inline const std::vector<std::string> kSensorFixedFeatures = {"azimuth", "range"};
 bool fixed_to_sensor(const std::string& feature);
 
 // Time-block folds, used for the features fixed to the sensor when the data has at most

@@ -67,7 +67,6 @@ std::string cannot_decide(const FoldSet& S, const Candidate& c) {
 std::string how_the_model_uses(const Candidate& c) {
   const std::string& f = kObjectFeatures[c.feature];
   if (f == "class") return "it holds one model per class";
-  if (f == "range") return "it holds the mean, sigma and detection probability per range bin";
   return c.target == kDetectionTarget ? "its detection probability is per range x visibility (occlusion) bin"
                                       : "its sigma is scaled per visibility (occlusion) bin";
 }
@@ -99,25 +98,37 @@ Decision ranked_decision(const Candidate& c, double threshold) {
   return {};
 }
 
-// A feature's entry in a ranking: its best candidate of the forms asked for, among those the base
-// model already conditions on (used) or among the others; by score.
-std::vector<int> best_per_feature(const std::vector<Candidate>& cands, bool spread, bool used) {
+}  // namespace
+
+bool passes_ranking(const Candidate& c, double threshold) {
+  return c.score >= threshold && c.interval[0] > 0 && clears_selection(c);
+}
+
+bool ranks_before(const Candidate& a, const Candidate& b, double threshold) {
+  const bool pa = passes_ranking(a, threshold), pb = passes_ranking(b, threshold);
+  return pa != pb ? pa : a.score > b.score;
+}
+
+// A candidate whose own interval or selection bound reaches 0 is ruled out whatever its score, so
+// it must not stand in the way of one that passes: the top form decides what is judged and
+// added, and a ruled-out top blocked every other form (a dropout's rate table scoring 0.137
+// [0.10, 0.18] was never tried behind its window scoring 0.146 [-0.03, 0.35]).
+std::vector<int> best_per_feature(const std::vector<Candidate>& cands, bool spread, bool used, double threshold) {
   std::vector<int> out;
   for (size_t f = 0; f < kObjectFeatures.size(); ++f) {
     int best = -1;
     for (size_t i = 0; i < cands.size(); ++i) {
       const Candidate& c = cands[i];
       if (c.feature == static_cast<int>(f) && is_spread(c.kind) == spread && used_by_model(c) == used &&
-          (best < 0 || c.score > cands[best].score))
+          (best < 0 || ranks_before(c, cands[best], threshold)))
         best = static_cast<int>(i);
     }
     if (best >= 0) out.push_back(best);
   }
-  std::sort(out.begin(), out.end(), [&](int a, int b) { return cands[a].score > cands[b].score; });
+  std::stable_sort(out.begin(), out.end(),
+                   [&](int a, int b) { return ranks_before(cands[a], cands[b], threshold); });
   return out;
 }
-
-}  // namespace
 
 bool in_manager(const std::string& feature) {
   return std::find(sensor::kConditionalFeatures.begin(), sensor::kConditionalFeatures.end(), feature) !=
@@ -183,9 +194,10 @@ void rank(LoopContext& L, ObjectLoopResult& R) {
     selection_aware_bounds(R.candidates, spread);
   }
   for (const Candidate& c : R.candidates) R.decisions.push_back(ranked_decision(c, L.options.threshold));
-  R.ranking = best_per_feature(R.candidates, false, false);
-  R.used = best_per_feature(R.candidates, false, true);
-  R.spread_ranking = best_per_feature(R.candidates, true, false);
+  const double thr = L.options.threshold;
+  R.ranking = best_per_feature(R.candidates, false, false, thr);
+  R.used = best_per_feature(R.candidates, false, true, thr);
+  R.spread_ranking = best_per_feature(R.candidates, true, false, thr);
   if (R.ranking.empty()) throw Error("loop objects: too few matched objects to score any feature");
   R.top = R.ranking.front();
 }

@@ -112,7 +112,8 @@ struct ObjectLoopResult {
   std::vector<Candidate> candidates;      // every feature x target x form judged
   std::vector<Decision> decisions;        // per candidate
   // Indices into candidates: the best bias form per feature of those the base model does not
-  // hold (ranking) and of those it does (used), the best spread form per feature; by score.
+  // hold (ranking) and of those it does (used), the best spread form per feature; those that pass
+  // the ranking's tests first, then by score (best_per_feature).
   std::vector<int> ranking, used, spread_ranking;
   int top = 0;  // ranking.front()
   Judged top_judged;
@@ -155,6 +156,16 @@ void refit(LoopContext& L, ObjectLoopResult& R);
 
 ObjectLoopResult run_object_loop(const TrackingData& data, const LoopOptions& options = {});
 nlohmann::json report_json(const ObjectLoopResult& R);
+
+// Whether a candidate passes the tests the ranking alone applies: its score clears the threshold,
+// its 95 % interval lies above 0 and its selection-aware bound too (when computed).
+bool passes_ranking(const Candidate& c, double threshold);
+// The rankings' order: candidates that pass first, then by score.
+bool ranks_before(const Candidate& a, const Candidate& b, double threshold);
+// A ranking (ObjectLoopResult::ranking, used, spread_ranking): per feature its first candidate of
+// the forms asked for (spread or bias) among those the base model holds (used) or the others, in
+// the order of ranks_before, so a form ruled out by its own interval never hides one that passes.
+std::vector<int> best_per_feature(const std::vector<Candidate>& cands, bool spread, bool used, double threshold);
 
 // Whether the KPI manager computes the feature from a truth object (sensor::kConditionalFeatures).
 bool in_manager(const std::string& feature);

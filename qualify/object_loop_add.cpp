@@ -109,7 +109,7 @@ void add_top(LoopContext& L, ObjectLoopResult& R) {
 }
 
 // The best bias form per other target, of the features the KPI manager computes, in a form the
-// base model does not hold already (-1: none).
+// base model does not hold already (-1: none); those that pass the ranking's tests first.
 std::array<int, kObjectTargetCount> best_further(const ObjectLoopResult& R) {
   std::array<int, kObjectTargetCount> best;
   best.fill(-1);
@@ -117,7 +117,7 @@ std::array<int, kObjectTargetCount> best_further(const ObjectLoopResult& R) {
   for (size_t i = 0; i < R.candidates.size(); ++i) {
     const Candidate& c = R.candidates[i];
     if (!is_spread(c.kind) && c.target != t && !used_by_model(c) && in_manager(kObjectFeatures[c.feature]) &&
-        (best[c.target] < 0 || c.score > R.candidates[best[c.target]].score))
+        (best[c.target] < 0 || ranks_before(c, R.candidates[best[c.target]], R.options.threshold)))
       best[c.target] = static_cast<int>(i);
   }
   return best;

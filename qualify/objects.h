@@ -24,9 +24,10 @@
 //   size                     box length, m
 //   box_width, box_height    box width and height, m (width errors follow the true width)
 //   track_age                frames since the track's first appearance
-// The KPI model (sensor/kpi_model.h) already conditions on class and range bin everywhere and on
-// the visibility bin (occlusion level) in detection and in the errors' spread, not in their mean;
-// the loop ranks every other feature x target x form (object_candidates.h used_by_model). Every
+// The KPI model (sensor/kpi_model.h) already conditions on class everywhere and on the visibility
+// bin (occlusion level) in detection and in the errors' spread, not in their mean; the loop ranks
+// every other feature x target x form (object_candidates.h used_by_model), range too: the model's
+// fixed range bins hold none of what lies between their edges, and candidates are fitted net of them. Every
 // feature but occlusion and class is one the KPI manager computes (sensor::conditional_feature),
 // so the top one can enter the model as a conditional term.
 #include <array>
@@ -155,7 +156,7 @@ struct LoopOptions {
 // `lidar-qualify loop objects`, a two-fold cross-fit: fold 1 fits the base model on the
 // even-indexed sequences and judges the odd-indexed ones, fold 2 the other way round, so every
 // sequence is held out once. With at most 3 sequences, the features fixed to the sensor
-// (object_folds.h kSensorFixedFeatures: azimuth) are judged on a second cross-fit of the same
+// (object_folds.h kSensorFixedFeatures: azimuth, range) are judged on a second cross-fit of the same
 // shape whose folds are blocks of time within each sequence, tracks kept whole
 // (object_folds.h split_into_time_blocks); a candidate the held-out data cannot judge (one
 // sequence per fold for a feature that can depend on the place, or fewer than 10 held-out tracks

@@ -184,6 +184,16 @@ void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::t
   }
   std::optional<lidarsim::train::SpreadMetrics> final_spread = result.chosen_spread;
   if (!final_spread && !result.epochs.empty()) final_spread = result.epochs.back().spread;
+  if (result.spread_scale) {
+    const auto& inner = *result.spread_calibration_cells;
+    const auto& raw = *result.uncalibrated_spread;
+    std::printf("spread calibration: scale x%.4f, fitted on the inner region (%ld cells: before, NLL %.4f, inside 50%% %.3f, "
+                "90%% %.3f); validation before it: NLL %.4f, inside 50%% %.3f, 90%% %.3f\n",
+                *result.spread_scale, inner.cells, inner.nll, inner.within50, inner.within90, raw.nll, raw.within50,
+                raw.within90);
+  } else if (final_spread) {
+    std::printf("spread not calibrated (scale x1): --early-stop fits its factor on the inner region\n");
+  }
   if (final_spread)
     std::printf("final spread (%s): NLL %.4f nats/cell; inside the 50%% interval %.3f, the 90%% interval %.3f (%ld cells)\n",
                 config.heads.c_str(), final_spread->nll, final_spread->within50, final_spread->within90, final_spread->cells);

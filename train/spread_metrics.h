@@ -4,6 +4,7 @@
 //   nll       mean negative log-likelihood, nats per cell (nn/loss.h masked_nll's definition)
 //   within50  share of cells with |y - mean| inside the central 50 % interval of the prediction
 //   within90  the same for 90 % (a calibrated spread gives 0.5 and 0.9; lower: too narrow)
+// The scale is the model's: exp(clamp(s)) times its calibration factor (UNetConfig::spread_scale).
 #include <cstdint>
 #include <vector>
 
@@ -18,6 +19,10 @@ namespace lidarsim::train {
 
 struct SpreadSums {
   double nll = 0;
+  // Sum of |y - mean| / scale (Laplace) or (y - mean)^2 / scale^2 (Gaussian): the likelihood's
+  // best factor of the scale follows from it (SpreadMetrics::mle_factor).
+  double ratio = 0;
+  bool squared = false;
   long within50 = 0, within90 = 0, cells = 0;
   SpreadMetrics get() const;
 };
@@ -27,13 +32,23 @@ struct SpreadSums {
 double central_half_width(nn::HeadKind spread, double p);
 
 // Adds one frame's cells (mask > 0 and roles[column] == want_role): mean and log_scale are the
-// network's raw channels 0 and 1 [rows * cols]; the log-scale is clamped as in training.
+// network's raw channels 0 and 1 [rows * cols]; the log-scale is clamped as in training, then the
+// scale multiplied by `scale_factor` (the model's calibration, UNetConfig::spread_scale).
 void add_spread_cells(SpreadSums& sums, nn::HeadKind spread, const float* mean, const float* log_scale,
                       const float* target, const float* mask, const std::vector<std::uint8_t>& roles, int rows,
-                      int cols, std::uint8_t want_role = data::kValidation, nn::LogScaleClamp clamp = {});
+                      int cols, std::uint8_t want_role = data::kValidation, nn::LogScaleClamp clamp = {},
+                      double scale_factor = 1.0);
 
 // The model's spread on the validation cells of `split` in `sets` (one frame at a time).
 SpreadMetrics validate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder,
                               const std::vector<const data::FrameSource*>& sets, const data::SectorSplit& split);
+
+// Calibrates the spread on the validation cells of `region`, cells the mean never trained on
+// (lidar-train: the --early-stop inner region, guarded from the training and the scored cells):
+// multiplies the model's UNetConfig::spread_scale by the likelihood's best factor there. The
+// head fits its scale to the training cells' residuals, which the mean fits better than cells it
+// never saw, so its intervals are too narrow on new cells. Returns the region's metrics before.
+SpreadMetrics calibrate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder,
+                               const std::vector<const data::FrameSource*>& sets, const data::SectorSplit& region);
 
 }  // namespace lidarsim::train

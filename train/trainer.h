@@ -129,6 +129,9 @@ struct TrainConfig {
 struct SpreadMetrics {
   double nll = 0, within50 = 0, within90 = 0;
   long cells = 0;
+  // The factor of the predicted scale that maximises the likelihood of these cells (Laplace:
+  // mean |y - mean| / b; Gaussian: sqrt(mean (y - mean)^2 / sigma^2)); 1 = already calibrated.
+  double mle_factor = 1;
 };
 
 struct EpochReport {
@@ -152,7 +155,12 @@ struct TrainResult {
   // once, after the choice), and the inner region, its guard band and the training columns left.
   int chosen_epoch = 0;
   std::optional<data::Metrics> chosen_validation;
-  std::optional<SpreadMetrics> chosen_spread;  // with early_stop and a spread head
+  std::optional<SpreadMetrics> chosen_spread;  // with early_stop and a spread head (calibrated)
+  // With early_stop and a spread head: the spread's calibration factor fitted on the inner region
+  // (train/spread_calibration.h), the inner cells it was fitted on, and, for the report only, the
+  // scored validation of the spread before the factor.
+  std::optional<double> spread_scale;
+  std::optional<SpreadMetrics> spread_calibration_cells, uncalibrated_spread;
   // With shrink_residual: the factor chosen and the inner MAE at each factor tried; and, for the
   // report only (after the choice), the scored validation of the chosen epoch left unscaled.
   std::optional<double> residual_scale;

@@ -23,6 +23,20 @@ struct Model {
   long steps = 0;
 };
 
+// The `sensor` parameter: a bundled layout's name (resources/sensors/NAME.json) or a layout file.
+std::filesystem::path layout_path(const std::filesystem::path& resources, const std::string& sensor) {
+  namespace fs = std::filesystem;
+  if (sensor.find('/') != std::string::npos || fs::path(sensor).extension() == ".json") return sensor;
+  const fs::path p = resources / "sensors" / (sensor + ".json");
+  if (fs::exists(p)) return p;
+  std::string names;
+  if (fs::is_directory(resources / "sensors"))
+    for (const auto& e : fs::directory_iterator(resources / "sensors"))
+      if (e.path().extension() == ".json") names += (names.empty() ? "" : ", ") + e.path().stem().string();
+  throw lidarsim::Error("sensor: no layout \"" + sensor + "\" in " + (resources / "sensors").string() +
+                        " (bundled: " + names + "; or give a path to a layout .json)");
+}
+
 void set_error(char* error, std::size_t size, const std::string& what) {
   if (error && size > 0) std::snprintf(error, size, "%s", what.c_str());
 }
@@ -31,17 +45,24 @@ void set_error(char* error, std::size_t size, const std::string& what) {
 
 extern "C" {
 
-__attribute__((visibility("default"))) void* lidarsim_osi_model_create(const char* resources_dir, char* error,
+__attribute__((visibility("default"))) void* lidarsim_osi_model_create(const char* resources_dir,
+                                                                         const char* sensor_layout, char* error,
                                                                          std::size_t error_size) {
   try {
     const std::filesystem::path r = resources_dir;
     auto m = std::make_unique<Model>();
+    lidarsim::sensor::Scenario scenario = lidarsim::sensor::read_scenario(r / "sensor.json");
+    if (sensor_layout && *sensor_layout)
+      lidarsim::infer::use_sensor(scenario,
+                                  lidarsim::pgm::BeamLayout::from_file(layout_path(r, sensor_layout).string()));
     // The UNet as a weights file (nn/checkpoint_weights.h), so this library links no HDF5.
     using lidarsim::infer::IntensityModel;
     m->runner = std::make_unique<lidarsim::infer::OsiRunner>(
-        lidarsim::sensor::read_scenario(r / "sensor.json").sensor,
+        scenario.sensor,
         lidarsim::sensor::load_kpi_model(r / "kpi_pointrcnn.json"),
-        std::make_unique<IntensityModel>(IntensityModel::load_weights(r / "intensity_unet.weights")));
+        std::make_unique<IntensityModel>(IntensityModel::load_weights(r / "intensity_unet.weights")),
+        lidarsim::infer::SimOptions{},
+        [r] { return std::make_unique<IntensityModel>(IntensityModel::load_weights(r / "intensity_unet.weights")); });
     return m.release();
   } catch (const std::exception& e) {
     set_error(error, error_size, e.what());

@@ -16,6 +16,12 @@
 // (fmuResourceLocation), else from the resources folder of the unpacked FMU the library sits in
 // (binaries/linux64/../../resources), else from a "resources" folder next to the library.
 //
+// The String parameter `sensor` (value reference 6, settable until fmi2ExitInitializationMode)
+// picks the beam layout: a file of resources/sensors/ without ".json" (the bundled data/sensors/
+// layouts) or a path to a layout JSON; empty keeps sensor.json's beams. A car with several lidars
+// instantiates this FMU once per lidar, each with its own layout and its own SensorView (mount,
+// sensor_id); instances share nothing and may step in parallel threads.
+//
 // OSMP buffer lifetimes: the input buffer is only read during fmi2DoStep; the output buffer stays
 // valid until the second fmi2DoStep after the one that produced it (two buffers, alternating).
 #include <dlfcn.h>
@@ -36,6 +42,7 @@ namespace {
 namespace fs = std::filesystem;
 
 enum : fmi2ValueReference { kInLo = 0, kInHi = 1, kInSize = 2, kOutLo = 3, kOutHi = 4, kOutSize = 5, kNumInts = 6 };
+enum : fmi2ValueReference { kSensor = 6 };  // String parameter
 
 struct Instance {
   std::string name;
@@ -47,6 +54,9 @@ struct Instance {
   lidarsim_osi_model_step_t* step = nullptr;
   lidarsim_osi_model_destroy_t* destroy = nullptr;
   void* model = nullptr;
+  std::string sensor;        // the `sensor` parameter
+  std::string model_sensor;  // the layout `model` was created with
+  bool initialized = false;  // past fmi2ExitInitializationMode: parameters are fixed
   fmi2Integer ints[kNumInts] = {0, 0, 0, 0, 0, 0};
   long steps = 0;
   char error[1024] = {0};
@@ -54,6 +64,14 @@ struct Instance {
   ~Instance() {
     if (model) destroy(model);
     if (library) dlclose(library);
+  }
+
+  // (Re)creates the model for the `sensor` parameter; false with the reason in `error`.
+  bool create_model() {
+    if (model) destroy(model);
+    model = create(resources.c_str(), sensor.c_str(), error, sizeof error);
+    model_sensor = sensor;
+    return model != nullptr;
   }
 
   void log(fmi2Status status, const char* category, const std::string& message) const {
@@ -146,8 +164,7 @@ LIDARSIM_FMI_EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2T
     inst->log(fmi2Error, "FMI", model_so.string() + " lacks the lidarsim_osi_model_* functions");
     return nullptr;
   }
-  inst->model = inst->create(inst->resources.c_str(), inst->error, sizeof inst->error);
-  if (!inst->model) {
+  if (!inst->create_model()) {
     inst->log(fmi2Error, "FMI", std::string("loading the model: ") + inst->error);
     return nullptr;
   }
@@ -167,14 +184,24 @@ LIDARSIM_FMI_EXPORT fmi2Status fmi2SetupExperiment(fmi2Component, fmi2Boolean, f
   return fmi2OK;
 }
 LIDARSIM_FMI_EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component) { return fmi2OK; }
-LIDARSIM_FMI_EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component) { return fmi2OK; }
+LIDARSIM_FMI_EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+  Instance* inst = as_instance(c);
+  inst->initialized = true;
+  if (inst->sensor == inst->model_sensor) return fmi2OK;
+  if (!inst->create_model()) {
+    inst->log(fmi2Error, "FMI", std::string("loading the model for sensor \"") + inst->sensor + "\": " + inst->error);
+    return fmi2Error;
+  }
+  inst->log(fmi2OK, "FMI", "sensor layout " + inst->sensor);
+  return fmi2OK;
+}
 LIDARSIM_FMI_EXPORT fmi2Status fmi2Terminate(fmi2Component) { return fmi2OK; }
 LIDARSIM_FMI_EXPORT fmi2Status fmi2Reset(fmi2Component c) {
   // Tracking and KPI noise carry state: a reset is a fresh model.
   Instance* inst = as_instance(c);
-  inst->destroy(inst->model);
-  inst->model = inst->create(inst->resources.c_str(), inst->error, sizeof inst->error);
-  if (!inst->model) {
+  inst->sensor.clear();  // parameters back to their start values
+  inst->initialized = false;
+  if (!inst->create_model()) {
     inst->log(fmi2Error, "FMI", std::string("reset: ") + inst->error);
     return fmi2Error;
   }
@@ -245,8 +272,17 @@ LIDARSIM_FMI_EXPORT fmi2Status fmi2GetReal(fmi2Component, const fmi2ValueReferen
 LIDARSIM_FMI_EXPORT fmi2Status fmi2GetBoolean(fmi2Component, const fmi2ValueReference[], size_t nvr, fmi2Boolean[]) {
   return nvr == 0 ? fmi2OK : fmi2Error;
 }
-LIDARSIM_FMI_EXPORT fmi2Status fmi2GetString(fmi2Component, const fmi2ValueReference[], size_t nvr, fmi2String[]) {
-  return nvr == 0 ? fmi2OK : fmi2Error;
+LIDARSIM_FMI_EXPORT fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                             fmi2String value[]) {
+  Instance* inst = as_instance(c);
+  for (size_t i = 0; i < nvr; ++i) {
+    if (vr[i] != kSensor) {
+      inst->log(fmi2Error, "FMI", "fmi2GetString: unknown value reference " + std::to_string(vr[i]));
+      return fmi2Error;
+    }
+    value[i] = inst->sensor.c_str();
+  }
+  return fmi2OK;
 }
 LIDARSIM_FMI_EXPORT fmi2Status fmi2SetReal(fmi2Component, const fmi2ValueReference[], size_t nvr, const fmi2Real[]) {
   return nvr == 0 ? fmi2OK : fmi2Error;
@@ -255,9 +291,21 @@ LIDARSIM_FMI_EXPORT fmi2Status fmi2SetBoolean(fmi2Component, const fmi2ValueRefe
                                               const fmi2Boolean[]) {
   return nvr == 0 ? fmi2OK : fmi2Error;
 }
-LIDARSIM_FMI_EXPORT fmi2Status fmi2SetString(fmi2Component, const fmi2ValueReference[], size_t nvr,
-                                             const fmi2String[]) {
-  return nvr == 0 ? fmi2OK : fmi2Error;
+LIDARSIM_FMI_EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                             const fmi2String value[]) {
+  Instance* inst = as_instance(c);
+  for (size_t i = 0; i < nvr; ++i) {
+    if (vr[i] != kSensor) {
+      inst->log(fmi2Error, "FMI", "fmi2SetString: value reference " + std::to_string(vr[i]) + " is not a parameter");
+      return fmi2Error;
+    }
+    if (inst->initialized) {
+      inst->log(fmi2Error, "FMI", "fmi2SetString: sensor is fixed after initialization");
+      return fmi2Error;
+    }
+    inst->sensor = value[i] ? value[i] : "";
+  }
+  return fmi2OK;
 }
 LIDARSIM_FMI_EXPORT fmi2Status fmi2GetFMUstate(fmi2Component, fmi2FMUstate*) { return fmi2Error; }
 LIDARSIM_FMI_EXPORT fmi2Status fmi2SetFMUstate(fmi2Component, fmi2FMUstate) { return fmi2Error; }

@@ -138,3 +138,35 @@ TEST(IntensitySampling, AModelWithoutASpreadHeadIsRefusedByName) {
     EXPECT_NE(what.find("--sample-intensity needs a spread head (heads: mean)"), std::string::npos) << what;
   }
 }
+
+// A calibrated checkpoint (nn::UNetConfig::spread_scale, train/spread_metrics.h calibrate_spread)
+// draws with its scale times the factor: same seed, frame and cell, the draw's distance from the
+// mean is the factor times the uncalibrated one wherever neither is clamped to 0..1.
+TEST(IntensitySampling, ACalibratedCheckpointDrawsWithItsFactor) {
+  const fs::path untrained = checkpoint("calibrated", {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace});
+  const nn::Checkpoint meta = nn::read_checkpoint_meta(untrained);
+  // Outputs = the head's biases: mean 0.5, scale 0.02 (draws rarely reach the clamp).
+  nn::UNet raw(meta.unet);
+  std::fill(raw.params().values(), raw.params().values() + raw.params().size(), 0.f);
+  float* bias = raw.params().value(raw.params().find("head/bias"));
+  bias[0] = 0.5f, bias[1] = std::log(0.02f);
+  const fs::path ck = untrained.parent_path() / "plain.h5", calibrated = untrained.parent_path() / "calibrated.h5";
+  nn::save_checkpoint(ck, raw, nullptr, meta);
+  raw.set_spread_scale(2.5f);
+  nn::save_checkpoint(calibrated, raw, nullptr, meta);
+  const pgm::PolarGridMap map = scan();
+  infer::IntensityModel plain = infer::IntensityModel::load(ck), wide = infer::IntensityModel::load(calibrated);
+  std::vector<float> mean, a, b;
+  plain.predict(map, mean);
+  plain.sample_from_spread({3}, "test");
+  wide.sample_from_spread({3}, "test");
+  plain.predict(map, a, 2);
+  wide.predict(map, b, 2);
+  int compared = 0;
+  for (std::size_t i = 0; i < map.cells(); ++i) {
+    if (map.channel("mask")[i] <= 0 || b[i] <= 0.f || b[i] >= 1.f || a[i] <= 0.f || a[i] >= 1.f) continue;
+    EXPECT_NEAR(b[i] - mean[i], 2.5f * (a[i] - mean[i]), 1e-5f) << i;
+    ++compared;
+  }
+  EXPECT_GT(compared, 500);
+}

@@ -8,6 +8,7 @@
 #include <hdf5.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -190,9 +191,9 @@ TEST_F(CheckpointHeadsTest, CheckpointsFromAnOlderBuildLoadAndFormat1IsWrittenBy
 
 TEST_F(CheckpointHeadsTest, ANewerOrUnknownFormatIsRefusedNamingTheField) {
   const fs::path p = save(kHeads, "newer.h5");
-  set_string_attr(p, "format", "lidarsim-checkpoint 3");
+  set_string_attr(p, "format", "lidarsim-checkpoint 4");
   const std::string e = error_of([&] { read_checkpoint_meta(p); });
-  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 3\": this build reads formats 1 to 2"),
+  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 4\": this build reads formats 1 to 3"),
             std::string::npos)
       << e;
   EXPECT_NE(e.find("newer lidarsim"), std::string::npos) << e;
@@ -227,3 +228,41 @@ TEST_F(CheckpointHeadsTest, OtherHeadsOrOutputCountsAndBadHeadTextAreRefusedNami
 }
 
 }  // namespace
+
+// The spread head's calibration factor (UNetConfig::spread_scale) makes a format-3 checkpoint and a
+// format-2 weights file, which builds that read formats 1-2 (resp. 1) refuse by their format
+// number instead of sampling with the uncalibrated scale; a factor of 1 writes no trace of it, and
+// format-2 files (every checkpoint before the factor) load with factor 1.
+TEST_F(CheckpointHeadsTest, ASpreadCalibrationIsFormat3AndOlderFilesLoadWithFactor1) {
+  const fs::path plain = save(kHeads, "plain.h5");
+  EXPECT_EQ(string_attr(plain, "format"), "lidarsim-checkpoint 2");
+  EXPECT_FALSE(has_attr(plain, "unet.spread_scale"));
+  EXPECT_EQ(read_checkpoint_meta(plain).unet.spread_scale, 1.f);
+
+  UNet model(kHeads);
+  model.init(7);
+  model.set_spread_scale(1.75f);
+  Checkpoint meta;
+  meta.attributes["encoder"] = "{}";
+  const fs::path p = dir_ / "calibrated.h5";
+  save_checkpoint(p, model, nullptr, meta);
+  EXPECT_EQ(string_attr(p, "format"), "lidarsim-checkpoint 3");
+  const Checkpoint back = read_checkpoint_meta(p);
+  EXPECT_EQ(back.unet.spread_scale, 1.75f);
+  EXPECT_EQ(back.unet, model.config());
+  // The factor scales the head's output at inference: spread_scale * exp(clamp(s)).
+  Tensor y(Shape{1, 3, 1, 2});
+  y.channel(0, 2)[0] = 0.f, y.channel(0, 2)[1] = 10.f;
+  heads_output_transform(y, kThree, {}, back.unet.spread_scale);
+  EXPECT_FLOAT_EQ(y.channel(0, 2)[0], 1.75f);
+  EXPECT_FLOAT_EQ(y.channel(0, 2)[1], 1.75f * std::exp(3.f));
+  // The factor where format 2 has none, or a bad factor, is refused naming the field.
+  set_string_attr(p, "format", "lidarsim-checkpoint 2");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(p); }).find("config/unet.spread_scale: present in a format-2 checkpoint"),
+            std::string::npos);
+  const fs::path three_heads_format3 = save(kHeads, "no_factor.h5");
+  set_string_attr(three_heads_format3, "format", "lidarsim-checkpoint 3");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(three_heads_format3); }).find("unet.spread_scale"), std::string::npos);
+  // No spread head: no factor.
+  EXPECT_THROW(UNet(UNetConfig{3, 1, 4, 2, 0, {}, {}, 2.f}), Error);
+}

@@ -103,11 +103,12 @@ void run_case(const Case& c, bool relu, double* worst_bound, double* worst_rel, 
   if (swap01)
     for (int n = 0; n < c.n; ++n) std::swap_ranges(a16.channel(n, 0), a16.channel(n, 0) + c.h * c.w, a16.channel(n, 1));
   {
-    const detail::Bf16ConvScope scope(true);  // the layer functions route to the bf16 kernel
+    detail::ConvSettings cs;
+    cs.bf16 = true;  // the layer functions route to the bf16 kernel
     if (c.cb)
-      conv2d_cat_forward(y16, a16, b, w.data(), bias.data(), c.co, relu);
+      conv2d_cat_forward(y16, a16, b, w.data(), bias.data(), c.co, relu, cs);
     else
-      conv2d_forward(y16, a16, w.data(), bias.data(), c.co, 3, 1, relu);
+      conv2d_forward(y16, a16, w.data(), bias.data(), c.co, 3, 1, relu, cs);
   }
   ASSERT_EQ(y16.shape(), y32.shape());
   std::vector<const Tensor*> ins{&a};

@@ -92,6 +92,19 @@ std::vector<std::string> run_conventions_cli(const std::vector<osi3::SensorView>
   return out;
 }
 
+osi3::SensorData parsed(const std::string& bytes) {
+  osi3::SensorData d;
+  EXPECT_TRUE(d.ParseFromString(bytes));
+  return d;
+}
+
+// The SensorData without its feature data (the virtual sensor's part: objects, lanes, headers).
+std::string without_features(const std::string& bytes) {
+  osi3::SensorData d = parsed(bytes);
+  d.clear_feature_data();
+  return d.SerializeAsString();
+}
+
 std::string error_of(const osi3::SensorView& v) {
   OsiRunner runner = make_runner(false);
   osi3::SensorData d;
@@ -117,10 +130,18 @@ TEST(OsiConventions, MountOnlyInLidarViewConfigurationGivesTheSameSensorDataAsTh
   }
   const auto a = run_conventions_cli(top, true), b = run_conventions_cli(lidar, true);
   ASSERT_EQ(a.size(), b.size());
-  for (std::size_t k = 0; k < a.size(); ++k) EXPECT_TRUE(a[k] == b[k]) << "frame " << k;
-  osi3::SensorData d;
-  ASSERT_TRUE(d.ParseFromString(b.back()));
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    // The same bytes but for the detector's id: the view configuration's (70), else the SensorView's (7).
+    osi3::SensorData da = parsed(a[k]), db = parsed(b[k]);
+    ASSERT_EQ(db.feature_data().lidar_sensor_size(), 1);
+    EXPECT_EQ(da.feature_data().lidar_sensor(0).header().sensor_id().value(), 7u);
+    EXPECT_EQ(db.feature_data().lidar_sensor(0).header().sensor_id().value(), 70u);
+    db.mutable_feature_data()->mutable_lidar_sensor(0)->mutable_header()->mutable_sensor_id()->set_value(7);
+    EXPECT_TRUE(da.SerializeAsString() == db.SerializeAsString()) << "frame " << k;
+  }
+  const osi3::SensorData d = parsed(b.back());
   EXPECT_DOUBLE_EQ(d.mounting_position().position().z(), 1.43);  // echoed: the mount that was used
+  EXPECT_EQ(d.sensor_id().value(), 7u);                           // the virtual sensor's id
   EXPECT_GT(d.feature_data().lidar_sensor(0).detection_size(), 1000);
 }
 
@@ -130,14 +151,22 @@ TEST(OsiConventions, FirstLidarViewWithAMountIsUsedWhenTheTopLevelOneIsAbsent) {
   set_mount(*v.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.0, 1.2);
   set_mount(*v.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 3.0, 1.0);
   set_mount(*ref.mutable_mounting_position(), 2.0, 1.2);
-  EXPECT_TRUE(run_conventions_cli({v}, false) == run_conventions_cli({ref}, false));
+  const std::string out = run_conventions_cli({v}, false)[0];
+  EXPECT_TRUE(without_features(out) == without_features(run_conventions_cli({ref}, false)[0]));
+  // One (empty, object-level model) feature list per detector, each with its own mount; the first
+  // detector has none of its own and is the virtual sensor.
+  const osi3::SensorData d = parsed(out);
+  ASSERT_EQ(d.feature_data().lidar_sensor_size(), 3);
+  const double x[3] = {2.0, 2.0, 3.0};
+  for (int i = 0; i < 3; ++i)
+    EXPECT_DOUBLE_EQ(d.feature_data().lidar_sensor(i).header().mounting_position().position().x(), x[i]) << i;
 }
 
-TEST(OsiConventions, TopLevelMountWinsOverTheLidarViewConfigurationsWhenBothAreGiven) {
+TEST(OsiConventions, TopLevelMountGovernsTheObjectsAndTheViewConfigurationsMountItsDetections) {
   // OSI: SensorView.mounting_position is the virtual sensor's mount, which governs the detected
-  // objects; a view configuration's is one physical detector's. Ours is one frame: the virtual one.
+  // objects; a view configuration's is one physical detector's, which governs its features.
   std::vector<osi3::SensorView> both, top_only, lidar_only;
-  for (int k = 0; k < 2; ++k) {
+  for (int k = 0; k < 1; ++k) {  // one frame: the detectors are built on the first
     both.push_back(scene_at(0.1 * k));
     set_mount(*both.back().mutable_mounting_position(), 1.0, 1.43);
     set_mount(*both.back().add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.5,
@@ -150,9 +179,56 @@ TEST(OsiConventions, TopLevelMountWinsOverTheLidarViewConfigurationsWhenBothAreG
   }
   const auto b = run_conventions_cli(both, true), t = run_conventions_cli(top_only, true), l = run_conventions_cli(lidar_only, true);
   for (std::size_t k = 0; k < b.size(); ++k) {
-    EXPECT_TRUE(b[k] == t[k]) << "frame " << k;
-    EXPECT_FALSE(b[k] == l[k]) << "frame " << k << ": the two mounts give the same output, the rule is untested";
+    EXPECT_TRUE(without_features(b[k]) == without_features(t[k])) << "frame " << k;
+    EXPECT_FALSE(without_features(b[k]) == without_features(l[k]))
+        << "frame " << k << ": the two mounts give the same objects, the rule is untested";
+    const osi3::SensorData db = parsed(b[k]), dt = parsed(t[k]), dl = parsed(l[k]);
+    ASSERT_EQ(db.feature_data().lidar_sensor_size(), 1);
+    EXPECT_TRUE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
+                dl.feature_data().lidar_sensor(0).SerializeAsString())
+        << "frame " << k << ": the detections are not in the detector's own frame";
+    EXPECT_FALSE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
+                 dt.feature_data().lidar_sensor(0).SerializeAsString());
   }
+}
+
+TEST(OsiConventions, SeveralLidarViewsAreAnsweredPerDetectorWithTheirOwnSensorIdAndMount) {
+  // Two detectors of one virtual sensor (id 7): one at the virtual mount (id 70), one on the
+  // right (id 71). Each gets its own lidar_sensor entry, the same as that detector alone.
+  std::vector<osi3::SensorView> two, first, second;
+  for (int k = 0; k < 1; ++k) {  // one frame: the detectors are built on the first
+    two.push_back(scene_at(0.1 * k));
+    set_mount(*two.back().mutable_mounting_position(), 1.0, 1.43);
+    auto* c0 = two.back().add_lidar_sensor_view()->mutable_view_configuration();
+    c0->mutable_sensor_id()->set_value(70);
+    auto* c1 = two.back().add_lidar_sensor_view()->mutable_view_configuration();
+    c1->mutable_sensor_id()->set_value(71);
+    set_mount(*c1->mutable_mounting_position(), 2.5, 1.1, -0.3);
+    first.push_back(scene_at(0.1 * k));
+    set_mount(*first.back().mutable_mounting_position(), 1.0, 1.43);
+    second.push_back(scene_at(0.1 * k));
+    set_mount(*second.back().mutable_mounting_position(), 2.5, 1.1, -0.3);
+  }
+  const auto b = run_conventions_cli(two, true), f = run_conventions_cli(first, true), s = run_conventions_cli(second, true);
+  const osi3::SensorData d = parsed(b.back()), df = parsed(f.back()), ds = parsed(s.back());
+  EXPECT_EQ(d.sensor_id().value(), 7u);
+  EXPECT_TRUE(without_features(b.back()) == without_features(f.back()));
+  ASSERT_EQ(d.feature_data().lidar_sensor_size(), 2);
+  const auto& l0 = d.feature_data().lidar_sensor(0);
+  const auto& l1 = d.feature_data().lidar_sensor(1);
+  EXPECT_EQ(l0.header().sensor_id().value(), 70u);
+  EXPECT_EQ(l1.header().sensor_id().value(), 71u);
+  EXPECT_DOUBLE_EQ(l1.header().mounting_position().orientation().yaw(), -0.3);
+  ASSERT_GT(l1.detection_size(), 1000);
+  ASSERT_EQ(l0.detection_size(), df.feature_data().lidar_sensor(0).detection_size());
+  ASSERT_EQ(l1.detection_size(), ds.feature_data().lidar_sensor(0).detection_size());
+  const auto same = [](const osi3::LidarDetection& a, const osi3::LidarDetection& b) {
+    return a.SerializeAsString() == b.SerializeAsString();
+  };
+  for (int i = 0; i < l1.detection_size(); i += 97)
+    EXPECT_TRUE(same(l1.detection(i), ds.feature_data().lidar_sensor(0).detection(i))) << i;
+  for (int i = 0; i < l0.detection_size(); i += 97)
+    EXPECT_TRUE(same(l0.detection(i), df.feature_data().lidar_sensor(0).detection(i))) << i;
 }
 
 TEST(OsiConventions, NoMountAnywhereAndANonFiniteLidarViewMountAreErrorsNamingTheField) {

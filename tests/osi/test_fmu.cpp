@@ -14,7 +14,7 @@
 #include <sstream>
 #include <string>
 
-#include "../data/temp_dir.h"
+#include "unpacked_fmu.h"
 #include "infer/fmu/fmi2.h"
 #include "osi/osi3_subset.pb.h"
 #include "osi/scenario_trace.h"
@@ -53,10 +53,10 @@ F* symbol(void* lib, const char* name) {
 }  // namespace
 
 TEST(OsiFmu, ImporterGetsSensorDataForEachSensorViewThroughOsmpPointers) {
-  lidarsim::testing::TempDir dir;
   const fs::path fmu = fs::path(LIDARSIM_BINARY_DIR) / "lidarsim_osi.fmu";
   ASSERT_TRUE(fs::exists(fmu)) << fmu;
-  ASSERT_EQ(std::system(("cd " + dir.path().string() + " && cmake -E tar xf " + fmu.string()).c_str()), 0);
+  const fs::path& dir = lidarsim::testing::unpacked_fmu();
+  ASSERT_FALSE(dir.empty()) << "cannot unpack " << fmu;
 
   const std::string xml = read_bytes(dir / "modelDescription.xml");
   EXPECT_EQ(attribute(xml, "fmiVersion"), "2.0");

@@ -45,12 +45,14 @@ TEST(ObjectLoopUsedByModel, OcclusionIsUsedInDetectionAndInAnErrorsSpreadButNotI
   EXPECT_TRUE(used_by_model(c));
 }
 
-TEST(ObjectLoopUsedByModel, ClassAndRangeAreUsedEverywhereOtherFeaturesNowhere) {
+// Range is held by the model only in its fixed bins, and every candidate is fitted net of them: a
+// detection edge or a spread growing within a bin is what a range candidate scores, so none of its
+// forms is "used by the model" (a dropout beyond 35 m scored 0.15 held out and was never ranked).
+TEST(ObjectLoopUsedByModel, ClassIsUsedEverywhereRangeAndOtherFeaturesNowhere) {
   for (int t = 0; t < kObjectTargetCount; ++t)
     for (Kind k : obj::kinds_for(t))
       for (const std::string& f : kObjectFeatures) {
-        const bool expected =
-            f == "class" || f == "range" || (f == "occlusion" && (t == kDetectionTarget || obj::is_spread(k)));
+        const bool expected = f == "class" || (f == "occlusion" && (t == kDetectionTarget || obj::is_spread(k)));
         EXPECT_EQ(used_by_model(f, t, k), expected) << f << " on " << kObjectTargets[t] << " " << obj::to_string(k);
       }
 }
