@@ -40,7 +40,7 @@ std::string slurp(const fs::path& p) {
   return s.str();
 }
 
-std::string attribute(const std::string& xml, const std::string& name) {
+std::string xml_attribute(const std::string& xml, const std::string& name) {
   const auto at = xml.find(" " + name + "=\"");
   if (at == std::string::npos) return "";
   const auto start = at + name.size() + 3;
@@ -62,7 +62,7 @@ class Fmu {
   explicit Fmu(const fs::path& dir) {
     if (dir.empty()) return;
     xml = slurp(dir / "modelDescription.xml");
-    guid = attribute(xml, "guid");
+    guid = xml_attribute(xml, "guid");
     resources = "file://" + fs::absolute(dir / "resources").string();
     lib = dlopen((dir / "binaries" / "linux64" / "lidarsim_osi.so").c_str(), RTLD_NOW | RTLD_LOCAL);
     if (!lib) return;
@@ -159,7 +159,7 @@ class Instance {
 using Outputs = std::vector<std::vector<std::string>>;  // [lidar][frame]
 
 std::string g_logged;
-void logger(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String, fmi2String message, ...) {
+void multi_logger(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String, fmi2String message, ...) {
   char text[2048];
   va_list args;
   va_start(args, message);
@@ -174,7 +174,7 @@ TEST(OsiFmuMulti, OneInstancePerLidarGivesTheSameBytesAloneInTurnAndInParallelTh
   const Fmu fmu(lidarsim::testing::unpacked_fmu());
   ASSERT_TRUE(fmu.ok()) << "cannot unpack or load " << LIDARSIM_BINARY_DIR << "/lidarsim_osi.fmu";
   // Declared only because it holds (the threaded run below).
-  EXPECT_EQ(attribute(fmu.xml, "canBeInstantiatedOnlyOncePerProcess"), "false");
+  EXPECT_EQ(xml_attribute(fmu.xml, "canBeInstantiatedOnlyOncePerProcess"), "false");
   Outputs views(kLidarCount);
   for (int i = 0; i < kLidarCount; ++i) views[i] = views_of(kLidars[i]);
 
@@ -230,7 +230,7 @@ TEST(OsiFmuMulti, UnknownSensorLayoutFailsInitializationNamingTheLayouts) {
   const Fmu fmu(lidarsim::testing::unpacked_fmu());
   ASSERT_TRUE(fmu.ok());
   fmi2CallbackFunctions callbacks{};
-  callbacks.logger = logger;
+  callbacks.logger = multi_logger;
   g_logged.clear();
   fmi2Component c = fmu.instantiate("x", fmi2CoSimulation, fmu.guid.c_str(), fmu.resources.c_str(), &callbacks, 0, 0);
   ASSERT_NE(c, nullptr);

@@ -22,7 +22,7 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kRows = 16, kCols = 256;
+constexpr int kCalibRows = 16, kCols = 256;
 constexpr double kWider = 1.8;  // true scale / predicted scale on new cells
 
 // A zero-centred draw of the family with scale 1.
@@ -43,7 +43,7 @@ struct Frame {
 };
 Frame frame(nn::HeadKind spread, std::uint64_t seed) {
   Frame f;
-  const std::size_t plane = static_cast<std::size_t>(kRows) * kCols;
+  const std::size_t plane = static_cast<std::size_t>(kCalibRows) * kCols;
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> log_b(std::log(0.01), std::log(0.1));
   for (std::size_t i = 0; i < plane; ++i) {
@@ -60,7 +60,7 @@ Frame frame(nn::HeadKind spread, std::uint64_t seed) {
 train::SpreadMetrics measure(const Frame& f, nn::HeadKind spread, std::uint8_t role, double factor) {
   train::SpreadSums sums;
   train::add_spread_cells(sums, spread, f.mean.data(), f.log_scale.data(), f.target.data(), f.mask.data(), f.roles,
-                          kRows, kCols, role, {}, factor);
+                          kCalibRows, kCols, role, {}, factor);
   return sums.get();
 }
 
@@ -95,15 +95,15 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   const double b = 0.05;
   data::Dataset d;
   d.channels = {"range", "class"};
-  d.layout = pgm::BeamLayout::uniform(kRows, 1.0, -8.0, kCols);
-  d.pgm.resize({2, 2, kRows, kCols});
-  d.target.resize({2, 1, kRows, kCols});
-  d.mask.resize({2, 1, kRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kCalibRows, 1.0, -8.0, kCols);
+  d.pgm.resize({2, 2, kCalibRows, kCols});
+  d.target.resize({2, 1, kCalibRows, kCols});
+  d.mask.resize({2, 1, kCalibRows, kCols});
   std::mt19937_64 rng(5);
   for (int n = 0; n < 2; ++n) {
     d.frames.push_back("calib/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kCalibRows; ++r)
       for (int c = 0; c < kCols; ++c) {
         d.pgm.at(n, 0, r, c) = 10.f;
         d.pgm.at(n, 1, r, c) = static_cast<float>(pgm::cls::road);
@@ -139,7 +139,7 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   // The scored cells never enter the fit: wild targets there leave the factor as it was.
   data::Dataset wild = d;
   for (int n = 0; n < 2; ++n)
-    for (int r = 0; r < kRows; ++r)
+    for (int r = 0; r < kCalibRows; ++r)
       for (int c = kCols / 2; c < kCols; ++c) wild.target.at(n, 0, r, c) = 5.f;
   nn::UNet again(arch);
   std::copy(model.params().values(), model.params().values() + model.params().size(), again.params().values());
