@@ -28,7 +28,7 @@ using namespace checkpoint_h5;
 // read formats 1-2 would load the weights and sample with the uncalibrated scale, so they refuse it
 // by its format number; a model whose factor is 1 is still written as format 1 or 2.
 constexpr const char* kFormatPrefix = "lidarsim-checkpoint ";
-constexpr int kNewestFormat = 3;
+constexpr int kNewestCheckpointFormat = 3;
 
 bool needs_format2(const UNetConfig& c) { return c.out_channels != 1 || !c.heads.empty(); }
 bool needs_format3(const UNetConfig& c) { return c.spread_scale != 1.f; }
@@ -149,9 +149,9 @@ int format_of(const Reader& r) {
   const bool number = text.rfind(prefix, 0) == 0 &&
                       std::from_chars(text.data() + prefix.size(), end, v).ptr == end && text.size() > prefix.size();
   if (!number) r.fail("config/format", "\"" + text + "\" is not a lidarsim checkpoint format");
-  if (v < 1 || v > kNewestFormat)
-    r.fail("config/format", "\"" + text + "\": this build reads formats 1 to " + std::to_string(kNewestFormat) +
-                                (v > kNewestFormat ? " (written by a newer lidarsim: update to read it)" : ""));
+  if (v < 1 || v > kNewestCheckpointFormat)
+    r.fail("config/format", "\"" + text + "\": this build reads formats 1 to " + std::to_string(kNewestCheckpointFormat) +
+                                (v > kNewestCheckpointFormat ? " (written by a newer lidarsim: update to read it)" : ""));
   return v;
 }
 

@@ -21,7 +21,7 @@ static_assert(std::endian::native == std::endian::little, "the value bytes are w
 // Format 2 is format 1 with header.unet.spread_scale (the spread head's calibration factor,
 // UNetConfig::spread_scale): a format-1 reader would sample with the uncalibrated scale, so it
 // refuses the file by its magic line. A model whose factor is 1 is still written as format 1.
-constexpr int kNewestFormat = 2;
+constexpr int kNewestWeightsFormat = 2;
 constexpr std::size_t kMaxHeader = std::size_t{64} << 20;
 
 std::uint64_t fnv1a64(const unsigned char* p, std::size_t n) {
@@ -191,10 +191,10 @@ Weights read_weights(const std::filesystem::path& path) {
   if (eol == std::string::npos || eol > 64 || bytes.compare(0, std::strlen(kWeightsMagic), kWeightsMagic) != 0)
     f.fail("magic", "not a lidarsim weights file (it begins with \"" + std::string(kWeightsMagic) + "<format>\")");
   int format = 0;
-  for (int v = 1; v <= kNewestFormat; ++v)
+  for (int v = 1; v <= kNewestWeightsFormat; ++v)
     if (bytes.substr(0, eol) == std::string(kWeightsMagic) + std::to_string(v)) format = v;
   if (format == 0)
-    f.fail("magic", "\"" + bytes.substr(0, eol) + "\": this build reads formats 1 to " + std::to_string(kNewestFormat));
+    f.fail("magic", "\"" + bytes.substr(0, eol) + "\": this build reads formats 1 to " + std::to_string(kNewestWeightsFormat));
   std::size_t at = eol + 1;
   std::uint64_t length = 0;
   if (bytes.size() - at < sizeof length) f.fail("header length", "torn: the file ends after " + std::to_string(bytes.size()) + " bytes");
