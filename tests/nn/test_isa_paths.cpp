@@ -29,8 +29,8 @@ namespace {
 
 using namespace reference;
 
-std::vector<double> to_double(const std::vector<float>& v) { return {v.begin(), v.end()}; }
-std::vector<double> to_double(const Tensor& t) { return {t.begin(), t.end()}; }
+std::vector<double> as_double_vector(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+std::vector<double> as_double_vector(const Tensor& t) { return {t.begin(), t.end()}; }
 
 class IsaPath : public ::testing::TestWithParam<Isa> {
  protected:
@@ -71,8 +71,8 @@ Errors check_conv3x3(int ci, int co, int h, int w) {
   std::vector<float> dw(wt.size(), 0.f), db(b.size(), 0.f);
   conv2d_backward(&d_in, dw.data(), db.data(), r, y, x, wt.data(), k, pad, true);
   DT xd = from(x);
-  std::vector<double> wd = to_double(wt), bd = to_double(b);
-  const std::vector<double> rd = to_double(r);
+  std::vector<double> wd = as_double_vector(wt), bd = as_double_vector(b);
+  const std::vector<double> rd = as_double_vector(r);
   auto f = [&] { return dot(conv2d(xd, wd, bd, co, k, pad, true), rd); };
   Errors e{max_rel_error(y.data(), conv2d(xd, wd, bd, co, k, pad, true).v), 0, 0, 0};
   e.d_in = max_rel_error(d_in.data(), numeric_gradient(xd.v, f));
@@ -102,7 +102,7 @@ TEST_P(IsaPath, TransposedConvAndMaxPoolMatchTheReference) {
   const std::vector<float> wt = random_vector(5 * 3 * 4, 32, 0.5f), b = random_vector(3, 33, 0.3f);
   Tensor y;
   conv_transpose2x2_forward(y, x, wt.data(), b.data(), 3, 7, 75);
-  EXPECT_LT(max_rel_error(y.data(), conv_transpose2x2(from(x), to_double(wt), to_double(b), 3, 7, 75).v), 1e-5);
+  EXPECT_LT(max_rel_error(y.data(), conv_transpose2x2(from(x), as_double_vector(wt), as_double_vector(b), 3, 7, 75).v), 1e-5);
 
   // 70 columns: 35 windows per row, two full 16-window vectors and a scalar tail. Ties (argmax:
   // the first of equal values in row order): between the rows of plane 0's first windows, and all

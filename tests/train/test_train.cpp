@@ -120,7 +120,9 @@ TEST(Train, InterruptMidEpochSavesTheCurrentStepAndResumesExactly) {
   EXPECT_EQ(read_bytes(dir / "straight.h5"), read_bytes(dir / "split.h5"));
 }
 
-TEST(Train, ValidationErrorFallsOnASyntheticClassRangeRule) {
+// Statistical: 30 epochs judged by their validation error (normal pass only; Train.* below and
+// TrainStatistical's smoke run cover the code).
+TEST(TrainStatistical, ValidationErrorFallsOnASyntheticClassRangeRule) {
   const fs::path dir = train_temp_dir("learns");
   train::TrainConfig c = train_small_config(synthetic_dataset(dir, 3), dir / "ck.h5");
   c.epochs = 30;
