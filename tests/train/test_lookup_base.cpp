@@ -18,21 +18,21 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kLookupRows = 8, kCols = 256, kFrames = 3;
+constexpr int kLookupRows = 8, kLookupCols = 256, kLookupFrames = 3;
 
 data::Dataset lookup_synthetic() {
   data::Dataset d;
   d.channels = {"range", "class"};
-  d.layout = pgm::BeamLayout::uniform(kLookupRows, 1.0, -1.0, kCols);
-  d.pgm.resize({kFrames, 2, kLookupRows, kCols});
-  d.target.resize({kFrames, 1, kLookupRows, kCols});
-  d.mask.resize({kFrames, 1, kLookupRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kLookupRows, 1.0, -1.0, kLookupCols);
+  d.pgm.resize({kLookupFrames, 2, kLookupRows, kLookupCols});
+  d.target.resize({kLookupFrames, 1, kLookupRows, kLookupCols});
+  d.mask.resize({kLookupFrames, 1, kLookupRows, kLookupCols});
   const int classes[3] = {pgm::cls::road, pgm::cls::building, pgm::cls::vegetation};
-  for (int n = 0; n < kFrames; ++n) {
+  for (int n = 0; n < kLookupFrames; ++n) {
     d.frames.push_back("synthetic/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
     for (int r = 0; r < kLookupRows; ++r)
-      for (int c = 0; c < kCols; ++c) {
+      for (int c = 0; c < kLookupCols; ++c) {
         const unsigned h = static_cast<unsigned>(n * 7919 + r * 131 + c * 31) * 2654435761u;
         const int k = static_cast<int>((c / 5 + r + n) % 3);
         const float range = 2.f + static_cast<float>((h >> 8) % 3000) / 100.f;  // 2..32 m
@@ -62,11 +62,11 @@ train::TrainConfig lookup_config() {
 
 TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
   data::Dataset d = lookup_synthetic();
-  const data::SectorSplit split = data::guarded_split(9, kCols);
+  const data::SectorSplit split = data::guarded_split(9, kLookupCols);
   auto fit_of = [&](const data::Dataset& set) {
     const auto source = data::memory_frame_source(set, "synthetic");
     const train::TrainingFrames frames({source.get()}, lookup_config().encoder, split);
-    return train::fit_lookup_base(train::lookup_base_config(lookup_config().encoder, kLookupRows), frames, kCols);
+    return train::fit_lookup_base(train::lookup_base_config(lookup_config().encoder, kLookupRows), frames, kLookupCols);
   };
   const train::LookupFit fit = fit_of(d);
   // Independently: road (group "road") at 10-15 m, and the row residuals.
@@ -77,10 +77,10 @@ TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
   ASSERT_GE(road, 0);
   double sum = 0;
   long n = 0, cells = 0;
-  for (int f = 0; f < kFrames; ++f) {
-    const auto roles = split.roles(kCols, d.frames[f]);
+  for (int f = 0; f < kLookupFrames; ++f) {
+    const auto roles = split.roles(kLookupCols, d.frames[f]);
     for (int r = 0; r < kLookupRows; ++r)
-      for (int c = 0; c < kCols; ++c) {
+      for (int c = 0; c < kLookupCols; ++c) {
         if (d.mask.at(f, 0, r, c) <= 0 || roles[c] != data::kTrain) continue;
         ++cells;
         if (d.pgm.at(f, 1, r, c) == static_cast<float>(pgm::cls::road) && data::range_bin(d.pgm.at(f, 0, r, c)) == 2)
@@ -93,10 +93,10 @@ TEST(LookupBase, FitIsTheClassRangeMeanPlusTheRowResidualOfTrainingCellsOnly) {
   // The rows differ by 0.02 steps (r % 4): the fitted offsets follow.
   EXPECT_NEAR(fit.beam[3] - fit.beam[0], 0.06, 0.02);
   // Leak-free: what the validation and guard columns hold does not change the fit.
-  for (int f = 0; f < kFrames; ++f) {
-    const auto roles = split.roles(kCols, d.frames[f]);
+  for (int f = 0; f < kLookupFrames; ++f) {
+    const auto roles = split.roles(kLookupCols, d.frames[f]);
     for (int r = 0; r < kLookupRows; ++r)
-      for (int c = 0; c < kCols; ++c)
+      for (int c = 0; c < kLookupCols; ++c)
         if (roles[c] != data::kTrain) d.target.at(f, 0, r, c) = 5.f;
   }
   const train::LookupFit again = fit_of(d);
@@ -111,7 +111,7 @@ TEST(LookupBase, TrainingStartsAtTheLookupAndLearnsTheLocalEffectBeyondIt) {
   const double lookup = r.lookup_validation->mae, after = r.epochs.back().validation.mae;
   // The table alone equals the class x range lookup scored the same way (groups = classes here;
   // the per-row offsets make it better).
-  const auto baselines = data::evaluate_baselines(d, data::guarded_split(9, kCols));
+  const auto baselines = data::evaluate_baselines(d, data::guarded_split(9, kLookupCols));
   std::printf("class x range %.4f, lookup base alone %.4f, after training %.4f\n", baselines[2].validation.mae,
               lookup, after);
   EXPECT_LT(lookup, baselines[2].validation.mae + 1e-3);

@@ -22,7 +22,7 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kCalibRows = 16, kCols = 256;
+constexpr int kCalibRows = 16, kCalibCols = 256;
 constexpr double kWider = 1.8;  // true scale / predicted scale on new cells
 
 // A zero-centred draw of the family with scale 1.
@@ -43,7 +43,7 @@ struct Frame {
 };
 Frame frame(nn::HeadKind spread, std::uint64_t seed) {
   Frame f;
-  const std::size_t plane = static_cast<std::size_t>(kCalibRows) * kCols;
+  const std::size_t plane = static_cast<std::size_t>(kCalibRows) * kCalibCols;
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> log_b(std::log(0.01), std::log(0.1));
   for (std::size_t i = 0; i < plane; ++i) {
@@ -53,14 +53,14 @@ Frame frame(nn::HeadKind spread, std::uint64_t seed) {
     f.target.push_back(static_cast<float>(0.4 + kWider * std::exp(s) * unit_draw(spread, rng)));
     f.mask.push_back(i % 7 != 0 ? 1.f : 0.f);
   }
-  for (int c = 0; c < kCols; ++c) f.roles.push_back(c < kCols / 2 ? 1 : 2);
+  for (int c = 0; c < kCalibCols; ++c) f.roles.push_back(c < kCalibCols / 2 ? 1 : 2);
   return f;
 }
 
 train::SpreadMetrics measure(const Frame& f, nn::HeadKind spread, std::uint8_t role, double factor) {
   train::SpreadSums sums;
   train::add_spread_cells(sums, spread, f.mean.data(), f.log_scale.data(), f.target.data(), f.mask.data(), f.roles,
-                          kCalibRows, kCols, role, {}, factor);
+                          kCalibRows, kCalibCols, role, {}, factor);
   return sums.get();
 }
 
@@ -95,16 +95,16 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   const double b = 0.05;
   data::Dataset d;
   d.channels = {"range", "class"};
-  d.layout = pgm::BeamLayout::uniform(kCalibRows, 1.0, -8.0, kCols);
-  d.pgm.resize({2, 2, kCalibRows, kCols});
-  d.target.resize({2, 1, kCalibRows, kCols});
-  d.mask.resize({2, 1, kCalibRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kCalibRows, 1.0, -8.0, kCalibCols);
+  d.pgm.resize({2, 2, kCalibRows, kCalibCols});
+  d.target.resize({2, 1, kCalibRows, kCalibCols});
+  d.mask.resize({2, 1, kCalibRows, kCalibCols});
   std::mt19937_64 rng(5);
   for (int n = 0; n < 2; ++n) {
     d.frames.push_back("calib/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
     for (int r = 0; r < kCalibRows; ++r)
-      for (int c = 0; c < kCols; ++c) {
+      for (int c = 0; c < kCalibCols; ++c) {
         d.pgm.at(n, 0, r, c) = 10.f;
         d.pgm.at(n, 1, r, c) = static_cast<float>(pgm::cls::road);
         d.target.at(n, 0, r, c) = static_cast<float>(0.4 + kWider * b * unit_draw(nn::HeadKind::log_scale_laplace, rng));
@@ -124,8 +124,8 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   calib.regions = {{0.0, 0.5}};
   scored.regions = {{0.5, 1.0}};
   calib.guard_columns = scored.guard_columns = 0;
-  ASSERT_EQ(calib.roles(kCols)[0], data::kValidation);
-  ASSERT_EQ(calib.roles(kCols)[kCols - 1], data::kTrain);
+  ASSERT_EQ(calib.roles(kCalibCols)[0], data::kValidation);
+  ASSERT_EQ(calib.roles(kCalibCols)[kCalibCols - 1], data::kTrain);
   const auto source = data::memory_frame_source(d, "calib");
   const train::SpreadMetrics raw = train::validate_spread(model, encoder, {source.get()}, scored);
   const train::SpreadMetrics before = train::calibrate_spread(model, encoder, {source.get()}, calib);
@@ -140,7 +140,7 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   data::Dataset wild = d;
   for (int n = 0; n < 2; ++n)
     for (int r = 0; r < kCalibRows; ++r)
-      for (int c = kCols / 2; c < kCols; ++c) wild.target.at(n, 0, r, c) = 5.f;
+      for (int c = kCalibCols / 2; c < kCalibCols; ++c) wild.target.at(n, 0, r, c) = 5.f;
   nn::UNet again(arch);
   std::copy(model.params().values(), model.params().values() + model.params().size(), again.params().values());
   const auto wild_source = data::memory_frame_source(wild, "wild");

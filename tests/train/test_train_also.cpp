@@ -12,20 +12,20 @@ using namespace lidarsim;
 
 namespace {
 
-constexpr int kAlsoRows = 4, kCols = 256;
+constexpr int kAlsoRows = 4, kAlsoCols = 256;
 
 data::Dataset flat(float intensity, const std::string& place) {
   data::Dataset d;
   d.channels = {"range"};
-  d.layout = pgm::BeamLayout::uniform(kAlsoRows, 1.0, -1.0, kCols);
-  d.pgm.resize({2, 1, kAlsoRows, kCols});
-  d.target.resize({2, 1, kAlsoRows, kCols});
-  d.mask.resize({2, 1, kAlsoRows, kCols});
+  d.layout = pgm::BeamLayout::uniform(kAlsoRows, 1.0, -1.0, kAlsoCols);
+  d.pgm.resize({2, 1, kAlsoRows, kAlsoCols});
+  d.target.resize({2, 1, kAlsoRows, kAlsoCols});
+  d.mask.resize({2, 1, kAlsoRows, kAlsoCols});
   for (int n = 0; n < 2; ++n) {
     d.frames.push_back(place + "/" + std::to_string(n));
     d.row_modes.push_back("firing_order");
     for (int r = 0; r < kAlsoRows; ++r)
-      for (int c = 0; c < kCols; ++c) {
+      for (int c = 0; c < kAlsoCols; ++c) {
         d.pgm.at(n, 0, r, c) = 10.f + c % 7;
         d.target.at(n, 0, r, c) = intensity;
         d.mask.at(n, 0, r, c) = 1.f;
@@ -38,13 +38,13 @@ data::Dataset flat(float intensity, const std::string& place) {
 
 TEST(TrainAlso, OtherPlacesTrainInEveryColumnAndAreNeverScored) {
   const data::Dataset here = flat(0.2f, "here"), there = flat(0.6f, "there");
-  const data::SectorSplit split = data::guarded_split(9, kCols);
+  const data::SectorSplit split = data::guarded_split(9, kAlsoCols);
   const auto a = data::memory_frame_source(here, "here"), b = data::memory_frame_source(there, "there");
   pgm::EncoderConfig encoder;
   encoder.channels = {"range"};
   const train::TrainingFrames frames({a.get(), b.get()}, encoder, split, 1);
-  nn::Tensor x(nn::Shape{1, 1, kAlsoRows, kCols}), y(nn::Shape{1, 1, kAlsoRows, kCols}), m(nn::Shape{1, 1, kAlsoRows, kCols});
-  const auto roles = split.roles(kCols, "here/0");
+  nn::Tensor x(nn::Shape{1, 1, kAlsoRows, kAlsoCols}), y(nn::Shape{1, 1, kAlsoRows, kAlsoCols}), m(nn::Shape{1, 1, kAlsoRows, kAlsoCols});
+  const auto roles = split.roles(kAlsoCols, "here/0");
   long trained_here = 0, trained_there = 0;
   frames.fill(train::Sample{0, 0, false}, x, y, m, 0);
   for (float v : m) trained_here += v > 0;
@@ -53,7 +53,7 @@ TEST(TrainAlso, OtherPlacesTrainInEveryColumnAndAreNeverScored) {
   long train_columns = 0, validation_columns = 0;
   for (auto role : roles) train_columns += role == data::kTrain, validation_columns += role == data::kValidation;
   EXPECT_EQ(trained_here, train_columns * kAlsoRows);
-  EXPECT_EQ(trained_there, static_cast<long>(kCols) * kAlsoRows);
+  EXPECT_EQ(trained_there, static_cast<long>(kAlsoCols) * kAlsoRows);
 
   // Scored: the validation columns of "here" only (both of its frames).
   train::TrainConfig c;
