@@ -70,7 +70,7 @@ TEST(IntensitySampling, DrawsDependOnlyOnSeedFrameAndCell) {
 // the draws the mean; draws stay inside the clamp range.
 TEST(IntensitySampling, DrawsHaveThePredictedSpreadAndStayInRange) {
   const infer::IntensitySampling s{5, 0.f, 1.f};
-  for (const auto [kind, quantile] : {std::pair{nn::HeadKind::log_scale_laplace, std::log(2.0)},
+  for (const auto& [kind, quantile] : {std::pair{nn::HeadKind::log_scale_laplace, std::log(2.0)},
                                       std::pair{nn::HeadKind::log_scale_gaussian, 0.6744898}}) {
     std::vector<double> dev;
     double sum = 0;
@@ -119,7 +119,9 @@ TEST(IntensitySampling, ModelSamplesOnlyWhenAskedAndDeterministically) {
   model.predict(map, d, 0);
   EXPECT_NE(a, d);
   for (std::size_t i = 0; i < map.cells(); ++i) {
-    if (mask[i] <= 0) EXPECT_EQ(a[i], 0.f);
+    if (mask[i] <= 0) {
+      EXPECT_EQ(a[i], 0.f);
+    }
     EXPECT_GE(a[i], 0.f);
     EXPECT_LE(a[i], 1.f);
   }

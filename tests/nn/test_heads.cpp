@@ -86,7 +86,9 @@ TEST(MaskedBceLogitsGradCheck, LossAndGradientMatchTheReferenceAndFiniteDifferen
     EXPECT_NEAR(parts.data, want, 1e-6 * std::abs(want));
     EXPECT_LT(err, kTol);
     for (std::size_t i = 0; i < g.numel(); ++i) {
-      if (c.mask.data()[i] == 0.f) EXPECT_EQ(g.data()[i], 0.f) << i;
+      if (c.mask.data()[i] == 0.f) {
+        EXPECT_EQ(g.data()[i], 0.f) << i;
+      }
     }
   }
 }

@@ -92,7 +92,7 @@ std::pair<double, double> median_scales(nn::UNet& model, const pgm::EncoderConfi
     model.predict(input, pred);
     for (std::size_t i = 0; i < plane; ++i) {
       const double s = std::exp(std::clamp(pred.data()[plane + i], -7.f, 3.f));
-      (d.pgm.channel(n, cls)[i] == pgm::cls::car ? car : road).push_back(s);
+      (d.pgm.channel(n, cls)[i] == static_cast<float>(pgm::cls::car) ? car : road).push_back(s);
     }
   }
   auto median = [](std::vector<double>& v) {
