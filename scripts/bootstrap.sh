@@ -30,7 +30,9 @@ fi
 ((build)) || exit 0
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
-settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release})
+# Per-file build with the benchmarks unless LIDARSIM_CMAKE_ARGS says otherwise (scripts/test.sh
+# asks for a unity build without them; without this, its choice would stay in build/'s cache).
+settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} -DCMAKE_UNITY_BUILD=OFF -DLIDARSIM_BENCH=ON)
 # A folder configured before keeps its generator (CMake refuses to switch); a new one takes Ninja
 # where it is installed.
 if [ ! -f "$build_dir/CMakeCache.txt" ] && command -v ninja >/dev/null; then

@@ -46,7 +46,7 @@ test_build() {
   LIDARSIM_CMAKE_ARGS="-DCMAKE_UNITY_BUILD=ON -DCMAKE_UNITY_BUILD_BATCH_SIZE=16 -DLIDARSIM_BENCH=OFF ${LIDARSIM_CMAKE_ARGS:-}" scripts/bootstrap.sh --build
 }
 phase "build" test_build
-# A failing normal pass does not skip the sanitized one: CI reads both ctest summaries.
+# A failing normal pass does not skip the sanitized one: the run reports both ctest summaries.
 status=0
 phase "tests" ctest --test-dir "$build_dir" --output-on-failure -j"$(nproc)" --timeout 120 -LE long || status=1
 
