@@ -129,6 +129,62 @@ struct Setup {
   }
 };
 
+// Per round: wall time of each model's training step, loss and inference, and the K=3 / K=1
+// ratios (wall and CPU) of the same round.
+struct RoundSamples {
+  std::vector<double> train1, train3, infer1, infer3, loss1, loss3;
+  std::vector<double> train_ratio, infer_ratio, cpu_train_ratio, cpu_infer_ratio;
+};
+
+// The two models alternate which goes first, so a drift in the machine's speed hits both alike.
+RoundSamples run_rounds(Setup& k1, Setup& k3, int rounds, int warmup, int reps) {
+  RoundSamples s;
+  for (int r = 0; r < rounds; ++r) {
+    Timing t1, t3, i1, i3, l1, l3;
+    auto run1 = [&] {
+      t1 = time_it([&] { k1.train_step(); }, warmup, reps);
+      l1 = time_it([&] { k1.loss(); }, warmup, reps);
+      i1 = time_it([&] { k1.infer(); }, warmup, reps);
+    };
+    auto run3 = [&] {
+      t3 = time_it([&] { k3.train_step(); }, warmup, reps);
+      l3 = time_it([&] { k3.loss(); }, warmup, reps);
+      i3 = time_it([&] { k3.infer(); }, warmup, reps);
+    };
+    if (r % 2 == 0) run1(), run3();
+    else run3(), run1();
+    s.loss1.push_back(l1.wall), s.loss3.push_back(l3.wall);
+    s.train1.push_back(t1.wall), s.train3.push_back(t3.wall), s.infer1.push_back(i1.wall), s.infer3.push_back(i3.wall);
+    s.train_ratio.push_back(t3.wall / t1.wall), s.infer_ratio.push_back(i3.wall / i1.wall);
+    s.cpu_train_ratio.push_back(t3.cpu / t1.cpu), s.cpu_infer_ratio.push_back(i3.cpu / i1.cpu);
+    std::fprintf(stderr, "round %d: train %.2f / %.2f ms (x%.3f), infer %.2f / %.2f ms (x%.3f)\n", r, 1e3 * t1.wall,
+                 1e3 * t3.wall, t3.wall / t1.wall, 1e3 * i1.wall, 1e3 * i3.wall, i3.wall / i1.wall);
+  }
+  return s;
+}
+
+void print_table(const RoundSamples& s, int batch, int rows, int crop, int cols) {
+  std::printf("%-40s %10s %10s %8s %8s\n", "median over rounds", "K=1 ms", "K=3 ms", "ratio", "cpu ratio");
+  std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n",
+              ("train step, batch " + std::to_string(batch) + " x " + std::to_string(rows) + " x " + std::to_string(crop)).c_str(),
+              1e3 * median_of(s.train1), 1e3 * median_of(s.train3), median_of(s.train_ratio), median_of(s.cpu_train_ratio));
+  std::printf("%-40s %10.2f %10.2f   (of the step: %.1f %% / %.1f %%)\n", "  of which the loss and its gradient",
+              1e3 * median_of(s.loss1), 1e3 * median_of(s.loss3), 100 * median_of(s.loss1) / median_of(s.train1),
+              100 * median_of(s.loss3) / median_of(s.train3));
+  std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n", ("inference, 1 x " + std::to_string(rows) + " x " + std::to_string(cols)).c_str(),
+              1e3 * median_of(s.infer1), 1e3 * median_of(s.infer3), median_of(s.infer_ratio), median_of(s.cpu_infer_ratio));
+}
+
+nlohmann::json results_json(const RoundSamples& s) {
+  nlohmann::json j;
+  j["train_ms"] = {{"k1", 1e3 * median_of(s.train1)}, {"k3", 1e3 * median_of(s.train3)}, {"ratio", median_of(s.train_ratio)},
+                   {"cpu_ratio", median_of(s.cpu_train_ratio)}, {"ratios", s.train_ratio}};
+  j["loss_ms"] = {{"k1", 1e3 * median_of(s.loss1)}, {"k3", 1e3 * median_of(s.loss3)}};
+  j["infer_ms"] = {{"k1", 1e3 * median_of(s.infer1)}, {"k3", 1e3 * median_of(s.infer3)}, {"ratio", median_of(s.infer_ratio)},
+                   {"cpu_ratio", median_of(s.cpu_infer_ratio)}, {"ratios", s.infer_ratio}};
+  return j;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -173,53 +229,18 @@ int main(int argc, char** argv) {
               cols = args["cols"].as<int>();
     Setup k1(one, batch, rows, crop, cols), k3(three, batch, rows, crop, cols);
 
-    std::vector<double> train1, train3, infer1, infer3, train_ratio, infer_ratio, cpu_train_ratio, cpu_infer_ratio,
-        loss1, loss3;
-    for (int r = 0; r < rounds; ++r) {
-      Timing t1, t3, i1, i3, l1, l3;
-      auto run1 = [&] {
-        t1 = time_it([&] { k1.train_step(); }, warmup, reps);
-        l1 = time_it([&] { k1.loss(); }, warmup, reps);
-        i1 = time_it([&] { k1.infer(); }, warmup, reps);
-      };
-      auto run3 = [&] {
-        t3 = time_it([&] { k3.train_step(); }, warmup, reps);
-        l3 = time_it([&] { k3.loss(); }, warmup, reps);
-        i3 = time_it([&] { k3.infer(); }, warmup, reps);
-      };
-      if (r % 2 == 0) run1(), run3();
-      else run3(), run1();
-      loss1.push_back(l1.wall), loss3.push_back(l3.wall);
-      train1.push_back(t1.wall), train3.push_back(t3.wall), infer1.push_back(i1.wall), infer3.push_back(i3.wall);
-      train_ratio.push_back(t3.wall / t1.wall), infer_ratio.push_back(i3.wall / i1.wall);
-      cpu_train_ratio.push_back(t3.cpu / t1.cpu), cpu_infer_ratio.push_back(i3.cpu / i1.cpu);
-      std::fprintf(stderr, "round %d: train %.2f / %.2f ms (x%.3f), infer %.2f / %.2f ms (x%.3f)\n", r, 1e3 * t1.wall,
-                   1e3 * t3.wall, t3.wall / t1.wall, 1e3 * i1.wall, 1e3 * i3.wall, i3.wall / i1.wall);
-    }
+    const RoundSamples samples = run_rounds(k1, k3, rounds, warmup, reps);
     const std::string cpu = cpu_model();
     std::printf("CPU: %s, %d threads; UNet %d -> 1 | 3 (mean, return_logit, log_scale_%s), base %d, depth %d\n",
                 cpu.c_str(), args["threads"].as<int>(), one.in_channels, spread.c_str(), one.base, one.depth);
-    std::printf("%-40s %10s %10s %8s %8s\n", "median over rounds", "K=1 ms", "K=3 ms", "ratio", "cpu ratio");
-    std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n",
-                ("train step, batch " + std::to_string(batch) + " x " + std::to_string(rows) + " x " + std::to_string(crop)).c_str(),
-                1e3 * median_of(train1), 1e3 * median_of(train3), median_of(train_ratio), median_of(cpu_train_ratio));
-    std::printf("%-40s %10.2f %10.2f   (of the step: %.1f %% / %.1f %%)\n", "  of which the loss and its gradient",
-                1e3 * median_of(loss1), 1e3 * median_of(loss3), 100 * median_of(loss1) / median_of(train1),
-                100 * median_of(loss3) / median_of(train3));
-    std::printf("%-40s %10.2f %10.2f %8.3f %8.3f\n", ("inference, 1 x " + std::to_string(rows) + " x " + std::to_string(cols)).c_str(),
-                1e3 * median_of(infer1), 1e3 * median_of(infer3), median_of(infer_ratio), median_of(cpu_infer_ratio));
+    print_table(samples, batch, rows, crop, cols);
     if (args.count("out")) {
-      nlohmann::json j;
+      nlohmann::json j = results_json(samples);
       j["cpu"] = cpu;
       j["threads"] = args["threads"].as<int>();
       j["rounds"] = rounds;
       j["reps"] = reps;
       j["spread"] = spread;
-      j["train_ms"] = {{"k1", 1e3 * median_of(train1)}, {"k3", 1e3 * median_of(train3)}, {"ratio", median_of(train_ratio)},
-                       {"cpu_ratio", median_of(cpu_train_ratio)}, {"ratios", train_ratio}};
-      j["loss_ms"] = {{"k1", 1e3 * median_of(loss1)}, {"k3", 1e3 * median_of(loss3)}};
-      j["infer_ms"] = {{"k1", 1e3 * median_of(infer1)}, {"k3", 1e3 * median_of(infer3)}, {"ratio", median_of(infer_ratio)},
-                       {"cpu_ratio", median_of(cpu_infer_ratio)}, {"ratios", infer_ratio}};
       write_file_atomically(args["out"].as<std::string>(), j.dump(2) + "\n");
     }
     return 0;

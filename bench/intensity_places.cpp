@@ -1,4 +1,4 @@
-// Intensity held out by place (issue 27, item 6): every place held out whole in turn, trained on
+// Intensity held out by place: every place held out whole in turn, trained on
 // the others that share its grid and intensity scale (data/place_split.h). Driven by
 // scripts/intensity_places.sh, which imports the places and trains the UNets with lidar-train:
 //   bench_intensity_places --data seq00=a.h5,seq08=b.h5,... --plan
@@ -104,6 +104,173 @@ std::string fmt(double v, int digits = 4) {
   return b;
 }
 
+// The held-out place's measured intensity (every returning cell) and its real-vs-real ceiling, as
+// in lidar-qualify intensity: the place's scans alternate between two halves.
+struct HeldOutPlace {
+  std::vector<double> measured;
+  double ceiling = -1;
+};
+
+HeldOutPlace measured_place(const data::Dataset& held) {
+  HeldOutPlace h;
+  std::vector<std::vector<double>> by_scan(held.size());
+  for (int n = 0; n < held.size(); ++n) {
+    const float* m = held.mask.image(n);
+    const float* y = held.target.image(n);
+    for (int i = 0; i < held.rows() * held.cols(); ++i)
+      if (m[i] > 0) by_scan[n].push_back(y[i]), h.measured.push_back(y[i]);
+  }
+  h.ceiling = qualify::real_vs_real_ceiling(by_scan);
+  return h;
+}
+
+struct Lookups {
+  nlohmann::json mae = nlohmann::json::object();  // name -> held-out MAE
+  std::string best_name;
+  double best = 1e30;
+  double beam_intersection = 0;  // class x range + beam lookup's histogram intersection
+};
+
+// Every lookup, with the class and without it (seq08 has none; the KITTI object frames label only
+// boxes), fitted on the training places and scored on the held-out one; the best of all.
+Lookups score_lookups(const std::vector<data::Dataset>& train, const data::Dataset& held,
+                      const std::vector<double>& measured) {
+  std::vector<const data::Dataset*> train_ptr;
+  for (const auto& d : train) train_ptr.push_back(&d);
+  Lookups l;
+  for (const bool use_class : {true, false}) {
+    const std::string suffix = use_class ? "" : " (no class)";
+    for (const auto& b : data::evaluate_baselines_across(train_ptr, held, use_class))
+      if (use_class)
+        l.mae[b.name] = b.validation.mae;
+      else if (b.name == "class_x_range" || b.name == "class_x_row")  // "range (no class)", "row (no class)"
+        l.mae[b.name.substr(8) + suffix] = b.validation.mae;
+    qualify::IntensityCells cells;
+    for (const auto& d : train) add_cells(cells, d, false, use_class);
+    add_cells(cells, held, true, use_class);
+    const auto beam = qualify::lookup_beam_prediction(cells, held.rows());
+    std::vector<double> beam_held;
+    for (std::size_t i = 0; i < cells.size(); ++i)
+      if (cells.held_out[i]) beam_held.push_back(beam[i]);
+    const Scored sb = score(beam_held, measured);
+    l.mae[use_class ? "class_x_range_beam" : "range_beam" + suffix] = sb.mae;
+    if (use_class) l.beam_intersection = sb.intersection;
+  }
+  for (const auto& [name, mae] : l.mae.items())
+    if (mae.get<double>() < l.best) l.best = mae.get<double>(), l.best_name = name;
+  return l;
+}
+
+// The checkpoint's own record of what trained it, checked to hold no frame of the held-out place.
+std::vector<std::string> checked_training_names(const fs::path& ck, const data::PlacedSet& held) {
+  std::vector<data::PlacedSet> actual;
+  std::vector<std::string> names;
+  for (const auto& file : checkpoint_training_files(ck)) {
+    actual.push_back(data::read_placed_set(file, file));
+    names.push_back(fs::path(file).filename().string());
+  }
+  data::check_no_place_leak(held, actual);
+  return names;
+}
+
+std::vector<double> predict_returning_cells(infer::IntensityModel& model, const data::Dataset& held) {
+  std::vector<double> unet;
+  std::vector<float> out;
+  for (int n = 0; n < held.size(); ++n) {
+    model.predict(held.frame_pgm(n), out);
+    const float* m = held.mask.image(n);
+    for (int i = 0; i < held.rows() * held.cols(); ++i)
+      if (m[i] > 0) unet.push_back(out[i]);
+  }
+  return unet;
+}
+
+struct Report {
+  nlohmann::json rows = nlohmann::json::array();
+  std::string md =
+      "| held out | trained on | variant | cells | UNet MAE | best lookup MAE (which) | global mean MAE | "
+      "UNet hist. int. | class x range + beam hist. int. | ceiling | UNet / ceiling |\n"
+      "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+};
+
+// One checkpoint variant of one fold, scored on every returning cell of the held-out place.
+void score_variant(const data::PlaceFold& f, const data::PlacedSet& held, const data::Dataset& held_ds,
+                   const HeldOutPlace& place, const Lookups& lookups, const fs::path& models,
+                   const std::string& variant, Report& report) {
+  const fs::path ck = models / (f.held_out + "." + variant + ".h5");
+  if (!fs::exists(ck)) throw Error(ck.string() + ": missing (run scripts/intensity_places.sh)");
+  const std::vector<std::string> trained_on = checked_training_names(ck, held);
+  std::fprintf(stderr, "intensity_places: %s held out, %s: UNet on %d frames...\n", f.held_out.c_str(),
+               variant.c_str(), held_ds.size());
+  infer::IntensityModel model = infer::IntensityModel::load(ck);
+  const Scored su = score(predict_returning_cells(model, held_ds), place.measured);
+  const double ceiling = place.ceiling, global = lookups.mae.at("global_mean").get<double>();
+  report.rows.push_back({{"held_out", f.held_out},
+                         {"training", f.training},
+                         {"excluded", f.excluded},
+                         {"checkpoint_trained_on", trained_on},
+                         {"variant", variant},
+                         {"channels", model.encoder().channels},
+                         {"cells", static_cast<long>(place.measured.size())},
+                         {"frames", held_ds.size()},
+                         {"unet_mae", su.mae},
+                         {"lookup_mae", lookups.mae},
+                         {"best_lookup", lookups.best_name},
+                         {"best_lookup_mae", lookups.best},
+                         {"unet_intersection", su.intersection},
+                         {"lookup_beam_intersection", lookups.beam_intersection},
+                         {"ceiling", ceiling < 0 ? nlohmann::json(nullptr) : nlohmann::json(ceiling)}});
+  report.md += "| " + f.held_out + " | " + join(f.training, ", ") + " | " + variant + " (" +
+               join(model.encoder().channels, ",") + ") | " + std::to_string(place.measured.size()) + " | " +
+               fmt(su.mae) + " | " + fmt(lookups.best) + " (" + lookups.best_name + ") | " + fmt(global) + " | " +
+               fmt(su.intersection, 3) + " | " + fmt(lookups.beam_intersection, 3) + " | " +
+               (ceiling < 0 ? "n/a" : fmt(ceiling, 3)) + " | " +
+               (ceiling < 0 ? "n/a" : fmt(su.intersection / ceiling, 2)) + " |\n";
+  std::fprintf(stderr, "intensity_places: %s held out, %s: UNet MAE %.4f, best lookup %.4f (%s), hist %.3f / %.3f\n",
+               f.held_out.c_str(), variant.c_str(), su.mae, lookups.best, lookups.best_name.c_str(), su.intersection,
+               ceiling);
+}
+
+const data::PlacedSet& set_named(const std::vector<data::PlacedSet>& sets, const std::string& name) {
+  for (const auto& s : sets)
+    if (s.name == name) return s;
+  throw Error("no set named " + name);
+}
+
+// One held-out place: its lookups once, then every checkpoint variant trained without it.
+void score_fold(const data::PlaceFold& f, const std::vector<data::PlacedSet>& sets, const fs::path& models,
+                const std::vector<std::string>& variants, Report& report) {
+  const data::PlacedSet& held = set_named(sets, f.held_out);
+  std::vector<data::PlacedSet> train;
+  for (const auto& n : f.training) train.push_back(set_named(sets, n));
+  data::check_no_place_leak(held, train);
+  std::fprintf(stderr, "intensity_places: %s held out; trained on %s\n", f.held_out.c_str(),
+               f.training.empty() ? "(none compatible)" : join(f.training, ", ").c_str());
+  if (f.training.empty()) {
+    report.rows.push_back({{"held_out", f.held_out}, {"training", f.training}, {"excluded", f.excluded}});
+    report.md += "| " + f.held_out + " | none (below) | – | – | – | – | – | – | – | – | – |\n";
+    return;
+  }
+  const data::Dataset held_ds = data::read_dataset(held.path);
+  std::vector<data::Dataset> train_ds;
+  for (const auto& s : train) train_ds.push_back(data::read_dataset(s.path));
+  const HeldOutPlace place = measured_place(held_ds);
+  std::fprintf(stderr, "intensity_places: %s held out: lookups...\n", f.held_out.c_str());
+  const Lookups lookups = score_lookups(train_ds, held_ds, place.measured);
+  for (const std::string& variant : variants)
+    score_variant(f, held, held_ds, place, lookups, models, variant, report);
+}
+
+std::vector<data::PlacedSet> read_sets(const std::string& list) {
+  std::vector<data::PlacedSet> sets;
+  for (const std::string& item : split_list(list)) {
+    const auto eq = item.find('=');
+    if (eq == std::string::npos) throw Error("--data: \"" + item + "\" is not name=file.h5");
+    sets.push_back(data::read_placed_set(item.substr(0, eq), item.substr(eq + 1)));
+  }
+  return sets;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -121,18 +288,8 @@ int main(int argc, char** argv) {
       std::printf("%s", opts.help().c_str());
       return args.count("help") ? 0 : 2;
     }
-    std::vector<data::PlacedSet> sets;
-    for (const std::string& item : split_list(args["data"].as<std::string>())) {
-      const auto eq = item.find('=');
-      if (eq == std::string::npos) throw Error("--data: \"" + item + "\" is not name=file.h5");
-      sets.push_back(data::read_placed_set(item.substr(0, eq), item.substr(eq + 1)));
-    }
+    const std::vector<data::PlacedSet> sets = read_sets(args["data"].as<std::string>());
     const auto folds = data::place_folds(sets);
-    auto set_named = [&](const std::string& name) -> const data::PlacedSet& {
-      for (const auto& s : sets)
-        if (s.name == name) return s;
-      throw Error("no set named " + name);
-    };
     if (args.count("plan")) {
       for (const auto& f : folds)
         std::printf("fold|%s|%s|%s\n", f.held_out.c_str(), join(f.training, ",").c_str(),
@@ -142,122 +299,14 @@ int main(int argc, char** argv) {
     const fs::path models = args["models"].as<std::string>();
     const std::string prefix = args["out"].as<std::string>();
     if (models.empty() || prefix.empty()) throw Error("--models and --out are needed unless --plan");
-
-    nlohmann::json rows = nlohmann::json::array();
-    std::string md =
-        "| held out | trained on | variant | cells | UNet MAE | best lookup MAE (which) | global mean MAE | "
-        "UNet hist. int. | class x range + beam hist. int. | ceiling | UNet / ceiling |\n"
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
-    for (const auto& f : folds) {
-      const data::PlacedSet& held = set_named(f.held_out);
-      std::vector<data::PlacedSet> train;
-      for (const auto& n : f.training) train.push_back(set_named(n));
-      data::check_no_place_leak(held, train);
-      std::fprintf(stderr, "intensity_places: %s held out; trained on %s\n", f.held_out.c_str(),
-                   f.training.empty() ? "(none compatible)" : join(f.training, ", ").c_str());
-      if (f.training.empty()) {
-        rows.push_back({{"held_out", f.held_out}, {"training", f.training}, {"excluded", f.excluded}});
-        md += "| " + f.held_out + " | none (below) | – | – | – | – | – | – | – | – | – |\n";
-        continue;
-      }
-      const data::Dataset held_ds = data::read_dataset(held.path);
-      std::vector<data::Dataset> train_ds;
-      for (const auto& s : train) train_ds.push_back(data::read_dataset(s.path));
-      std::vector<const data::Dataset*> train_ptr;
-      for (const auto& d : train_ds) train_ptr.push_back(&d);
-      // Real-vs-real ceiling of lidar-qualify intensity: the place's scans alternate between two halves.
-      std::vector<std::vector<double>> by_scan(held_ds.size());
-      std::vector<double> measured;
-      for (int n = 0; n < held_ds.size(); ++n) {
-        const float* m = held_ds.mask.image(n);
-        const float* y = held_ds.target.image(n);
-        for (int i = 0; i < held_ds.rows() * held_ds.cols(); ++i)
-          if (m[i] > 0) by_scan[n].push_back(y[i]), measured.push_back(y[i]);
-      }
-      const double ceiling = qualify::real_vs_real_ceiling(by_scan);
-      // Every lookup, with the class and without it (seq08 has none; the KITTI object frames label
-      // only boxes), fitted on the training places and scored on the held-out one; the best of all.
-      std::fprintf(stderr, "intensity_places: %s held out: lookups...\n", f.held_out.c_str());
-      nlohmann::json lookups = nlohmann::json::object();
-      std::string best_name;
-      double best = 1e30, beam_intersection = 0;
-      for (const bool use_class : {true, false}) {
-        const std::string suffix = use_class ? "" : " (no class)";
-        for (const auto& b : data::evaluate_baselines_across(train_ptr, held_ds, use_class))
-          if (use_class)
-            lookups[b.name] = b.validation.mae;
-          else if (b.name == "class_x_range" || b.name == "class_x_row")  // "range (no class)", "row (no class)"
-            lookups[b.name.substr(8) + suffix] = b.validation.mae;
-        qualify::IntensityCells cells;
-        for (const auto& d : train_ds) add_cells(cells, d, false, use_class);
-        add_cells(cells, held_ds, true, use_class);
-        const auto beam = qualify::lookup_beam_prediction(cells, held_ds.rows());
-        std::vector<double> beam_held;
-        for (std::size_t i = 0; i < cells.size(); ++i)
-          if (cells.held_out[i]) beam_held.push_back(beam[i]);
-        const Scored sb = score(beam_held, measured);
-        lookups[use_class ? "class_x_range_beam" : "range_beam" + suffix] = sb.mae;
-        if (use_class) beam_intersection = sb.intersection;
-      }
-      for (const auto& [name, mae] : lookups.items())
-        if (mae.get<double>() < best) best = mae.get<double>(), best_name = name;
-      const double global = lookups["global_mean"].get<double>();
-
-      for (const std::string& v : split_list(args["variants"].as<std::string>())) {
-        const std::string& variant = v;
-        const fs::path ck = models / (f.held_out + "." + variant + ".h5");
-        if (!fs::exists(ck)) throw Error(ck.string() + ": missing (run scripts/intensity_places.sh)");
-        // What trained the checkpoint, read from itself: none of it may hold the held-out place.
-        std::vector<data::PlacedSet> actual;
-        std::vector<std::string> actual_names;
-        for (const auto& file : checkpoint_training_files(ck)) {
-          actual.push_back(data::read_placed_set(file, file));
-          actual_names.push_back(fs::path(file).filename().string());
-        }
-        data::check_no_place_leak(held, actual);
-        std::fprintf(stderr, "intensity_places: %s held out, %s: UNet on %d frames...\n", f.held_out.c_str(),
-                     variant.c_str(), held_ds.size());
-        infer::IntensityModel model = infer::IntensityModel::load(ck);
-        std::vector<double> unet;
-        std::vector<float> out;
-        for (int n = 0; n < held_ds.size(); ++n) {
-          model.predict(held_ds.frame_pgm(n), out);
-          const float* m = held_ds.mask.image(n);
-          for (int i = 0; i < held_ds.rows() * held_ds.cols(); ++i)
-            if (m[i] > 0) unet.push_back(out[i]);
-        }
-        const Scored su = score(unet, measured);
-        nlohmann::json row = {{"held_out", f.held_out},
-                              {"training", f.training},
-                              {"excluded", f.excluded},
-                              {"checkpoint_trained_on", actual_names},
-                              {"variant", variant},
-                              {"channels", model.encoder().channels},
-                              {"cells", static_cast<long>(measured.size())},
-                              {"frames", held_ds.size()},
-                              {"unet_mae", su.mae},
-                              {"lookup_mae", lookups},
-                              {"best_lookup", best_name},
-                              {"best_lookup_mae", best},
-                              {"unet_intersection", su.intersection},
-                              {"lookup_beam_intersection", beam_intersection},
-                              {"ceiling", ceiling < 0 ? nlohmann::json(nullptr) : nlohmann::json(ceiling)}};
-        rows.push_back(row);
-        md += "| " + f.held_out + " | " + join(f.training, ", ") + " | " + variant + " (" +
-              join(model.encoder().channels, ",") + ") | " + std::to_string(measured.size()) + " | " + fmt(su.mae) +
-              " | " + fmt(best) + " (" + best_name + ") | " + fmt(global) + " | " + fmt(su.intersection, 3) + " | " +
-              fmt(beam_intersection, 3) + " | " + (ceiling < 0 ? "n/a" : fmt(ceiling, 3)) + " | " +
-              (ceiling < 0 ? "n/a" : fmt(su.intersection / ceiling, 2)) + " |\n";
-        std::fprintf(stderr, "intensity_places: %s held out, %s: UNet MAE %.4f, best lookup %.4f (%s), hist %.3f / %.3f\n",
-                     f.held_out.c_str(), variant.c_str(), su.mae, best, best_name.c_str(), su.intersection, ceiling);
-      }
-    }
+    Report report;
+    for (const auto& f : folds) score_fold(f, sets, models, split_list(args["variants"].as<std::string>()), report);
     std::string excluded_md;
     for (const auto& f : folds)
       for (const auto& e : f.excluded) excluded_md += "- " + f.held_out + " held out, not trained on " + e + "\n";
-    write_file_atomically(prefix + ".json", nlohmann::json{{"rows", rows}}.dump(2) + "\n");
-    write_file_atomically(prefix + ".md", md + "\n" + excluded_md);
-    std::printf("%s", md.c_str());
+    write_file_atomically(prefix + ".json", nlohmann::json{{"rows", report.rows}}.dump(2) + "\n");
+    write_file_atomically(prefix + ".md", report.md + "\n" + excluded_md);
+    std::printf("%s", report.md.c_str());
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());

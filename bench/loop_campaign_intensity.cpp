@@ -218,7 +218,7 @@ int main(int argc, char** argv) try {
   DrawSettings settings;
   settings.sigma = sigma;
   settings.binned_base = !args.count("smooth-base");
-  settings.loop.base_model = args["base"].as<std::string>();
+  settings.loop.base_model = qualify::parse_intensity_base(args["base"].as<std::string>());
   const qualify::IntensityLoopOptions& loop_options = settings.loop;
   const std::vector<Source> sources = load_sources(args["data"].as<std::string>(), shared, source_dir);
 
@@ -235,14 +235,14 @@ int main(int argc, char** argv) try {
   const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   std::printf("Intensity loop campaign: data %s, base %s, %d draws per family, seed %llu, noise sigma %.3f\n",
-              args["data"].as<std::string>().c_str(), loop_options.base_model.c_str(), draws,
+              args["data"].as<std::string>().c_str(), qualify::to_string(loop_options.base_model).c_str(), draws,
               static_cast<unsigned long long>(seed), sigma);
   std::printf("Hidden base: albedo per class x exp(-range / L), %s. Excess error = sqrt(max(0, held-out RMSE^2 - sigma^2)):\nthe error against the hidden noise-free truth.\n\n", settings.binned_base ? "range at the 5 m bin centres" : "smooth in range");
   nlohmann::json summary = print_table(families, rows, sources[0].geometry, sigma);
   summary["overall"]["seconds"] = total_s;
   std::printf("%.0f s for %zu draws (each with its control twin)\n", total_s, all.size());
   if (args.count("json")) {
-    nlohmann::json out = {{"data", args["data"].as<std::string>()}, {"base", loop_options.base_model}, {"seed", seed},
+    nlohmann::json out = {{"data", args["data"].as<std::string>()}, {"base", qualify::to_string(loop_options.base_model)}, {"seed", seed},
                           {"draws_per_family", draws}, {"sigma", sigma},
                           {"hidden_base_fall_off", settings.binned_base ? "5 m range-bin centre" : "smooth"},
                           {"excess_error", "sqrt(max(0, rmse^2 - sigma^2)) of the loop's held-out rmse_before / rmse_after"},

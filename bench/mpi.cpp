@@ -52,6 +52,62 @@ void reduce_bcast(std::vector<float>& g, int rank) {
   MPI_Bcast(g.data(), static_cast<int>(g.size()), MPI_FLOAT, 0, MPI_COMM_WORLD);
 }
 
+// Per timed step (the warm-up step excluded): the compute's time and the median time of each way
+// to sum the gradients, each on the slowest rank.
+struct StepTimes {
+  std::vector<double> compute, ours, gather, reduce, builtin;
+};
+
+// One data-parallel step on `local` frames per rank, then each gradient sum on its own, after a
+// barrier, so the compute's imbalance is not counted.
+StepTimes time_steps(lidarsim::nn::UNet& model, int local, int rows, int cols, int batch, int steps, int reps,
+                     int rank, int ranks) {
+  using namespace lidarsim;
+  nn::Tensor x(local, 3, rows, cols), y(local, 1, rows, cols), m(local, 1, rows, cols), pred, d_pred;
+  std::mt19937 rng(static_cast<unsigned>(rank + 1));
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  for (float& v : x) v = u(rng);
+  for (float& v : y) v = u(rng);
+  for (float& v : m) v = u(rng) < 0.3f ? 1.f : 0.f;
+
+  train::Distributed& dist = train::Distributed::world();
+  const std::size_t params = model.params().size();
+  StepTimes out;
+  std::vector<float> g(params);
+  for (int s = 0; s <= steps; ++s) {  // step 0 warms up
+    MPI_Barrier(MPI_COMM_WORLD);
+    auto t0 = Clock::now();
+    model.params().zero_grads();
+    model.forward(x, pred);
+    nn::masked_mse(pred, y, m, &d_pred, static_cast<long>(batch) * rows * cols * 3 / 10);
+    model.backward(d_pred);
+    const double c = slowest(seconds_since(t0));
+    std::vector<double> t_ours, t_gather, t_reduce, t_builtin;
+    for (int r = 0; r < reps; ++r) {
+      auto time = [&](auto&& f) {
+        std::copy(model.params().grads(), model.params().grads() + params, g.begin());
+        MPI_Barrier(MPI_COMM_WORLD);
+        const auto t = Clock::now();
+        f();
+        return slowest(seconds_since(t));
+      };
+      t_ours.push_back(time([&] { dist.sum_in_rank_order(g.data(), g.size()); }));
+      t_gather.push_back(time([&] { allgather_sum(g, ranks); }));
+      t_reduce.push_back(time([&] { reduce_bcast(g, rank); }));
+      t_builtin.push_back(time([&] {
+        MPI_Allreduce(MPI_IN_PLACE, g.data(), static_cast<int>(g.size()), MPI_FLOAT, MPI_SUM, MPI_COMM_WORLD);
+      }));
+    }
+    if (s == 0) continue;
+    out.compute.push_back(c);
+    out.ours.push_back(median(t_ours));
+    out.gather.push_back(median(t_gather));
+    out.reduce.push_back(median(t_reduce));
+    out.builtin.push_back(median(t_builtin));
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -92,58 +148,17 @@ int main(int argc, char** argv) {
 
   nn::UNet model({3, 1, args["base"].as<int>(), args["depth"].as<int>()});
   model.init(1);
-  nn::Tensor x(local, 3, rows, cols), y(local, 1, rows, cols), m(local, 1, rows, cols), pred, d_pred;
-  std::mt19937 rng(static_cast<unsigned>(rank + 1));
-  std::uniform_real_distribution<float> u(0.f, 1.f);
-  for (float& v : x) v = u(rng);
-  for (float& v : y) v = u(rng);
-  for (float& v : m) v = u(rng) < 0.3f ? 1.f : 0.f;
-
-  train::Distributed& dist = train::Distributed::world();
   const std::size_t params = model.params().size();
-  std::vector<double> compute, ours, gather, reduce, builtin;
-  std::vector<float> g(params);
-  for (int s = 0; s <= args["steps"].as<int>(); ++s) {  // step 0 warms up
-    MPI_Barrier(MPI_COMM_WORLD);
-    auto t0 = Clock::now();
-    model.params().zero_grads();
-    model.forward(x, pred);
-    nn::masked_mse(pred, y, m, &d_pred, static_cast<long>(batch) * rows * cols * 3 / 10);
-    model.backward(d_pred);
-    const double c = slowest(seconds_since(t0));
-    // Each gradient sum on its own, after a barrier, so the compute's imbalance is not counted.
-    std::vector<double> t_ours, t_gather, t_reduce, t_builtin;
-    for (int r = 0; r < args["reps"].as<int>(); ++r) {
-      auto time = [&](auto&& f) {
-        std::copy(model.params().grads(), model.params().grads() + params, g.begin());
-        MPI_Barrier(MPI_COMM_WORLD);
-        const auto t = Clock::now();
-        f();
-        return slowest(seconds_since(t));
-      };
-      t_ours.push_back(time([&] { dist.sum_in_rank_order(g.data(), g.size()); }));
-      t_gather.push_back(time([&] { allgather_sum(g, ranks); }));
-      t_reduce.push_back(time([&] { reduce_bcast(g, rank); }));
-      t_builtin.push_back(time([&] {
-        MPI_Allreduce(MPI_IN_PLACE, g.data(), static_cast<int>(g.size()), MPI_FLOAT, MPI_SUM, MPI_COMM_WORLD);
-      }));
-    }
-    if (s == 0) continue;
-    compute.push_back(c);
-    ours.push_back(median(t_ours));
-    gather.push_back(median(t_gather));
-    reduce.push_back(median(t_reduce));
-    builtin.push_back(median(t_builtin));
-  }
+  const StepTimes t = time_steps(model, local, rows, cols, batch, args["steps"].as<int>(), args["reps"].as<int>(), rank, ranks);
   if (rank == 0) {
     const double flops = 3 * model.forward_flops(local, rows, cols);  // forward + backward (2x)
     std::printf(
         "{\"ranks\": %d, \"threads_per_rank\": %d, \"global_batch\": %d, \"grid\": \"%dx%d\", \"params\": %zu, "
         "\"param_mbytes\": %.3f, \"compute_s\": %.4f, \"gflops_per_rank\": %.2f, \"sum_rank_order_s\": %.5f, "
         "\"allgather_sum_s\": %.5f, \"reduce_bcast_s\": %.5f, \"mpi_allreduce_s\": %.5f, \"step_s\": %.4f}\n",
-        ranks, args["threads"].as<int>(), batch, rows, cols, params, params * 4 / 1e6, median(compute),
-        flops / median(compute) / 1e9, median(ours), median(gather), median(reduce), median(builtin),
-        median(compute) + median(ours));
+        ranks, args["threads"].as<int>(), batch, rows, cols, params, params * 4 / 1e6, median(t.compute),
+        flops / median(t.compute) / 1e9, median(t.ours), median(t.gather), median(t.reduce), median(t.builtin),
+        median(t.compute) + median(t.ours));
   }
   MPI_Finalize();
   return 0;

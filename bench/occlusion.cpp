@@ -32,7 +32,7 @@ double cpu_seconds() {
 
 int main(int argc, char** argv) {
   const fs::path src = LIDARSIM_SOURCE_DIR;
-  cxxopts::Options opts("bench_occlusion", "occlusion raster: per column/row (now) against per cell (before issue 16)");
+  cxxopts::Options opts("bench_occlusion", "occlusion raster: per column/row against the per-cell reference");
   opts.add_options()("objects", "objects", cxxopts::value<int>()->default_value("100"))(
       "frames", "frames", cxxopts::value<int>()->default_value("500"))(
       "scenario", "scenario whose sensor is used",

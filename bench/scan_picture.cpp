@@ -1,4 +1,4 @@
-// A measured scan above its simulation from the same ideal geometry (issue 27, item 9):
+// A measured scan above its simulation from the same ideal geometry:
 //   bench_scan_picture [--data DIR] [--scan N] [--returns MODEL.json] [--out docs/measured_vs_simulated.png]
 // The ideal geometry is pgm::return_target of the measured scan: its returns plus the drops at
 // their estimated ranges and classes (sky stays empty). On it the simulation draws the return
@@ -76,6 +76,93 @@ void window(const float* values, const float* mask, int rows, int cols, int c0, 
     }
 }
 
+// A measured scan and its simulation from the same ideal geometry.
+struct ScanPair {
+  std::string id;
+  pgm::ProjectionResult measured;
+  pgm::PolarGridMap sim;
+  std::vector<float> measured_intensity, sim_intensity;
+};
+
+// Measured: projected as lidar-infer predict does (plus height for the return target).
+// Simulated: the ideal geometry, the return model's draw, range noise, UNet intensity.
+ScanPair simulate_pair(const data::ScanFiles& files, infer::IntensityModel& unet, const sensor::ReturnModel& returns,
+                       const sensor::RangeNoiseModel& noise, std::uint64_t seed) {
+  ScanPair p;
+  const pgm::BeamLayout& layout = unet.layout();
+  const data::LabelledScan scan = data::read_semantickitti_scan(files);
+  pgm::ProjectOptions measured_options;
+  measured_options.extra_channels = unet.extra_channels();
+  measured_options.extra_channels.push_back("height");
+  p.id = files.sequence + "_" + files.id;
+  p.measured = pgm::project(scan.points, layout, measured_options, p.id);
+  const pgm::ReturnTarget target = pgm::return_target(p.measured.pgm);
+
+  pgm::ProjectOptions ideal_options;
+  ideal_options.row_mode = pgm::RowMode::Ring;
+  ideal_options.extra_channels = unet.extra_channels();
+  p.sim = pgm::project(ideal_points(scan.points, p.measured, target, layout), layout, ideal_options, p.id).pgm;
+  long geometry = 0;
+  for (const float m : std::vector<float>(p.sim.channel("mask"), p.sim.channel("mask") + p.sim.cells())) geometry += m > 0;
+  const int dropped = sensor::apply_return_model(returns, p.sim, seed, 0);
+  sensor::apply_range_noise(noise, seed, 0, p.sim);
+  unet.predict(p.sim, p.sim_intensity);
+  const float* mi = p.measured.pgm.channel("intensity");  // measured intensity is the recorded one
+  p.measured_intensity.assign(mi, mi + p.measured.pgm.cells());
+
+  long measured_returns = 0;
+  for (std::size_t i = 0; i < p.measured.pgm.cells(); ++i) measured_returns += p.measured.pgm.channel("mask")[i] > 0;
+  std::printf("%s: measured %ld returns; ideal geometry %ld cells (%lld drops filled); simulated %ld returns (%d dropped by the model)\n",
+              p.id.c_str(), measured_returns, geometry, target.drops, geometry - dropped, dropped);
+  return p;
+}
+
+struct PictureWindow {
+  int c0 = 0, n = 0, scale = 1;
+  double centre_deg = 0;
+};
+
+// Four panels of the window (measured and simulated range, then intensity), a header, and the
+// note below, one band per '|'-separated line (the header band does not wrap).
+Image render_picture(const ScanPair& p, int rows, const PictureWindow& w, std::uint64_t seed, const std::string& note) {
+  const int cols = p.measured.pgm.cols();
+  const float range_hi = 50.f;
+  TextStyle caption_style, header_style = kHeaderStyle, note_style = caption_style;
+  caption_style.scale = header_style.scale = note_style.scale = 1;  // the window is narrow
+  auto panel = [&](const float* values, const float* mask, float hi, const std::string& caption, const std::string& hi_label) {
+    std::vector<float> v;
+    std::vector<std::uint8_t> ok;
+    window(values, mask, rows, cols, w.c0, w.n, v, ok);
+    Image img = field_to_image(v.data(), ok.data(), w.n, rows, 0.f, hi);
+    img = scale_rows(img, w.scale);
+    // Widen by the same factor (scale_rows only repeats rows).
+    Image wide(img.width * w.scale, img.height);
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < wide.width; ++x) wide.at(x, y) = img.at(x / w.scale, y);
+    return add_caption_band(wide, caption, ColourKey{"0", hi_label}, caption_style);
+  };
+  const float* measured_mask = p.measured.pgm.channel("mask");
+  const float* sim_mask = p.sim.channel("mask");
+  const Image stacked = stack_vertically(
+      {panel(p.measured.pgm.channel("range"), measured_mask, range_hi, "measured range", "50 m"),
+       panel(p.sim.channel("range"), sim_mask, range_hi, "simulated range", "50 m"),
+       panel(p.measured_intensity.data(), measured_mask, 1.f, "measured intensity", "1"),
+       panel(p.sim_intensity.data(), sim_mask, 1.f, "simulated intensity", "1")},
+      4);
+  char header[256];
+  std::snprintf(header, sizeof header, "scan %s, %d columns around %.0f deg, seed %llu (black: no return)", p.id.c_str(),
+                w.n, w.centre_deg, static_cast<unsigned long long>(seed));
+  Image picture = add_caption_band(stacked, header, header_style);
+  std::vector<Image> parts{picture};
+  for (std::size_t start = 0; start < note.size();) {
+    const std::size_t end = std::min(note.find('|', start), note.size());
+    Image band(picture.width, 1, {255, 255, 255});
+    parts.push_back(add_caption_band(band, note.substr(start, end - start), note_style));
+    start = end + 1;
+  }
+  return stack_vertically(parts, 0);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -112,81 +199,20 @@ int main(int argc, char** argv) {
     infer::IntensityModel unet = infer::IntensityModel::load(a["unet"].as<std::string>());
     const sensor::ReturnModel returns = sensor::ReturnModel::load(a["returns"].as<std::string>());
     const sensor::RangeNoiseModel noise = sensor::load_range_noise_model(a["noise"].as<std::string>());
+    const ScanPair pair = simulate_pair(files, unet, returns, noise, seed);
+
     const pgm::BeamLayout& layout = unet.layout();
-
-    // Measured: projected as lidar-infer predict does (plus height for the return target).
-    const data::LabelledScan scan = data::read_semantickitti_scan(files);
-    pgm::ProjectOptions measured_options;
-    measured_options.extra_channels = unet.extra_channels();
-    measured_options.extra_channels.push_back("height");
-    const std::string id = files.sequence + "_" + files.id;
-    const pgm::ProjectionResult measured = pgm::project(scan.points, layout, measured_options, id);
-    const pgm::ReturnTarget target = pgm::return_target(measured.pgm);
-
-    // Simulated: the ideal geometry, the return model's draw, range noise, UNet intensity.
-    pgm::ProjectOptions ideal_options;
-    ideal_options.row_mode = pgm::RowMode::Ring;
-    ideal_options.extra_channels = unet.extra_channels();
-    pgm::PolarGridMap sim = pgm::project(ideal_points(scan.points, measured, target, layout), layout, ideal_options, id).pgm;
-    long geometry = 0;
-    for (const float m : std::vector<float>(sim.channel("mask"), sim.channel("mask") + sim.cells())) geometry += m > 0;
-    const int dropped = sensor::apply_return_model(returns, sim, seed, 0);
-    sensor::apply_range_noise(noise, seed, 0, sim);
-    std::vector<float> sim_intensity, measured_intensity;
-    unet.predict(sim, sim_intensity);
-    // Measured intensity is the recorded one.
-    const float* mi = measured.pgm.channel("intensity");
-    measured_intensity.assign(mi, mi + measured.pgm.cells());
-
-    long measured_returns = 0;
-    for (std::size_t i = 0; i < measured.pgm.cells(); ++i) measured_returns += measured.pgm.channel("mask")[i] > 0;
-    std::printf("%s: measured %ld returns; ideal geometry %ld cells (%lld drops filled); simulated %ld returns (%d dropped by the model)\n",
-                id.c_str(), measured_returns, geometry, target.drops, geometry - dropped, dropped);
-
-    const int rows = layout.rows(), cols = measured.pgm.cols();
-    int n = a["columns"].as<int>();
-    if (n <= 0 || n > cols) n = cols;
+    const int cols = pair.measured.pgm.cols();
+    PictureWindow w;
+    w.n = a["columns"].as<int>();
+    if (w.n <= 0 || w.n > cols) w.n = cols;
     // Column of the window centre: the layout's own bin of that direction.
-    const double c = a["centre-deg"].as<double>() * M_PI / 180;
+    w.centre_deg = a["centre-deg"].as<double>();
+    const double c = w.centre_deg * M_PI / 180;
     const int centre = layout.column_of(std::cos(c), std::sin(c));
-    const int c0 = ((centre - n / 2) % cols + cols) % cols;
-    const int scale = std::max(1, a["scale"].as<int>());
-    const float range_hi = 50.f;
-
-    TextStyle caption_style, header_style = kHeaderStyle, note_style = caption_style;
-    caption_style.scale = header_style.scale = note_style.scale = 1;  // the window is narrow
-    auto panel = [&](const float* values, const float* mask, float hi, const std::string& caption, const std::string& hi_label) {
-      std::vector<float> v;
-      std::vector<std::uint8_t> ok;
-      window(values, mask, rows, cols, c0, n, v, ok);
-      Image img = field_to_image(v.data(), ok.data(), n, rows, 0.f, hi);
-      img = scale_rows(img, scale);
-      // Widen by the same factor (scale_rows only repeats rows).
-      Image wide(img.width * scale, img.height);
-      for (int y = 0; y < img.height; ++y)
-        for (int x = 0; x < wide.width; ++x) wide.at(x, y) = img.at(x / scale, y);
-      return add_caption_band(wide, caption, ColourKey{"0", hi_label}, caption_style);
-    };
-    const Image stacked = stack_vertically(
-        {panel(measured.pgm.channel("range"), measured.pgm.channel("mask"), range_hi, "measured range", "50 m"),
-         panel(sim.channel("range"), sim.channel("mask"), range_hi, "simulated range", "50 m"),
-         panel(measured_intensity.data(), measured.pgm.channel("mask"), 1.f, "measured intensity", "1"),
-         panel(sim_intensity.data(), sim.channel("mask"), 1.f, "simulated intensity", "1")},
-        4);
-    char header[256];
-    std::snprintf(header, sizeof header, "scan %s, %d columns around %.0f deg, seed %llu (black: no return)", id.c_str(), n,
-                  a["centre-deg"].as<double>(), static_cast<unsigned long long>(seed));
-    Image picture = add_caption_band(stacked, header, header_style);
-    // The note goes below, one band per '|'-separated line (the header band does not wrap).
-    std::vector<Image> parts{picture};
-    std::string note = a["note"].as<std::string>();
-    for (std::size_t start = 0; start < note.size();) {
-      const std::size_t end = std::min(note.find('|', start), note.size());
-      Image band(picture.width, 1, {255, 255, 255});
-      parts.push_back(add_caption_band(band, note.substr(start, end - start), note_style));
-      start = end + 1;
-    }
-    picture = stack_vertically(parts, 0);
+    w.c0 = ((centre - w.n / 2) % cols + cols) % cols;
+    w.scale = std::max(1, a["scale"].as<int>());
+    const Image picture = render_picture(pair, layout.rows(), w, seed, a["note"].as<std::string>());
     write_png(a["out"].as<std::string>(), picture);  // write_png is atomic (common/atomic_file.h)
     std::printf("wrote %s (%dx%d)\n", a["out"].as<std::string>().c_str(), picture.width, picture.height);
     return 0;

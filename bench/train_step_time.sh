@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Step time of lidar-train, for comparing builds or reading modes (issue 12: lazy training within
+# Step time of lidar-train, for comparing builds or reading modes (lazy reading should stay within
 # 5 % of loading everything). Each variant trains --epochs 1 for SHORT and for LONG steps; the
 # difference divided by LONG - SHORT is the time per step without start-up, validation and
 # checkpoint; the same for CPU time (user + system, all threads), which depends less on the

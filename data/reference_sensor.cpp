@@ -326,6 +326,66 @@ double reference_beam_gain(int row, double spread) {
   return 1 + spread * u;
 }
 
+namespace {
+
+// A ring of wall facets at random distances (vertices), so facet normals vary irregularly; each
+// facet has a kind (building, fence, vegetation).
+struct WallRing {
+  static constexpr int kFacets = 40;
+  std::vector<Eigen::Vector2d> vertex;
+  std::vector<int> kind;
+};
+
+WallRing random_wall_ring(std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> U(0, 1);
+  WallRing w;
+  const int K = WallRing::kFacets;
+  w.vertex.resize(K);
+  w.kind.resize(K);
+  for (int k = 0; k < K; ++k) {
+    const double a = 2 * kPi * (k + 0.3 * (U(rng) - 0.5)) / K - kPi, r = 10 + 20 * U(rng);
+    w.vertex[k] = Eigen::Vector2d(r * std::cos(a), r * std::sin(a));
+    w.kind[k] = static_cast<int>(U(rng) * 2.999);
+  }
+  return w;
+}
+
+struct FacetHit {
+  double distance = 1e9;  // horizontal, along the ray; 1e9: no facet
+  Eigen::Vector2d normal{1, 0};
+  int facet = 0;
+};
+
+// The nearest facet the horizontal ray direction `d` meets.
+FacetHit nearest_facet(const WallRing& w, const Eigen::Vector2d& d) {
+  FacetHit h;
+  const int K = WallRing::kFacets;
+  for (int k = 0; k < K; ++k) {
+    const Eigen::Vector2d a = w.vertex[k], b = w.vertex[(k + 1) % K], e = b - a;
+    const double den = d.x() * e.y() - d.y() * e.x();
+    if (std::abs(den) < 1e-12) continue;
+    const double t = (a.x() * e.y() - a.y() * e.x()) / den;  // along the ray
+    const double u = (a.x() * d.y() - a.y() * d.x()) / den;  // along the facet
+    if (t > 0 && u >= 0 && u <= 1 && t < h.distance)
+      h.distance = t, h.facet = k, h.normal = Eigen::Vector2d(e.y(), -e.x()).normalized();
+  }
+  return h;
+}
+
+double planted_gain(const ReferenceScanOptions& o, int row, double az, double z_above_ground, double incidence) {
+  switch (o.effect) {
+    case IntensityEffect::Incidence: return std::cos(incidence);
+    case IntensityEffect::Height: return 0.6 + 0.3 * z_above_ground;
+    case IntensityEffect::Azimuth: return 1 + 0.5 * std::sin(az);
+    case IntensityEffect::BeamGain: return reference_beam_gain(row, o.beam_gain_spread);
+    case IntensityEffect::AzimuthWindow: return az >= o.window_azimuth_lo && az <= o.window_azimuth_hi ? o.window_gain : 1.0;
+    case IntensityEffect::None: break;
+  }
+  return 1;
+}
+
+}  // namespace
+
 void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptions& o) {
   if (o.scans < 1 || o.columns < 16) throw Error("reference sensor: scans >= 1, columns >= 16");
   const fs::path seq = dir / "sequences" / "00";
@@ -335,21 +395,12 @@ void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptio
   const double sensor_h = 1.73, wall_top = 4.0;
   std::mt19937_64 rng(o.seed);
   std::normal_distribution<double> N01(0, 1);
-  std::uniform_real_distribution<double> U(0, 1);
   // SemanticKITTI labels and albedo: road, sidewalk, building, fence, vegetation.
   const std::uint32_t lab_road = 40, lab_sidewalk = 48;
   const std::uint32_t wall_labels[3] = {50, 51, 70};
   const double wall_albedo[3] = {0.35, 0.45, 0.55};
   for (int s = 0; s < o.scans; ++s) {
-    // A ring of K wall facets at random distances (vertices), so facet normals vary irregularly.
-    const int K = 40;
-    std::vector<Eigen::Vector2d> vtx(K);
-    std::vector<int> kind(K);
-    for (int k = 0; k < K; ++k) {
-      const double a = 2 * kPi * (k + 0.3 * (U(rng) - 0.5)) / K - kPi, r = 10 + 20 * U(rng);
-      vtx[k] = Eigen::Vector2d(r * std::cos(a), r * std::sin(a));
-      kind[k] = static_cast<int>(U(rng) * 2.999);
-    }
+    const WallRing walls = random_wall_ring(rng);
     std::vector<float> pts;
     std::vector<std::uint32_t> labels;
     for (int row = 0; row < layout.rows(); ++row) {
@@ -357,49 +408,27 @@ void write_reference_semantickitti(const fs::path& dir, const ReferenceScanOptio
       for (int col = 0; col < o.columns; ++col) {
         const double az = -kPi + (col + 0.5) * 2 * kPi / o.columns;
         const Eigen::Vector2d d(std::cos(az), std::sin(az));
-        // Wall facet hit (horizontal distance th) by the ray in the plane.
-        double th = 1e9;
-        Eigen::Vector2d normal(1, 0);
-        int facet = 0;
-        for (int k = 0; k < K; ++k) {
-          const Eigen::Vector2d a = vtx[k], b = vtx[(k + 1) % K], e = b - a;
-          const double den = d.x() * e.y() - d.y() * e.x();
-          if (std::abs(den) < 1e-12) continue;
-          const double t = (a.x() * e.y() - a.y() * e.x()) / den;         // along the ray
-          const double u = (a.x() * d.y() - a.y() * d.x()) / den;         // along the facet
-          if (t > 0 && u >= 0 && u <= 1 && t < th) th = t, facet = k, normal = Eigen::Vector2d(e.y(), -e.x()).normalized();
-        }
-        const double tg = el < 0 ? sensor_h / std::tan(-el) : 1e9;
+        const FacetHit wall = nearest_facet(walls, d);
+        const double tg = el < 0 ? sensor_h / std::tan(-el) : 1e9;  // ground hit, horizontal distance
         double range = 0, albedo = 0, incidence = 0, z = 0;
         std::uint32_t label = 0;
-        if (tg < th) {
-          const double dist = tg;
-          range = dist / std::cos(el);
+        if (tg < wall.distance) {
+          range = tg / std::cos(el);
           z = -sensor_h;
-          const bool sidewalk = dist > th - 2.5;
+          const bool sidewalk = tg > wall.distance - 2.5;
           label = sidewalk ? lab_sidewalk : lab_road;
           albedo = sidewalk ? 0.30 : 0.20;
           incidence = kPi / 2 - std::abs(el);
         } else {
-          z = th * std::tan(el);
-          if (th >= 1e8 || z > wall_top - sensor_h) continue;  // sky: no return
-          range = th / std::cos(el);
-          label = wall_labels[kind[facet]];
-          albedo = wall_albedo[kind[facet]];
+          z = wall.distance * std::tan(el);
+          if (wall.distance >= 1e8 || z > wall_top - sensor_h) continue;  // sky: no return
+          range = wall.distance / std::cos(el);
+          label = wall_labels[walls.kind[wall.facet]];
+          albedo = wall_albedo[walls.kind[wall.facet]];
           const Eigen::Vector3d ray(std::cos(el) * d.x(), std::cos(el) * d.y(), std::sin(el));
-          incidence = std::acos(std::min(1.0, std::abs(ray.dot(Eigen::Vector3d(normal.x(), normal.y(), 0)))));
+          incidence = std::acos(std::min(1.0, std::abs(ray.dot(Eigen::Vector3d(wall.normal.x(), wall.normal.y(), 0)))));
         }
-        double gain = 1;
-        switch (o.effect) {
-          case IntensityEffect::Incidence: gain = std::cos(incidence); break;
-          case IntensityEffect::Height: gain = 0.6 + 0.3 * (z + sensor_h); break;
-          case IntensityEffect::Azimuth: gain = 1 + 0.5 * std::sin(az); break;
-          case IntensityEffect::BeamGain: gain = reference_beam_gain(row, o.beam_gain_spread); break;
-          case IntensityEffect::AzimuthWindow:
-            gain = az >= o.window_azimuth_lo && az <= o.window_azimuth_hi ? o.window_gain : 1.0;
-            break;
-          case IntensityEffect::None: break;
-        }
+        const double gain = planted_gain(o, row, az, z + sensor_h, incidence);
         const double intensity = std::clamp(albedo * gain + o.noise * N01(rng), 0.0, 1.0);
         pts.insert(pts.end(), {float(range * std::cos(el) * d.x()), float(range * std::cos(el) * d.y()),
                                float(range * std::sin(el)), float(intensity)});

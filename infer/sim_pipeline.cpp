@@ -1,11 +1,9 @@
 #include "infer/sim_pipeline.h"
 
-#include <cmath>
-#include <numbers>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numbers>
 
 #include "common/error.h"
 #include "nn/unet.h"
@@ -126,6 +124,39 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   out.objects_in_view = static_cast<int>(out.sensor.objects.size());
   lap(SimStage::FieldOfView);
 
+  occlude(out);
+  lap(SimStage::Occlusion);
+
+  const sensor::Pose map_from_sensor = sensor::compose(out.ego.ego_in_map, scenario_.sensor.mount);
+  track(out, map_from_sensor);
+  lap(SimStage::Tracking);
+
+  report(out, map_from_sensor);
+  lap(SimStage::Kpi);
+
+  sensor::fit_lanes(out.sensor.lanes, out.lanes);
+  lap(SimStage::Lanes);
+
+  if (options_.point_cloud) {
+    const bool predict = options_.intensity && intensity_wanted;
+    generate_returns(k, out, predict);
+    lap(SimStage::PclGenerator);
+
+    out.intensity_skipped = options_.intensity && !intensity_wanted;
+    if (predict) predict_intensity(k, out);
+    lap(SimStage::Unet);
+
+    fill_cloud(out);
+    lap(SimStage::PointCloud);
+  } else {
+    out.returns = 0;
+    out.cloud.clear();
+  }
+  out.total_ms = 0;
+  for (double ms : out.stage_ms) out.total_ms += ms;
+}
+
+void SimPipeline::occlude(SimFrame& out) {
   occlusion_.apply(out.sensor.objects, out.sensor.lanes, &heading_trig_);
   out.objects_occluded = out.objects_partly_occluded = 0;
   for (const auto& o : out.sensor.objects) {
@@ -134,13 +165,13 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   }
   // Folded as KITTI's labels are (data/kitti_tracking.cpp): the KPI model's visibility bins were fitted on that.
   for (auto& o : out.sensor.objects) o.visible_fraction *= 1 - o.truncation;
-  lap(SimStage::Occlusion);
+}
 
-  // Tracking runs in the map frame, so the filter's velocity is over ground like the ground
-  // truth's (in the moving sensor frame it would estimate velocity relative to the ego); the
-  // tracks go back into the sensor frame for the KPI manager (range, line of sight) and output.
-  // A fully hidden object yields no measurement: its track coasts.
-  const sensor::Pose map_from_sensor = sensor::compose(out.ego.ego_in_map, scenario_.sensor.mount);
+// Tracking runs in the map frame, so the filter's velocity is over ground like the ground truth's
+// (in the moving sensor frame it would estimate velocity relative to the ego); the tracks go back
+// into the sensor frame for the KPI manager (range, line of sight) and output. A fully hidden
+// object yields no measurement: its track coasts.
+void SimPipeline::track(const SimFrame& out, const sensor::Pose& map_from_sensor) {
   const sensor::Pose sensor_from_map = sensor::inverse(map_from_sensor);
   detections_.clear();
   for (std::size_t i = 0; i < out.sensor.objects.size(); ++i) {
@@ -154,8 +185,9 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
   tracker_.reported(tracked_map_);
   tracked_.resize(tracked_map_.size());
   for (std::size_t i = 0; i < tracked_map_.size(); ++i) sensor::transform_object(sensor_from_map, tracked_map_[i], tracked_[i]);
-  lap(SimStage::Tracking);
+}
 
+void SimPipeline::report(SimFrame& out, const sensor::Pose& map_from_sensor) {
   if (last_map_from_sensor_) {
     const sensor::Pose step = sensor::compose(sensor::inverse(*last_map_from_sensor_), map_from_sensor);
     kpi_.set_ego_motion(step.translation.head<2>(), std::atan2(step.rotation(1, 0), step.rotation(0, 0)));
@@ -183,46 +215,35 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
       }
     }
   }
-  lap(SimStage::Kpi);
+}
 
-  sensor::fit_lanes(out.sensor.lanes, out.lanes);
-  lap(SimStage::Lanes);
-
-  if (!options_.point_cloud) {
-    out.returns = 0;
-    out.cloud.clear();
-    out.total_ms = 0;
-    for (double ms : out.stage_ms) out.total_ms += ms;
-    return;
-  }
-
+void SimPipeline::generate_returns(int k, SimFrame& out, bool predict) {
   if (out.pgm.rows() != pcl_.layout().rows() || out.pgm.cols() != pcl_.layout().columns)
     out.pgm = pcl_.make_map(extra_channels_);
   sensor::select_visible(out.ego.objects, out.sensor.objects, pcl_objects_);
   // Paint exists whether or not the lane model reports it: the rays decide what is seen.
   // Without the UNet on this frame its neighbourhood input channels are not needed either.
-  const bool predict = options_.intensity && intensity_wanted;
   pcl_.set_frame(static_cast<std::uint64_t>(k));  // range noise and return draws follow the frame, not the call count
   out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm, predict || !options_.intensity);
-  lap(SimStage::PclGenerator);
+}
 
-  float* intensity = out.pgm.channel("intensity");  // 0 from the PCL generator
-  out.intensity_skipped = options_.intensity && !intensity_wanted;
-  if (predict) {
-    intensity_->predict(out.pgm, predicted_, static_cast<std::uint64_t>(k));
-    const float* mask = out.pgm.channel("mask");
-    // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.
-    for (std::size_t i = 0; i < out.pgm.cells(); ++i)
-      intensity[i] = mask[i] > 0 ? std::clamp(predicted_[i], 0.f, 1.f) : 0.f;
-  }
-  lap(SimStage::Unet);
+// The intensity channel holds 0 from the PCL generator until the UNet fills it.
+void SimPipeline::predict_intensity(int k, SimFrame& out) {
+  float* intensity = out.pgm.channel("intensity");
+  intensity_->predict(out.pgm, predicted_, static_cast<std::uint64_t>(k));
+  const float* mask = out.pgm.channel("mask");
+  // The network is not bounded: keep the reflectivity it predicts in [0, 1] like KITTI's.
+  for (std::size_t i = 0; i < out.pgm.cells(); ++i) intensity[i] = mask[i] > 0 ? std::clamp(predicted_[i], 0.f, 1.f) : 0.f;
+}
 
-  // One point per cell with a return: sized once from the count, then filled by index.
+// One point per cell with a return: sized once from the count, then filled by index.
+void SimPipeline::fill_cloud(SimFrame& out) {
   SimCloud& c = out.cloud;
   const auto& layout = pcl_.layout();
   const int H = layout.rows(), W = layout.columns;
   const float* range = out.pgm.channel("range");
   const float* mask = out.pgm.channel("mask");
+  const float* intensity = out.pgm.channel("intensity");
   const float* cls = out.pgm.channel("class");
   const float* material = out.pgm.channel("material");
   const float* object_id = out.pgm.channel("object_id");
@@ -259,10 +280,6 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
       ++n;
     }
   }
-  lap(SimStage::PointCloud);
-
-  out.total_ms = 0;
-  for (double ms : out.stage_ms) out.total_ms += ms;
 }
 
 bool SimPipeline::kpi_model_has_persistence() const {

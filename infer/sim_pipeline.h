@@ -126,6 +126,13 @@ class SimPipeline {
  private:
   void run_stages(int k, const sensor::Frame& map_frame, std::chrono::steady_clock::time_point start, SimFrame& out,
                   bool intensity = true);
+  // The stages of run_stages, in order.
+  void occlude(SimFrame& out);
+  void track(const SimFrame& out, const sensor::Pose& map_from_sensor);
+  void report(SimFrame& out, const sensor::Pose& map_from_sensor);
+  void generate_returns(int k, SimFrame& out, bool predict);
+  void predict_intensity(int k, SimFrame& out);
+  void fill_cloud(SimFrame& out);
 
   sensor::Scenario scenario_;
   std::unique_ptr<IntensityModel> intensity_;

@@ -48,28 +48,33 @@ int firing_order_rows(const std::vector<Point>& points, std::vector<int>& rows) 
   return row + 1;
 }
 
-ProjectionResult project(const std::vector<Point>& points, const BeamLayout& layout, const ProjectOptions& options,
-                         const std::string& source) {
+namespace {
+
+void check_finite(const std::vector<Point>& points, const std::string& source) {
   for (std::size_t i = 0; i < points.size(); ++i) {
     const Point& p = points[i];
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z) || !std::isfinite(p.intensity))
       throw input_error(source, "point " + std::to_string(i),
                         "non-finite coordinate or intensity (x, y, z, intensity must be finite numbers)");
   }
+}
+
+// The base channels, then each requested effect channel once.
+std::vector<std::string> projection_channels(const ProjectOptions& options) {
   std::vector<std::string> channels = kBaseChannels;
   for (const auto& name : options.extra_channels) {
     if (std::find(kEffectChannels.begin(), kEffectChannels.end(), name) == kEffectChannels.end())
       throw Error("projection: channel '" + name + "': unknown effect channel");
     if (std::find(channels.begin(), channels.end(), name) == channels.end()) channels.push_back(name);
   }
-  ProjectionResult result;
-  result.pgm = PolarGridMap(layout, channels);
-  PolarGridMap& pgm = result.pgm;
-  const int n_rows = layout.rows(), n_cols = layout.columns;
+  return channels;
+}
 
-  // Row of every point.
-  std::vector<int> rows;
-  RowMode mode = options.row_mode;
+// The row of every point by the requested mode; Auto resolves to the first that applies: the
+// points' rings, the firing-order cut when it finds the layout's row count, nearest elevation.
+void assign_rows(const std::vector<Point>& points, const BeamLayout& layout, RowMode mode, const std::string& source,
+                 std::vector<int>& rows, ProjectionResult& result) {
+  const int n_rows = layout.rows();
   const bool all_rings = !points.empty() && std::all_of(points.begin(), points.end(), [&](const Point& p) {
     return p.ring >= 0 && p.ring < n_rows;
   });
@@ -102,30 +107,38 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
     }
   }
   result.row_mode = mode;
+}
 
-  // Nearest return per cell.
-  const std::size_t cells = pgm.cells();
-  std::vector<float> best(cells, std::numeric_limits<float>::infinity());
+// The nearest return of each cell wins it: its range goes into `best`, its index into the map's
+// point index.
+void keep_nearest_returns(const std::vector<Point>& points, const std::vector<int>& rows, const BeamLayout& layout,
+                          float min_range, std::vector<float>& best, ProjectionResult& result) {
+  PolarGridMap& pgm = result.pgm;
+  best.assign(pgm.cells(), std::numeric_limits<float>::infinity());
   auto& index = pgm.point_index();
   result.point_cell.assign(points.size(), -1);
   for (std::size_t i = 0; i < points.size(); ++i) {
     const Point& p = points[i];
     const float r = std::sqrt(p.x * p.x + p.y * p.y + p.z * p.z);
-    if (rows[i] < 0 || r < options.min_range || r == 0.f) {
+    if (rows[i] < 0 || r < min_range || r == 0.f) {
       ++result.dropped;
       continue;
     }
-    const std::int64_t cell = static_cast<std::int64_t>(rows[i]) * n_cols + layout.column_of(p.x, p.y);
+    const std::int64_t cell = static_cast<std::int64_t>(rows[i]) * layout.columns + layout.column_of(p.x, p.y);
     result.point_cell[i] = cell;
     if (r < best[cell]) {
       best[cell] = r;
       index[cell] = static_cast<std::int64_t>(i);
     }
   }
+}
 
-  // Fill channels from the winning points.
-  std::vector<std::pair<int, int>> want;  // (channel index, kind)
+// Every per-point channel from the cell's winning point; the neighbourhood channels (incidence,
+// depth_discontinuity) are left for their own passes.
+void fill_point_channels(const std::vector<Point>& points, const std::vector<float>& best, PolarGridMap& pgm) {
   enum Kind { Range, Class, Material, Intensity, Mask, Elevation, Azimuth, Height, X, Y, Z, Skip };
+  std::vector<std::pair<int, int>> want;  // (channel index, kind)
+  const auto& channels = pgm.channel_names();
   for (int c = 0; c < static_cast<int>(channels.size()); ++c) {
     const std::string& n = channels[c];
     const int kind = n == "range"       ? Range
@@ -139,10 +152,11 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
                      : n == "x"         ? X
                      : n == "y"         ? Y
                      : n == "z"         ? Z
-                                        : Skip;  // incidence, depth_discontinuity: from neighbours, below
+                                        : Skip;
     want.emplace_back(c, kind);
   }
-  for (std::size_t cell = 0; cell < cells; ++cell) {
+  const auto& index = pgm.point_index();
+  for (std::size_t cell = 0; cell < pgm.cells(); ++cell) {
     if (index[cell] < 0) continue;
     const Point& p = points[static_cast<std::size_t>(index[cell])];
     for (auto [c, kind] : want) {
@@ -163,17 +177,35 @@ ProjectionResult project(const std::vector<Point>& points, const BeamLayout& lay
       pgm.channel(c)[cell] = v;
     }
   }
-  if (pgm.has_channel("incidence")) {
-    // The measured points, not the nominal beam directions: KITTI's rows wander by ~0.5 deg.
-    std::vector<float> xyz(3 * cells, 0.f);
-    for (std::size_t cell = 0; cell < cells; ++cell) {
-      if (index[cell] < 0) continue;
-      const Point& p = points[static_cast<std::size_t>(index[cell])];
-      xyz[cell] = p.x, xyz[cells + cell] = p.y, xyz[2 * cells + cell] = p.z;
-    }
-    incidence_from_points(pgm, xyz);
+}
+
+// From the measured points, not the nominal beam directions: KITTI's rows wander by ~0.5 deg.
+void fill_incidence_from_winners(const std::vector<Point>& points, PolarGridMap& pgm) {
+  const std::size_t cells = pgm.cells();
+  const auto& index = pgm.point_index();
+  std::vector<float> xyz(3 * cells, 0.f);
+  for (std::size_t cell = 0; cell < cells; ++cell) {
+    if (index[cell] < 0) continue;
+    const Point& p = points[static_cast<std::size_t>(index[cell])];
+    xyz[cell] = p.x, xyz[cells + cell] = p.y, xyz[2 * cells + cell] = p.z;
   }
-  if (pgm.has_channel("depth_discontinuity")) compute_depth_discontinuity(pgm);
+  incidence_from_points(pgm, xyz);
+}
+
+}  // namespace
+
+ProjectionResult project(const std::vector<Point>& points, const BeamLayout& layout, const ProjectOptions& options,
+                         const std::string& source) {
+  check_finite(points, source);
+  ProjectionResult result;
+  result.pgm = PolarGridMap(layout, projection_channels(options));
+  std::vector<int> rows;
+  assign_rows(points, layout, options.row_mode, source, rows, result);
+  std::vector<float> best;
+  keep_nearest_returns(points, rows, layout, options.min_range, best, result);
+  fill_point_channels(points, best, result.pgm);
+  if (result.pgm.has_channel("incidence")) fill_incidence_from_winners(points, result.pgm);
+  if (result.pgm.has_channel("depth_discontinuity")) compute_depth_discontinuity(result.pgm);
   return result;
 }
 

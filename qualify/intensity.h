@@ -94,6 +94,14 @@ struct LoopTraining {
   bool lookup_base = false;
 };
 
+// The loop's base model: the UNet; the class x 5 m range lookup; or that lookup plus an offset per
+// beam row (the untrained lidar-train --lookup-base=classes model: a base that has already learnt
+// each laser's level, so what is left of a per-laser gain scales with the prediction).
+enum class IntensityBase { Unet, Lookup, LookupBeam };
+// "unet", "lookup", "lookup-beam"; anything else throws naming `option`.
+IntensityBase parse_intensity_base(const std::string& name, const std::string& option = "--base");
+std::string to_string(IntensityBase base);
+
 struct IntensityLoopOptions {
   // Held-out share of residual variance from which the top feature is a candidate. A UNet leaves
   // only a small marginal trace of an input it lacks (it would use it jointly with the others):
@@ -112,10 +120,7 @@ struct IntensityLoopOptions {
   int rounds = 1;
   int bins = 16;
   std::filesystem::path plots_dir;
-  // "unet", "lookup" (class x 5 m range), or "lookup-beam" (that lookup + an offset per beam row,
-  // the untrained lidar-train --lookup-base=classes model: a base that has already learnt each
-  // laser's level, so what is left of a per-laser gain scales with the prediction).
-  std::string base_model = "unet";
+  IntensityBase base_model = IntensityBase::Unet;
   std::string split = "guarded";    // data::parse_split spec; guard of the loop UNet's receptive field
   // Folds of the guarded split: 1 = its two regions as they are; 4 = the regions rotated by an
   // eighth of the circle per fold, so that every column is validated once (an effect in today's

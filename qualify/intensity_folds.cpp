@@ -9,13 +9,6 @@
 
 namespace lidarsim::qualify::intensity_detail {
 
-Base parse_base(const std::string& name) {
-  if (name == "unet") return Base::Unet;
-  if (name == "lookup") return Base::Lookup;
-  if (name == "lookup-beam") return Base::LookupBeam;
-  throw Error("loop intensity: --base \"" + name + "\": unknown (expected unet, lookup or lookup-beam)");
-}
-
 namespace {
 
 // The PGM channel that carries each vocabulary feature into the UNet.

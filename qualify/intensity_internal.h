@@ -47,8 +47,7 @@ std::vector<double> lookup(const IntensityCells& c, Key key, const std::vector<d
   return out;
 }
 
-enum class Base { Unet, Lookup, LookupBeam };
-Base parse_base(const std::string& name);  // throws naming the option
+using Base = IntensityBase;
 
 // The PGM channels that carry a feature into the UNet (azimuth: its sine and cosine).
 std::vector<std::string> channels_of(const std::string& feature);
@@ -255,7 +254,7 @@ struct Refit {
 };
 
 struct RoundResult {
-  std::string split, group_by, base_model;
+  std::string split, group_by;
   std::string azimuth_group_by;  // azimuth's cross-fit when not group_by ("" otherwise)
   int half_width = 0, folds = 1;
   double scenery_correlation = 0, time_block_correlation = 0;

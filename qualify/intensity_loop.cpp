@@ -39,11 +39,11 @@ int default_folds(const IntensityLoopOptions& o) {
   if (o.folds > 0) return o.folds;
   // Rotating folds need a guarded region split; the UNet base trains every model once per fold.
   const bool regions = o.split.rfind("guarded", 0) == 0;
-  return regions && o.base_model != "unet" ? 4 : 1;
+  return regions && o.base_model != Base::Unet ? 4 : 1;
 }
 
 void check_loop_options(const IntensityLoopOptions& o) {
-  const Base base = parse_base(o.base_model);
+  const Base base = o.base_model;
   if (o.unet.seeds < 1 || o.unet.steps < 1 || o.unet.threads < 1)
     throw Error("loop intensity: --seeds, --steps and --threads must be at least 1");
   if (o.unet.lookup_base && base != Base::Unet)
@@ -361,7 +361,7 @@ RoundResult loop_round(Context& cx, const std::vector<std::string>& added_before
     r.plot = "residual_intensity_vs_" + r.top_feature + ".png";
     write_residual_png(cx.o.plots_dir / r.plot, r.residual_tables.at(r.top_feature), cx.pool.feature[tf], resid,
                        {"Held-out intensity residual vs " + r.top_feature, feature_axis_label(r.top_feature),
-                        "intensity residual, measured - " + cx.o.base_model + " (0..1 scale)"});
+                        "intensity residual, measured - " + to_string(cx.o.base_model) + " (0..1 scale)"});
   }
   if (cx.base == Base::Unet && !cx.o.out_model.empty()) {
     // Weights only, as lidar-train --export-weights writes them: lidar-infer loads it as is. The
@@ -387,7 +387,7 @@ nlohmann::json loop_intensity(const data::Dataset& ds, const IntensityLoopOption
   const int trainings = 2 * options.unet.seeds * static_cast<int>(folds.size());
   Context cx{ds,
              options,
-             parse_base(options.base_model),
+             options.base_model,
              split,
              nn::receptive_field_half_width({1, 1, options.unet.base, options.unet.depth}),
              std::move(folds),

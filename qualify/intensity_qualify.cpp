@@ -151,59 +151,57 @@ std::vector<double> lookup_beam_prediction(const IntensityCells& c, int rows) {
   return out;
 }
 
-nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir, const fs::path& out_dir) {
-  infer::IntensityModel model = infer::IntensityModel::load(checkpoint);
-  const data::Dataset ds = import_for_qualify(dir, model.extra_channels());
-  const int depth = nn::read_checkpoint_meta(checkpoint).unet.depth;
-  const int half_width = nn::receptive_field_half_width({1, 1, 8, depth});
-  const data::SectorSplit split = intensity_split(ds, "guarded", depth);
-  const IntensityCells c = intensity_cells(ds, split);
-  std::vector<double> pred(c.size());
-  {
-    std::vector<float> out;
-    const int cells = ds.rows() * ds.cols();
-    std::vector<std::vector<float>> frames(ds.size());
-    for (int n = 0; n < ds.size(); ++n) {
-      model.predict(ds.frame_pgm(n), out);
-      frames[n] = out;
-    }
-    for (size_t i = 0; i < c.size(); ++i) pred[i] = frames[c.frame[i]][c.cell[i] % cells];
+namespace {
+
+// The model's prediction at every cell of `c`, one scan at a time.
+std::vector<double> predict_cells(infer::IntensityModel& model, const data::Dataset& ds, const IntensityCells& c) {
+  std::vector<float> out;
+  const int cells = ds.rows() * ds.cols();
+  std::vector<std::vector<float>> frames(ds.size());
+  for (int n = 0; n < ds.size(); ++n) {
+    model.predict(ds.frame_pgm(n), out);
+    frames[n] = out;
   }
-  const std::vector<double> base = lookup_prediction(c);
-  fs::create_directories(out_dir);
-  auto section = [&](int cls) {
-    const auto idx = held_indices(c, cls);
-    std::vector<double> p, m;
-    // Real-vs-real ceilings: the same regions in alternate scans (the sensor's repeatability on
-    // nearly the same scene), and the two validation regions of the same scans against each other
-    // (different scenery, so a low bar rather than a ceiling; n/a with one region).
-    std::vector<std::vector<double>> by_scan(ds.size()), by_sector(split.regions.size() > 1 ? split.regions.size() : 1);
-    for (size_t i : idx) {
-      p.push_back(pred[i]), m.push_back(c.measured[i]);
-      by_scan[c.frame[i]].push_back(c.measured[i]);
-      by_sector[std::min<size_t>(c.region[i], by_sector.size() - 1)].push_back(c.measured[i]);
-    }
-    Similarity s = compare(p, m);
-    s.ceiling = real_vs_real_ceiling(by_scan);
-    const double sector_ceiling = real_vs_real_ceiling(by_sector);
-    const Errors e = errors(pred, c.measured, idx), b = errors(base, c.measured, idx);
-    nlohmann::json sj = to_json(s);
-    sj["ceiling_between_sectors"] = sector_ceiling < 0 ? nlohmann::json(nullptr) : nlohmann::json(sector_ceiling);
-    nlohmann::json j = {{"cells", e.n}, {"mae", e.mae}, {"rmse", e.rmse}, {"similarity", sj},
-                        {"lookup_class_x_range", {{"mae", b.mae}, {"rmse", b.rmse}}}};
-    return std::make_tuple(j, p, m);
-  };
-  nlohmann::json j;
-  j["checkpoint"] = checkpoint.string();
-  j["frames"] = ds.frames;
-  j["split"] = split.describe(ds.cols());
-  j["receptive_field_half_width"] = half_width;
-  auto [overall, p_all, m_all] = section(-1);
-  j["overall"] = overall;
-  std::ostringstream md;
+  std::vector<double> pred(c.size());
+  for (size_t i = 0; i < c.size(); ++i) pred[i] = frames[c.frame[i]][c.cell[i] % cells];
+  return pred;
+}
+
+struct SectionResult {
+  nlohmann::json summary;
+  std::vector<double> predicted, measured;
+};
+
+// Errors and similarity of the held-out cells of one class (-1: all), with the real-vs-real
+// ceilings: the same regions in alternate scans (the sensor's repeatability on nearly the same
+// scene), and the two validation regions of the same scans against each other (different scenery,
+// so a low bar rather than a ceiling; n/a with one region).
+SectionResult qualify_section(const IntensityCells& c, int scans, std::size_t regions, const std::vector<double>& pred,
+                              const std::vector<double>& base, int cls) {
+  SectionResult r;
+  const auto idx = held_indices(c, cls);
+  std::vector<std::vector<double>> by_scan(scans), by_sector(regions > 1 ? regions : 1);
+  for (size_t i : idx) {
+    r.predicted.push_back(pred[i]), r.measured.push_back(c.measured[i]);
+    by_scan[c.frame[i]].push_back(c.measured[i]);
+    by_sector[std::min<size_t>(c.region[i], by_sector.size() - 1)].push_back(c.measured[i]);
+  }
+  Similarity s = compare(r.predicted, r.measured);
+  s.ceiling = real_vs_real_ceiling(by_scan);
+  const double sector_ceiling = real_vs_real_ceiling(by_sector);
+  const Errors e = errors(pred, c.measured, idx), b = errors(base, c.measured, idx);
+  nlohmann::json sj = to_json(s);
+  sj["ceiling_between_sectors"] = sector_ceiling < 0 ? nlohmann::json(nullptr) : nlohmann::json(sector_ceiling);
+  r.summary = {{"cells", e.n}, {"mae", e.mae}, {"rmse", e.rmse}, {"similarity", sj},
+               {"lookup_class_x_range", {{"mae", b.mae}, {"rmse", b.rmse}}}};
+  return r;
+}
+
+void write_report_header(std::ostream& md, const fs::path& checkpoint, int scans, const fs::path& dir, int half_width,
+                         const std::string& split) {
   md << "# Intensity model qualification: predicted vs measured\n\nCheckpoint " << checkpoint.string() << "; "
-     << ds.size() << " scans from " << dir.string() << "; receptive field half-width " << half_width
-     << " columns; held-out cells = " << split.describe(ds.cols())
+     << scans << " scans from " << dir.string() << "; receptive field half-width " << half_width
+     << " columns; held-out cells = " << split
      << ". The model must have been trained on this split's training cells (lidar-train's default) for the "
         "figures to be held out.\n\n"
      << "Similarity = histogram intersection (1 - total variation) of predicted and measured intensity on shared bins "
@@ -215,35 +213,56 @@ nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir
         "regions against each other (different scenery: a low bar, not a ceiling).\n\n"
      << "| class | cells | MAE | RMSE | lookup MAE (class x range) | similarity [95%] | ceiling | sectors | KS | "
         "Wasserstein |\n|---|---|---|---|---|---|---|---|---|---|\n";
-  auto row = [&](const std::string& name, const nlohmann::json& s) {
-    md << "| " << name << " | " << s["cells"].get<long>() << " | " << fmt(s["mae"].get<double>(), 4) << " | "
-       << fmt(s["rmse"].get<double>(), 4) << " | " << fmt(s["lookup_class_x_range"]["mae"].get<double>(), 4) << " | "
-       << fmt(s["similarity"]["intersection"].get<double>()) << " [" << fmt(s["similarity"]["interval95"][0].get<double>(), 2)
-       << ", " << fmt(s["similarity"]["interval95"][1].get<double>(), 2) << "] | "
-       << (s["similarity"].contains("ceiling") ? fmt(s["similarity"]["ceiling"].get<double>()) : "n/a") << " | "
-       << (s["similarity"]["ceiling_between_sectors"].is_number()
-               ? fmt(s["similarity"]["ceiling_between_sectors"].get<double>())
-               : "n/a")
-       << " | "
-       << fmt(s["similarity"]["ks"].get<double>()) << " | " << fmt(s["similarity"]["wasserstein"].get<double>(), 4)
-       << " |\n";
-  };
-  row("all", overall);
+}
+
+void write_report_row(std::ostream& md, const std::string& name, const nlohmann::json& s) {
+  const auto& sim = s["similarity"];
+  md << "| " << name << " | " << s["cells"].get<long>() << " | " << fmt(s["mae"].get<double>(), 4) << " | "
+     << fmt(s["rmse"].get<double>(), 4) << " | " << fmt(s["lookup_class_x_range"]["mae"].get<double>(), 4) << " | "
+     << fmt(sim["intersection"].get<double>()) << " [" << fmt(sim["interval95"][0].get<double>(), 2) << ", "
+     << fmt(sim["interval95"][1].get<double>(), 2) << "] | "
+     << (sim.contains("ceiling") ? fmt(sim["ceiling"].get<double>()) : "n/a") << " | "
+     << (sim["ceiling_between_sectors"].is_number() ? fmt(sim["ceiling_between_sectors"].get<double>()) : "n/a")
+     << " | " << fmt(sim["ks"].get<double>()) << " | " << fmt(sim["wasserstein"].get<double>(), 4) << " |\n";
+}
+
+}  // namespace
+
+nlohmann::json qualify_intensity(const fs::path& checkpoint, const fs::path& dir, const fs::path& out_dir) {
+  infer::IntensityModel model = infer::IntensityModel::load(checkpoint);
+  const data::Dataset ds = import_for_qualify(dir, model.extra_channels());
+  const int depth = nn::read_checkpoint_meta(checkpoint).unet.depth;
+  const int half_width = nn::receptive_field_half_width({1, 1, 8, depth});
+  const data::SectorSplit split = intensity_split(ds, "guarded", depth);
+  const IntensityCells c = intensity_cells(ds, split);
+  const std::vector<double> pred = predict_cells(model, ds, c);
+  const std::vector<double> base = lookup_prediction(c);
+  fs::create_directories(out_dir);
+  nlohmann::json j;
+  j["checkpoint"] = checkpoint.string();
+  j["frames"] = ds.frames;
+  j["split"] = split.describe(ds.cols());
+  j["receptive_field_half_width"] = half_width;
+  const SectionResult all = qualify_section(c, ds.size(), split.regions.size(), pred, base, -1);
+  j["overall"] = all.summary;
+  std::ostringstream md;
+  write_report_header(md, checkpoint, ds.size(), dir, half_width, split.describe(ds.cols()));
+  write_report_row(md, "all", all.summary);
   std::map<int, long> counts;
   for (size_t i = 0; i < c.size(); ++i)
     if (c.held_out[i]) ++counts[c.cls[i]];
   nlohmann::json per = nlohmann::json::object();
   for (const auto& [cls, n] : counts) {
     if (n < 50) continue;
-    auto [s, p, m] = section(cls);
+    const nlohmann::json s = qualify_section(c, ds.size(), split.regions.size(), pred, base, cls).summary;
     per[pgm::class_name(cls)] = s;
-    row(pgm::class_name(cls), s);
+    write_report_row(md, pgm::class_name(cls), s);
   }
   j["per_class"] = per;
   const std::string caption = write_histogram_png(
-      out_dir / "hist_intensity.png", p_all, m_all,
+      out_dir / "hist_intensity.png", all.predicted, all.measured,
       {"Intensity of held-out cells: predicted vs measured", "intensity (0..1)", "share of samples", "predicted"},
-      overall["similarity"]["intersection"].get<double>());
+      all.summary["similarity"]["intersection"].get<double>());
   md << "\n![predicted vs measured intensity](hist_intensity.png)\n\n" << caption << "\n";
   write_file_atomically(out_dir / "report.md", md.str());
   write_file_atomically(out_dir / "report.json", j.dump(2) + "\n");

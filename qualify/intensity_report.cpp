@@ -1,12 +1,33 @@
 // The intensity loop's JSON, written from the typed round result (intensity_internal.h).
+#include "common/error.h"
 #include "qualify/intensity_internal.h"
+
+namespace lidarsim::qualify {
+
+IntensityBase parse_intensity_base(const std::string& name, const std::string& option) {
+  if (name == "unet") return IntensityBase::Unet;
+  if (name == "lookup") return IntensityBase::Lookup;
+  if (name == "lookup-beam") return IntensityBase::LookupBeam;
+  throw Error("loop intensity: " + option + " \"" + name + "\": unknown (expected unet, lookup or lookup-beam)");
+}
+
+std::string to_string(IntensityBase base) {
+  switch (base) {
+    case IntensityBase::Unet: return "unet";
+    case IntensityBase::Lookup: return "lookup";
+    case IntensityBase::LookupBeam: return "lookup-beam";
+  }
+  return "?";
+}
+
+}  // namespace lidarsim::qualify
 
 namespace lidarsim::qualify::intensity_detail {
 
 namespace {
 
 std::string base_text(const IntensityLoopOptions& o) {
-  switch (parse_base(o.base_model)) {
+  switch (o.base_model) {
     case Base::Unet:
       return "UNet (base " + std::to_string(o.unet.base) + ", depth " + std::to_string(o.unet.depth) +
              ") on range, class, material, trained " + std::to_string(o.unet.steps) +
@@ -48,7 +69,7 @@ nlohmann::json candidate_json(const Candidate& k) {
 }  // namespace
 
 nlohmann::json to_json(const RoundResult& r, const IntensityLoopOptions& o) {
-  const bool unet = parse_base(o.base_model) == Base::Unet;
+  const bool unet = o.base_model == Base::Unet;
   nlohmann::json j;
   j["domain"] = "intensity";
   j["metric"] = "held-out MAE of intensity (validation regions of the split, every scan; pooled over the folds)";

@@ -186,7 +186,7 @@ nlohmann::json run_loop_intensity(const cxxopts::ParseResult& a, const fs::path&
   io.min_relative_gain = a["min-gain"].as<double>();
   io.rounds = a["rounds"].as<int>();
   io.plots_dir = plots_dir;
-  io.base_model = a["base"].as<std::string>();
+  io.base_model = qualify::parse_intensity_base(a["base"].as<std::string>());
   io.unet.steps = a["steps"].as<int>();
   io.unet.seeds = a["seeds"].as<int>();
   io.unet.threads = a["threads"].as<int>();

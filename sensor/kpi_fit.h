@@ -35,7 +35,7 @@ struct CalibrationSequence {
 inline constexpr double kDetectionPriorObjects = 15;
 
 struct FitOptions {
-  std::vector<std::string> classes = {"Car", "Pedestrian", "Cyclist"};
+  std::vector<std::string> classes{kModelledClasses.begin(), kModelledClasses.end()};
   double gate = 2.0;       // m, bird's-eye-view centre distance for a match
   double min_score = 0.0;  // detections with score <= min_score are ignored
   std::vector<double> range_bin_edges = {0, 10, 20, 30, 40, 50, 60, 70};

@@ -98,6 +98,15 @@ int find_root(std::vector<int>& parent, int i) {
 }  // namespace
 
 void Tracker::associate(const std::vector<Object>& detections) {
+  gate_pairs(detections);
+  if (edges_.empty()) return;
+  const int n_groups = group_pairs();
+  for (int gi = 0; gi < n_groups; ++gi) solve_group(groups_[gi]);
+}
+
+// Gated pairs; tracks are nodes 0..nt-1, detections nt..nt+nd-1 of a union-find forest. The
+// detections sorted by x let each track visit only those within its gate's reach in x.
+void Tracker::gate_pairs(const std::vector<Object>& detections) {
   const int nt = static_cast<int>(tracks_.size()), nd = static_cast<int>(detections.size());
   const double r = config_.measurement_std * config_.measurement_std;
   by_x_.resize(nd);
@@ -107,7 +116,6 @@ void Tracker::associate(const std::vector<Object>& detections) {
   xs_.resize(nd);
   for (int k = 0; k < nd; ++k) xs_[k] = detections[by_x_[k]].position.x();
 
-  // Gated pairs; tracks are nodes 0..nt-1, detections nt..nt+nd-1 of a union-find forest.
   edges_.clear();
   parent_.resize(nt + nd);
   for (int i = 0; i < nt + nd; ++i) parent_[i] = i;
@@ -129,11 +137,14 @@ void Tracker::associate(const std::vector<Object>& detections) {
       if (a != b) parent_[a] = b;
     }
   }
-  if (edges_.empty()) return;
+}
 
-  // Groups in the order of their first edge; each solved on its own.
-  group_of_root_.assign(nt + nd, -1);
-  int n_groups = 0;  // groups_ keeps its inner vectors' capacity from frame to frame
+// Connected groups of gated pairs, in the order of their first edge; returns their count.
+// groups_ keeps its inner vectors' capacity from frame to frame.
+int Tracker::group_pairs() {
+  const int nodes = static_cast<int>(parent_.size());
+  group_of_root_.assign(nodes, -1);
+  int n_groups = 0;
   for (int e = 0; e < static_cast<int>(edges_.size()); ++e) {
     const int root = find_root(parent_, edges_[e].track);
     if (group_of_root_[root] < 0) {
@@ -143,42 +154,45 @@ void Tracker::associate(const std::vector<Object>& detections) {
     }
     groups_[group_of_root_[root]].push_back(e);
   }
+  local_of_.assign(nodes, -1);
+  return n_groups;
+}
+
+// The least-cost assignment within one group; a lone pair needs no solver.
+void Tracker::solve_group(const std::vector<int>& group) {
+  const int nt = static_cast<int>(tracks_.size());
+  if (group.size() == 1) {
+    const Edge& e = edges_[group[0]];
+    tracks_[e.track].detection_index = e.detection;
+    det_assigned_[e.detection] = e.track;
+    return;
+  }
+  group_tracks_.clear();
+  group_dets_.clear();
+  for (int e : group) {
+    const Edge& g = edges_[e];
+    if (local_of_[g.track] < 0) {
+      local_of_[g.track] = static_cast<int>(group_tracks_.size());
+      group_tracks_.push_back(g.track);
+    }
+    if (local_of_[nt + g.detection] < 0) {
+      local_of_[nt + g.detection] = static_cast<int>(group_dets_.size());
+      group_dets_.push_back(g.detection);
+    }
+  }
   const double outside = config_.gate_chi2 * 10 + 1e3;  // finite, so the solver stays simple
-  local_of_.assign(nt + nd, -1);
-  for (int gi = 0; gi < n_groups; ++gi) {
-    const std::vector<int>& group = groups_[gi];
-    if (group.size() == 1) {  // one track, one detection
-      const Edge& e = edges_[group[0]];
-      tracks_[e.track].detection_index = e.detection;
-      det_assigned_[e.detection] = e.track;
-      continue;
-    }
-    group_tracks_.clear();
-    group_dets_.clear();
-    for (int e : group) {
-      const Edge& g = edges_[e];
-      if (local_of_[g.track] < 0) {
-        local_of_[g.track] = static_cast<int>(group_tracks_.size());
-        group_tracks_.push_back(g.track);
-      }
-      if (local_of_[nt + g.detection] < 0) {
-        local_of_[nt + g.detection] = static_cast<int>(group_dets_.size());
-        group_dets_.push_back(g.detection);
-      }
-    }
-    cost_.setConstant(static_cast<int>(group_tracks_.size()), static_cast<int>(group_dets_.size()), outside);
-    for (int e : group) {
-      const Edge& g = edges_[e];
-      cost_(local_of_[g.track], local_of_[nt + g.detection]) = g.m2;
-    }
-    const std::vector<int>& assign = solver_.solve(cost_);
-    for (int li = 0; li < static_cast<int>(group_tracks_.size()); ++li) {
-      const int lj = assign[li];
-      if (lj < 0 || cost_(li, lj) > config_.gate_chi2) continue;
-      const int i = group_tracks_[li], j = group_dets_[lj];
-      tracks_[i].detection_index = j;
-      det_assigned_[j] = i;
-    }
+  cost_.setConstant(static_cast<int>(group_tracks_.size()), static_cast<int>(group_dets_.size()), outside);
+  for (int e : group) {
+    const Edge& g = edges_[e];
+    cost_(local_of_[g.track], local_of_[nt + g.detection]) = g.m2;
+  }
+  const std::vector<int>& assign = solver_.solve(cost_);
+  for (int li = 0; li < static_cast<int>(group_tracks_.size()); ++li) {
+    const int lj = assign[li];
+    if (lj < 0 || cost_(li, lj) > config_.gate_chi2) continue;
+    const int i = group_tracks_[li], j = group_dets_[lj];
+    tracks_[i].detection_index = j;
+    det_assigned_[j] = i;
   }
 }
 

@@ -66,6 +66,10 @@ class Tracker {
   void correct(Track& t, const Object& det) const;
   Track make_track(const Object& det, int index);
   void associate(const std::vector<Object>& detections);  // sets detection_index / det_assigned_
+  // The steps of associate.
+  void gate_pairs(const std::vector<Object>& detections);
+  int group_pairs();
+  void solve_group(const std::vector<int>& group);
 
   TrackerConfig config_;
   std::vector<Track> tracks_;

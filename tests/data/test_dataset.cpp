@@ -198,7 +198,7 @@ TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledDeflatedAndChecksumme
     }
     EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_SHUFFLE), filters.end()) << name;
     EXPECT_NE(std::find(filters.begin(), filters.end(), H5Z_FILTER_DEFLATE), filters.end()) << name;
-    // Fletcher-32 last: it sums each chunk as stored, after compression (issue 13).
+    // Fletcher-32 last: it sums each chunk as stored, after compression.
     ASSERT_FALSE(filters.empty()) << name;
     EXPECT_EQ(filters.back(), H5Z_FILTER_FLETCHER32) << name;
     H5Pclose(plist);
@@ -208,7 +208,7 @@ TEST(Dataset, FrameArraysAreChunkedOneFramePerChunkShuffledDeflatedAndChecksumme
 }
 
 namespace {
-// Writes a variable-length string attribute or 1-D dataset, as files before issue 13 held them.
+// Writes a variable-length string attribute or 1-D dataset, as files written by older builds hold them.
 void write_vlen_attr(hid_t obj, const char* name, const std::string& value) {
   hid_t type = H5Tcopy(H5T_C_S1);
   H5Tset_size(type, H5T_VARIABLE);

@@ -60,7 +60,7 @@ struct Dir {
   fs::path operator/(const std::string& s) const { return path / s; }
 };
 
-// A small synthetic training set (16 x 256 grids: the guarded split of issue 11 needs room for
+// A small synthetic training set (16 x 256 grids: the guarded split needs room for
 // its guard bands, twice the receptive-field half-width of 23 columns, around a quarter circle).
 fs::path small_dataset(const Dir& dir) {
   data::Dataset set;

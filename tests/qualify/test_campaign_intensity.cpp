@@ -28,7 +28,7 @@ std::map<data::PlantedScanFamily, Outcome> one_draw_each(const std::filesystem::
                                                        const std::vector<data::PlantedScanFamily>& families) {
   const data::Dataset geometry = import_for_qualify(dir);
   IntensityLoopOptions options;
-  options.base_model = "lookup";
+  options.base_model = qualify::IntensityBase::Lookup;
   const std::uint64_t seed = 2026;
   const data::PlantedScanDraw control_draw = data::draw_planted(data::PlantedScanFamily::Control, seed, geometry, 0.03);
   const double floor =

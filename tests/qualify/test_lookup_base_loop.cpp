@@ -30,7 +30,7 @@ TEST(LookupBaseLoop, UntrainedModelEqualsTheLoopsClassRangePerBeamTable) {
   // The loop with the lookup-beam base (the bundled depth 3, the guarded split as it is): its base
   // is that table, so its held-out MAE before any effect is the table's.
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup-beam";
+  lo.base_model = qualify::IntensityBase::LookupBeam;
   lo.folds = 1;
   const nlohmann::json j = qualify::loop_intensity(ds, lo);
   const double loop_mae = j["before"].get<double>();

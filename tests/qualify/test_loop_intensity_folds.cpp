@@ -1,4 +1,4 @@
-// The intensity loop's rotating folds (issue 26, defect 3): the guarded split validates two fixed
+// The intensity loop's rotating folds: the guarded split validates two fixed
 // regions of azimuth, so an effect that lives only in the training azimuths never reaches a
 // held-out cell and only biases the fit. With the regions rotated over 4 folds every column is
 // validated once; the base is fitted per fold and the held-out residuals pooled. A gain over a
@@ -29,7 +29,7 @@ data::Dataset window_in_training_columns() {
 
 nlohmann::json run(const data::Dataset& ds, int folds) {
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup";
+  lo.base_model = qualify::IntensityBase::Lookup;
   lo.folds = folds;
   const auto j = qualify::loop_intensity(ds, lo);
   std::cout << "  folds " << folds << ": top " << j["ranking"][0].dump() << "\n  added " << j["added_effect"]
@@ -80,7 +80,7 @@ TEST(LoopIntensityFolds, EveryCandidateCarriesItsDecisionAndReason) {
 
 TEST(LoopIntensityFolds, FoldsOtherThanOneOrFourAreOneClearError) {
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup";
+  lo.base_model = qualify::IntensityBase::Lookup;
   lo.folds = 3;
   data::Dataset empty;
   try {

@@ -1,4 +1,4 @@
-// Multiplicative effects (issue 26, defect 2): a gain per laser over a base that has already learnt
+// Multiplicative effects: a gain per laser over a base that has already learnt
 // each laser's level (a UNet learns it from the training columns; here the lookup-beam base, whose
 // per-beam offsets do the same) leaves a residual that scales with the prediction and has nearly
 // no mean per row. An additive per-beam table of it explains almost nothing (held-out R^2 below the
@@ -20,7 +20,7 @@ namespace {
 
 nlohmann::json lookup_beam_loop(const data::Dataset& ds) {
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup-beam";
+  lo.base_model = qualify::IntensityBase::LookupBeam;
   const auto j = qualify::loop_intensity(ds, lo);
   std::cout << "  top " << j["ranking"][0].dump() << "\n  added " << j["added_effect"] << " via " << j["method"]
             << ", before " << j["before"] << " after " << j["after"] << "\n";

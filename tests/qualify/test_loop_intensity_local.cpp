@@ -1,4 +1,4 @@
-// The intensity loop on discrete and local effects (issue 11), on the reference sensor's scans
+// The intensity loop on discrete and local effects, on the reference sensor's scans
 // (data/reference_sensor.h) and the guarded split: a per-laser gain must be named as beam_row
 // (one bin per beam row, not smeared over equal-count elevation bins), a gain over a window of
 // azimuth (the split variable itself) as azimuth; each cuts the held-out error to <= 0.7 x, and
@@ -28,7 +28,7 @@ nlohmann::json lookup_loop(data::IntensityEffect effect, int rounds = 1) {
   o.seed = 31;
   data::write_reference_semantickitti(dir, o);
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup";
+  lo.base_model = qualify::IntensityBase::Lookup;
   lo.rounds = rounds;
   const auto j = qualify::loop_intensity(dir, lo);
   fs::remove_all(dir);
@@ -94,7 +94,7 @@ TEST(LoopIntensityUnetLocalStatistical, NamesPerLaserGainAsBeamRowAddsARowAffine
   o.seed = 31;
   data::write_reference_semantickitti(dir, o);
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "unet";
+  lo.base_model = qualify::IntensityBase::Unet;
   lo.unet.steps = 300;
   lo.unet.seeds = 1;
   lo.unet.crop_columns = 128;

@@ -1,4 +1,4 @@
-// A range fall-off that differs between lasers (issue 26, campaign family "changed range
+// A range fall-off that differs between lasers (campaign family "changed range
 // fall-off"): a block of lasers with gain (range / 10 m)^-k. The lookup base keys class x range, so
 // it takes in the block's fall-off weighted by the block's share of each range bin, and what is
 // left is an interaction of the lasers with range. A per-beam level (table, gain, affine) cannot
@@ -31,7 +31,7 @@ data::Dataset reference_geometry() {
 
 nlohmann::json range_lookup_loop(const data::Dataset& ds) {
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup";
+  lo.base_model = qualify::IntensityBase::Lookup;
   const auto j = qualify::loop_intensity(ds, lo);
   std::cout << "  top " << j["ranking"][0].dump() << "\n  added " << j["added_effect"] << " via " << j["method"]
             << ", rmse " << j["rmse_before"] << " -> " << j["rmse_after"] << "\n";

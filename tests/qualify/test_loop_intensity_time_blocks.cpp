@@ -1,4 +1,4 @@
-// A gain over a window of azimuth (issue 26, campaign family "gain over an azimuth window") and the
+// A gain over a window of azimuth (campaign family "gain over an azimuth window") and the
 // scans' scenery. The candidate forms are cross-fitted over groups of held-out cells; with scans of
 // one street the groups are columns (rotated folds), and an azimuth form fitted on some columns
 // says nothing of the columns it never fitted. Where scans at different places exist (a drive),
@@ -47,7 +47,7 @@ data::PlantedScanDraw window_draw(const data::Dataset& geometry) {
 
 nlohmann::json blocks_lookup_loop(const data::Dataset& ds) {
   qualify::IntensityLoopOptions lo;
-  lo.base_model = "lookup";
+  lo.base_model = qualify::IntensityBase::Lookup;
   const auto j = qualify::loop_intensity(ds, lo);
   std::cout << "  cross-fit " << j["cross_fit"] << "\n  top " << j["ranking"][0].dump() << "\n  added "
             << j["added_effect"] << " via " << j["method"] << ", rmse " << j["rmse_before"] << " -> "

@@ -60,7 +60,7 @@ nlohmann::json intensity_loop(data::IntensityEffect effect, const qualify::Inten
 // The class x range lookup as base model: the ranking and the refit take a second.
 qualify::IntensityLoopOptions lookup_base() {
   qualify::IntensityLoopOptions o;
-  o.base_model = "lookup";
+  o.base_model = qualify::IntensityBase::Lookup;
   return o;
 }
 
@@ -68,7 +68,7 @@ qualify::IntensityLoopOptions lookup_base() {
 // so that a test takes seconds (the command's defaults train longer).
 qualify::IntensityLoopOptions unet_base() {
   qualify::IntensityLoopOptions o;
-  o.base_model = "unet";
+  o.base_model = qualify::IntensityBase::Unet;
   o.unet.steps = 300;
   o.unet.seeds = 1;
   o.unet.crop_columns = 128;
