@@ -181,8 +181,110 @@ class Stream {
   int to_ = -1, from_ = -1;
 };
 
-}  // namespace
+enum Phase { kPipeline, kStream, kFmu, kParseView, kScene, kEncode, kBuild, kSerialize, kClientParse, kPhases };
+constexpr const char* kPhaseNames[kPhases] = {"the pipeline's own time (model stages, in process)",
+                                              "stream round trip (SensorView written -> SensorData read)",
+                                              "FMU round trip (set, fmi2DoStep, get)",
+                                              "in process: parse the SensorView (libprotobuf)",
+                                              "in process: SensorView -> scene",
+                                              "in process: encode the SensorData (osi/sensor_data_encoder.cpp)",
+                                              "in process, replaced: build the SensorData message",
+                                              "in process, replaced: SerializeToString",
+                                              "client: parse the SensorData (libprotobuf)"};
 
+struct Run {
+  std::vector<double> t[kPhases];                                        // ms per measured frame
+  std::size_t objects = 0, points = 0, bytes = 0;                        // summed over measured frames
+  std::size_t differ_protobuf = 0, differ_stream = 0, differ_fmu = 0;  // frames
+};
+
+// Every frame through the stream, the FMU (when given) and the runner, in turn.
+Run run_frames(const std::vector<std::string>& msgs, int warmup, infer::OsiRunner& runner, Stream& stream,
+               bench::FmuHost* fmu) {
+  using clock = std::chrono::steady_clock;
+  auto since = [](clock::time_point a) { return std::chrono::duration<double, std::milli>(clock::now() - a).count(); };
+  Run run;
+  auto& t = run.t;
+  osi3::SensorView view;
+  osi3::SensorData message, client;
+  std::string ours, theirs, reply;
+  for (std::size_t k = 0; k < msgs.size(); ++k) {
+    const bool measured = static_cast<int>(k) >= warmup;
+    auto keep = [&](Phase p, double ms) {
+      if (measured) t[p].push_back(ms);
+    };
+    // The three in turn, the first a different one each frame: none always runs on caches or a
+    // machine the others left behind.
+    const auto run_stream = [&] {
+      auto t0 = clock::now();
+      stream.round_trip(msgs[k], reply);
+      keep(kStream, since(t0));
+      t0 = clock::now();
+      if (!client.ParseFromString(reply)) throw Error("bench: frame " + std::to_string(k) + ": the reply does not parse");
+      keep(kClientParse, since(t0));
+    };
+    std::string_view from_fmu;
+    const auto run_fmu = [&] {
+      if (!fmu) return;
+      const auto t0 = clock::now();
+      from_fmu = fmu->step(msgs[k], 0.1 * static_cast<double>(k), 0.1);
+      keep(kFmu, since(t0));
+    };
+    const auto run_in_process = [&] {
+      auto t0 = clock::now();
+      view.ParseFromString(msgs[k]);
+      keep(kParseView, since(t0));
+      runner.step(view, static_cast<long>(k), "bench", ours);
+      keep(kPipeline, runner.last_times().model_ms);
+      keep(kScene, runner.last_times().scene_ms);
+      keep(kEncode, runner.last_times().output_ms);
+      t0 = clock::now();
+      runner.last_sensor_data(message);
+      keep(kBuild, since(t0));
+      t0 = clock::now();
+      message.SerializeToString(&theirs);
+      keep(kSerialize, since(t0));
+    };
+    const std::function<void()> order[3] = {run_stream, run_fmu, run_in_process};
+    for (std::size_t r = 0; r < 3; ++r) order[(k + r) % 3]();
+    run.differ_protobuf += ours != theirs;
+    run.differ_stream += reply != ours;
+    run.differ_fmu += fmu && from_fmu != ours;
+    if (measured) {
+      run.objects += runner.reported_objects();
+      run.points += runner.reported_points();
+      run.bytes += ours.size();
+    }
+  }
+  return run;
+}
+
+void report(const Run& run, int frames) {
+  double load[3] = {0, 0, 0};
+  if (std::FILE* f = std::fopen("/proc/loadavg", "r")) {
+    if (std::fscanf(f, "%lf %lf %lf", &load[0], &load[1], &load[2]) != 3) load[0] = -1;
+    std::fclose(f);
+  }
+  Stats s[kPhases];
+  for (int p = 0; p < kPhases; ++p) s[p] = stats(run.t[p]);
+  std::printf("(%.0f reported objects, %.0f lidar detections, %.2f MB of SensorData per frame)\n"
+              "%s, %ld cores, load average %.2f %.2f %.2f\n\n",
+              double(run.objects) / frames, double(run.points) / frames, double(run.bytes) / frames / 1e6,
+              cpu_name().c_str(), sysconf(_SC_NPROCESSORS_ONLN), load[0], load[1], load[2]);
+  std::printf("| per frame (ms) | median | p99 |\n|---|---:|---:|\n");
+  for (int p = 0; p < kPhases; ++p)
+    if (!run.t[p].empty()) std::printf("| %s | %.2f | %.2f |\n", kPhaseNames[p], s[p].median, s[p].p99);
+  std::printf("\nstream / pipeline: median %.2f, p99 %.2f (targets 1.2 and 1.5)\n", s[kStream].median / s[kPipeline].median,
+              s[kStream].p99 / s[kPipeline].p99);
+  const bool fmu = !run.t[kFmu].empty();
+  if (fmu)
+    std::printf("FMU / pipeline:    median %.2f, p99 %.2f\n", s[kFmu].median / s[kPipeline].median,
+                s[kFmu].p99 / s[kPipeline].p99);
+  std::printf("frames whose bytes differ from the in-process encoder's: protobuf path %zu, stream %zu, FMU %s\n",
+              run.differ_protobuf, run.differ_stream, fmu ? std::to_string(run.differ_fmu).c_str() : "-");
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   cxxopts::Options options("bench_osi_stream",
@@ -215,9 +317,6 @@ int main(int argc, char** argv) {
     const bool objects_only = args.count("no-point-cloud") > 0;
     const bool with_fmu = fmu_path != "none" && !objects_only;  // the FMU always runs the whole model
     const auto msgs = make_frames(warmup + frames, args["objects"].as<int>());
-    using clock = std::chrono::steady_clock;
-    auto since = [](clock::time_point a) { return std::chrono::duration<double, std::milli>(clock::now() - a).count(); };
-
     omp_set_num_threads(threads);
     infer::SimOptions sim;
     if (objects_only) sim.point_cloud = sim.intensity = false;
@@ -228,93 +327,12 @@ int main(int argc, char** argv) {
     std::unique_ptr<bench::FmuHost> fmu;
     if (with_fmu) fmu = std::make_unique<bench::FmuHost>(fmu_path);
 
-    enum Phase { kPipeline, kStream, kFmu, kParseView, kScene, kEncode, kBuild, kSerialize, kClientParse, kPhases };
-    std::vector<double> t[kPhases];
-    osi3::SensorView view;
-    osi3::SensorData message, client;
-    std::string ours, theirs, reply;
-    std::size_t objects_out = 0, points_out = 0, bytes_out = 0, differ_protobuf = 0, differ_stream = 0, differ_fmu = 0;
-    for (std::size_t k = 0; k < msgs.size(); ++k) {
-      const bool measured = static_cast<int>(k) >= warmup;
-      auto keep = [&](Phase p, double ms) {
-        if (measured) t[p].push_back(ms);
-      };
-      // The three in turn, the first a different one each frame: none always runs on caches or a
-      // machine the others left behind.
-      const auto run_stream = [&] {
-        auto t0 = clock::now();
-        stream.round_trip(msgs[k], reply);
-        keep(kStream, since(t0));
-        t0 = clock::now();
-        if (!client.ParseFromString(reply)) throw Error("bench: frame " + std::to_string(k) + ": the reply does not parse");
-        keep(kClientParse, since(t0));
-      };
-      std::string_view from_fmu;
-      const auto run_fmu = [&] {
-        if (!fmu) return;
-        const auto t0 = clock::now();
-        from_fmu = fmu->step(msgs[k], 0.1 * static_cast<double>(k), 0.1);
-        keep(kFmu, since(t0));
-      };
-      const auto run_in_process = [&] {
-        auto t0 = clock::now();
-        view.ParseFromString(msgs[k]);
-        keep(kParseView, since(t0));
-        runner.step(view, static_cast<long>(k), "bench", ours);
-        keep(kPipeline, runner.last_times().model_ms);
-        keep(kScene, runner.last_times().scene_ms);
-        keep(kEncode, runner.last_times().output_ms);
-        t0 = clock::now();
-        runner.last_sensor_data(message);
-        keep(kBuild, since(t0));
-        t0 = clock::now();
-        message.SerializeToString(&theirs);
-        keep(kSerialize, since(t0));
-      };
-      const std::function<void()> order[3] = {run_stream, run_fmu, run_in_process};
-      for (std::size_t r = 0; r < 3; ++r) order[(k + r) % 3]();
-      differ_protobuf += ours != theirs;
-      differ_stream += reply != ours;
-      differ_fmu += fmu && from_fmu != ours;
-      if (measured) {
-        objects_out += runner.reported_objects();
-        points_out += runner.reported_points();
-        bytes_out += ours.size();
-      }
-    }
+    const Run run = run_frames(msgs, warmup, runner, stream, fmu.get());
     stream.finish();
 
-    double load[3] = {0, 0, 0};
-    if (std::FILE* f = std::fopen("/proc/loadavg", "r")) {
-      if (std::fscanf(f, "%lf %lf %lf", &load[0], &load[1], &load[2]) != 3) load[0] = -1;
-      std::fclose(f);
-    }
-    Stats s[kPhases];
-    for (int p = 0; p < kPhases; ++p) s[p] = stats(t[p]);
-    std::printf("bench_osi_stream%s: %d objects, %d threads, %d frames after %d warm-up (%.0f reported objects, %.0f "
-                "lidar detections, %.2f MB of SensorData per frame)\n%s, %ld cores, load average %.2f %.2f %.2f\n\n",
-                objects_only ? " --no-point-cloud" : "", args["objects"].as<int>(), threads, frames, warmup,
-                double(objects_out) / frames, double(points_out) / frames, double(bytes_out) / frames / 1e6,
-                cpu_name().c_str(), sysconf(_SC_NPROCESSORS_ONLN), load[0], load[1], load[2]);
-    std::printf("| per frame (ms) | median | p99 |\n|---|---:|---:|\n");
-    const char* names[kPhases] = {"the pipeline's own time (model stages, in process)",
-                                  "stream round trip (SensorView written -> SensorData read)",
-                                  "FMU round trip (set, fmi2DoStep, get)",
-                                  "in process: parse the SensorView (libprotobuf)",
-                                  "in process: SensorView -> scene",
-                                  "in process: encode the SensorData (osi/sensor_data_encoder.cpp)",
-                                  "in process, replaced: build the SensorData message",
-                                  "in process, replaced: SerializeToString",
-                                  "client: parse the SensorData (libprotobuf)"};
-    for (int p = 0; p < kPhases; ++p)
-      if (!t[p].empty()) std::printf("| %s | %.2f | %.2f |\n", names[p], s[p].median, s[p].p99);
-    std::printf("\nstream / pipeline: median %.2f, p99 %.2f (targets 1.2 and 1.5)\n", s[kStream].median / s[kPipeline].median,
-                s[kStream].p99 / s[kPipeline].p99);
-    if (fmu)
-      std::printf("FMU / pipeline:    median %.2f, p99 %.2f\n", s[kFmu].median / s[kPipeline].median,
-                  s[kFmu].p99 / s[kPipeline].p99);
-    std::printf("frames whose bytes differ from the in-process encoder's: protobuf path %zu, stream %zu, FMU %s\n",
-                differ_protobuf, differ_stream, fmu ? std::to_string(differ_fmu).c_str() : "-");
+    std::printf("bench_osi_stream%s: %d objects, %d threads, %d frames after %d warm-up\n",
+                objects_only ? " --no-point-cloud" : "", args["objects"].as<int>(), threads, frames, warmup);
+    report(run, frames);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;
