@@ -29,8 +29,10 @@ osi::CloudRef cloud_of(const SimFrame& f) {
   return cloud;
 }
 
-using clock = std::chrono::steady_clock;
-double ms_since(clock::time_point t0) { return std::chrono::duration<double, std::milli>(clock::now() - t0).count(); }
+using StepClock = std::chrono::steady_clock;
+double ms_since(StepClock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(StepClock::now() - t0).count();
+}
 
 }  // namespace
 
@@ -48,7 +50,7 @@ OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::uniqu
 
 void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out) {
   advance(in, index, source);
-  const auto t0 = clock::now();
+  const auto t0 = StepClock::now();
   osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out);
   times_.output_ms = ms_since(t0);
   ++frames_;
@@ -57,7 +59,7 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
 void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
                      std::size_t prefix) {
   advance(in, index, source);
-  const auto t0 = clock::now();
+  const auto t0 = StepClock::now();
   osi::encode_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out,
                           prefix);
   times_.output_ms = ms_since(t0);
@@ -79,7 +81,7 @@ void OsiRunner::advance(const osi3::SensorView& in, long index, const std::strin
   auto fail = [&](const std::string& field, const std::string& what) {
     return Error(source + ": message " + std::to_string(index) + ": " + field + ": " + what);
   };
-  auto t0 = clock::now();
+  auto t0 = StepClock::now();
   osi::scene_from_sensor_view(in, index, source, ids_, scene_);
   times_.scene_ms = ms_since(t0);
   if (!pipeline_) {
@@ -99,7 +101,7 @@ void OsiRunner::advance(const osi3::SensorView& in, long index, const std::strin
                                   std::to_string(last_time_) + " s)");
   }
   last_time_ = scene_.time;
-  t0 = clock::now();
+  t0 = StepClock::now();
   pipeline_->run_ground_truth(static_cast<int>(frames_), scene_.map, frame_);
   for (auto& o : own_) o->pipeline.run_ground_truth(static_cast<int>(frames_), scene_.map, o->frame);
 
