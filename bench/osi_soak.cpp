@@ -7,9 +7,6 @@
 // building and serializing the SensorView is the importer's and not counted) median and p99 and the
 // process's resident memory at the end of the minute; the summary compares the first and the last
 // minute. Memory or time that grows with the run shows there.
-#include <dlfcn.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -18,13 +15,15 @@
 #include <cxxopts.hpp>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "bench/osi_bench_scene.h"
-#include "infer/fmu/fmi2.h"
+#include "bench/osi_fmu_host.h"
 #include "osi/osi3_subset.pb.h"
 #include "osi/sensor_view.h"
 
@@ -96,24 +95,6 @@ void make_view(const std::vector<Mover>& movers, double t, osi3::SensorView& v) 
   }
 }
 
-std::string attribute(const std::string& xml, const std::string& name) {
-  const auto at = xml.find(" " + name + "=\"");
-  if (at == std::string::npos) die("modelDescription.xml has no " + name);
-  const auto start = at + name.size() + 3;
-  return xml.substr(start, xml.find('"', start) - start);
-}
-
-template <typename F>
-F* symbol(void* lib, const char* name) {
-  auto* f = reinterpret_cast<F*>(dlsym(lib, name));
-  if (!f) die(std::string("the FMU does not export ") + name);
-  return f;
-}
-
-void logger(fmi2ComponentEnvironment, fmi2String, fmi2Status status, fmi2String category, fmi2String message, ...) {
-  if (status >= fmi2Warning) std::fprintf(stderr, "fmu %s: %s\n", category, message);
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -135,33 +116,12 @@ int main(int argc, char** argv) {
   const fs::path fmu = fs::absolute(args["fmu"].as<std::string>());
   if (!fs::exists(fmu)) die(fmu.string() + ": no such file (build lidarsim_osi_fmu_package)");
 
-  char tmpl[] = "/tmp/bench_osi_soak.XXXXXX";
-  if (!mkdtemp(tmpl)) die("cannot make a temporary folder");
-  const fs::path dir = tmpl;
-  if (std::system(("cd " + dir.string() + " && cmake -E tar xf " + fmu.string()).c_str()) != 0)
-    die(fmu.string() + ": cannot be unpacked");
-  std::ifstream xml_file(dir / "modelDescription.xml");
-  std::stringstream xml;
-  xml << xml_file.rdbuf();
-  const std::string guid = attribute(xml.str(), "guid"), id = attribute(xml.str(), "modelIdentifier");
-  void* lib = dlopen((dir / "binaries" / "linux64" / (id + ".so")).c_str(), RTLD_NOW | RTLD_LOCAL);
-  if (!lib) die(std::string("dlopen: ") + dlerror());
-  auto* instantiate = symbol<fmi2InstantiateTYPE>(lib, "fmi2Instantiate");
-  auto* setup = symbol<fmi2SetupExperimentTYPE>(lib, "fmi2SetupExperiment");
-  auto* enter = symbol<fmi2EnterInitializationModeTYPE>(lib, "fmi2EnterInitializationMode");
-  auto* exit_init = symbol<fmi2ExitInitializationModeTYPE>(lib, "fmi2ExitInitializationMode");
-  auto* set_int = symbol<fmi2SetIntegerTYPE>(lib, "fmi2SetInteger");
-  auto* get_int = symbol<fmi2GetIntegerTYPE>(lib, "fmi2GetInteger");
-  auto* do_step = symbol<fmi2DoStepTYPE>(lib, "fmi2DoStep");
-  auto* terminate = symbol<fmi2TerminateTYPE>(lib, "fmi2Terminate");
-  auto* free_instance = symbol<fmi2FreeInstanceTYPE>(lib, "fmi2FreeInstance");
-
-  fmi2CallbackFunctions callbacks{};
-  callbacks.logger = logger;
-  const std::string resources = "file://" + (dir / "resources").string();
-  fmi2Component c = instantiate("soak", fmi2CoSimulation, guid.c_str(), resources.c_str(), &callbacks, 0, 0);
-  if (!c) die("fmi2Instantiate failed");
-  if (setup(c, 0, 0, 0, 0, 0) != fmi2OK || enter(c) != fmi2OK || exit_init(c) != fmi2OK) die("initialisation failed");
+  std::unique_ptr<lidarsim::bench::FmuHost> host;
+  try {
+    host = std::make_unique<lidarsim::bench::FmuHost>(fmu, "soak");
+  } catch (const std::exception& e) {
+    die(e.what());
+  }
 
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> ux(-30, 60), uy(-20, 20), uv(8, 14);
@@ -174,7 +134,6 @@ int main(int argc, char** argv) {
 
   const long frames = std::lround(minutes * 60 * rate);
   const long per_minute = std::max(1L, std::lround(60 * rate));
-  const fmi2ValueReference in_vr[3] = {0, 1, 2}, out_vr[3] = {3, 4, 5};
   osi3::SensorView view;
   std::string bytes;
   std::vector<double> ms;
@@ -185,21 +144,17 @@ int main(int argc, char** argv) {
     const double t = static_cast<double>(k) / rate;
     make_view(movers, t, view);
     view.SerializeToString(&bytes);
-    const auto address = reinterpret_cast<std::uintptr_t>(bytes.data());
-    const fmi2Integer in[3] = {static_cast<fmi2Integer>(static_cast<std::uint32_t>(address & 0xffffffffu)),
-                               static_cast<fmi2Integer>(static_cast<std::uint32_t>(std::uint64_t(address) >> 32)),
-                               static_cast<fmi2Integer>(bytes.size())};
-    fmi2Integer out[3] = {0, 0, 0};
     const auto start = std::chrono::steady_clock::now();
-    if (set_int(c, in_vr, 3, in) != fmi2OK) die("fmi2SetInteger failed at frame " + std::to_string(k));
-    if (do_step(c, t, 1 / rate, 1) != fmi2OK) die("fmi2DoStep failed at frame " + std::to_string(k));
-    if (get_int(c, out_vr, 3, out) != fmi2OK || out[2] <= 0) die("no SensorData at frame " + std::to_string(k));
+    std::string_view out;
+    try {
+      out = host->step(bytes, t, 1 / rate);
+    } catch (const std::exception& e) {
+      die(std::string(e.what()) + " (frame " + std::to_string(k) + ")");
+    }
     ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
     if (k == frames - 1) {  // the last output, decoded once to show it is whole
-      const auto out_address = static_cast<std::uintptr_t>(static_cast<std::uint32_t>(out[0])) |
-                               static_cast<std::uintptr_t>(static_cast<std::uint32_t>(out[1])) << 32;
       osi3::SensorData data;
-      if (!data.ParseFromArray(reinterpret_cast<const void*>(out_address), out[2])) die("the last SensorData does not parse");
+      if (!data.ParseFromArray(out.data(), static_cast<int>(out.size()))) die("the last SensorData does not parse");
       if (data.feature_data().lidar_sensor_size() > 0) detections = data.feature_data().lidar_sensor(0).detection_size();
     }
     if (static_cast<long>(ms.size()) == per_minute || k == frames - 1) {
@@ -221,9 +176,5 @@ int main(int argc, char** argv) {
               frames, minutes, rate, objects, detections);
   std::printf("first minute: median %.1f ms, p99 %.1f ms, RSS %.1f MiB; last minute: median %.1f ms, p99 %.1f ms, RSS %.1f MiB\n",
               first.median, first.p99, rss_first / 1024.0, last.median, last.p99, rss_last / 1024.0);
-  terminate(c);
-  free_instance(c);
-  dlclose(lib);
-  fs::remove_all(dir);
   return 0;
 }

@@ -3,6 +3,8 @@
 #include <hdf5.h>
 #include <unistd.h>
 
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -21,6 +23,7 @@
 #include "nn/checkpoint.h"
 #include "nn/checkpoint_image.h"
 #include "nn/unet.h"
+#include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
 #include "osi/trace.h"
 #include "pgm/projection.h"
@@ -251,7 +254,9 @@ void sensor_layout(const std::uint8_t* data, std::size_t size) {
 }
 
 // A binary OSI trace as `lidar-infer osi` reads it: each message parsed as osi3.SensorView and
-// turned into the scene (at most 16 messages per input).
+// turned into the scene (at most 16 messages per input), and the scene's SensorData (no objects,
+// empty clouds) encoded by hand and by libprotobuf: what the input echoes (timestamp, ids,
+// mounts, with whatever unknown fields they carry) must give the same bytes both ways.
 void osi_trace(const std::uint8_t* data, std::size_t size) {
   expect_error_or_success([&] {
     std::istringstream in(to_text(data, size));
@@ -259,7 +264,18 @@ void osi_trace(const std::uint8_t* data, std::size_t size) {
     osi3::SensorView view;
     osi::IdMap ids;
     osi::SceneFrame frame;
-    for (int n = 0; n < 16 && reader.next(view); ++n) osi::scene_from_sensor_view(view, reader.index(), "trace.osi", ids, frame);
+    osi3::SensorData message;
+    std::string bytes;
+    for (int n = 0; n < 16 && reader.next(view); ++n) {
+      osi::scene_from_sensor_view(view, reader.index(), "trace.osi", ids, frame);
+      const std::vector<osi::CloudRef> clouds(frame.detectors.size());
+      osi::build_sensor_data(frame, {}, {}, clouds, ids, static_cast<std::uint64_t>(n), message);
+      osi::encode_sensor_data(frame, {}, {}, clouds, ids, static_cast<std::uint64_t>(n), bytes);
+      if (bytes != message.SerializeAsString()) {
+        std::fprintf(stderr, "osi_trace: message %d: the encoder's SensorData differs from libprotobuf's\n", n);
+        std::abort();
+      }
+    }
   });
 }
 

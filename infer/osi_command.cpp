@@ -114,19 +114,24 @@ int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
   osi::TraceReader reader(*in, source);
   osi::TraceWriter writer(output.stream(), format);
   osi3::SensorView view;
-  osi3::SensorData data;
+  osi3::SensorData data;  // the text format only: binary output is encoded straight to bytes
+  std::string framed;     // length field + SensorData, reused from frame to frame
   std::vector<double> latency_ms, model_ms;
   std::size_t detections = 0, objects = 0;
   using clock = std::chrono::steady_clock;
   while (reader.next(view)) {
     const auto t0 = clock::now();  // message in hand: from here to flushed output is our latency
-    runner.step(view, reader.index(), source, data);
-    writer.write(data);
+    if (format == osi::TraceFormat::Binary) {
+      runner.step(view, reader.index(), source, framed, osi::kLengthBytes);
+      writer.write_framed(framed);
+    } else {
+      runner.step(view, reader.index(), source, data);
+      writer.write(data);
+    }
     latency_ms.push_back(std::chrono::duration<double, std::milli>(clock::now() - t0).count());
     model_ms.push_back(runner.last_frame().total_ms);
-    objects += static_cast<std::size_t>(data.moving_object_size());
-    for (const auto& lidar : data.feature_data().lidar_sensor())  // every detector
-      detections += static_cast<std::size_t>(lidar.detection_size());
+    objects += runner.reported_objects();
+    detections += runner.reported_points();  // every detector
   }
   if (reader.index() < 0) throw Error(source + ": no message (an empty trace)");
   output.commit();

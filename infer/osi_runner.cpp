@@ -1,5 +1,6 @@
 #include "infer/osi_runner.h"
 
+#include <chrono>
 #include <cmath>
 
 #include "common/error.h"
@@ -28,6 +29,11 @@ osi::CloudRef cloud_of(const SimFrame& f) {
   return cloud;
 }
 
+using StepClock = std::chrono::steady_clock;
+double ms_since(StepClock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(StepClock::now() - t0).count();
+}
+
 }  // namespace
 
 OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::unique_ptr<IntensityModel> intensity,
@@ -43,10 +49,41 @@ OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::uniqu
 }
 
 void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out) {
+  advance(in, index, source);
+  const auto t0 = StepClock::now();
+  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out);
+  times_.output_ms = ms_since(t0);
+  ++frames_;
+}
+
+void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
+                     std::size_t prefix) {
+  advance(in, index, source);
+  const auto t0 = StepClock::now();
+  osi::encode_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out,
+                          prefix);
+  times_.output_ms = ms_since(t0);
+  ++frames_;
+}
+
+void OsiRunner::last_sensor_data(osi3::SensorData& out) const {
+  if (frames_ == 0) throw Error("osi runner: no frame yet");
+  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_ - 1), out);
+}
+
+std::size_t OsiRunner::reported_points() const {
+  std::size_t n = 0;
+  for (const auto& c : clouds_) n += c.size;
+  return n;
+}
+
+void OsiRunner::advance(const osi3::SensorView& in, long index, const std::string& source) {
   auto fail = [&](const std::string& field, const std::string& what) {
     return Error(source + ": message " + std::to_string(index) + ": " + field + ": " + what);
   };
+  auto t0 = StepClock::now();
   osi::scene_from_sensor_view(in, index, source, ids_, scene_);
+  times_.scene_ms = ms_since(t0);
   if (!pipeline_) {
     build(source, index);
   } else {
@@ -64,6 +101,7 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
                                   std::to_string(last_time_) + " s)");
   }
   last_time_ = scene_.time;
+  t0 = StepClock::now();
   pipeline_->run_ground_truth(static_cast<int>(frames_), scene_.map, frame_);
   for (auto& o : own_) o->pipeline.run_ground_truth(static_cast<int>(frames_), scene_.map, o->frame);
 
@@ -78,8 +116,7 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
     const SimFrame& f = k < 0 ? frame_ : own_[static_cast<std::size_t>(k)]->frame;
     clouds_.push_back(options_.point_cloud ? cloud_of(f) : osi::CloudRef{});
   }
-  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out);
-  ++frames_;
+  times_.model_ms = ms_since(t0);
 }
 
 // The pipelines, on the first message: the virtual sensor's, and one per detector at a mount of

@@ -63,6 +63,24 @@ class OsiRunner {
   // One frame. Bad input throws lidarsim::Error "<source>: message <index>: <field>: <what>"
   // (see osi::scene_from_sensor_view; also a mount that changes or a timestamp that does not advance).
   void step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out);
+  // The same, the SensorData as wire bytes (osi::encode_sensor_data: the same bytes as
+  // SerializeToString of the message above, without building it) from out[prefix] on.
+  void step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
+            std::size_t prefix = 0);
+
+  // The last step's SensorData built again as a message (the benchmark times both writers on one
+  // frame); throws before the first step.
+  void last_sensor_data(osi3::SensorData& out) const;
+
+  // Where the last step's time went (wall clock): the SensorView into our scene, the model's
+  // stages (every pipeline: SimFrame::total_ms and the detectors' own), the SensorData out.
+  struct StepTimes {
+    double scene_ms = 0, model_ms = 0, output_ms = 0;
+  };
+  const StepTimes& last_times() const { return times_; }
+  // What the last step reported: objects, and lidar detections over all detectors.
+  std::size_t reported_objects() const { return detections_.size(); }
+  std::size_t reported_points() const;
 
   const SimFrame& last_frame() const { return frame_; }
   long frames() const { return frames_; }
@@ -87,6 +105,8 @@ class OsiRunner {
   std::vector<sensor::Pose> detector_mounts_;  // the first message's
   std::vector<osi::CloudRef> clouds_;
   void build(const std::string& source, long index);
+  void advance(const osi3::SensorView& in, long index, const std::string& source);  // all but the output
+  StepTimes times_;
   osi::IdMap ids_;
   osi::SceneFrame scene_;
   SimFrame frame_;

@@ -20,8 +20,6 @@ void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v) {
   v.set_z(p.z());
 }
 
-namespace {
-
 osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t) {
   using C = osi3::LaneBoundary::Classification;
   switch (t) {
@@ -32,6 +30,28 @@ osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t) {
 }
 
 std::uint64_t osi_id_of(int model_id, const IdMap& ids) { return ids.known(model_id) ? ids.to_osi(model_id) : kNoObject; }
+
+std::uint64_t osi_tracking_id(int track_id) {
+  return track_id >= 0 ? static_cast<std::uint64_t>(track_id)
+                       : kFalsePositiveIdBase + static_cast<std::uint64_t>(-static_cast<std::int64_t>(track_id));
+}
+
+int lane_point_count(const sensor::LanePolynomial& p) {
+  return std::max(2, static_cast<int>(std::floor(p.x_max - p.x_min)) + 1);
+}
+
+Eigen::Vector2d lane_point(const sensor::LanePolynomial& p, int k, int n) {
+  const double x = p.x_min + (p.x_max - p.x_min) * k / (n - 1);
+  return {x, p.c0 + x * (p.c1 + x * (p.c2 + x * p.c3))};
+}
+
+std::vector<double> column_azimuths(const pgm::BeamLayout& layout) {
+  std::vector<double> a(static_cast<std::size_t>(layout.columns));
+  for (int c = 0; c < layout.columns; ++c) a[static_cast<std::size_t>(c)] = sensor::wrap_pi(layout.azimuth_of_column(c));
+  return a;
+}
+
+namespace {
 
 // Detector det's header and its cloud's detections into `lidar`.
 void add_detections(const Detector& det, const osi3::Timestamp& time, const CloudRef& cloud, const IdMap& ids,
@@ -85,8 +105,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     const sensor::Object& o = d.object;
     auto* m = out.add_moving_object();
     auto* h = m->mutable_header();
-    h->mutable_tracking_id()->set_value(o.id >= 0 ? static_cast<std::uint64_t>(o.id)
-                                                  : kFalsePositiveIdBase + static_cast<std::uint64_t>(-o.id));
+    h->mutable_tracking_id()->set_value(osi_tracking_id(o.id));
     if (d.truth_id >= 0 && ids.known(d.truth_id)) h->add_ground_truth_id()->set_value(ids.to_osi(d.truth_id));
     h->set_existence_probability(std::clamp(o.score, 0.0, 1.0));
     h->set_measurement_state(d.coasting ? osi3::DetectedItemHeader::MEASUREMENT_STATE_PREDICTED
@@ -125,13 +144,12 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     auto* c = l->add_candidate();
     c->set_probability(1);
     c->mutable_classification()->set_type(osi_lane_type(p.type));
-    const int n = std::max(2, static_cast<int>(std::floor(p.x_max - p.x_min)) + 1);
+    const int n = lane_point_count(p);
     for (int k = 0; k < n; ++k) {
-      const double x = p.x_min + (p.x_max - p.x_min) * k / (n - 1);
-      const double y = p.c0 + x * (p.c1 + x * (p.c2 + x * p.c3));
+      const Eigen::Vector2d xy = lane_point(p, k, n);
       auto* pt = l->add_boundary_line()->mutable_position();
-      pt->set_x(x);
-      pt->set_y(y);
+      pt->set_x(xy.x());
+      pt->set_y(xy.y());
       pt->set_z(0);
     }
   }

@@ -67,22 +67,30 @@ TraceFormat trace_format_from_string(const std::string& name) {
 
 TraceWriter::TraceWriter(std::ostream& out, TraceFormat format) : out_(out), format_(format) {}
 
+void TraceWriter::write_framed(std::string& framed) {
+  if (format_ != TraceFormat::Binary) throw Error("osi trace: message " + std::to_string(written_) + ": bytes for a text trace");
+  if (framed.size() < kLengthBytes) throw Error("osi trace: message " + std::to_string(written_) + ": no length field");
+  if (framed.size() - kLengthBytes > kMaxMessageBytes)
+    throw Error("osi trace: message " + std::to_string(written_) + ": " + std::to_string(framed.size() - kLengthBytes) +
+                " bytes, more than a trace can hold");
+  const auto n = static_cast<std::uint32_t>(framed.size() - kLengthBytes);
+  for (std::size_t b = 0; b < kLengthBytes; ++b) framed[b] = static_cast<char>(n >> (8 * b) & 0xff);
+  out_.write(framed.data(), static_cast<std::streamsize>(framed.size()));
+  out_.flush();
+  if (!out_) throw Error("osi trace: message " + std::to_string(written_) + ": write failed");
+  ++written_;
+}
+
 void TraceWriter::write(const google::protobuf::Message& message) {
   if (format_ == TraceFormat::Binary) {
-    if (!message.SerializeToString(&scratch_))
+    scratch_.resize(kLengthBytes);
+    if (!message.AppendToString(&scratch_))
       throw Error("osi trace: message " + std::to_string(written_) + ": could not be serialized");
-    if (scratch_.size() > kMaxMessageBytes)
-      throw Error("osi trace: message " + std::to_string(written_) + ": " + std::to_string(scratch_.size()) +
-                  " bytes, more than a trace can hold");
-    const auto n = static_cast<std::uint32_t>(scratch_.size());
-    const char header[4] = {static_cast<char>(n & 0xff), static_cast<char>(n >> 8 & 0xff),
-                            static_cast<char>(n >> 16 & 0xff), static_cast<char>(n >> 24 & 0xff)};
-    out_.write(header, 4);
-    out_.write(scratch_.data(), static_cast<std::streamsize>(scratch_.size()));
-  } else {
-    google::protobuf::TextFormat::PrintToString(message, &scratch_);
-    out_ << scratch_ << '\n';
+    write_framed(scratch_);
+    return;
   }
+  google::protobuf::TextFormat::PrintToString(message, &scratch_);
+  out_ << scratch_ << '\n';
   out_.flush();
   if (!out_) throw Error("osi trace: message " + std::to_string(written_) + ": write failed");
   ++written_;

@@ -15,6 +15,8 @@ namespace lidarsim::osi {
 
 // A message larger than this is taken for a corrupt length field, not allocated.
 inline constexpr std::uint32_t kMaxMessageBytes = 1u << 30;
+// The length field in front of each message.
+inline constexpr std::size_t kLengthBytes = 4;
 
 class TraceReader {
  public:
@@ -49,6 +51,10 @@ class TraceWriter {
   // Binary: length + serialized bytes. Text (.txth, for people): the protobuf text format of the
   // message followed by one empty line. Flushes the stream; throws lidarsim::Error on a failed write.
   void write(const google::protobuf::Message& message);
+  // Binary only: `framed` is kLengthBytes of room followed by a serialized message (as
+  // osi::encode_sensor_data writes it with prefix kLengthBytes); the length goes into the room and
+  // the whole is written with one call, without a copy. Flushes; throws as write does.
+  void write_framed(std::string& framed);
   long written() const { return written_; }
 
  private:

@@ -17,7 +17,6 @@ namespace {
 struct Model {
   std::unique_ptr<lidarsim::infer::OsiRunner> runner;
   osi3::SensorView view;
-  osi3::SensorData data;
   std::string out[2];  // OSMP: the previous output stays valid while the next one is computed
   int current = 0;
   long steps = 0;
@@ -78,10 +77,10 @@ __attribute__((visibility("default"))) int lidarsim_osi_model_step(void* model, 
     if (!m.view.ParseFromArray(in, in_size))
       throw lidarsim::Error("OSMPSensorViewIn: message " + std::to_string(m.steps) +
                             ": does not parse as osi3.SensorView");
-    m.runner->step(m.view, m.steps, "OSMPSensorViewIn", m.data);
+    // Encoded straight into the buffer (osi::encode_sensor_data), which keeps its capacity.
+    std::string& buffer = m.out[m.current ^ 1];
+    m.runner->step(m.view, m.steps, "OSMPSensorViewIn", buffer);
     m.current ^= 1;
-    std::string& buffer = m.out[m.current];
-    if (!m.data.SerializeToString(&buffer)) throw lidarsim::Error("OSMPSensorDataOut: serialization failed");
     *out = buffer.data();
     *out_size = static_cast<int>(buffer.size());
     ++m.steps;
