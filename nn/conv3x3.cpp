@@ -328,7 +328,7 @@ void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int
                          const float* weight, const float* bias, int co, bool relu, const ConvSettings& cs) {
   const int ci = ca + cb;
   if (conv3x3_takes_winograd(ci, co, cs.conv3x3)) {
-    winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
+    avx512::winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
     return;
   }
   const Geom g(h, w);
@@ -378,10 +378,10 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   }
 
   if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
-    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
+    avx512::winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
                       h, w, weight, co, phase_sums);
   } else if (wino_w) {
-    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co, phase_sums);
+    avx512::winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co, phase_sums);
   }
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
@@ -426,7 +426,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   }
 
   if (wino_d) {
-    winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
+    avx512::winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
                      nullptr, false);
   } else if (d_a) {
     float* wp = tl_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);
