@@ -120,31 +120,66 @@ inline void input_tile(float* v, std::size_t e_stride, const float* plane, const
   bt_columns_store(v, e_stride, t);
 }
 
-// M rows r .. r + 3 (of an 8-row block) x 8 Q tiles = U[ci][kCB] columns r .. r + 3, transposed,
-// times V[ci][8 Q tiles]: 4 Q accumulators stay in registers (12 of the 16 for Q = 3).
-template <int Q>
-inline void gemm_rows4(float* m, int m_stride, const float* v, int v_stride, const float* u, int ci) {
-  __m256 acc[4][Q];
-  for (int b = 0; b < 4; ++b)
-    for (int q = 0; q < Q; ++q) acc[b][q] = _mm256_setzero_ps();
+// M rows row0 .. row0 + R - 1 x 8 Q tiles = U^T V for one transform element: U rows of the
+// packed [blocks][ci][kCB] layout (row r: block r / kCB, lane r % kCB), V [ci][v_stride] from
+// the group's first tile. R Q accumulators stay in registers (12 of the 16 at most): enough
+// independent chains to keep both FMA pipes busy.
+// (The accumulators are named variables, not an array: GCC 12 keeps an array of them in memory
+// and stores every accumulator on each pass of the loop.)
+template <int R, int Q>
+inline void gemm_rows(float* m, int m_stride, const float* v, int v_stride, const float* u, int row0, int ci) {
+  static_assert(R >= 1 && R <= 6 && Q >= 1 && Q <= 3, "up to 6 rows x 3 vectors");
+  std::size_t off[6] = {};
+  for (int r = 0; r < R; ++r) off[r] = static_cast<std::size_t>((row0 + r) / kCB) * ci * kCB + (row0 + r) % kCB;
+  const __m256 z = _mm256_setzero_ps();
+  __m256 a00 = z, a01 = z, a02 = z, a10 = z, a11 = z, a12 = z, a20 = z, a21 = z, a22 = z;
+  __m256 a30 = z, a31 = z, a32 = z, a40 = z, a41 = z, a42 = z, a50 = z, a51 = z, a52 = z;
   for (int c = 0; c < ci; ++c) {
-    __m256 x[Q];
-    for (int q = 0; q < Q; ++q) x[q] = _mm256_load_ps(v + static_cast<std::size_t>(c) * v_stride + 8 * q);
+    const float* vc = v + static_cast<std::size_t>(c) * v_stride;
+    const __m256 x0 = _mm256_load_ps(vc);
+    const __m256 x1 = Q > 1 ? _mm256_load_ps(vc + 8) : z;
+    const __m256 x2 = Q > 2 ? _mm256_load_ps(vc + 16) : z;
     const float* uc = u + static_cast<std::size_t>(c) * kCB;
-    for (int b = 0; b < 4; ++b) {
-      const __m256 wv = _mm256_broadcast_ss(uc + b);
-      for (int q = 0; q < Q; ++q) acc[b][q] = _mm256_fmadd_ps(wv, x[q], acc[b][q]);
-    }
+#define LIDARSIM_GEMM_ROW(r)                                             \
+  if constexpr (R > r) {                                                 \
+    const __m256 wv = _mm256_broadcast_ss(uc + off[r]);                  \
+    a##r##0 = _mm256_fmadd_ps(wv, x0, a##r##0);                          \
+    if constexpr (Q > 1) a##r##1 = _mm256_fmadd_ps(wv, x1, a##r##1);     \
+    if constexpr (Q > 2) a##r##2 = _mm256_fmadd_ps(wv, x2, a##r##2);     \
   }
-  for (int b = 0; b < 4; ++b)
-    for (int q = 0; q < Q; ++q) _mm256_store_ps(m + static_cast<std::size_t>(b) * m_stride + 8 * q, acc[b][q]);
+    LIDARSIM_GEMM_ROW(0) LIDARSIM_GEMM_ROW(1) LIDARSIM_GEMM_ROW(2) LIDARSIM_GEMM_ROW(3) LIDARSIM_GEMM_ROW(4)
+    LIDARSIM_GEMM_ROW(5)
+#undef LIDARSIM_GEMM_ROW
+  }
+  const __m256 acc[6][3] = {{a00, a01, a02}, {a10, a11, a12}, {a20, a21, a22},
+                            {a30, a31, a32}, {a40, a41, a42}, {a50, a51, a52}};
+  for (int r = 0; r < R; ++r)
+    for (int q = 0; q < Q; ++q)
+      _mm256_store_ps(m + static_cast<std::size_t>(row0 + r) * m_stride + 8 * q, acc[r][q]);
 }
 
-// M[kCB rows][tb] for one block and one transform element, in tile groups of 8 Q.
-template <int Q>
-inline void gemm_block(float* m, int tb, const float* v, const float* u, int ci) {
-  for (int t0 = 0; t0 < tb; t0 += 8 * Q)
-    for (int r = 0; r < kCB; r += 4) gemm_rows4<Q>(m + static_cast<std::size_t>(r) * tb + t0, tb, v + t0, tb, u + r, ci);
+// M rows [0, rows) x tb tiles for one transform element, in row groups of R and tile groups of
+// 8 Q (R Q = 12), the last row group narrower.
+template <int R, int Q>
+inline void gemm_element(float* m, int tb, const float* v, const float* u, int rows, int ci) {
+  for (int r0 = 0; r0 < rows; r0 += R) {
+    const int nr = std::min(R, rows - r0);
+    for (int t0 = 0; t0 < tb; t0 += 8 * Q) {
+      float* mt = m + t0;
+      const float* vt = v + t0;
+      if (nr == R) {
+        gemm_rows<R, Q>(mt, tb, vt, tb, u, r0, ci);
+        continue;
+      }
+      switch (nr) {
+        case 1: gemm_rows<1, Q>(mt, tb, vt, tb, u, r0, ci); break;
+        case 2: gemm_rows<2, Q>(mt, tb, vt, tb, u, r0, ci); break;
+        case 3: gemm_rows<3, Q>(mt, tb, vt, tb, u, r0, ci); break;
+        case 4: gemm_rows<4, Q>(mt, tb, vt, tb, u, r0, ci); break;
+        default: gemm_rows<5, Q>(mt, tb, vt, tb, u, r0, ci); break;
+      }
+    }
+  }
 }
 
 // Writes y[0..3] (output column j of 8 tiles) as 32 consecutive pixels, the first `valid` of them.
@@ -207,7 +242,7 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
   const int tasks = tiles_tasks * parts;
   const double flops = 2.0 * tiles_tasks * g.tb * 36.0 * ci * co;
   const std::size_t hw = static_cast<std::size_t>(g.h) * g.w;
-  const bool q3 = g.tb % 24 == 0;  // 48 tiles: two groups of 24 (12 accumulators), else groups of 16
+  const bool q3 = g.tb % 24 == 0;  // 48 tiles: groups of 24 tiles x 4 rows, else 16 tiles x 6 rows
   parallel_shared(tasks, flops > 2e6, [&](int tid, int nt, Shares& shares) {
     const std::size_t v_e = static_cast<std::size_t>(ci) * g.tb + 16;  // one cache line past each slice
     float* v = tl_v.get(36 * v_e);
@@ -222,15 +257,15 @@ void run(const OutPlaneSet& out, const float* phases, int n, int ci, const Geom&
         for (int t = 0; t < g.tb; t += 8)
           input_tile(v + static_cast<std::size_t>(c) * g.tb + t, v_e, plane, g, ty, blk * g.tb + t);
       }
-      for (int e = 0; e < 36; ++e)
-        for (int b = b0; b < b1; ++b) {
-          float* mb = m + e * m_e + static_cast<std::size_t>(b - b0) * kCB * g.tb;
-          const float* ub = u + e * u_e + static_cast<std::size_t>(b) * ci * kCB;
-          if (q3)
-            gemm_block<3>(mb, g.tb, v + e * v_e, ub, ci);
-          else
-            gemm_block<2>(mb, g.tb, v + e * v_e, ub, ci);
-        }
+      // Rows past the last output channel (zero weights) are left out.
+      const int rows = std::min(co, b1 * kCB) - b0 * kCB;
+      for (int e = 0; e < 36; ++e) {
+        const float* ue = u + e * u_e + static_cast<std::size_t>(b0) * ci * kCB;
+        if (q3)
+          gemm_element<4, 3>(m + e * m_e, g.tb, v + e * v_e, ue, rows, ci);
+        else
+          gemm_element<6, 2>(m + e * m_e, g.tb, v + e * v_e, ue, rows, ci);
+      }
       for (int o = b0 * kCB; o < std::min(co, b1 * kCB); ++o) {
         float* op = plane_of(out, img, o, hw);
         const float* mo = m + static_cast<std::size_t>(o - b0 * kCB) * g.tb;

@@ -130,21 +130,32 @@ inline void input_tile_interleaved(float* v, std::size_t e_stride, const float* 
 }
 
 // du[4 rows][8 CV channels] += sum over tiles t < tiles of dm[row][t] v[t][channels]: the
-// 4 x CV accumulators stay in registers while the tiles stream past.
+// 4 x CV accumulators stay in registers while the tiles stream past (named variables: GCC 12
+// stores an array of them to memory on every pass of the loop).
 template <int CV>
 inline void du_block(float* du, std::size_t du_row, const float* dm, std::size_t dm_row, const float* v,
                      std::size_t v_row, int tiles) {
-  __m256 acc[4][CV];
-  for (int b = 0; b < 4; ++b)
-    for (int q = 0; q < CV; ++q) acc[b][q] = _mm256_load_ps(du + b * du_row + 8 * q);
+  static_assert(CV >= 1 && CV <= 3, "up to 3 vectors of channels");
+  const __m256 z = _mm256_setzero_ps();
+  auto ld = [&](int b, int q) { return q < CV ? _mm256_load_ps(du + b * du_row + 8 * q) : z; };
+  __m256 a00 = ld(0, 0), a01 = ld(0, 1), a02 = ld(0, 2), a10 = ld(1, 0), a11 = ld(1, 1), a12 = ld(1, 2);
+  __m256 a20 = ld(2, 0), a21 = ld(2, 1), a22 = ld(2, 2), a30 = ld(3, 0), a31 = ld(3, 1), a32 = ld(3, 2);
   for (int t = 0; t < tiles; ++t) {
-    __m256 x[CV];
-    for (int q = 0; q < CV; ++q) x[q] = _mm256_load_ps(v + t * v_row + 8 * q);
-    for (int b = 0; b < 4; ++b) {
-      const __m256 gv = _mm256_broadcast_ss(dm + b * dm_row + t);
-      for (int q = 0; q < CV; ++q) acc[b][q] = _mm256_fmadd_ps(gv, x[q], acc[b][q]);
-    }
+    const float* vt = v + t * v_row;
+    const __m256 x0 = _mm256_load_ps(vt);
+    const __m256 x1 = CV > 1 ? _mm256_load_ps(vt + 8) : z;
+    const __m256 x2 = CV > 2 ? _mm256_load_ps(vt + 16) : z;
+#define LIDARSIM_DU_ROW(b)                                                \
+  {                                                                       \
+    const __m256 gv = _mm256_broadcast_ss(dm + b * dm_row + t);           \
+    a##b##0 = _mm256_fmadd_ps(gv, x0, a##b##0);                           \
+    if constexpr (CV > 1) a##b##1 = _mm256_fmadd_ps(gv, x1, a##b##1);     \
+    if constexpr (CV > 2) a##b##2 = _mm256_fmadd_ps(gv, x2, a##b##2);     \
   }
+    LIDARSIM_DU_ROW(0) LIDARSIM_DU_ROW(1) LIDARSIM_DU_ROW(2) LIDARSIM_DU_ROW(3)
+#undef LIDARSIM_DU_ROW
+  }
+  const __m256 acc[4][3] = {{a00, a01, a02}, {a10, a11, a12}, {a20, a21, a22}, {a30, a31, a32}};
   for (int b = 0; b < 4; ++b)
     for (int q = 0; q < CV; ++q) _mm256_store_ps(du + b * du_row + 8 * q, acc[b][q]);
 }
