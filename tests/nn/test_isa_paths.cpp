@@ -103,8 +103,13 @@ TEST_P(IsaPath, Conv3x3GradientsMatchFiniteDifferences) {
 // 8-channel groups included.
 TEST_P(IsaPath, WinogradRunsAtEveryLevelAndMatchesTheReference) {
   ASSERT_TRUE(detail::winograd_available());
-  EXPECT_TRUE(detail::conv3x3_takes_winograd(16, 16, detail::Conv3x3Path::automatic));
-  EXPECT_FALSE(detail::conv3x3_takes_winograd(4, 16, detail::Conv3x3Path::automatic));
+  if (GetParam() == Isa::avx2) {  // the rule against im2col + GEMM: by map size
+    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(16, 16, 64, 1024, detail::Conv3x3Path::automatic));
+    EXPECT_FALSE(detail::conv3x3_avx2_takes_winograd(256, 256, 4, 64, detail::Conv3x3Path::automatic));
+  } else {  // against the direct kernel: by channels
+    EXPECT_TRUE(detail::conv3x3_takes_winograd(16, 16, detail::Conv3x3Path::automatic));
+    EXPECT_FALSE(detail::conv3x3_takes_winograd(4, 16, detail::Conv3x3Path::automatic));
+  }
   const Tensor x = random_tensor(Shape{2, 20, 9, 37}, 41);
   const std::vector<float> wt = random_vector(std::size_t(24) * 20 * 9, 42, 0.2f);
   Tensor y_direct, y_wino;
