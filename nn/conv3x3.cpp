@@ -59,17 +59,18 @@ bool conv3x3_takes_winograd(int ci, int co, Conv3x3Path path) {
   return std::min(ci, co) >= 16;
 }
 
-bool conv3x3_avx2_takes_winograd(int ci, int co, int h, int w, Conv3x3Path path) {
+bool conv3x3_avx2_takes_winograd(int ci, int co, int n, int h, int w, Conv3x3Path path) {
   if (!winograd_available() || path == Conv3x3Path::direct) return false;
   if (path == Conv3x3Path::winograd) return true;
   // Measured with bench_conv3x3 --threads 1 (AMD EPYC, Zen 3, AVX2; docs/performance.md) against
-  // im2col + Eigen GEMM: every 3x3 conv of unet-ref at 64 x 1024 down to 8 x 128 ran faster on
-  // Winograd in its forward, input-gradient and weight-gradient passes, the thin first conv
-  // (3 -> 16) included (GEMM with 27 rows is inefficient too); at 4 x 64 (256 pixels per
-  // channel, 16 tiles a row) the weight transforms, which grow with ci co and not with the map,
-  // cost more than the products they save (forward 0.76x, weight gradient 0.6-0.8x).
+  // im2col + Eigen GEMM, on every 3x3 conv of unet-ref at batch 1 and 4: Winograd was faster in
+  // its forward, input-gradient and weight-gradient passes wherever the batch holds 1024 or more
+  // pixels per channel (the thin first conv, 3 -> 16, included: its weight gradient 1.5-2.2x, the
+  // forward 0.8-1.5x); below, at batch 1 on 4 x 64 maps, its weight transforms, which grow with
+  // ci co but not with the pixels, cost more than the products save (forward 0.6-0.9x, weight
+  // gradient 0.7-0.8x), while at batch 4 the same layers gain 1.1-1.7x.
   (void)ci, (void)co;
-  return static_cast<long>(h) * w >= 1024;
+  return static_cast<long>(n) * h * w >= 1024;
 }
 
 bool conv3x3_available() { return isa_at_least(Isa::avx512); }

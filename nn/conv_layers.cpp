@@ -144,8 +144,8 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
 
 // Below AVX-512 (no direct kernel), the 3x3 layers the AVX2 rule gives to Winograd take its port
 // (nn/winograd.h); the others stay on im2col + GEMM.
-bool avx2_winograd(int ci, int co, int h, int w, const detail::ConvSettings& cs) {
-  return !detail::conv3x3_available() && detail::conv3x3_avx2_takes_winograd(ci, co, h, w, cs.conv3x3);
+bool avx2_winograd(int ci, int co, Shape s, const detail::ConvSettings& cs) {
+  return !detail::conv3x3_available() && detail::conv3x3_avx2_takes_winograd(ci, co, s.n, s.h, s.w, cs.conv3x3);
 }
 
 }  // namespace
@@ -169,7 +169,7 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
     detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu, cs);
     return;
   }
-  if (k == 3 && pad == 1 && avx2_winograd(s.c, co, s.h, s.w, cs)) {
+  if (k == 3 && pad == 1 && avx2_winograd(s.c, co, s, cs)) {
     detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{in.data(), s.c}, nullptr, s.n, s.h,
                              s.w, weight, false, bias, relu);
     return;
@@ -313,7 +313,7 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     inject_conv2d_faults(d_in, d_weight, d_bias, static_cast<std::size_t>(kdim) * co, co);
     return;
   }
-  if (k == 3 && pad == 1 && avx2_winograd(ci, co, s.h, s.w, cs)) {
+  if (k == 3 && pad == 1 && avx2_winograd(ci, co, s, cs)) {
     if (d_in) ensure(*d_in, s);
     winograd_conv_backward(detail::OutPlaneSet{d_in ? d_in->data() : nullptr, ci}, d_weight, d_bias, d_out,
                            relu ? &out : nullptr, detail::PlaneSet{in.data(), ci}, weight);
@@ -357,7 +357,7 @@ void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const flo
     return;
   }
   const Shape sb = b.shape();
-  if (avx2_winograd(sa.c + sb.c, co, sa.h, sa.w, cs)) {
+  if (avx2_winograd(sa.c + sb.c, co, sa, cs)) {
     ensure(out, Shape{sa.n, co, sa.h, sa.w});
     detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{a.data(), sa.c, b.data(), sb.c},
                              nullptr, sa.n, sa.h, sa.w, weight, false, bias, relu);
@@ -380,7 +380,7 @@ void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bia
   const Shape sa = a.shape(), sb = b.shape(), so = d_out.shape();
   if (so.n != sa.n || so.h != sa.h || so.w != sa.w || (relu && !(out.shape() == so)))
     throw Error("conv2d_cat_backward: d_out: shape " + so.str() + " does not match input " + sa.str());
-  if (avx2_winograd(sa.c + sb.c, so.c, sa.h, sa.w, cs)) {
+  if (avx2_winograd(sa.c + sb.c, so.c, sa, cs)) {
     ensure(d_a, sa);
     ensure(d_b, sb);
     winograd_conv_backward(detail::OutPlaneSet{d_a.data(), sa.c, d_b.data(), sb.c}, d_weight, d_bias, d_out,

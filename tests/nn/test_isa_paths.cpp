@@ -103,9 +103,10 @@ TEST_P(IsaPath, Conv3x3GradientsMatchFiniteDifferences) {
 // 8-channel groups included.
 TEST_P(IsaPath, WinogradRunsAtEveryLevelAndMatchesTheReference) {
   ASSERT_TRUE(detail::winograd_available());
-  if (GetParam() == Isa::avx2) {  // the rule against im2col + GEMM: by map size
-    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(16, 16, 64, 1024, detail::Conv3x3Path::automatic));
-    EXPECT_FALSE(detail::conv3x3_avx2_takes_winograd(256, 256, 4, 64, detail::Conv3x3Path::automatic));
+  if (GetParam() == Isa::avx2) {  // the rule against im2col + GEMM: by pixels in the batch
+    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(16, 16, 1, 64, 1024, detail::Conv3x3Path::automatic));
+    EXPECT_FALSE(detail::conv3x3_avx2_takes_winograd(256, 256, 1, 4, 64, detail::Conv3x3Path::automatic));
+    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(256, 256, 4, 4, 64, detail::Conv3x3Path::automatic));
   } else {  // against the direct kernel: by channels
     EXPECT_TRUE(detail::conv3x3_takes_winograd(16, 16, detail::Conv3x3Path::automatic));
     EXPECT_FALSE(detail::conv3x3_takes_winograd(4, 16, detail::Conv3x3Path::automatic));
