@@ -63,12 +63,12 @@ bool conv3x3_avx2_takes_winograd(int ci, int co, int n, int h, int w, Conv3x3Pat
   if (!winograd_available() || path == Conv3x3Path::direct) return false;
   if (path == Conv3x3Path::winograd) return true;
   // Measured with bench_conv3x3 --threads 1 (AMD EPYC, Zen 3, AVX2; docs/performance.md) against
-  // im2col + Eigen GEMM, on every 3x3 conv of unet-ref at batch 1 and 4: Winograd was faster in
-  // its forward, input-gradient and weight-gradient passes wherever the batch holds 1024 or more
-  // pixels per channel (the thin first conv, 3 -> 16, included: its weight gradient 1.5-2.2x, the
-  // forward 0.8-1.5x); below, at batch 1 on 4 x 64 maps, its weight transforms, which grow with
-  // ci co but not with the pixels, cost more than the products save (forward 0.6-0.9x, weight
-  // gradient 0.7-0.8x), while at batch 4 the same layers gain 1.1-1.7x.
+  // im2col + Eigen GEMM, on every 3x3 conv of unet-ref at batch 1 and 4: wherever the batch holds
+  // 1024 or more pixels per channel, Winograd took less time over the three passes of every layer
+  // (the thin first conv, 3 -> 16, included: its gradients 1.5-2.3x, its forward 0.8-0.9x); below,
+  // at batch 1 on 4 x 64 maps, its weight transforms, which grow with ci co but not with the
+  // pixels, cost more than the products save (forward 0.6-0.9x, weight gradient 0.7-0.8x), while
+  // at batch 4 the same layers gain 1.1-1.7x. Fixed from that one CPU, not calibrated where it runs.
   (void)ci, (void)co;
   return static_cast<long>(n) * h * w >= 1024;
 }
