@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
       std::printf("%s\n", options.help().c_str());
       return 0;
     }
-    if (!detail::winograd_available()) throw Error("bench_conv3x3: built without AVX-512: no Winograd path");
+    if (!detail::winograd_available()) throw Error("bench_conv3x3: built without AVX2 kernels: no Winograd path");
     const int reps = opt["reps"].as<int>(), rows = opt["rows"].as<int>(), cols = opt["cols"].as<int>();
     if (reps < 1) throw Error("--reps: expected >= 1");
     omp_set_num_threads(opt["threads"].as<int>());
@@ -100,6 +100,8 @@ int main(int argc, char** argv) {
     const bool wall = opt.count("wall") > 0, fwd_only = opt.count("forward-only") > 0;
     const int base = 16, depth = 4;
     const bool bf16 = detail::conv3x3_bf16_available();
+    if (!detail::conv3x3_available())
+      std::printf("(no AVX-512 kernels at this level: \"dir\" is im2col + Eigen GEMM, \"win\" the AVX2 Winograd port)\n");
     std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s", "batch", "ci", "co", "h", "w",
                 "fwd dir", "fwd win", "speedup", "dgr dir", "dgr win", "speedup", "wgr dir", "wgr win", "speedup",
                 "fwd diff", "dgr diff", "wgr diff");

@@ -59,6 +59,20 @@ bool conv3x3_takes_winograd(int ci, int co, Conv3x3Path path) {
   return std::min(ci, co) >= 16;
 }
 
+bool conv3x3_avx2_takes_winograd(int ci, int co, int n, int h, int w, Conv3x3Path path) {
+  if (!winograd_available() || path == Conv3x3Path::direct) return false;
+  if (path == Conv3x3Path::winograd) return true;
+  // Measured with bench_conv3x3 --threads 1 (AMD EPYC, Zen 3, AVX2; docs/performance.md) against
+  // im2col + Eigen GEMM, on every 3x3 conv of unet-ref at batch 1 and 4: wherever the batch holds
+  // 1024 or more pixels per channel, Winograd took less time over the three passes of every layer
+  // (the thin first conv, 3 -> 16, included: its gradients 1.5-2.3x, its forward 0.8-0.9x); below,
+  // at batch 1 on 4 x 64 maps, its weight transforms, which grow with ci co but not with the
+  // pixels, cost more than the products save (forward 0.6-0.9x, weight gradient 0.7-0.8x), while
+  // at batch 4 the same layers gain 1.1-1.7x. Fixed from that one CPU, not calibrated where it runs.
+  (void)ci, (void)co;
+  return static_cast<long>(n) * h * w >= 1024;
+}
+
 bool conv3x3_available() { return isa_at_least(Isa::avx512); }
 
 }  // namespace lidarsim::nn::detail
@@ -328,7 +342,7 @@ void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int
                          const float* weight, const float* bias, int co, bool relu, const ConvSettings& cs) {
   const int ci = ca + cb;
   if (conv3x3_takes_winograd(ci, co, cs.conv3x3)) {
-    winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
+    avx512::winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
     return;
   }
   const Geom g(h, w);
@@ -378,10 +392,10 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   }
 
   if (wino_w && wino_d) {  // the masked d_out goes to the by-phase layout once for both
-    winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
+    avx512::winograd_backward(OutPlaneSet{d_a, ca, d_b, cb}, d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n,
                       h, w, weight, co, phase_sums);
   } else if (wino_w) {
-    winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co, phase_sums);
+    avx512::winograd_weight_grad(d_weight, PlaneSet{a, ca, b, cb}, d_out, relu ? out : nullptr, n, h, w, co, phase_sums);
   }
   if (d_bias) {
     for (int o = 0; o < co; ++o) {
@@ -426,7 +440,7 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   }
 
   if (wino_d) {
-    winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
+    avx512::winograd_conv3x3(OutPlaneSet{d_a, ca, d_b, cb}, PlaneSet{d_out, co}, relu ? out : nullptr, n, h, w, weight, true,
                      nullptr, false);
   } else if (d_a) {
     float* wp = tl_wpack.get(static_cast<std::size_t>((ci + kCB - 1) / kCB) * kCB * co * 9);

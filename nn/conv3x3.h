@@ -15,6 +15,11 @@ bool conv3x3_available();
 // (its input gradient is the conv co -> ci).
 bool conv3x3_takes_winograd(int ci, int co, Conv3x3Path path = conv3x3_path());
 
+// The rule below AVX-512, where the other choice is im2col + GEMM (no direct kernel): whether a
+// conv with ci inputs and co outputs on n maps of h x w takes the AVX2 Winograd port in all its
+// passes.
+bool conv3x3_avx2_takes_winograd(int ci, int co, int n, int h, int w, Conv3x3Path path = conv3x3_path());
+
 // The kernels below are AVX-512 code (nn/isa_avx512_begin.h): call them only when
 // conv3x3_available(). `cs` gives the algorithm and, for the forward pass, the cache of packed
 // weights (nn/conv_settings.h).

@@ -19,6 +19,7 @@
 #include "nn/conv_transpose2x2.h"
 #include "nn/layers_internal.h"
 #include "nn/parallel.h"
+#include "nn/winograd.h"
 
 namespace lidarsim::nn {
 
@@ -52,6 +53,7 @@ thread_local std::vector<float> tl_col;
 thread_local std::vector<float> tl_masked;    // relu-masked d_out
 thread_local std::vector<float> tl_wflip;     // flipped, transposed conv weights for the input gradient
 thread_local std::vector<float> tl_partials;  // per-thread weight-gradient partials
+thread_local std::vector<float> tl_sums;      // per-plane sums of d_out for the bias gradient
 
 
 constexpr std::size_t kColFloats = 1 << 17;  // one thread's im2col tile: 512 KB, stays in L2
@@ -140,6 +142,12 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
   });
 }
 
+// Below AVX-512 (no direct kernel), the 3x3 layers the AVX2 rule gives to Winograd take its port
+// (nn/winograd.h); the others stay on im2col + GEMM.
+bool avx2_winograd(int ci, int co, Shape s, const detail::ConvSettings& cs) {
+  return !detail::conv3x3_available() && detail::conv3x3_avx2_takes_winograd(ci, co, s.n, s.h, s.w, cs.conv3x3);
+}
+
 }  // namespace
 
 void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const float* bias, int co, int k, int pad,
@@ -159,6 +167,11 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
   }
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
     detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu, cs);
+    return;
+  }
+  if (k == 3 && pad == 1 && avx2_winograd(s.c, co, s, cs)) {
+    detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{in.data(), s.c}, nullptr, s.n, s.h,
+                             s.w, weight, false, bias, relu);
     return;
   }
   conv_core(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, k, pad, relu);
@@ -245,6 +258,42 @@ void conv_input_grad(Tensor& d_in, const float* g, Shape s, const float* weight,
   conv_core(d_in.data(), g, s.n, co, ho, wo, wf, nullptr, ci, k, k - 1 - pad, false);
 }
 
+// The backward pass on the AVX2 Winograd path: the weight and input gradients share one by-phase
+// copy of the masked output gradient, whose plane sums (one order per plane, whatever the thread
+// count) give the bias gradient. mask: the forward output when relu, else null.
+void winograd_conv_backward(const detail::OutPlaneSet& d_in, float* d_weight, float* d_bias, const Tensor& d_out,
+                            const Tensor* mask, const detail::PlaneSet& in, const float* weight) {
+  const Shape so = d_out.shape();
+  const int n = so.n, co = so.c, h = so.h, w = so.w;
+  const float* m = mask ? mask->data() : nullptr;
+  float* sums = d_bias && d_weight ? grow(tl_sums, static_cast<std::size_t>(n) * co) : nullptr;
+  if (d_weight && d_in.a)
+    detail::winograd_backward(d_in, d_weight, in, d_out.data(), m, n, h, w, weight, co, sums);
+  else if (d_weight)
+    detail::winograd_weight_grad(d_weight, in, d_out.data(), m, n, h, w, co, sums);
+  else if (d_in.a)
+    detail::winograd_conv3x3(d_in, detail::PlaneSet{d_out.data(), co}, m, n, h, w, weight, true, nullptr, false);
+  if (!d_bias) return;
+  if (!sums) {
+    const std::size_t hw = so.plane();
+    conv_bias_grad(d_bias, mask ? relu_masked(d_out, *mask) : d_out.data(), n, co, static_cast<int>(hw),
+                   d_out.numel() > kParallelElems);
+    return;
+  }
+  for (int o = 0; o < co; ++o) {
+    float acc = 0.f;
+    for (int img = 0; img < n; ++img) acc += sums[static_cast<std::size_t>(img) * co + o];
+    d_bias[o] += acc;
+  }
+}
+
+// Test hooks (testhook::Fault): one wrong index in each gradient, so the checks prove they can fail.
+void inject_conv2d_faults(Tensor* d_in, float* d_weight, float* d_bias, std::size_t wsize, int co) {
+  if (fault(testhook::Fault::conv2d_bias) && d_bias && co > 1) d_bias[1] = d_bias[0];
+  if (fault(testhook::Fault::conv2d_weight) && d_weight && wsize > 1) d_weight[wsize - 1] = d_weight[0];
+  if (fault(testhook::Fault::conv2d_input) && d_in && d_in->numel() > 1) d_in->data()[1] = d_in->data()[0];
+}
+
 }  // namespace
 
 void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor& d_out, const Tensor& out,
@@ -261,9 +310,14 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     if (d_in) ensure(*d_in, s);
     detail::conv3x3_backward(d_in ? d_in->data() : nullptr, d_weight, d_bias, d_out.data(), relu ? out.data() : nullptr,
                              in.data(), weight, n, ci, s.h, s.w, co, relu, cs);
-    if (fault(testhook::Fault::conv2d_bias) && d_bias && co > 1) d_bias[1] = d_bias[0];
-    if (fault(testhook::Fault::conv2d_weight) && d_weight && kdim * co > 1) d_weight[kdim * co - 1] = d_weight[0];
-    if (fault(testhook::Fault::conv2d_input) && d_in && d_in->numel() > 1) d_in->data()[1] = d_in->data()[0];
+    inject_conv2d_faults(d_in, d_weight, d_bias, static_cast<std::size_t>(kdim) * co, co);
+    return;
+  }
+  if (k == 3 && pad == 1 && avx2_winograd(ci, co, s, cs)) {
+    if (d_in) ensure(*d_in, s);
+    winograd_conv_backward(detail::OutPlaneSet{d_in ? d_in->data() : nullptr, ci}, d_weight, d_bias, d_out,
+                           relu ? &out : nullptr, detail::PlaneSet{in.data(), ci}, weight);
+    inject_conv2d_faults(d_in, d_weight, d_bias, static_cast<std::size_t>(kdim) * co, co);
     return;
   }
   const float* g = relu ? relu_masked(d_out, out) : d_out.data();
@@ -302,6 +356,13 @@ void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const flo
                                      co, relu, cs.weight_cache);
     return;
   }
+  const Shape sb = b.shape();
+  if (avx2_winograd(sa.c + sb.c, co, sa, cs)) {
+    ensure(out, Shape{sa.n, co, sa.h, sa.w});
+    detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{a.data(), sa.c, b.data(), sb.c},
+                             nullptr, sa.n, sa.h, sa.w, weight, false, bias, relu);
+    return;
+  }
   if (!detail::conv3x3_available()) {
     concat_forward(tl_cat, a, b);
     conv2d_forward(out, tl_cat, weight, bias, co, 3, 1, relu, cs);
@@ -319,6 +380,14 @@ void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bia
   const Shape sa = a.shape(), sb = b.shape(), so = d_out.shape();
   if (so.n != sa.n || so.h != sa.h || so.w != sa.w || (relu && !(out.shape() == so)))
     throw Error("conv2d_cat_backward: d_out: shape " + so.str() + " does not match input " + sa.str());
+  if (avx2_winograd(sa.c + sb.c, so.c, sa, cs)) {
+    ensure(d_a, sa);
+    ensure(d_b, sb);
+    winograd_conv_backward(detail::OutPlaneSet{d_a.data(), sa.c, d_b.data(), sb.c}, d_weight, d_bias, d_out,
+                           relu ? &out : nullptr, detail::PlaneSet{a.data(), sa.c, b.data(), sb.c}, weight);
+    if (fault(testhook::Fault::concat) && d_b.numel() > 1) d_b.data()[1] = d_b.data()[0];
+    return;
+  }
   if (!detail::conv3x3_available()) {
     concat_forward(tl_cat, a, b);
     conv2d_backward(&tl_dcat, d_weight, d_bias, d_out, out, tl_cat, weight, 3, 1, relu, cs);

@@ -17,6 +17,13 @@
 #else
 #define LIDARSIM_AVX512_KERNELS 0
 #endif
+// Whether the build's baseline has AVX2 and FMA (x86-64-v3 and up): the AVX2 ports of the kernels
+// (nn/winograd_avx2.h) are then baseline code, run on every CPU the binary runs on.
+#if defined(__AVX2__) && defined(__FMA__)
+#define LIDARSIM_AVX2_KERNELS 1
+#else
+#define LIDARSIM_AVX2_KERNELS 0
+#endif
 
 namespace lidarsim::nn {
 

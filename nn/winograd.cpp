@@ -15,7 +15,48 @@
 #include "nn/winograd_tiles.h"
 
 namespace lidarsim::nn::detail {
-bool winograd_available() { return isa_at_least(Isa::avx512); }
+
+bool winograd_available() { return LIDARSIM_AVX2_KERNELS || isa_at_least(Isa::avx512); }
+
+namespace {
+bool wide() { return isa_at_least(Isa::avx512); }
+}  // namespace
+
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu) {
+  if (wide())
+    avx512::winograd_conv3x3(out, in, mask, n, h, w, weight, transpose_flip, bias, relu);
+  else
+    avx2::winograd_conv3x3(out, in, mask, n, h, w, weight, transpose_flip, bias, relu);
+}
+
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co, float* sums) {
+  if (wide())
+    avx512::winograd_backward(d_in, d_weight, in, d_out, mask, n, h, w, weight, co, sums);
+  else
+    avx2::winograd_backward(d_in, d_weight, in, d_out, mask, n, h, w, weight, co, sums);
+}
+
+std::size_t winograd_u_stride(int co, int ci) {
+  return wide() ? avx512::winograd_u_stride(co, ci) : avx2::winograd_u_stride(co, ci);
+}
+
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip) {
+  if (wide())
+    avx512::winograd_transform_weights(u, weight, co, ci, transpose_flip);
+  else
+    avx2::winograd_transform_weights(u, weight, co, ci, transpose_flip);
+}
+
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co, float* sums) {
+  if (wide())
+    avx512::winograd_weight_grad(d_weight, in, d_out, mask, n, h, w, co, sums);
+  else
+    avx2::winograd_weight_grad(d_weight, in, d_out, mask, n, h, w, co, sums);
+}
+
 }  // namespace lidarsim::nn::detail
 
 #if !LIDARSIM_AVX512_KERNELS

@@ -9,8 +9,10 @@
 
 namespace lidarsim::nn::detail {
 
-// Whether the CPU runs the kernels (AVX-512, nn/cpu_features.h); the functions below are
-// AVX-512 code (nn/isa_avx512_begin.h), to be called only then.
+// Whether a Winograd path runs at the active level (nn/cpu_features.h): the AVX-512 kernels
+// (namespace avx512, AVX-512 code: nn/isa_avx512_begin.h) or their AVX2 ports (namespace avx2,
+// nn/winograd_avx2.h: the build's baseline, on every CPU). The functions at the end of this
+// header call the active level's.
 bool winograd_available();
 
 // NCHW planes [n][ca + cb] split over two buffers (the UNet's concat without a copy).
@@ -60,10 +62,28 @@ void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_ou
                           int w, int co, float* sums = nullptr);
 
 }  // namespace avx512
-using avx512::winograd_backward;
-using avx512::winograd_conv3x3;
-using avx512::winograd_transform_weights;
-using avx512::winograd_u_stride;
-using avx512::winograd_weight_grad;
+// The AVX2 ports (8-lane vectors, the same layouts and summation plan; their own bits).
+namespace avx2 {
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu);
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co, float* sums = nullptr);
+std::size_t winograd_u_stride(int co, int ci);
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip);
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co, float* sums = nullptr);
+}  // namespace avx2
+
+// The active level's kernels (AVX-512 where active_isa() allows it, else AVX2); call only when
+// winograd_available(). Called from inside namespace avx512, write avx512::winograd_... (the
+// arguments' namespace would make a plain call ambiguous).
+void winograd_conv3x3(const OutPlaneSet& out, const PlaneSet& in, const float* mask, int n, int h, int w,
+                      const float* weight, bool transpose_flip, const float* bias, bool relu);
+void winograd_backward(const OutPlaneSet& d_in, float* d_weight, const PlaneSet& in, const float* d_out,
+                       const float* mask, int n, int h, int w, const float* weight, int co, float* sums = nullptr);
+std::size_t winograd_u_stride(int co, int ci);
+void winograd_transform_weights(float* u, const float* weight, int co, int ci, bool transpose_flip);
+void winograd_weight_grad(float* d_weight, const PlaneSet& in, const float* d_out, const float* mask, int n, int h,
+                          int w, int co, float* sums = nullptr);
 
 }  // namespace lidarsim::nn::detail

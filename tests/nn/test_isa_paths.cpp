@@ -49,7 +49,7 @@ TEST_P(IsaPath, OffersExactlyTheKernelsOfItsLevel) {
   const bool wide = GetParam() != Isa::avx2;
   EXPECT_EQ(active_isa(), GetParam());
   EXPECT_EQ(detail::conv3x3_available(), wide);
-  EXPECT_EQ(detail::winograd_available(), wide);
+  EXPECT_EQ(detail::winograd_available(), wide || LIDARSIM_AVX2_KERNELS);  // at avx2: the AVX2 port
   EXPECT_EQ(detail::conv_transpose2x2_available(), wide);
   EXPECT_EQ(detail::conv3x3_bf16_available(), GetParam() == Isa::avx512_bf16);
   EXPECT_EQ(bf16_supported(), GetParam() == Isa::avx512_bf16);
@@ -59,8 +59,8 @@ struct Errors {
   double forward, d_in, d_weight, d_bias;
 };
 
-// conv2d 3x3 (pad 1, ReLU) against the reference and central differences: direct or GEMM with
-// few channels, Winograd where both sides have 16 (at the AVX-512 levels).
+// conv2d 3x3 (pad 1, ReLU) against the reference and central differences: direct (AVX-512) or
+// GEMM (AVX2) with few channels, Winograd where both sides have 16 (at every level).
 Errors check_conv3x3(int ci, int co, int h, int w) {
   const int k = 3, pad = 1;
   const Tensor x = random_tensor(Shape{1, ci, h, w}, 1);
@@ -95,6 +95,38 @@ TEST_P(IsaPath, Conv3x3GradientsMatchFiniteDifferences) {
     EXPECT_LT(e.d_weight, 1e-4);
     EXPECT_LT(e.d_bias, 1e-4);
   }
+}
+
+// Every level has a Winograd kernel (AVX2: its port, nn/winograd_avx2.h), the rule gives it the
+// layers with 16 channels on both sides, and its results are its own (not the direct kernel's or
+// the GEMM's bits) and right: forward and all gradients against the reference, partial tiles and
+// 8-channel groups included.
+TEST_P(IsaPath, WinogradRunsAtEveryLevelAndMatchesTheReference) {
+  ASSERT_TRUE(detail::winograd_available());
+  if (GetParam() == Isa::avx2) {  // the rule against im2col + GEMM: by pixels in the batch
+    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(16, 16, 1, 64, 1024, detail::Conv3x3Path::automatic));
+    EXPECT_FALSE(detail::conv3x3_avx2_takes_winograd(256, 256, 1, 4, 64, detail::Conv3x3Path::automatic));
+    EXPECT_TRUE(detail::conv3x3_avx2_takes_winograd(256, 256, 4, 4, 64, detail::Conv3x3Path::automatic));
+  } else {  // against the direct kernel: by channels
+    EXPECT_TRUE(detail::conv3x3_takes_winograd(16, 16, detail::Conv3x3Path::automatic));
+    EXPECT_FALSE(detail::conv3x3_takes_winograd(4, 16, detail::Conv3x3Path::automatic));
+  }
+  const Tensor x = random_tensor(Shape{2, 20, 9, 37}, 41);
+  const std::vector<float> wt = random_vector(std::size_t(24) * 20 * 9, 42, 0.2f);
+  Tensor y_direct, y_wino;
+  {
+    conv_paths::Conv3x3PathGuard direct(detail::Conv3x3Path::direct);
+    conv2d_forward(y_direct, x, wt.data(), nullptr, 24, 3, 1, false);
+  }
+  conv_paths::Conv3x3PathGuard winograd(detail::Conv3x3Path::winograd);
+  conv2d_forward(y_wino, x, wt.data(), nullptr, 24, 3, 1, false);
+  EXPECT_NE(std::memcmp(y_direct.data(), y_wino.data(), y_wino.numel() * sizeof(float)), 0)
+      << "the Winograd path gave the direct path's bits: it did not run";
+  const Errors e = check_conv3x3(17, 9, 5, 11);  // few values: the finite differences cost two passes each
+  EXPECT_LT(e.forward, 2e-5);
+  EXPECT_LT(e.d_in, 1e-4);
+  EXPECT_LT(e.d_weight, 1e-4);
+  EXPECT_LT(e.d_bias, 1e-4);
 }
 
 TEST_P(IsaPath, TransposedConvAndMaxPoolMatchTheReference) {

@@ -113,7 +113,7 @@ LayerErrors check_conv_transpose(int out_h, int out_w) {
 // The same checks with the 3x3 convolutions on Winograd F(4x4, 3x3) (forward and input
 // gradient; the weight gradient stays direct): odd sizes, partial tiles, with and without ReLU.
 TEST(Conv2dGradCheck, WinogradPathMatchesFiniteDifferences) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   conv_paths::Conv3x3PathGuard winograd(detail::Conv3x3Path::winograd);
   const ConvCase cases[] = {{2, 3, 7, 9, 4, 3, 1, true}, {2, 3, 5, 11, 5, 3, 1, false}, {1, 9, 6, 13, 10, 3, 1, true}};
   for (const ConvCase& c : cases) {

@@ -222,7 +222,7 @@ TEST(TorchAgreement, ForwardLossGradientsAndOneAdamStepMatchPyTorchOnOddSize) { 
 
 // The same fixture with the 3x3 convolutions on Winograd F(4x4, 3x3) (forward, input gradient).
 TEST(TorchAgreement, WinogradPathMatchesPyTorchOnEvenAndOddSize) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   check_case("even", detail::Conv3x3Path::winograd);
   check_case("odd", detail::Conv3x3Path::winograd);
 }

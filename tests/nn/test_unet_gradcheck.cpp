@@ -182,7 +182,7 @@ TEST(UNetGradCheck, RowAffineLayerAndEveryParameterBelowItMatchFiniteDifferences
 
 // Every parameter again with the 3x3 convolutions forced onto Winograd F(4x4, 3x3).
 TEST(UNetGradCheck, WinogradPathOddSizesAllParametersMatchFiniteDifferences) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   for (const UnetCase& c : {kOdd7x9, kOdd5x11}) {
     const Result r = check_unet(c, detail::Conv3x3Path::winograd);
     EXPECT_LT(r.forward, 1e-5);

@@ -19,6 +19,7 @@
 #include <omp.h>
 
 #include "conv_path.h"
+#include "nn/cpu_features.h"
 #include "nn/layers.h"
 #include "nn/winograd.h"
 
@@ -71,6 +72,15 @@ Diff compare(const Tensor& a, const Tensor& ref) {
   return d;
 }
 
+// The levels with a Winograd kernel on this CPU: the AVX2 port everywhere, the AVX-512 kernels
+// where the CPU has them; each test runs on all of them (testhook::ScopedIsa).
+std::vector<Isa> winograd_levels() {
+  std::vector<Isa> levels;
+  if (LIDARSIM_AVX2_KERNELS) levels.push_back(Isa::avx2);
+  if (isa_at_least(Isa::avx512)) levels.push_back(Isa::avx512);
+  return levels;
+}
+
 struct WinogradCase {
   int n, ci, co, h, w;
 };
@@ -101,11 +111,13 @@ Outputs run_plain(const WinogradCase& c, bool relu, Conv3x3Path path) {
 }
 
 TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
+  for (const Isa level : winograd_levels()) {
+  testhook::ScopedIsa isa(level);
   double worst_fwd = 0, worst_din = 0, worst_dw = 0;
   for (const WinogradCase& c : kWinogradCases)
     for (bool relu : {false, true}) {
-      SCOPED_TRACE("n " + std::to_string(c.n) + " ci " + std::to_string(c.ci) + " co " + std::to_string(c.co) + " " +
+      SCOPED_TRACE(std::string(to_string(level)) + " n " + std::to_string(c.n) + " ci " + std::to_string(c.ci) + " co " + std::to_string(c.co) + " " +
                    std::to_string(c.h) + "x" + std::to_string(c.w) + " relu " + std::to_string(relu));
       const Outputs direct = run_plain(c, relu, Conv3x3Path::direct);
       const Outputs wino = run_plain(c, relu, Conv3x3Path::winograd);
@@ -118,9 +130,10 @@ TEST(Winograd, ForwardInputAndWeightGradientsMatchDirectOnOddSizes) {
       worst_dw = std::max(worst_dw, dw.rel());
     }
   std::printf(
-      "[ measured ] winograd vs direct, max |diff| / max |direct|: forward %.2e, input gradient %.2e, weight "
+      "[ measured ] %s: winograd vs direct, max |diff| / max |direct|: forward %.2e, input gradient %.2e, weight "
       "gradient %.2e\n",
-      worst_fwd, worst_din, worst_dw);
+      to_string(level), worst_fwd, worst_din, worst_dw);
+  }
 }
 
 Outputs run_cat(const WinogradCase& c, int ca, Conv3x3Path path, Tensor* d_b) {
@@ -138,8 +151,11 @@ Outputs run_cat(const WinogradCase& c, int ca, Conv3x3Path path, Tensor* d_b) {
 
 // The weight gradient's 16-channel groups straddle the two buffers when ca is not a multiple of 16.
 TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
+  for (const Isa level : winograd_levels())
   for (const WinogradCase& c : {WinogradCase{2, 10, 6, 7, 9}, WinogradCase{1, 32, 16, 9, 66}, WinogradCase{2, 40, 24, 6, 70}}) {
+    testhook::ScopedIsa isa(level);
+    SCOPED_TRACE(to_string(level));
     Tensor db_direct, db_wino;
     const Outputs direct = run_cat(c, c.ci / 2 - 1, Conv3x3Path::direct, &db_direct);
     const Outputs wino = run_cat(c, c.ci / 2 - 1, Conv3x3Path::winograd, &db_wino);
@@ -154,10 +170,12 @@ TEST(Winograd, ConcatForwardSplitInputGradientAndWeightGradientMatchDirect) {
 // same bits: on a map with more chunks than slots (and a partial last chunk per row), and on a
 // deep layer with few tiles, where the tasks also split the output channels.
 TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   const int saved = omp_get_max_threads();
+  for (const Isa level : winograd_levels())
   for (const WinogradCase& c : {WinogradCase{2, 16, 16, 64, 700}, WinogradCase{2, 64, 72, 8, 20}}) {
-    SCOPED_TRACE("ci " + std::to_string(c.ci) + " co " + std::to_string(c.co));
+    testhook::ScopedIsa isa(level);
+    SCOPED_TRACE(std::string(to_string(level)) + " ci " + std::to_string(c.ci) + " co " + std::to_string(c.co));
     const Tensor x = winograd_activations(Shape{c.n, c.ci, c.h, c.w}, 21);
     const Tensor g = winograd_activations(Shape{c.n, c.co, c.h, c.w}, 22);
     std::vector<float> first;
@@ -187,12 +205,14 @@ TEST(Winograd, WeightGradientIsTheSameBitsOnAnyThreadCount) {
 // every product summed) and rounded to float: the factored transform must stay within 1 ulp,
 // for plain and flipped weights and a last block of output channels that is partly empty.
 TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   static constexpr double G[6][3] = {{1.0 / 4, 0, 0},         {-1.0 / 6, -1.0 / 6, -1.0 / 6},
                                      {-1.0 / 6, 1.0 / 6, -1.0 / 6}, {1.0 / 24, 1.0 / 12, 1.0 / 6},
                                      {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
   double worst_ulps = 0;
+  for (const Isa level : winograd_levels())
   for (const bool flip : {false, true}) {
+    testhook::ScopedIsa isa(level);
     const int co = 13, ci = 5;  // of the conv that runs: flipped, the weight is [ci][co][3][3]
     const std::vector<float> w = winograd_he_weights(flip ? ci : co, flip ? co : ci, 9);
     const int blocks = (co + 7) / 8;
@@ -227,7 +247,7 @@ TEST(Winograd, TransformedWeightsMatchThePlainDoubleTransform) {
 
 TEST(Winograd, ComparisonCanFail) {
   // The same comparison with one weight changed by 1 % of its scale must exceed the tolerance.
-  if (!detail::winograd_available()) GTEST_SKIP() << "no AVX-512 kernels here (this CPU, or LIDARSIM_ISA): no Winograd path";
+  if (!detail::winograd_available()) GTEST_SKIP() << "built without AVX2 kernels (LIDARSIM_ARCH below x86-64-v3): no Winograd path";
   const WinogradCase c{1, 8, 8, 7, 9};
   const Tensor x = winograd_activations(Shape{c.n, c.ci, c.h, c.w}, 1);
   std::vector<float> w = winograd_he_weights(c.co, c.ci, 2);
