@@ -11,7 +11,11 @@ namespace lidarsim::infer {
 
 IntensityModel::IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::BeamLayout layout,
                                std::filesystem::path path)
-    : model_(std::move(model)), encoder_(std::move(encoder)), layout_(std::move(layout)), path_(std::move(path)) {}
+    : model_(std::move(model)),
+      encoder_(std::move(encoder)),
+      layout_(std::move(layout)),
+      path_(std::move(path)),
+      spread_scale_(model_.config().spread_scale) {}
 
 IntensityModel::Setup IntensityModel::setup_of(const nn::Checkpoint& meta, const std::filesystem::path& path,
                                                const std::string& attributes, const std::string& in_channels) {
@@ -67,7 +71,7 @@ void IntensityModel::sample_from_spread(const IntensitySampling& sampling, const
   spread_scale_ = scale_factor.value_or(model_.config().spread_scale);
 }
 
-void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame) {
+void IntensityModel::run(const pgm::PolarGridMap& pgm) {
   const int rows = pgm.rows(), cols = pgm.cols();
   const int model_rows = model_.config().row_affine_rows;
   if (model_rows > 0 && rows != model_rows)
@@ -78,6 +82,22 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
     input_.resize({1, encoder_.input_channels(), rows, cols});
   pgm::encode_input(pgm::view_of(pgm), encoder_, input_, 0);
   model_.predict(input_, output_);
+}
+
+const float* IntensityModel::log_scale_channel(std::size_t cells) const {
+  const auto heads = model_.config().heads;
+  const auto at = std::find(heads.begin(), heads.end(), *spread()) - heads.begin();
+  return output_.data() + static_cast<std::size_t>(at) * cells;
+}
+
+float IntensityModel::scale_of(float log_scale) const {
+  const nn::LogScaleClamp clamp{};  // as in training (nn/loss.h)
+  // The calibration factor fitted after training (1 for checkpoints without one, formats 1-2).
+  return spread_scale_ * std::exp(std::clamp(log_scale, clamp.min, clamp.max));
+}
+
+void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame) {
+  run(pgm);
   const float* mask = pgm.channel("mask");
   out.assign(pgm.cells(), 0.f);
   const float* mean = output_.data();  // channel 0 whatever heads follow (nn/heads.h)
@@ -85,17 +105,29 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
     for (std::size_t i = 0; i < pgm.cells(); ++i) out[i] = mask[i] > 0 ? mean[i] : 0.f;
     return;
   }
-  const auto heads = model_.config().heads;
-  const auto at = std::find(heads.begin(), heads.end(), *spread()) - heads.begin();
-  const float* log_scale = mean + static_cast<std::size_t>(at) * pgm.cells();
-  const nn::LogScaleClamp clamp{};  // as in training (nn/loss.h)
-  // The calibration factor fitted after training (1 for checkpoints without one, formats 1-2).
-  const float factor = spread_scale_;
+  const float* log_scale = log_scale_channel(pgm.cells());
+  // The empirical residual fitted with the scale when the checkpoint has one (format 4).
+  const nn::SpreadResidual& residual = model_.config().spread_residual;
+  const bool empirical = !residual.empty() && !sampling_->parametric;
   for (std::size_t i = 0; i < pgm.cells(); ++i) {
     if (mask[i] <= 0) continue;
-    const float scale = factor * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
-    out[i] = sample_intensity(*spread(), mean[i], scale, *sampling_, frame, i);
+    const float scale = scale_of(log_scale[i]);
+    out[i] = empirical ? sample_intensity_empirical(residual, mean[i], scale, *sampling_, frame, i)
+                       : sample_intensity(*spread(), mean[i], scale, *sampling_, frame, i);
   }
+}
+
+void IntensityModel::predict_distribution(const pgm::PolarGridMap& pgm, std::vector<float>& mean,
+                                          std::vector<float>& scale) {
+  if (!spread())
+    throw input_error(path_.string(), "/config/unet.heads", "predict_distribution needs a spread head");
+  run(pgm);
+  const float* mask = pgm.channel("mask");
+  const float* log_scale = log_scale_channel(pgm.cells());
+  mean.assign(pgm.cells(), 0.f);
+  scale.assign(pgm.cells(), 0.f);
+  for (std::size_t i = 0; i < pgm.cells(); ++i)
+    if (mask[i] > 0) mean[i] = output_.data()[i], scale[i] = scale_of(log_scale[i]);
 }
 
 }  // namespace lidarsim::infer

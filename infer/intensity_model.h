@@ -47,6 +47,10 @@ class IntensityModel {
   // default the mean (channel 0); with sample_from_spread, a draw per cell depending only on
   // (seed, frame, cell).
   void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame = 0);
+  // The predicted distribution per cell, [rows * cols]: the mean (channel 0) and the spread head's
+  // scale (clamped as in training, times the calibration factor in use). Cells without a return get
+  // 0 in both. Throws naming the checkpoint when it has no spread head.
+  void predict_distribution(const pgm::PolarGridMap& pgm, std::vector<float>& mean, std::vector<float>& scale);
 
  private:
   struct Setup {
@@ -58,13 +62,16 @@ class IntensityModel {
   static Setup setup_of(const nn::Checkpoint& meta, const std::filesystem::path& path, const std::string& attributes,
                         const std::string& in_channels);
   IntensityModel(nn::UNet model, pgm::EncoderConfig encoder, pgm::BeamLayout layout, std::filesystem::path path);
+  void run(const pgm::PolarGridMap& pgm);  // encode and forward into output_
+  const float* log_scale_channel(std::size_t cells) const;  // the spread head's channel in output_
+  float scale_of(float log_scale) const;                    // clamped, times spread_scale_
   nn::UNet model_;
   pgm::EncoderConfig encoder_;
   pgm::BeamLayout layout_;
   std::filesystem::path path_;
   nn::Tensor input_, output_;
   std::optional<IntensitySampling> sampling_;
-  float spread_scale_ = 1.f;  // applied to the spread head's scale when sampling
+  float spread_scale_ = 1.f;  // applied to the spread head's scale: the checkpoint's, or sample_from_spread's
 };
 
 }  // namespace lidarsim::infer

@@ -37,4 +37,21 @@ float sample_intensity(nn::HeadKind spread, float mean, float scale, const Inten
   return static_cast<float>(std::clamp(mean + noise, static_cast<double>(s.min), static_cast<double>(s.max)));
 }
 
+float sample_intensity_empirical(const nn::SpreadResidual& residual, float mean, float scale,
+                                 const IntensitySampling& s, std::uint64_t frame, std::uint64_t cell) {
+  if (residual.empty()) throw Error("sample_intensity_empirical: no residual table");
+  double u1 = 0, u2 = 0;
+  cell_uniforms(s.seed, frame, cell, u1, u2);
+  const double lo = s.min, hi = s.max;
+  double v = std::clamp(mean + scale * residual.quantile(mean, u1), lo, hi);
+  if (const double step = residual.target_step; step > 0) {
+    // k / n for a grid of 1/n (0.01, 1/255): the same float a sensor file holds for that value,
+    // which k * step, with the step stored as a float, misses by an ulp at times.
+    const double n = std::round(1 / step);
+    const double k = std::round((v - lo) / step);
+    v = std::clamp(lo + (std::abs(n * step - 1) < 1e-4 ? k / n : k * step), lo, hi);
+  }
+  return static_cast<float>(v);
+}
+
 }  // namespace lidarsim::infer

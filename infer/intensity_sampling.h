@@ -14,6 +14,8 @@ struct IntensitySampling {
   std::uint64_t seed = 1;
   // The sensor's intensity range: draws are clamped to it (lidar-train targets: KITTI's 0..1).
   float min = 0.f, max = 1.f;
+  // Draw from the head's Laplace/Gaussian even when the checkpoint has a residual table (comparisons).
+  bool parametric = false;
 };
 
 // Two independent uniforms in (0, 1) for (seed, frame, cell).
@@ -23,5 +25,11 @@ void cell_uniforms(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell, 
 // Laplace), clamped to [s.min, s.max]. `spread` must be one of the two spread kinds.
 float sample_intensity(nn::HeadKind spread, float mean, float scale, const IntensitySampling& s, std::uint64_t frame,
                        std::uint64_t cell);
+
+// mean + scale * z with z drawn from the checkpoint's empirical residual table for this mean's bin
+// (nn::SpreadResidual, inverse CDF of one uniform), clamped to [s.min, s.max], then put on the
+// targets' grid (residual.target_step from s.min, when > 0): the values the sensor reports.
+float sample_intensity_empirical(const nn::SpreadResidual& residual, float mean, float scale,
+                                 const IntensitySampling& s, std::uint64_t frame, std::uint64_t cell);
 
 }  // namespace lidarsim::infer

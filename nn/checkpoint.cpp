@@ -26,12 +26,16 @@ using namespace checkpoint_h5;
 // still written as format 1, byte for byte as before. Format 3 is format 2 with
 // `unet.spread_scale`, the spread head's calibration factor (UNetConfig::spread_scale): builds that
 // read formats 1-2 would load the weights and sample with the uncalibrated scale, so they refuse it
-// by its format number; a model whose factor is 1 is still written as format 1 or 2.
+// by its format number; a model whose factor is 1 is still written as format 1 or 2. Format 4 is
+// format 3 with `unet.spread_residual` (UNetConfig::spread_residual, JSON: the residual's
+// quantiles per bin of the mean and the targets' grid): builds that read formats 1-3 would draw
+// from the Laplace/Gaussian instead, so they refuse it by its number; without a table, 1-3 as before.
 constexpr const char* kFormatPrefix = "lidarsim-checkpoint ";
-constexpr int kNewestCheckpointFormat = 3;
+constexpr int kNewestCheckpointFormat = 4;
 
 bool needs_format2(const UNetConfig& c) { return c.out_channels != 1 || !c.heads.empty(); }
 bool needs_format3(const UNetConfig& c) { return c.spread_scale != 1.f; }
+bool needs_format4(const UNetConfig& c) { return !c.spread_residual.empty(); }
 
 bool reserved_attribute(const std::string& key) {
   return key == "format" || key.rfind("unet.", 0) == 0 || key.rfind("optimizer.", 0) == 0;
@@ -83,13 +87,15 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     Writer w(path);
     {
       Handle config = w.group("config");
-      const bool v2 = needs_format2(model.config()), v3 = needs_format3(model.config());
-      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v3 ? 3 : v2 ? 2 : 1));
+      const bool v2 = needs_format2(model.config()), v4 = needs_format4(model.config()),
+                 v3 = v4 || needs_format3(model.config());
+      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v4 ? 4 : v3 ? 3 : v2 ? 2 : 1));
       w.attr(config.get(), "config", "unet.in_channels", std::int64_t{model.config().in_channels});
       if (!v2) w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       if (v2) w.attr(config.get(), "config", "unet.outputs", std::int64_t{model.config().out_channels});
       if (!model.config().heads.empty()) w.attr(config.get(), "config", "unet.heads", heads_text(model.config().heads));
       if (v3) w.attr(config.get(), "config", "unet.spread_scale", static_cast<double>(model.config().spread_scale));
+      if (v4) w.attr(config.get(), "config", "unet.spread_residual", spread_residual_json(model.config().spread_residual));
       w.attr(config.get(), "config", "unet.base", std::int64_t{model.config().base});
       w.attr(config.get(), "config", "unet.depth", std::int64_t{model.config().depth});
       // Only when present: a model without the layer writes no trace of it (read back as no layer).
@@ -156,7 +162,8 @@ int format_of(const Reader& r) {
 }
 
 // The output channel count and heads: `unet.out_channels` in format 1, `unet.outputs` and the
-// optional `unet.heads` in formats 2 and 3; format 3 also `unet.spread_scale` (absent: 1).
+// optional `unet.heads` in formats 2 to 4; formats 3-4 also `unet.spread_scale` (absent: 1), format
+// 4 also `unet.spread_residual` (absent: none).
 void outputs_of(const Reader& r, UNetConfig& c) {
   const int format = format_of(r);
   c.out_channels = positive_int_attr(r, format == 1 ? "unet.out_channels" : "unet.outputs");
@@ -181,6 +188,17 @@ void outputs_of(const Reader& r, UNetConfig& c) {
     c.spread_scale = static_cast<float>(v);
   } else if (r.has_attr("config", "unet.spread_scale")) {
     r.fail("config/unet.spread_scale", "present in a format-" + std::to_string(format) + " checkpoint (format 3 carries it)");
+  }
+  c.spread_residual = {};
+  if (format >= 4) {
+    if (!has_spread_head(c.heads)) r.fail("config/unet.spread_residual", "format 4, but unet.heads has no spread head");
+    try {
+      c.spread_residual = parse_spread_residual(r.string_attr("config", "unet.spread_residual"), "value");
+    } catch (const Error& e) {
+      r.fail("config/unet.spread_residual", e.what());
+    }
+  } else if (r.has_attr("config", "unet.spread_residual")) {
+    r.fail("config/unet.spread_residual", "present in a format-" + std::to_string(format) + " checkpoint (format 4 carries it)");
   }
 }
 

@@ -1,11 +1,13 @@
 #pragma once
 // HDF5 checkpoints, readable with h5py:
-//   /config          attributes: format ("lidarsim-checkpoint 1", "... 2" or "... 3"; absent = 1;
-//                    a number above 3 is refused by name), unet.in_channels, unet.out_channels (format 1:
+//   /config          attributes: format ("lidarsim-checkpoint 1" to "... 4"; absent = 1;
+//                    a number above 4 is refused by name), unet.in_channels, unet.out_channels (format 1:
 //                    one output, no heads) or unet.outputs and unet.heads (format 2: several
 //                    outputs or named heads, nn/heads.h; builds before format 2 refuse these
-//                    files as missing unet.out_channels), unet.spread_scale (format 3 only: the
+//                    files as missing unet.out_channels), unet.spread_scale (formats 3-4: the
 //                    spread head's calibration factor; builds that read 1-2 refuse the format),
+//                    unet.spread_residual (format 4 only: JSON, nn/heads.h SpreadResidual, the
+//                    residual's quantiles and the targets' grid; builds that read 1-3 refuse it),
 //                    unet.base, unet.depth,
 //                    unet.row_affine_rows (only when the model has the per-row affine layer;
 //                    absent = no layer, so files without it load),

@@ -21,7 +21,9 @@ static_assert(std::endian::native == std::endian::little, "the value bytes are w
 // Format 2 is format 1 with header.unet.spread_scale (the spread head's calibration factor,
 // UNetConfig::spread_scale): a format-1 reader would sample with the uncalibrated scale, so it
 // refuses the file by its magic line. A model whose factor is 1 is still written as format 1.
-constexpr int kNewestWeightsFormat = 2;
+// Format 3 is format 2 with header.unet.spread_residual (UNetConfig::spread_residual, the
+// residual's quantiles and the targets' grid), refused by format-1-2 readers for the same reason.
+constexpr int kNewestWeightsFormat = 3;
 constexpr std::size_t kMaxHeader = std::size_t{64} << 20;
 
 std::uint64_t fnv1a64(const unsigned char* p, std::size_t n) {
@@ -38,7 +40,7 @@ std::string hex16(std::uint64_t v) {
 
 nlohmann::json shape_json(const Shape& s) { return nlohmann::json::array({s.n, s.c, s.h, s.w}); }
 
-int format_for(const UNetConfig& c) { return c.spread_scale != 1.f ? 2 : 1; }
+int format_for(const UNetConfig& c) { return !c.spread_residual.empty() ? 3 : c.spread_scale != 1.f ? 2 : 1; }
 
 nlohmann::json unet_json(const UNetConfig& c) {
   nlohmann::json u = {{"in_channels", c.in_channels},
@@ -55,6 +57,7 @@ nlohmann::json unet_json(const UNetConfig& c) {
             {"rows", c.lookup.rows},
             {"bin_width", c.lookup.bin_width}}}};
   if (format_for(c) >= 2) u["spread_scale"] = c.spread_scale;
+  if (format_for(c) >= 3) u["spread_residual"] = nlohmann::json::parse(spread_residual_json(c.spread_residual));
   return u;
 }
 
@@ -124,6 +127,16 @@ UNetConfig unet_from(const Fields& f, const nlohmann::json& h, int format) {
     c.spread_scale = static_cast<float>(v);
   } else if (u.contains("spread_scale")) {
     f.fail("header.unet.spread_scale", "present in a format-1 file (format 2 carries it)");
+  }
+  if (format >= 3) {
+    if (!has_spread_head(c.heads)) f.fail("header.unet.spread_residual", "format 3, but header.unet.heads has no spread head");
+    try {
+      c.spread_residual = parse_spread_residual(f.member(u, "header.unet", "spread_residual", V::object).dump(), "value");
+    } catch (const Error& e) {
+      f.fail("header.unet.spread_residual", e.what());
+    }
+  } else if (u.contains("spread_residual")) {
+    f.fail("header.unet.spread_residual", "present in a format-" + std::to_string(format) + " file (format 3 carries it)");
   }
   return c;
 }

@@ -6,15 +6,17 @@
 //
 // Layout ("lidarsim-weights 1"), every number little-endian:
 //   bytes 0..18   the magic line "lidarsim-weights 1\n" (the digit is the format number: 2 when
-//                 header.unet has "spread_scale", the spread head's calibration factor; a model
-//                 without one is written as 1, which older builds read)
+//                 header.unet has "spread_scale", the spread head's calibration factor; 3 when it
+//                 also has "spread_residual"; a model without either is written as 1, which
+//                 older builds read)
 //   8 bytes       H, the header's length in bytes (uint64)
 //   H bytes       the header, a UTF-8 JSON object:
 //                   "unet": {"in_channels", "outputs", "base", "depth", "row_affine_rows" (0: no
 //                            per-row affine layer), "heads" (nn/heads.h text, "" = none),
 //                            "lookup": {"classes" (0: no lookup base), "class_channel",
 //                            "range_channel", "range_bins", "rows", "bin_width"},
-//                            "spread_scale" (format 2 only)}
+//                            "spread_scale" (formats 2-3), "spread_residual" (format 3 only:
+//                            {"levels", "mean_edges", "z", "target_step"}, nn/heads.h)}
 //                   "attributes": {name: string}  (the checkpoint's free-form /config entries:
 //                                                  input encoder, beam layout, ...)
 //                   "params": [{"name": "<layer>/<field>", "shape": [n, c, h, w]}, ...]

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 
@@ -164,6 +165,56 @@ void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogSc
       else if (heads[c] == HeadKind::log_scale_gaussian || heads[c] == HeadKind::log_scale_laplace)
         for (std::size_t i = 0; i < s.plane(); ++i) v[i] = spread_scale * std::exp(std::clamp(v[i], clamp.min, clamp.max));
     }
+}
+
+double SpreadResidual::quantile(double mean, double u) const {
+  const int bin = static_cast<int>(std::upper_bound(mean_edges.begin(), mean_edges.end(), mean) - mean_edges.begin());
+  const float* q = z.data() + static_cast<std::size_t>(bin) * static_cast<std::size_t>(levels);
+  const double x = u * levels - 0.5;  // table point k sits at probability (k + 0.5) / levels
+  if (x <= 0) return q[0];
+  if (x >= levels - 1) return q[levels - 1];
+  const int k = static_cast<int>(x);
+  return q[k] + (x - k) * (q[k + 1] - q[k]);
+}
+
+void check_spread_residual(const SpreadResidual& r, const std::string& where) {
+  if (r.empty()) {
+    if (!r.mean_edges.empty() || !r.z.empty() || r.target_step != 0.f)
+      throw Error(where + ": levels 0 (no table) but edges, quantiles or a step are given");
+    return;
+  }
+  if (r.levels < 2 || r.levels > 4096) throw Error(where + ": levels: expected 2 .. 4096, got " + std::to_string(r.levels));
+  if (r.mean_edges.size() > 4096) throw Error(where + ": mean_edges: more than 4096");
+  for (std::size_t i = 0; i < r.mean_edges.size(); ++i)
+    if (!std::isfinite(r.mean_edges[i]) || (i > 0 && r.mean_edges[i] < r.mean_edges[i - 1]))
+      throw Error(where + ": mean_edges: expected finite ascending numbers (at " + std::to_string(i) + ")");
+  const std::size_t want = static_cast<std::size_t>(r.bins()) * static_cast<std::size_t>(r.levels);
+  if (r.z.size() != want)
+    throw Error(where + ": z: expected bins x levels = " + std::to_string(want) + " values, got " + std::to_string(r.z.size()));
+  for (std::size_t i = 0; i < r.z.size(); ++i)
+    if (!std::isfinite(r.z[i]) || (i % static_cast<std::size_t>(r.levels) > 0 && r.z[i] < r.z[i - 1]))
+      throw Error(where + ": z: expected finite values, non-decreasing within each bin (at " + std::to_string(i) + ")");
+  if (!(r.target_step >= 0) || !std::isfinite(r.target_step))
+    throw Error(where + ": target_step: expected a finite number >= 0, got " + std::to_string(r.target_step));
+}
+
+std::string spread_residual_json(const SpreadResidual& r) {
+  return nlohmann::json{{"levels", r.levels}, {"mean_edges", r.mean_edges}, {"z", r.z}, {"target_step", r.target_step}}.dump();
+}
+
+SpreadResidual parse_spread_residual(const std::string& json, const std::string& where) {
+  SpreadResidual r;
+  try {
+    const nlohmann::json j = nlohmann::json::parse(json);
+    r.levels = j.at("levels").get<int>();
+    r.mean_edges = j.at("mean_edges").get<std::vector<float>>();
+    r.z = j.at("z").get<std::vector<float>>();
+    r.target_step = j.at("target_step").get<float>();
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(where + ": not a spread residual table (" + e.what() + ")");
+  }
+  check_spread_residual(r, where);
+  return r;
 }
 
 }  // namespace lidarsim::nn

@@ -68,4 +68,32 @@ void sigmoid_forward(Tensor& out, const Tensor& in);
 void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp = {},
                             float spread_scale = 1.f);
 
+// The spread head's standardised residual z = (y - mean) / scale as an empirical distribution,
+// fitted after training on cells the mean never trained on (train/spread_metrics.h
+// fit_spread_residual), used instead of the Laplace/Gaussian shape when drawing. The residual's
+// shape depends on where the mean lies (near the bottom of the range measured values split into
+// zeros and a bulk; at the common levels they are tight), so there is one table per bin of the
+// predicted mean: `levels` quantiles of z at probabilities (k + 0.5) / levels, bins split at
+// `mean_edges` (ascending, bins = edges + 1). `target_step`: the grid the measured targets sit on
+// (KITTI reflectance 0.01, 8-bit sensors 1/255), draws are rounded to it; 0 = continuous.
+struct SpreadResidual {
+  int levels = 0;                  // 0: none (draw from the head's parametric shape)
+  std::vector<float> mean_edges;   // [bins - 1]
+  std::vector<float> z;            // [bins][levels], non-decreasing within a bin
+  float target_step = 0.f;
+  bool empty() const { return levels == 0; }
+  int bins() const { return static_cast<int>(mean_edges.size()) + 1; }
+  // z at probability u in (0, 1) for a cell whose predicted mean is `mean`: linear between the
+  // table's points, its end points beyond them.
+  double quantile(double mean, double u) const;
+  bool operator==(const SpreadResidual&) const = default;
+};
+// Throws an Error naming `where` unless the table is empty or well formed (levels 2..4096, finite
+// sorted edges, finite z non-decreasing within each bin, step finite and >= 0).
+void check_spread_residual(const SpreadResidual& r, const std::string& where);
+// As stored in checkpoints: {"levels": K, "mean_edges": [...], "z": [...], "target_step": s}.
+// Parsing checks the table (errors name `where`).
+std::string spread_residual_json(const SpreadResidual& r);
+SpreadResidual parse_spread_residual(const std::string& json, const std::string& where);
+
 }  // namespace lidarsim::nn

@@ -113,6 +113,9 @@ UNet::UNet(const UNetConfig& config) : config_(config), ws_(std::make_unique<Wor
     throw Error("UNet config: spread_scale: expected a finite number > 0, got " + std::to_string(config.spread_scale));
   if (config.spread_scale != 1.f && !has_spread_head(config.heads))
     throw Error("UNet config: spread_scale: " + std::to_string(config.spread_scale) + " without a spread head");
+  check_spread_residual(config.spread_residual, "UNet config: spread_residual");
+  if (!config.spread_residual.empty() && !has_spread_head(config.heads))
+    throw Error("UNet config: spread_residual: a residual table without a spread head");
   const int in_net = config.in_channels + (lk.classes > 0 ? 1 : 0);  // enc0.conv1 also sees the base
 
   auto conv = [&](const std::string& name, int out, int in, int k) {
@@ -162,6 +165,13 @@ void UNet::set_spread_scale(float factor) {
     throw Error("UNet::set_spread_scale: expected a finite number > 0, got " + std::to_string(factor));
   if (factor != 1.f && !has_spread_head(config_.heads)) throw Error("UNet::set_spread_scale: the model has no spread head");
   config_.spread_scale = factor;
+}
+
+void UNet::set_spread_residual(SpreadResidual residual) {
+  check_spread_residual(residual, "UNet::set_spread_residual");
+  if (!residual.empty() && !has_spread_head(config_.heads))
+    throw Error("UNet::set_spread_residual: the model has no spread head");
+  config_.spread_residual = std::move(residual);
 }
 
 UNet::~UNet() = default;

@@ -55,6 +55,9 @@ struct UNetConfig {
   // spread_scale * exp(clamp(s)). Fitted after training on cells the mean never trained on
   // (train/spread_calibration.h); 1 = uncalibrated (every model without a spread head).
   float spread_scale = 1.f;
+  // The spread's residual shape and the targets' grid, fitted with the scale (nn/heads.h); empty:
+  // the head's own Laplace/Gaussian.
+  SpreadResidual spread_residual{};
   bool operator==(const UNetConfig&) const = default;
 };
 
@@ -68,6 +71,8 @@ class UNet {
   const UNetConfig& config() const { return config_; }
   // Sets config().spread_scale (finite, > 0); the weights are not touched.
   void set_spread_scale(float factor);
+  // Sets config().spread_residual (checked; needs a spread head unless empty).
+  void set_spread_residual(SpreadResidual residual);
   ParamArena& params() { return params_; }
   const ParamArena& params() const { return params_; }
 

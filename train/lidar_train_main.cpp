@@ -191,6 +191,10 @@ void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::t
                 "90%% %.3f); validation before it: NLL %.4f, inside 50%% %.3f, 90%% %.3f\n",
                 *result.spread_scale, inner.cells, inner.nll, inner.within50, inner.within90, raw.nll, raw.within50,
                 raw.within90);
+    const lidarsim::nn::SpreadResidual& r = result.model->config().spread_residual;
+    std::printf("spread residual: %d quantiles of (y - mean) / scale in each of %d bins of the mean, fitted on the same "
+                "cells; draws rounded to the targets' grid step %g (0: continuous)\n",
+                r.levels, r.bins(), r.target_step);
   } else if (final_spread) {
     std::printf("spread not calibrated (scale x1): --early-stop fits its factor on the inner region\n");
   }

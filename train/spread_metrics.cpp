@@ -81,4 +81,91 @@ SpreadMetrics calibrate_spread(nn::UNet& model, const pgm::EncoderConfig& encode
   return before;
 }
 
+namespace {
+
+// Linear interpolation between order statistics of sorted `s` at probability q.
+double percentile_of_sorted(const std::vector<double>& s, double q) {
+  const double x = q * static_cast<double>(s.size() - 1);
+  const std::size_t k = std::min(static_cast<std::size_t>(x), s.size() - 1), k1 = std::min(k + 1, s.size() - 1);
+  return s[k] + (x - static_cast<double>(k)) * (s[k1] - s[k]);
+}
+
+}  // namespace
+
+double target_grid_step(std::vector<double> targets) {
+  if (targets.size() < 100) return 0;
+  std::sort(targets.begin(), targets.end());
+  targets.erase(std::unique(targets.begin(), targets.end(), [](double a, double b) { return b - a < 1e-7; }), targets.end());
+  if (targets.size() < 2) return 0;
+  double gap = targets.back() - targets.front();
+  for (std::size_t i = 1; i < targets.size(); ++i) gap = std::min(gap, targets[i] - targets[i - 1]);
+  // Over the span the step's float error averages out: KITTI's 0.0099999905 becomes 0.01.
+  const double span = targets.back() - targets.front();
+  const double step = span / std::round(span / gap);
+  for (double v : targets)
+    if (std::abs(v / step - std::round(v / step)) > 0.01) return 0;
+  return step;
+}
+
+nn::SpreadResidual spread_residual_from(const std::vector<double>& mean, const std::vector<double>& z,
+                                        const std::vector<double>& y, int bins, int levels) {
+  if (mean.size() != z.size() || mean.size() != y.size()) throw Error("spread_residual_from: sizes differ");
+  if (bins < 1 || levels < 2) throw Error("spread_residual_from: bins >= 1 and levels >= 2");
+  if (mean.size() < static_cast<std::size_t>(20 * bins))
+    throw Error("spread_residual_from: " + std::to_string(mean.size()) + " cells, fewer than 20 per bin of the mean (" +
+                std::to_string(bins) + " bins)");
+  nn::SpreadResidual r;
+  r.levels = levels;
+  std::vector<double> sorted_mean = mean;
+  std::sort(sorted_mean.begin(), sorted_mean.end());
+  for (int b = 1; b < bins; ++b) r.mean_edges.push_back(static_cast<float>(percentile_of_sorted(sorted_mean, double(b) / bins)));
+  std::vector<std::vector<double>> by_bin(static_cast<std::size_t>(bins));
+  for (std::size_t i = 0; i < mean.size(); ++i) {
+    // The same rule as SpreadResidual::quantile (upper_bound on the float edges).
+    const auto bin = std::upper_bound(r.mean_edges.begin(), r.mean_edges.end(), static_cast<float>(mean[i])) - r.mean_edges.begin();
+    by_bin[static_cast<std::size_t>(bin)].push_back(z[i]);
+  }
+  for (auto& v : by_bin) {
+    // Ties in the mean can leave a bin empty: it takes every cell's residual.
+    if (v.empty()) v = z;
+    std::sort(v.begin(), v.end());
+    for (int k = 0; k < levels; ++k) r.z.push_back(static_cast<float>(percentile_of_sorted(v, (k + 0.5) / levels)));
+  }
+  r.target_step = static_cast<float>(target_grid_step(y));
+  nn::check_spread_residual(r, "spread_residual_from");
+  return r;
+}
+
+nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig& encoder,
+                                       const std::vector<const data::FrameSource*>& sets,
+                                       const data::SectorSplit& region, int bins, int levels) {
+  const auto& heads = model.config().heads;
+  if (heads.size() < 2 || !nn::has_spread_head(heads)) throw Error("fit_spread_residual: the model has no spread head");
+  const nn::LogScaleClamp clamp{};
+  std::vector<double> mean, z, y;
+  nn::Tensor input, prediction;
+  for (const data::FrameSource* set : sets)
+    for (int n = 0; n < set->size(); ++n) {
+      const data::FrameRef frame = set->frame(n);
+      input.resize({1, encoder.input_channels(), set->rows(), set->cols()});
+      pgm::encode_input(set->view(frame), encoder, input, 0);
+      model.predict(input, prediction);
+      const auto& ids = set->header().frames;
+      const auto roles = region.roles(set->cols(), n < static_cast<int>(ids.size()) ? ids[static_cast<std::size_t>(n)] : "");
+      const std::size_t plane = static_cast<std::size_t>(set->rows()) * set->cols();
+      const float* mu = prediction.data();
+      const float* log_scale = mu + plane;
+      for (std::size_t i = 0; i < plane; ++i) {
+        if (frame.mask[i] <= 0 || roles[i % static_cast<std::size_t>(set->cols())] != data::kValidation) continue;
+        const double scale = model.config().spread_scale * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
+        mean.push_back(mu[i]);
+        z.push_back((frame.target[i] - mu[i]) / scale);
+        y.push_back(frame.target[i]);
+      }
+    }
+  nn::SpreadResidual r = spread_residual_from(mean, z, y, bins, levels);
+  model.set_spread_residual(r);
+  return r;
+}
+
 }  // namespace lidarsim::train

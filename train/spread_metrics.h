@@ -51,4 +51,24 @@ SpreadMetrics validate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder
 SpreadMetrics calibrate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder,
                                const std::vector<const data::FrameSource*>& sets, const data::SectorSplit& region);
 
+// The grid the targets sit on (KITTI reflectance: 0.01; 8-bit intensity: 1/255): the smallest gap
+// between distinct values, refined over their span, when every value lies on it within 1 % of a
+// step; 0 (continuous) otherwise or with fewer than 100 values.
+double target_grid_step(std::vector<double> targets);
+
+// The residual table (nn::SpreadResidual) of cells with predicted mean `mean`, standardised
+// residual `z` = (y - mean) / scale and target `y`: `bins` bins of the mean with equal cell counts,
+// `levels` quantiles of z in each (at (k + 0.5) / levels, linear between order statistics), the
+// targets' grid step. Throws when there are fewer than 20 cells per bin.
+nn::SpreadResidual spread_residual_from(const std::vector<double>& mean, const std::vector<double>& z,
+                                        const std::vector<double>& y, int bins = 8, int levels = 64);
+
+// Fits that table on the validation cells of `region` (lidar-train: the --early-stop inner region,
+// after calibrate_spread, with the calibrated scale) and stores it in the model
+// (UNetConfig::spread_residual). Why there: the residuals of cells the mean trained on are smaller
+// and shaped by the fit; on cells it never saw they are what a new place gets. Returns the table.
+nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig& encoder,
+                                       const std::vector<const data::FrameSource*>& sets,
+                                       const data::SectorSplit& region, int bins = 8, int levels = 64);
+
 }  // namespace lidarsim::train

@@ -526,9 +526,14 @@ void TrainingRun::calibrate_spread_on_inner() {
   result.spread_calibration_cells = calibrate_spread(*model, config.encoder, scored, *inner);
   result.spread_scale = model->config().spread_scale;
   result.chosen_spread = validate_spread_now(nullptr);
-  char text[160];
-  std::snprintf(text, sizeof text, "spread scale x%.4f: the likelihood's best factor on the inner region (%ld cells)",
-                *result.spread_scale, result.spread_calibration_cells->cells);
+  // Then the residual's shape with that scale, on the same cells (train/spread_metrics.h).
+  const nn::SpreadResidual residual = fit_spread_residual(*model, config.encoder, scored, *inner);
+  char text[240];
+  std::snprintf(text, sizeof text,
+                "spread scale x%.4f: the likelihood's best factor on the inner region (%ld cells); residual quantiles "
+                "(%d per bin, %d bins of the mean) fitted there; targets' grid step %g",
+                *result.spread_scale, result.spread_calibration_cells->cells, residual.levels, residual.bins(),
+                residual.target_step);
   meta.attributes["spread_calibration"] = text;
 }
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -12,6 +13,7 @@
 #include "infer/intensity_model.h"
 #include "infer/intensity_sampling.h"
 #include "nn/checkpoint.h"
+#include "nn/checkpoint_weights.h"
 #include "nn/unet.h"
 #include "pgm/encoder.h"
 #include "tests/support/temp_path.h"
@@ -171,4 +173,106 @@ TEST(IntensitySampling, ACalibratedCheckpointDrawsWithItsFactor) {
     ++compared;
   }
   EXPECT_GT(compared, 500);
+}
+
+namespace {
+
+// A residual table by hand (nn::SpreadResidual): two bins of the mean split at 0.3; below it z is
+// the quantile function of `low`, above it of `high`, at (k + 0.5) / levels.
+template <class Low, class High>
+nn::SpreadResidual table(Low low, High high, float step, int levels = 256) {
+  nn::SpreadResidual r;
+  r.levels = levels;
+  r.mean_edges = {0.3f};
+  for (int k = 0; k < levels; ++k) r.z.push_back(static_cast<float>(low((k + 0.5) / levels)));
+  for (int k = 0; k < levels; ++k) r.z.push_back(static_cast<float>(high((k + 0.5) / levels)));
+  r.target_step = step;
+  return r;
+}
+
+// 40 equal bins of 0.025 plus the two ends: sum of min(p, q), as qualify/similarity.h does it. The
+// edges sit between the 0.01 grid's values (from -0.005), as a bench's percentile edges do.
+double intersection(const std::vector<double>& a, const std::vector<double>& b) {
+  std::vector<double> ha(42), hb(42);
+  const auto bin = [](double x) {
+    const double t = (x + 0.005) * 40;
+    return t < 0 ? 0 : t >= 40 ? 41 : 1 + std::min(39, static_cast<int>(t));
+  };
+  for (double x : a) ha[static_cast<std::size_t>(bin(x))] += 1.0 / a.size();
+  for (double x : b) hb[static_cast<std::size_t>(bin(x))] += 1.0 / b.size();
+  double s = 0;
+  for (std::size_t k = 0; k < ha.size(); ++k) s += std::min(ha[k], hb[k]);
+  return s;
+}
+
+}  // namespace
+
+// Known truth: "measured" intensity = mean + 0.1 z, clamped to 0..1 and reported on a 0.01 grid,
+// where z's shape depends on the mean (below 0.3 a skewed exponential, above it a narrow uniform).
+// Drawn through the table of that truth, the histogram matches the measured one (intersection
+// >= 0.95; 40 bins of 0.025 hold 2 or 3 grid values each, so a draw off the grid would not); the
+// head's Laplace with the likelihood's best scale cannot (< 0.85).
+TEST(IntensitySampling, AResidualTableReproducesAShapeThatDependsOnTheMean) {
+  const auto low = [](double u) { return -std::log(1 - u) - 1; };  // exponential - 1: skewed, mean 0
+  const auto high = [](double u) { return 0.8 * (2 * u - 1); };    // uniform on [-0.8, 0.8]
+  const nn::SpreadResidual r = table(low, high, 0.01f);
+  const infer::IntensitySampling s{9, 0.f, 1.f};
+  std::vector<double> measured, empirical, laplace;
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  double abs_sum = 0;
+  std::vector<float> means;
+  for (int i = 0; i < 40000; ++i) means.push_back(i % 2 ? 0.15f + 0.1f * (i % 7) / 7 : 0.4f + 0.2f * (i % 11) / 11);
+  for (std::size_t i = 0; i < means.size(); ++i) {
+    const double z = means[i] < 0.3f ? low(u(rng)) : high(u(rng));
+    // As a sensor file holds it: a float on the grid.
+    measured.push_back(static_cast<float>(std::clamp(std::round((means[i] + 0.1 * z) * 100) / 100, 0.0, 1.0)));
+    abs_sum += std::abs(measured.back() - means[i]);
+  }
+  const float b = static_cast<float>(abs_sum / means.size());  // the Laplace's best scale for these cells
+  for (std::size_t i = 0; i < means.size(); ++i) {
+    const float x = infer::sample_intensity_empirical(r, means[i], 0.1f, s, 0, i);
+    EXPECT_NEAR(x * 100, std::round(x * 100), 1e-3) << "on the grid";
+    empirical.push_back(x);
+    laplace.push_back(infer::sample_intensity(nn::HeadKind::log_scale_laplace, means[i], b, s, 0, i));
+  }
+  EXPECT_GE(intersection(empirical, measured), 0.95);
+  EXPECT_LT(intersection(laplace, measured), 0.85);
+}
+
+// The table travels in the checkpoint (format 4) and in the weights file (format 3), and the model
+// draws through it: with every quantile 2, a draw is the mean + 2 scales, put on the grid.
+// --parametric-style sampling (IntensitySampling::parametric) still draws the Laplace.
+TEST(IntensitySampling, ACheckpointWithAResidualTableDrawsThroughIt) {
+  const fs::path untrained = checkpoint("table", {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace});
+  const nn::Checkpoint meta = nn::read_checkpoint_meta(untrained);
+  // Outputs = the head's biases: mean 0.503, scale 0.02, so every draw is 0.543, off the grid.
+  nn::UNet raw(meta.unet);
+  std::fill(raw.params().values(), raw.params().values() + raw.params().size(), 0.f);
+  float* bias = raw.params().value(raw.params().find("head/bias"));
+  bias[0] = 0.503f, bias[1] = std::log(0.02f);
+  nn::SpreadResidual r = table([](double) { return 2.0; }, [](double) { return 2.0; }, 0.01f, 4);
+  raw.set_spread_residual(r);
+  const fs::path ck = untrained.parent_path() / "with_table.h5", weights = untrained.parent_path() / "with_table.bin";
+  nn::save_checkpoint(ck, raw, nullptr, meta);
+  nn::save_weights(weights, raw, meta.attributes);
+  EXPECT_EQ(nn::read_checkpoint_meta(ck).unet.spread_residual, r);
+  const pgm::PolarGridMap map = scan();
+  for (const fs::path& file : {ck, weights}) {
+    infer::IntensityModel model = infer::IntensityModel::load(file);
+    std::vector<float> mean, scale, drawn, laplace;
+    model.predict_distribution(map, mean, scale);
+    model.sample_from_spread({5}, "test");
+    model.predict(map, drawn, 1);
+    model.sample_from_spread({5, 0.f, 1.f, true}, "test");
+    model.predict(map, laplace, 1);
+    int differ = 0;
+    for (std::size_t i = 0; i < map.cells(); ++i) {
+      if (map.channel("mask")[i] <= 0) continue;
+      const double want = std::clamp(std::round(std::clamp(mean[i] + 2.0 * scale[i], 0.0, 1.0) * 100) / 100, 0.0, 1.0);
+      ASSERT_NEAR(drawn[i], want, 1e-6) << file << " cell " << i;
+      differ += laplace[i] != drawn[i];
+    }
+    EXPECT_GT(differ, 100) << file;
+  }
 }

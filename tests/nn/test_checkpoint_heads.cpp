@@ -191,9 +191,9 @@ TEST_F(CheckpointHeadsTest, CheckpointsFromAnOlderBuildLoadAndFormat1IsWrittenBy
 
 TEST_F(CheckpointHeadsTest, ANewerOrUnknownFormatIsRefusedNamingTheField) {
   const fs::path p = save(kHeads, "newer.h5");
-  set_string_attr(p, "format", "lidarsim-checkpoint 4");
+  set_string_attr(p, "format", "lidarsim-checkpoint 5");
   const std::string e = error_of([&] { read_checkpoint_meta(p); });
-  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 4\": this build reads formats 1 to 3"),
+  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 5\": this build reads formats 1 to 4"),
             std::string::npos)
       << e;
   EXPECT_NE(e.find("newer lidarsim"), std::string::npos) << e;

@@ -150,3 +150,39 @@ TEST(SpreadCalibration, CalibrateSpreadFitsTheFactorOnItsRegionAloneAndTheModelC
   nn::UNet plain(nn::UNetConfig{encoder.input_channels(), 1, 4, 1});
   EXPECT_THROW(plain.set_spread_scale(1.5f), Error);
 }
+
+// The residual table (train/spread_metrics.h spread_residual_from) on cells with known truth: the
+// standardised residual is skewed (exponential - 1) where the mean is below 0.3 and uniform on
+// [-0.8, 0.8] above it; targets are reported on a 0.01 grid. The table's bins split the means
+// into equal counts, each bin's quantiles are the truth's within 0.08 (the grid's rounding is
+// 0.005 / 0.1 = 0.05 of a scale at most, 20,000 cells a bin leave ~0.02 of sampling error), and the grid step is found: 0.01, or 0 for targets off a
+// grid. A Laplace (the head's own shape) is 0.3 away at the 10 % quantile of the low bins.
+TEST(SpreadResidual, TableRecoversAShapeThatDependsOnTheMeanAndTheTargetsGrid) {
+  std::mt19937_64 rng(21);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const auto low = [](double p) { return -std::log(1 - p) - 1; };
+  const auto high = [](double p) { return 0.8 * (2 * p - 1); };
+  std::vector<double> mean, z, y, y_continuous;
+  for (int i = 0; i < 160000; ++i) {
+    const double m = 0.1 + 0.4 * u(rng), scale = 0.1;
+    const double truth = m < 0.3 ? low(u(rng)) : high(u(rng));
+    const double reported = std::round((m + scale * truth) * 100) / 100;
+    mean.push_back(m);
+    y.push_back(reported);
+    z.push_back((reported - m) / scale);
+    y_continuous.push_back(m + scale * truth);
+  }
+  const nn::SpreadResidual r = train::spread_residual_from(mean, z, y, 8, 64);
+  ASSERT_EQ(r.bins(), 8);
+  EXPECT_NEAR(r.mean_edges[3], 0.3, 0.01);  // the median of U(0.1, 0.5)
+  EXPECT_NEAR(r.target_step, 0.01, 1e-6);
+  for (double m : {0.12, 0.2, 0.28, 0.32, 0.4, 0.48})
+    for (double p : {0.1, 0.25, 0.5, 0.75, 0.9})
+      EXPECT_NEAR(r.quantile(m, p), m < 0.3 ? low(p) : high(p), 0.08) << "mean " << m << " p " << p;
+  EXPECT_GT(std::abs(r.quantile(0.2, 0.1) - std::log(0.2)), 0.3);  // Laplace(0, 1) at 0.1: log 0.2
+  EXPECT_EQ(train::target_grid_step(y_continuous), 0.0);
+  std::vector<double> eight_bit;
+  for (int i = 0; i < 1000; ++i) eight_bit.push_back(static_cast<float>((i * 37 % 256) / 255.0));
+  EXPECT_NEAR(train::target_grid_step(eight_bit), 1 / 255.0, 1e-7);
+  EXPECT_THROW(train::spread_residual_from({0.1, 0.2}, {0, 1}, {0.1, 0.2}, 8, 64), Error);
+}

@@ -258,3 +258,29 @@ TEST(SpreadHead, ResumedRunEndsWithTheSameCheckpoint) {
   ASSERT_EQ(meta.unet.heads.size(), 2u);
   EXPECT_EQ(meta.unet.heads[1], nn::HeadKind::log_scale_gaussian);
 }
+
+// The spread head cannot cost the mean anything: with the same seed, a run with the head ends with
+// every parameter the mean uses (all layers, row 0 of the 1x1 head and its bias) equal bit for bit
+// to the run without it. The head's row is drawn after the mean's at init, its loss updates only
+// that row (train/spread_step.h), and its zero gradient adds nothing to the shared layers'.
+TEST(SpreadHead, MeanWeightsAreTheSameBitsWithOrWithoutTheHead) {
+  const data::Dataset d = noisy_dataset(2, 8);
+  auto short_config = [](const std::string& heads) {
+    train::TrainConfig c = spread_config(heads);
+    c.epochs = 1;
+    c.steps_per_epoch = 12;
+    return c;
+  };
+  const auto with = train::train_on(short_config("mean,log_scale_laplace"), {&d}, {"noisy"});
+  const auto without = train::train_on(short_config("mean"), {&d}, {"noisy"});
+  const nn::ParamArena &a = with.model->params(), &b = without.model->params();
+  ASSERT_EQ(a.infos().size(), b.infos().size());
+  for (std::size_t p = 0; p < b.infos().size(); ++p) {
+    const nn::ParamInfo& info = b.infos()[p];
+    ASSERT_EQ(a.infos()[p].name, info.name);
+    // The head's parameters are [K, ...]: the mean's are the first 1/K of them.
+    const std::size_t n = info.shape.numel();
+    for (std::size_t i = 0; i < n; ++i)
+      ASSERT_EQ(a.values()[a.infos()[p].offset + i], b.values()[info.offset + i]) << info.name << "[" << i << "]";
+  }
+}
