@@ -18,7 +18,7 @@
 #include "infer/intensity_model.h"
 #include "nn/checkpoint.h"
 #include "nn/precision.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 
 #ifndef LIDARSIM_SOURCE_DIR
 #define LIDARSIM_SOURCE_DIR "."

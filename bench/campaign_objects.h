@@ -30,7 +30,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/planted_tracking.h"
-#include "qualify/objects.h"
+#include "qualify/objects/objects.h"
 
 namespace lidarsim::bench {
 

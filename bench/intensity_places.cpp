@@ -6,7 +6,7 @@
 //       script trains on exactly these)
 //   bench_intensity_places --data ... --models DIR --variants rcm,range --out PREFIX
 //       scores DIR/<held>.<variant>.h5 on every cell of the held-out place beside the lookups of
-//       data/baselines.h (and the loop's per-beam lookup, qualify/intensity.h) fitted on the same
+//       data/baselines.h (and the loop's per-beam lookup, qualify/intensity/intensity.h) fitted on the same
 //       training places, with the histogram intersection and its real-vs-real ceiling of
 //       `lidar-qualify intensity` (qualify/similarity.h; ceiling: the held-out place's scans in
 //       two alternating halves); writes PREFIX.json and PREFIX.md atomically.
@@ -29,7 +29,7 @@
 #include "data/place_split.h"
 #include "infer/intensity_model.h"
 #include "nn/checkpoint.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "qualify/similarity.h"
 
 using namespace lidarsim;

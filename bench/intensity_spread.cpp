@@ -30,7 +30,7 @@
 #include "nn/checkpoint.h"
 #include "nn/receptive_field.h"
 #include "pgm/materials.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "qualify/similarity.h"
 #include "train/spread_metrics.h"
 

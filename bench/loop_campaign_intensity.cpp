@@ -29,7 +29,7 @@
 #include "data/import.h"
 #include "data/nuscenes_lidarseg.h"
 #include "data/planted_scans.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

@@ -1,6 +1,6 @@
 // The return-rate half of the loop's campaign of random planted effects (issues 26, 27): measured
 // HDL-64E scans (SemanticKITTI sequences 00 and 08, KITTI object frames, from ../shared/data), one
-// dropout planted with random parameters (qualify/returns_loop.h: a per-laser dropout, one class
+// dropout planted with random parameters (qualify/returns/returns_loop.h: a per-laser dropout, one class
 // beyond a range, an azimuth window; controls), the loop (qualify::loop_returns) run blind, scored:
 //   detect families  recall = the planted feature is the added effect AND the held-out deviance
 //                    excess after <= 0.7 x before;
@@ -31,7 +31,7 @@
 #include "common/error.h"
 #include "data/import.h"
 #include "pgm/materials.h"
-#include "qualify/returns_loop.h"
+#include "qualify/returns/returns_loop.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

@@ -17,7 +17,7 @@
 // control is the lookup's own estimation error (class x bin keys with few or no fit cells).
 //
 // One planted effect per draw, parameters drawn at random from the draw's seed. Families and the
-// loop feature (qualify/intensity.h kIntensityFeatures) that names each:
+// loop feature (qualify/intensity/intensity.h kIntensityFeatures) that names each:
 //   beam_gain          gain per laser 1 + s u, u uniform -1..1, spread s 0.1-0.5      beam_row
 //   bad_lasers         2-10 lasers at 0.3-0.8 x                                       beam_row
 //   azimuth_window     0.4-0.8 or 1.25-2 x over a window 20-120 deg wide, anywhere    azimuth

@@ -4,7 +4,7 @@
 // sequences of ../shared/data/kitti-tracking-gt-pointrcnn, optionally a window of frames of each)
 // and whose detections (detection/pointrcnn_{Car,Pedestrian,Cyclist}_val/NNNN.txt, AB3DMOT layout)
 // come from a hidden base model plus ONE planted effect with random parameters. The loop
-// (qualify/objects.h loop_objects) is then run blind on it and scored against the draw's truth.
+// (qualify/objects/objects.h loop_objects) is then run blind on it and scored against the draw's truth.
 //
 // Base model (what the KPI model can represent): per class Gaussian errors along and across the
 // line of sight, of length, width, height and heading, each with its own sigma; a detection
@@ -60,7 +60,7 @@ static_assert(kPlantedFamilyNames.size() == static_cast<size_t>(PlantedFamily::C
 std::string to_string(PlantedFamily f);
 PlantedFamily planted_family_from_string(const std::string& name);  // throws naming the valid names
 
-// The loop's target of extra false positives (not one of qualify/objects.h kObjectTargets).
+// The loop's target of extra false positives (not one of qualify/objects/objects.h kObjectTargets).
 inline const std::string kFalsePositivesTarget = "false_positives";
 
 struct PlantedSequence {

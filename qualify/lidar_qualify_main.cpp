@@ -11,13 +11,13 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
-#include "qualify/intensity.h"
-#include "qualify/object_false_positives.h"
-#include "qualify/objects.h"
-#include "qualify/range_noise_cli.h"
+#include "qualify/intensity/intensity.h"
+#include "qualify/objects/object_false_positives.h"
+#include "qualify/objects/objects.h"
+#include "qualify/range_noise/range_noise_cli.h"
 #include "qualify/report.h"
-#include "qualify/returns.h"
-#include "qualify/returns_loop.h"
+#include "qualify/returns/returns.h"
+#include "qualify/returns/returns_loop.h"
 #include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;

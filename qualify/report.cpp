@@ -42,7 +42,7 @@ std::string file_stem(std::string s) {
 
 
 std::string feature_axis_label(const std::string& feature) {
-  // Units of both loops' vocabularies (qualify/objects.h, qualify/intensity.h).
+  // Units of both loops' vocabularies (qualify/objects/objects.h, qualify/intensity/intensity.h).
   static const std::map<std::string, std::string> unit = {
       {"range", "m"},
       {"azimuth", "rad"},

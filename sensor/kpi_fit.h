@@ -98,7 +98,7 @@ KpiModel gaussian_iid_model(const std::vector<CalibrationSequence>& seqs, const 
 double histogram_intersection(const std::vector<double>& reference, const std::vector<double>& other, int bins = 40);
 
 // The truth's velocity and acceleration by differences of each track's box centre over consecutive
-// frames, as the object loop's features (qualify/objects.h): central where the track has both
+// frames, as the object loop's features (qualify/objects/objects.h): central where the track has both
 // neighbours (acceleration (p[f+1] - 2 p[f] + p[f-1]) / dt^2, 3-D), one-sided velocity and zero
 // acceleration at a track's ends, zero for a single frame. Relative to the moving sensor. Any
 // motion the truth carried is replaced.

@@ -55,7 +55,7 @@ struct KpiOptions {
 
 // A conditional term's feature (kConditionalFeatures) for a truth object in the sensor frame with
 // BEV range `range`, `track_age` frames after its first; names and definitions as in the object
-// loop's vocabulary (qualify/objects.h). Throws lidarsim::Error for any other name.
+// loop's vocabulary (qualify/objects/objects.h). Throws lidarsim::Error for any other name.
 double conditional_feature(const std::string& name, const Object& o, double range, long track_age);
 
 class KpiManager {

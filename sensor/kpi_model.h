@@ -51,7 +51,7 @@ struct Innovation {
 
 // Optional conditional term (an effect the object loop can add): in the bin of a
 // per-object feature, `bias` is added to the error's mean and `scale` multiplies its sigma.
-// Feature names are the object loop's vocabulary (qualify/objects.h) that the KPI manager can
+// Feature names are the object loop's vocabulary (qualify/objects/objects.h) that the KPI manager can
 // compute from a truth object: kConditionalFeatures. The same shape serves as the class's
 // conditional term on detection probability (ClassModel::detection_conditional): there `bias`
 // is added to the probability (then clamped to [0, 1]) and `scale` must stay empty.

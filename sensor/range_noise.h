@@ -1,7 +1,7 @@
 #pragma once
 // Range noise of a real sensor: each return's range scatters along its beam (Gaussian) with a
 // spread that depends on range. Fitted on measured scans by `lidar-qualify range-noise`
-// (qualify/range_noise_fit.h, docs/range-noise.md) and stored as JSON:
+// (qualify/range_noise/range_noise_fit.h, docs/range-noise.md) and stored as JSON:
 //   {"format": "lidarsim-range-noise", "version": 1, "sensor": "hdl64e", "source": "...",
 //    "sigma_m": {"a": 0.0074, "b": 0.00056},
 //    "table": {"range_m": [2.5, 7.5, ...], "sigma_m": [0.0083, 0.0084, ...]}, ...}

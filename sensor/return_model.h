@@ -49,7 +49,7 @@ struct ReturnCounts {
   void merge(const ReturnCounts& other);  // same shape, else lidarsim::Error
 };
 
-// A multiplier term the closed loop adds (qualify/returns_loop.h): p' = factor(key(cell)) x p,
+// A multiplier term the closed loop adds (qualify/returns/returns_loop.h): p' = factor(key(cell)) x p,
 // clamped to [0, 1]. Keys, the same in the loop and the simulation:
 //   laser (row), range_5m (24 bins), class, material (the class's default), azimuth_10deg (36),
 //   azimuth_5deg (72), height_0.5m (sensor-frame z = range x sin(elevation), 20 bins from -3 m),

@@ -22,7 +22,7 @@ std::vector<pgm::ClassGroup> one_group_per_class();
 
 // How the per-beam offsets are fitted on the training residuals over the table:
 //   mean  the plain mean per row
-//   loop  as the intensity loop fits its per-beam table (qualify/intensity.h, --base lookup):
+//   loop  as the intensity loop fits its per-beam table (qualify/intensity/intensity.h, --base lookup):
 //         residuals winsorised at the 1st and 99th percentile of all training residuals, then
 //         sum / (n + 5) per row. With one_group_per_class() the untrained model then equals the
 //         loop's "class x range + per-beam table", the best lookup on the guarded split.

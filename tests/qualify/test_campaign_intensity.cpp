@@ -11,7 +11,7 @@
 
 #include "../support/shared_data.h"
 #include "data/planted_scans.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 
 namespace lidarsim::qualify {
 namespace {

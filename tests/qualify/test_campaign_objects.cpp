@@ -10,7 +10,7 @@
 #include <iostream>
 
 #include "bench/campaign_objects.h"
-#include "qualify/objects.h"
+#include "qualify/objects/objects.h"
 #include "tests/support/shared_data.h"
 #include "tests/support/temp_path.h"
 

@@ -1,12 +1,12 @@
 // The false-positive analysis integrates a model's quantiles into expected counts per grid cell
-// (qualify/object_false_positives.h); those must be what the KPI manager draws, or the loop would
+// (qualify/objects/object_false_positives.h); those must be what the KPI manager draws, or the loop would
 // judge a model it does not simulate. Checked cell by cell against 20000 simulated frames, for the
 // class quantiles and for a table written by with_fp_table.
 #include <gtest/gtest.h>
 
 #include <cmath>
 
-#include "qualify/object_false_positives.h"
+#include "qualify/objects/object_false_positives.h"
 #include "sensor/kpi_manager.h"
 
 using namespace lidarsim;

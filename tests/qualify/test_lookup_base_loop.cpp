@@ -10,7 +10,7 @@
 #include "data/frame_source.h"
 #include "data/reference_sensor.h"
 #include "nn/receptive_field.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "train/lookup_fit.h"
 #include "train/trainer.h"
 

@@ -1,4 +1,4 @@
-// The object loop records each candidate's decision when it is made (qualify/object_loop.h
+// The object loop records each candidate's decision when it is made (qualify/objects/object_loop.h
 // ObjectLoopResult), with a reason a user acts on, and the JSON is written from that result. A
 // refusal names the rule that really applied: "at most one bias form per target" only where a
 // better bias form on the same target was tried first.
@@ -10,8 +10,8 @@
 #include <string>
 
 #include "data/reference_sensor.h"
-#include "qualify/object_loop.h"
-#include "qualify/objects.h"
+#include "qualify/objects/object_loop.h"
+#include "qualify/objects/objects.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

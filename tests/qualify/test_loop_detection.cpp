@@ -16,7 +16,7 @@
 #include <string>
 
 #include "data/reference_sensor.h"
-#include "qualify/objects.h"
+#include "qualify/objects/objects.h"
 #include "sensor/kpi_fit.h"
 
 namespace fs = std::filesystem;

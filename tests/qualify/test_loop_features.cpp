@@ -1,4 +1,4 @@
-// The object loop's features (qualify/objects.h) and what the KPI manager computes for the same
+// The object loop's features (qualify/objects/objects.h) and what the KPI manager computes for the same
 // truth object (sensor::conditional_feature on sensor::with_truth_motion, as the loop's
 // re-simulation feeds it) must be the same number: a term fitted on one is applied on the other.
 // A hand-made KITTI tracking sequence: a car whose centre moves unevenly in x, y and z (so a 3-D
@@ -14,7 +14,7 @@
 #include <fstream>
 #include <string>
 
-#include "qualify/objects.h"
+#include "qualify/objects/objects.h"
 #include "sensor/kpi_fit.h"
 #include "sensor/kpi_manager.h"
 

@@ -19,8 +19,8 @@
 #include "common/angles.h"
 #include "common/atomic_file.h"
 #include "data/reference_sensor.h"
-#include "qualify/object_folds.h"
-#include "qualify/objects.h"
+#include "qualify/objects/object_folds.h"
+#include "qualify/objects/objects.h"
 #include "sensor/kpi_model.h"
 #include "tests/support/temp_path.h"
 

@@ -10,7 +10,7 @@
 #include <iostream>
 
 #include "data/reference_sensor.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "tests/support/reference_scans.h"
 
 using namespace lidarsim;

@@ -11,7 +11,7 @@
 #include <iostream>
 
 #include "data/reference_sensor.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

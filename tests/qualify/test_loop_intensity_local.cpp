@@ -12,7 +12,7 @@
 #include "data/reference_sensor.h"
 #include "infer/scan_prediction.h"
 #include "nn/checkpoint.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

@@ -13,7 +13,7 @@
 
 #include "data/planted_scans.h"
 #include "data/reference_sensor.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "tests/support/reference_scans.h"
 
 using namespace lidarsim;

@@ -13,7 +13,7 @@
 #include <string>
 
 #include "data/reference_sensor.h"
-#include "qualify/objects.h"
+#include "qualify/objects/objects.h"
 #include "sensor/kpi_model.h"
 
 namespace fs = std::filesystem;

@@ -1,4 +1,4 @@
-// The object loop's ranking order (qualify/object_loop.h best_per_feature): a candidate ruled out
+// The object loop's ranking order (qualify/objects/object_loop.h best_per_feature): a candidate ruled out
 // by its own interval or by its selection-aware bound must not stand in the way of one that
 // passes. The top of the ranking is what the loop judges and adds first; when it was a form that
 // could not pass, every other form was left "not tried" and the loop added nothing. Seen on a
@@ -9,7 +9,7 @@
 #include <limits>
 #include <vector>
 
-#include "qualify/object_loop.h"
+#include "qualify/objects/object_loop.h"
 
 using namespace lidarsim::qualify;
 using obj::Candidate;

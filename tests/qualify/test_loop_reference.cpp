@@ -12,8 +12,8 @@
 #include <string>
 
 #include "data/reference_sensor.h"
-#include "qualify/intensity.h"
-#include "qualify/objects.h"
+#include "qualify/intensity/intensity.h"
+#include "qualify/objects/objects.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

@@ -1,4 +1,4 @@
-// The closed loop on the return rate (qualify/returns_loop.h) on synthetic geometry cells whose
+// The closed loop on the return rate (qualify/returns/returns_loop.h) on synthetic geometry cells whose
 // return probability is known: a planted per-laser dropout must be named "laser" and cut the
 // held-out deviance; a control must add nothing. The reference is the same scans before the plant,
 // as in the campaign (bench/loop_campaign_returns.cpp).
@@ -8,7 +8,7 @@
 
 #include "common/error.h"
 #include "pgm/materials.h"
-#include "qualify/returns_loop.h"
+#include "qualify/returns/returns_loop.h"
 #include "qualify/similarity.h"
 
 using namespace lidarsim;

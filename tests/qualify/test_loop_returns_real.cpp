@@ -5,7 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "data/import.h"
-#include "qualify/returns_loop.h"
+#include "qualify/returns/returns_loop.h"
 #include "tests/support/shared_data.h"
 
 using namespace lidarsim;

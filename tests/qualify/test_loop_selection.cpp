@@ -1,4 +1,4 @@
-// The object loop's selection-aware bound (qualify/object_selection.h). The loop scores some 200
+// The object loop's selection-aware bound (qualify/objects/object_selection.h). The loop scores some 200
 // candidates on the held-out tracks and judges the best on the same tracks; on data without any
 // effect the best of many candidates passes its own 95 % interval most of the time (the winner's
 // curse the campaign's controls showed: speed on detection, longitudinal velocity on height). The
@@ -11,7 +11,7 @@
 
 #include "bench/campaign_objects.h"
 #include "common/error.h"
-#include "qualify/object_selection.h"
+#include "qualify/objects/object_selection.h"
 #include "tests/support/shared_data.h"
 #include "tests/support/temp_path.h"
 

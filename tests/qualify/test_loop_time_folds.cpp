@@ -14,8 +14,8 @@
 
 #include "common/angles.h"
 #include "data/reference_sensor.h"
-#include "qualify/object_folds.h"
-#include "qualify/objects.h"
+#include "qualify/objects/object_folds.h"
+#include "qualify/objects/objects.h"
 
 namespace fs = std::filesystem;
 using namespace lidarsim;

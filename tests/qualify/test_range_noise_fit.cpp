@@ -14,8 +14,8 @@
 
 #include "common/angles.h"
 #include "pgm/materials.h"
-#include "qualify/range_noise_cli.h"
-#include "qualify/range_noise_fit.h"
+#include "qualify/range_noise/range_noise_cli.h"
+#include "qualify/range_noise/range_noise_fit.h"
 #include "sensor/frames.h"
 #include "sensor/pcl_generator.h"
 #include "sensor/range_noise.h"

@@ -5,7 +5,7 @@
 
 #include "data/semantickitti.h"
 #include "pgm/materials.h"
-#include "qualify/range_noise_fit.h"
+#include "qualify/range_noise/range_noise_fit.h"
 #include "sensor/range_noise.h"
 #include "tests/support/shared_data.h"
 

@@ -7,7 +7,7 @@
 
 #include "data/import.h"
 #include "pgm/materials.h"
-#include "qualify/returns.h"
+#include "qualify/returns/returns.h"
 #include "tests/support/shared_data.h"
 
 using namespace lidarsim;

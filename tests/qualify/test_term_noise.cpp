@@ -1,4 +1,4 @@
-// The noise of an error once the loop's term takes its part (qualify/object_terms.h
+// The noise of an error once the loop's term takes its part (qualify/objects/object_terms.h
 // shrink_noise_for_term): a term that carried the error's heavy tails and its correlation along a
 // track (a lag on the few fast objects) leaves the noise's own shape, not the base's. And the
 // error model fitted from samples alone (sensor/kpi_fit.h fit_error_model).
@@ -8,8 +8,8 @@
 #include <random>
 #include <vector>
 
-#include "qualify/object_folds.h"
-#include "qualify/object_terms.h"
+#include "qualify/objects/object_folds.h"
+#include "qualify/objects/object_terms.h"
 #include "sensor/kpi_fit.h"
 
 namespace {

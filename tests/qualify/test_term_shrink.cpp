@@ -1,4 +1,4 @@
-// The loop's bias terms shrunk by their own track-bootstrap uncertainty (qualify/object_terms.h
+// The loop's bias terms shrunk by their own track-bootstrap uncertainty (qualify/objects/object_terms.h
 // shrink_by_track_bootstrap): a bin carried by few tracks is trusted less than the same bin value
 // carried by many, a strong effect seen on many tracks survives nearly whole, noise goes. And the
 // base model's per-track size constants pooled across classes (object_folds.h pool_track_spread).
@@ -10,8 +10,8 @@
 #include <random>
 #include <vector>
 
-#include "qualify/object_folds.h"
-#include "qualify/object_terms.h"
+#include "qualify/objects/object_folds.h"
+#include "qualify/objects/object_terms.h"
 
 namespace {
 
@@ -152,7 +152,7 @@ TEST(TermShrink, AClassWithFewTracksIsPooledTowardsTheSharedShapeNotTowardsZero)
 
 }  // namespace
 
-// The base model's per-track size constants pooled across classes (qualify/object_folds.h
+// The base model's per-track size constants pooled across classes (qualify/objects/object_folds.h
 // pool_track_spread): a class seen on few tracks is pulled towards the others' ratio of per-track
 // to within-track spread, a class seen on many keeps its own.
 namespace {

@@ -1,4 +1,4 @@
-// Which object loop candidates the base KPI model already holds (qualify/object_candidates.h
+// Which object loop candidates the base KPI model already holds (qualify/objects/object_candidates.h
 // used_by_model): judged per feature, target and form, not per feature. Occlusion (the model's
 // visibility bin) conditions detection and the errors' spread but no error's mean, so an error's
 // mean form of occlusion is a candidate like any other.
@@ -6,8 +6,8 @@
 
 #include <string>
 
-#include "qualify/object_candidates.h"
-#include "qualify/object_folds.h"
+#include "qualify/objects/object_candidates.h"
+#include "qualify/objects/object_folds.h"
 #include "sensor/kpi_model.h"
 
 using namespace lidarsim;

@@ -105,7 +105,7 @@ TEST(KpiConditional, FeaturesComeFromTheTruthObjectAndTheTrackAge) {
   }
 }
 
-// Acceleration and truncation as the object loop defines them (qualify/objects.h): acceleration
+// Acceleration and truncation as the object loop defines them (qualify/objects/objects.h): acceleration
 // the BEV norm of the truth's acceleration (the loop bins |a.head<2>()|, not the 3-D norm),
 // truncation the object's share outside the FoV as it stands. tests/qualify/test_loop_features.cpp
 // checks the same against the loop's own records.

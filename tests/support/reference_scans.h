@@ -5,7 +5,7 @@
 #include <string>
 
 #include "data/reference_sensor.h"
-#include "qualify/intensity.h"
+#include "qualify/intensity/intensity.h"
 #include "tests/support/temp_path.h"
 
 namespace lidarsim::testing {
