@@ -52,6 +52,53 @@ class OutputTrace {
   std::ostream* out_ = nullptr;
 };
 
+// What a run of frames took: per frame, from message read to SensorData written, and the model's
+// own stages; objects and lidar detections reported over all frames (every detector).
+struct StreamStats {
+  std::vector<double> latency_ms, model_ms;
+  std::size_t detections = 0, objects = 0;
+};
+
+// Frame after frame until the input ends, each flushed as soon as it is written.
+StreamStats stream_frames(OsiRunner& runner, osi::TraceReader& reader, osi::TraceWriter& writer, osi::TraceFormat format,
+                          const std::string& source) {
+  osi3::SensorView view;
+  osi3::SensorData data;  // the text format only: binary output is encoded straight to bytes
+  std::string framed;     // length field + SensorData, reused from frame to frame
+  StreamStats st;
+  using clock = std::chrono::steady_clock;
+  while (reader.next(view)) {
+    const auto t0 = clock::now();  // message in hand: from here to flushed output is our latency
+    if (format == osi::TraceFormat::Binary) {
+      runner.step(view, reader.index(), source, framed, osi::kLengthBytes);
+      writer.write_framed(framed);
+    } else {
+      runner.step(view, reader.index(), source, data);
+      writer.write(data);
+    }
+    st.latency_ms.push_back(std::chrono::duration<double, std::milli>(clock::now() - t0).count());
+    st.model_ms.push_back(runner.last_frame().total_ms);
+    st.objects += runner.reported_objects();
+    st.detections += runner.reported_points();
+  }
+  return st;
+}
+
+void print_stream_summary(const StreamStats& st, const std::string& out_path) {
+  std::vector<double> sorted = st.latency_ms;
+  std::sort(sorted.begin(), sorted.end());
+  double mean = 0, model = 0;
+  for (double v : st.latency_ms) mean += v;
+  for (double v : st.model_ms) model += v;
+  const std::size_t n = st.latency_ms.size();
+  std::fprintf(stderr,
+               "%zu frames: %.1f ms per frame from message read to SensorData written (median %.1f, p95 %.1f; "
+               "model stages %.1f); %.1f objects and %.0f lidar detections per frame -> %s\n",
+               n, mean / n, sorted[n / 2], sorted[std::min(n - 1, n * 95 / 100)], model / n,
+               static_cast<double>(st.objects) / n, static_cast<double>(st.detections) / n,
+               out_path == "-" ? "stdout" : out_path.c_str());
+}
+
 }  // namespace
 
 int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
@@ -113,42 +160,10 @@ int run_osi_command(int argc, char** argv, const DefaultResolver& resolve) {
   OutputTrace output(out_path);
   osi::TraceReader reader(*in, source);
   osi::TraceWriter writer(output.stream(), format);
-  osi3::SensorView view;
-  osi3::SensorData data;  // the text format only: binary output is encoded straight to bytes
-  std::string framed;     // length field + SensorData, reused from frame to frame
-  std::vector<double> latency_ms, model_ms;
-  std::size_t detections = 0, objects = 0;
-  using clock = std::chrono::steady_clock;
-  while (reader.next(view)) {
-    const auto t0 = clock::now();  // message in hand: from here to flushed output is our latency
-    if (format == osi::TraceFormat::Binary) {
-      runner.step(view, reader.index(), source, framed, osi::kLengthBytes);
-      writer.write_framed(framed);
-    } else {
-      runner.step(view, reader.index(), source, data);
-      writer.write(data);
-    }
-    latency_ms.push_back(std::chrono::duration<double, std::milli>(clock::now() - t0).count());
-    model_ms.push_back(runner.last_frame().total_ms);
-    objects += runner.reported_objects();
-    detections += runner.reported_points();  // every detector
-  }
+  const StreamStats st = stream_frames(runner, reader, writer, format, source);
   if (reader.index() < 0) throw Error(source + ": no message (an empty trace)");
   output.commit();
-  if (!args.count("quiet")) {
-    std::vector<double> sorted = latency_ms;
-    std::sort(sorted.begin(), sorted.end());
-    double mean = 0, model = 0;
-    for (double v : latency_ms) mean += v;
-    for (double v : model_ms) model += v;
-    const std::size_t n = latency_ms.size();
-    std::fprintf(stderr,
-                 "%zu frames: %.1f ms per frame from message read to SensorData written (median %.1f, p95 %.1f; "
-                 "model stages %.1f); %.1f objects and %.0f lidar detections per frame -> %s\n",
-                 n, mean / n, sorted[n / 2], sorted[std::min(n - 1, n * 95 / 100)], model / n,
-                 static_cast<double>(objects) / n, static_cast<double>(detections) / n,
-                 out_path == "-" ? "stdout" : out_path.c_str());
-  }
+  if (!args.count("quiet")) print_stream_summary(st, out_path);
   return 0;
 }
 

@@ -7,6 +7,29 @@
 
 namespace lidarsim::train {
 
+namespace {
+
+// Every frame of `sets` through the model, one at a time: `visit(frame, prediction planes, the
+// split's role per column, rows, cols)`.
+template <class Visit>
+void for_each_prediction(nn::UNet& model, const pgm::EncoderConfig& encoder,
+                         const std::vector<const data::FrameSource*>& sets, const data::SectorSplit& split,
+                         Visit&& visit) {
+  nn::Tensor input, prediction;
+  for (const data::FrameSource* set : sets)
+    for (int n = 0; n < set->size(); ++n) {
+      const data::FrameRef frame = set->frame(n);
+      input.resize({1, encoder.input_channels(), set->rows(), set->cols()});
+      pgm::encode_input(set->view(frame), encoder, input, 0);
+      model.predict(input, prediction);
+      const auto& ids = set->header().frames;
+      const auto roles = split.roles(set->cols(), n < static_cast<int>(ids.size()) ? ids[static_cast<std::size_t>(n)] : "");
+      visit(frame, prediction.data(), roles, set->rows(), set->cols());
+    }
+}
+
+}  // namespace
+
 SpreadMetrics SpreadSums::get() const {
   SpreadMetrics m;
   m.cells = cells;
@@ -57,19 +80,13 @@ SpreadMetrics validate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder
   const auto& heads = model.config().heads;
   if (heads.size() < 2) throw Error("validate_spread: the model has no spread head");
   SpreadSums sums;
-  nn::Tensor input, prediction;
-  for (const data::FrameSource* set : sets)
-    for (int n = 0; n < set->size(); ++n) {
-      const data::FrameRef frame = set->frame(n);
-      input.resize({1, encoder.input_channels(), set->rows(), set->cols()});
-      pgm::encode_input(set->view(frame), encoder, input, 0);
-      model.predict(input, prediction);
-      const auto& ids = set->header().frames;
-      const auto roles = split.roles(set->cols(), n < static_cast<int>(ids.size()) ? ids[static_cast<std::size_t>(n)] : "");
-      const std::size_t plane = static_cast<std::size_t>(set->rows()) * set->cols();
-      add_spread_cells(sums, heads[1], prediction.data(), prediction.data() + plane, frame.target, frame.mask, roles,
-                       set->rows(), set->cols(), data::kValidation, {}, model.config().spread_scale);
-    }
+  for_each_prediction(model, encoder, sets, split,
+                      [&](const data::FrameRef& frame, const float* pred, const std::vector<std::uint8_t>& roles, int rows,
+                          int cols) {
+                        const std::size_t plane = static_cast<std::size_t>(rows) * cols;
+                        add_spread_cells(sums, heads[1], pred, pred + plane, frame.target, frame.mask, roles, rows,
+                                         cols, data::kValidation, {}, model.config().spread_scale);
+                      });
   return sums.get();
 }
 
@@ -143,26 +160,21 @@ nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig
   if (heads.size() < 2 || !nn::has_spread_head(heads)) throw Error("fit_spread_residual: the model has no spread head");
   const nn::LogScaleClamp clamp{};
   std::vector<double> mean, z, y;
-  nn::Tensor input, prediction;
-  for (const data::FrameSource* set : sets)
-    for (int n = 0; n < set->size(); ++n) {
-      const data::FrameRef frame = set->frame(n);
-      input.resize({1, encoder.input_channels(), set->rows(), set->cols()});
-      pgm::encode_input(set->view(frame), encoder, input, 0);
-      model.predict(input, prediction);
-      const auto& ids = set->header().frames;
-      const auto roles = region.roles(set->cols(), n < static_cast<int>(ids.size()) ? ids[static_cast<std::size_t>(n)] : "");
-      const std::size_t plane = static_cast<std::size_t>(set->rows()) * set->cols();
-      const float* mu = prediction.data();
-      const float* log_scale = mu + plane;
-      for (std::size_t i = 0; i < plane; ++i) {
-        if (frame.mask[i] <= 0 || roles[i % static_cast<std::size_t>(set->cols())] != data::kValidation) continue;
-        const double scale = model.config().spread_scale * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
-        mean.push_back(mu[i]);
-        z.push_back((frame.target[i] - mu[i]) / scale);
-        y.push_back(frame.target[i]);
-      }
-    }
+  for_each_prediction(model, encoder, sets, region,
+                      [&](const data::FrameRef& frame, const float* mu, const std::vector<std::uint8_t>& roles, int rows,
+                          int cols) {
+                        const std::size_t plane = static_cast<std::size_t>(rows) * cols;
+                        const float* log_scale = mu + plane;
+                        for (std::size_t i = 0; i < plane; ++i) {
+                          if (frame.mask[i] <= 0 || roles[i % static_cast<std::size_t>(cols)] != data::kValidation)
+                            continue;
+                          const double scale =
+                              model.config().spread_scale * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
+                          mean.push_back(mu[i]);
+                          z.push_back((frame.target[i] - mu[i]) / scale);
+                          y.push_back(frame.target[i]);
+                        }
+                      });
   nn::SpreadResidual r = spread_residual_from(mean, z, y, bins, levels);
   model.set_spread_residual(r);
   return r;

@@ -117,6 +117,89 @@ FpPersistStats simulated_stats(const TrackingData& data, const std::vector<int>&
   return out;
 }
 
+// Spearman's rho of (score, previous score) over linked pairs.
+double spearman_rho(const std::vector<std::array<double, 2>>& pairs) {
+  auto ranks = [&](int k) {
+    std::vector<size_t> idx(pairs.size());
+    for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;
+    std::sort(idx.begin(), idx.end(), [&](size_t x, size_t y) { return pairs[x][k] < pairs[y][k]; });
+    std::vector<double> r(idx.size());
+    for (size_t i = 0; i < idx.size(); ++i) r[idx[i]] = static_cast<double>(i);
+    return r;
+  };
+  const auto r0 = ranks(0), r1 = ranks(1);
+  const double n = static_cast<double>(pairs.size()), mr = (n - 1) / 2;
+  double sxy = 0, sxx = 0;
+  for (size_t i = 0; i < pairs.size(); ++i) sxy += (r0[i] - mr) * (r1[i] - mr), sxx += (r0[i] - mr) * (r0[i] - mr);
+  return sxx > 0 ? sxy / sxx : 0;
+}
+
+// Jitter and score correlation of one class from its linked pairs: the median |lateral step| as a
+// normal step's sd, Spearman's rho as the correlation of a Gaussian copula.
+void fit_jitter_and_score_ar1(const std::vector<double>& steps, const std::vector<std::array<double, 2>>& pairs,
+                              sensor::FalsePositivePersistence& p) {
+  std::vector<double> a(steps.size());
+  for (size_t i = 0; i < steps.size(); ++i) a[i] = std::abs(steps[i]);
+  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+  p.jitter = a[a.size() / 2] / 0.6745;
+  p.score_ar1 = std::clamp(2 * std::sin(std::numbers::pi / 6 * spearman_rho(pairs)), 0.0, 1.0);
+}
+
+// The persistence share per class of the manager's false positives on the fit frames under `q`,
+// pooled over kFitSeeds draws.
+PerClass<double> simulated_shares(const sensor::KpiModel& m, const ObjectSet& fit, std::uint64_t seed,
+                                  const PerClass<sensor::FalsePositivePersistence>& q) {
+  const sensor::KpiModel mm = with_persistence(m, q);
+  FpPersistSums t{};
+  for (int k = 0; k < kFitSeeds; ++k) add_to(t, total(fp_persist_stats(simulate_false_positives(mm, fit, seed + k))));
+  return shares_of(t);
+}
+
+// The bisection for a target share per class, from `start` (survival from the runs, ghost share 1):
+// the ghost share where every false positive as a ghost reaches the target, else the survival; a
+// class whose share without persistence already reaches its target (or not `usable`) gets none.
+PerClass<sensor::FalsePositivePersistence> solve_persistence(const sensor::KpiModel& m, const ObjectSet& fit,
+                                                             std::uint64_t seed,
+                                                             const PerClass<sensor::FalsePositivePersistence>& start,
+                                                             const PerClass<bool>& usable,
+                                                             const PerClass<double>& target) {
+  PerClass<sensor::FalsePositivePersistence> p = start;
+  PerClass<bool> fitted = usable;
+  {
+    auto none = p;
+    for (auto& q : none) q.survival = 0;
+    const auto at0 = simulated_shares(m, fit, seed, none);
+    for (int c = 0; c < kObjectClassCount; ++c) fitted[c] = fitted[c] && at0[c] < target[c];
+  }
+  const auto at1 = simulated_shares(m, fit, seed, p);  // every false positive a ghost
+  PerClass<bool> by_share{};
+  PerClass<double> lo{}, hi{};
+  for (int c = 0; c < kObjectClassCount; ++c) {
+    by_share[c] = at1[c] >= target[c];
+    lo[c] = by_share[c] ? 0.001 : p[c].survival;
+    hi[c] = by_share[c] ? 1.0 : 0.95;
+  }
+  for (int it = 0; it < kBisection; ++it) {
+    auto q = p;
+    for (int c = 0; c < kObjectClassCount; ++c) {
+      const double mid = 0.5 * (lo[c] + hi[c]);
+      if (!fitted[c]) q[c].survival = 0;
+      else if (by_share[c]) q[c].ghost_share = mid;
+      else q[c].survival = mid;
+    }
+    const auto sh = simulated_shares(m, fit, seed, q);
+    for (int c = 0; c < kObjectClassCount; ++c)
+      if (fitted[c]) (sh[c] < target[c] ? lo[c] : hi[c]) = 0.5 * (lo[c] + hi[c]);
+  }
+  for (int c = 0; c < kObjectClassCount; ++c) {
+    if (!fitted[c]) p[c].survival = 0;
+    else if (by_share[c]) p[c].ghost_share = 0.5 * (lo[c] + hi[c]);
+    else p[c].survival = 0.5 * (lo[c] + hi[c]);
+  }
+  for (int c = 0; c < kObjectClassCount; ++c) p[c].survival = fitted[c] ? p[c].survival : 0;
+  return p;
+}
+
 // Jitter and score correlation from the fit split's linked pairs; survival by bisection so that the
 // manager's false positives on the fit frames have the fit split's persistence share.
 PerClass<sensor::FalsePositivePersistence> fit_persistence(const sensor::KpiModel& m, const TrackingData& data,
@@ -125,30 +208,9 @@ PerClass<sensor::FalsePositivePersistence> fit_persistence(const sensor::KpiMode
   const FpPersistStats st = fp_persist_stats(fit);
   const PerClass<double> target = shares(st);
   PerClass<sensor::FalsePositivePersistence> p;
-  for (int c = 0; c < kObjectClassCount; ++c) {
-    const auto& steps = st.lateral_step[c];
-    const auto& pairs = st.score_pairs[c];
-    if (static_cast<long>(steps.size()) < kMinPairs) continue;
-    std::vector<double> a(steps.size());
-    for (size_t i = 0; i < steps.size(); ++i) a[i] = std::abs(steps[i]);
-    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
-    p[c].jitter = a[a.size() / 2] / 0.6745;  // median |step| of a normal step -> its sd
-    // Spearman's rho of (score, previous score), as the correlation of a Gaussian copula.
-    auto ranks = [&](int k) {
-      std::vector<size_t> idx(pairs.size());
-      for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;
-      std::sort(idx.begin(), idx.end(), [&](size_t x, size_t y) { return pairs[x][k] < pairs[y][k]; });
-      std::vector<double> r(idx.size());
-      for (size_t i = 0; i < idx.size(); ++i) r[idx[i]] = static_cast<double>(i);
-      return r;
-    };
-    const auto r0 = ranks(0), r1 = ranks(1);
-    const double n = static_cast<double>(pairs.size()), mr = (n - 1) / 2;
-    double sxy = 0, sxx = 0;
-    for (size_t i = 0; i < pairs.size(); ++i) sxy += (r0[i] - mr) * (r1[i] - mr), sxx += (r0[i] - mr) * (r0[i] - mr);
-    const double rho_s = sxx > 0 ? sxy / sxx : 0;
-    p[c].score_ar1 = std::clamp(2 * std::sin(std::numbers::pi / 6 * rho_s), 0.0, 1.0);
-  }
+  for (int c = 0; c < kObjectClassCount; ++c)
+    if (static_cast<long>(st.lateral_step[c].size()) >= kMinPairs)
+      fit_jitter_and_score_ar1(st.lateral_step[c], st.score_pairs[c], p[c]);
   // Survival from the continuation of runs; then the ghost share (or, when all ghosts fall short, the
   // survival) by bisection on the persistence share of the manager's draws on the fit frames.
   PerClass<bool> fitted{};
@@ -157,53 +219,8 @@ PerClass<sensor::FalsePositivePersistence> fit_persistence(const sensor::KpiMode
     p[c].survival = fitted[c] ? std::clamp(st.links2[c] / st.links[c], 0.05, 0.95) : 0;
     p[c].ghost_share = 1;
   }
-  auto simulated_shares = [&](const PerClass<sensor::FalsePositivePersistence>& q) {
-    const sensor::KpiModel mm = with_persistence(m, q);
-    FpPersistSums t{};
-    for (int k = 0; k < kFitSeeds; ++k) add_to(t, total(fp_persist_stats(simulate_false_positives(mm, fit, seed + k))));
-    return shares_of(t);
-  };
-  // The bisection for a target share per class (the start p: survival from the runs, ghost share 1).
   const PerClass<sensor::FalsePositivePersistence> start = p;
-  const PerClass<bool> usable = fitted;
-  auto solve = [&](const PerClass<double>& target) {
-    PerClass<sensor::FalsePositivePersistence> p = start;
-    PerClass<bool> fitted = usable;
-    {
-      auto none = p;
-      for (auto& q : none) q.survival = 0;
-      const auto at0 = simulated_shares(none);
-      for (int c = 0; c < kObjectClassCount; ++c) fitted[c] = fitted[c] && at0[c] < target[c];
-    }
-    const auto at1 = simulated_shares(p);  // every false positive a ghost
-    PerClass<bool> by_share{};
-    PerClass<double> lo{}, hi{};
-    for (int c = 0; c < kObjectClassCount; ++c) {
-      by_share[c] = at1[c] >= target[c];
-      lo[c] = by_share[c] ? 0.001 : p[c].survival;
-      hi[c] = by_share[c] ? 1.0 : 0.95;
-    }
-    for (int it = 0; it < kBisection; ++it) {
-      auto q = p;
-      for (int c = 0; c < kObjectClassCount; ++c) {
-        const double mid = 0.5 * (lo[c] + hi[c]);
-        if (!fitted[c]) q[c].survival = 0;
-        else if (by_share[c]) q[c].ghost_share = mid;
-        else q[c].survival = mid;
-      }
-      const auto sh = simulated_shares(q);
-      for (int c = 0; c < kObjectClassCount; ++c)
-        if (fitted[c]) (sh[c] < target[c] ? lo[c] : hi[c]) = 0.5 * (lo[c] + hi[c]);
-    }
-    for (int c = 0; c < kObjectClassCount; ++c) {
-      if (!fitted[c]) p[c].survival = 0;
-      else if (by_share[c]) p[c].ghost_share = 0.5 * (lo[c] + hi[c]);
-      else p[c].survival = 0.5 * (lo[c] + hi[c]);
-    }
-    for (int c = 0; c < kObjectClassCount; ++c) p[c].survival = fitted[c] ? p[c].survival : 0;
-    return p;
-  };
-  p = solve(target);
+  p = solve_persistence(m, fit, seed, start, fitted, target);
   // The manager's false positives alone miss what the re-simulation adds (detections of the truth
   // placed beyond the gate count as false positives too, and never persist): scale the target by the
   // ratio of the re-simulated fit sequences' share to the false positives' own, then solve again.
@@ -218,7 +235,7 @@ PerClass<sensor::FalsePositivePersistence> fit_persistence(const sensor::KpiMode
     const double mine = summarise(own[c]).share;
     if (p[c].survival > 0 && got[c] > 0 && mine > 0) target2[c] = std::min(0.99, target[c] * mine / got[c]), again = true;
   }
-  if (again) p = solve(target2);
+  if (again) p = solve_persistence(m, fit, seed, start, fitted, target2);
   return p;
 }
 
