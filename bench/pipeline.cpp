@@ -23,6 +23,7 @@
 #include <cstring>
 #include <cxxopts.hpp>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <numbers>
 #include <random>
@@ -222,6 +223,138 @@ nlohmann::json stages_json(const std::vector<RunResult>& runs) {
   return j;
 }
 
+// The intensity model: bundled, given, or an untrained unet-ref in a temporary file (removed by
+// the caller).
+struct ModelChoice {
+  fs::path path, temp;
+  std::string note;
+};
+
+ModelChoice choose_model(const cxxopts::ParseResult& args, const fs::path& src) {
+  ModelChoice m;
+  if (args.count("model")) {
+    m.path = args["model"].as<std::string>();
+    m.note = "given";
+  } else if (fs::exists(src / "data/models/intensity_unet.h5")) {
+    m.path = src / "data/models/intensity_unet.h5";
+    m.note = "bundled";
+  } else {
+    m.temp = fs::temp_directory_path() / ("bench_pipeline_unet_ref_" + std::to_string(::getpid()) + ".h5");
+    infer::write_untrained_checkpoint(m.temp, 16, 4, 1, pgm::BeamLayout::hdl64e());
+    m.path = m.temp;
+    m.note = "untrained unet-ref (no bundled model yet)";
+  }
+  return m;
+}
+
+std::set<std::string> parse_parts(const std::string& list) {
+  std::set<std::string> parts;
+  std::stringstream ss(list);
+  for (std::string p; std::getline(ss, p, ',');) {
+    if (p != "whole" && p != "objects" && p != "outputs")
+      throw std::runtime_error("--only: unknown part '" + p + "' (whole, objects, outputs)");
+    parts.insert(p);
+  }
+  return parts;
+}
+
+// What every part needs: the options read once, and factories for fresh pipelines (fresh
+// tracker/KPI state: every run simulates the same frames).
+struct Bench {
+  int threads = 2, runs = 5, frames_used = 0, n = 100, object_frames = 2000, every = 10;
+  ModelChoice model;
+  nn::Checkpoint meta;
+  std::function<infer::SimPipeline()> whole, objects;
+};
+
+// 1. Whole pipeline.
+std::string measure_whole(const Bench& b, nlohmann::json& j) {
+  std::vector<RunResult> whole;
+  for (int r = 0; r < b.runs; ++r) {
+    auto p = b.whole();
+    whole.push_back(run_once(p, b.frames_used));
+  }
+  std::vector<double> fps_whole;
+  for (const auto& r : whole) fps_whole.push_back(r.fps);
+  const double whole_median = median(fps_whole), whole_best = *std::max_element(fps_whole.begin(), fps_whole.end());
+  std::printf("whole pipeline: %d frames x %d runs, %d thread(s), PGM 64 x 1024, UNet base %d depth %d in %d (%s)\n",
+              b.frames_used, b.runs, b.threads, b.meta.unet.base, b.meta.unet.depth, b.meta.unet.in_channels,
+              b.model.note.c_str());
+  std::printf("  %.1f frames/s median (best %.1f), %.1f ms/frame; %.1f objects in view, %.1f reported, %.0f points per frame\n",
+              whole_median, whole_best, 1000 / whole_median, whole.front().objects_in_view, whole.front().reported,
+              whole.front().points);
+  print_stages(whole, true);
+  const double whole_cpu = median_of(whole, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+  std::printf("  process CPU time %.1f ms/frame over all threads (>= %.1f ms/frame of wall time on %d free cores)\n",
+              whole_cpu, whole_cpu / b.threads, b.threads);
+  char row[256];
+  std::snprintf(row, sizeof row, "| whole pipeline, %d threads, UNet base %d depth %d, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |",
+                b.threads, b.meta.unet.base, b.meta.unet.depth, whole_median, 1000 * b.threads / whole_cpu,
+                whole_median >= 10 ? "yes" : "NO");
+  j["whole"] = {{"frames", b.frames_used}, {"fps", whole_median}, {"fps_best", whole_best}, {"cpu_ms_per_frame", whole_cpu},
+                {"unet_base", b.meta.unet.base}, {"unet_depth", b.meta.unet.depth}, {"model", b.model.note},
+                {"stage_ms", stages_json(whole)}};
+  return row;
+}
+
+// 2. Object-level model alone.
+std::string measure_objects(const Bench& b, nlohmann::json& j) {
+  std::vector<RunResult> objects;
+  for (int r = 0; r < b.runs; ++r) {
+    auto p = b.objects();
+    objects.push_back(run_once(p, b.object_frames));
+  }
+  std::vector<double> fps_objects;
+  for (const auto& r : objects) fps_objects.push_back(r.fps);
+  const double obj_median = median(fps_objects), obj_best = *std::max_element(fps_objects.begin(), fps_objects.end());
+  std::printf("object-level model: %d objects, %d frames x %d runs (sampling, frames, FoV, occlusion, tracking, KPI)\n", b.n,
+              b.object_frames, b.runs);
+  std::printf("  %.0f frames/s median (best %.0f), %.3f ms/frame; %.1f objects in view, %.1f reported per frame\n",
+              obj_median, obj_best, 1000 / obj_median, objects.front().objects_in_view, objects.front().reported);
+  print_stages(objects, false);
+  const double obj_cpu = median_of(objects, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+  std::printf("  process CPU time %.3f ms/frame (the object-level model is serial: %.0f frames/s on a free core)\n", obj_cpu,
+              1000 / obj_cpu);
+  char row[256];
+  std::snprintf(row, sizeof row, "| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |", b.n, obj_median,
+                1000 / obj_cpu, obj_median >= 1000 ? "yes" : "NO");
+  j["objects"] = {{"count", b.n}, {"frames", b.object_frames}, {"fps", obj_median}, {"fps_best", obj_best},
+                  {"cpu_ms_per_frame", obj_cpu}, {"fps_cpu_bound", 1000 / obj_cpu}, {"stage_ms", stages_json(objects)}};
+  return row;
+}
+
+// 3. The lidar-infer sim loop with outputs on every N-th frame.
+std::string measure_outputs(const Bench& b, bool all, nlohmann::json& j) {
+  const fs::path dir = fs::temp_directory_path() / ("bench_pipeline_outputs_" + std::to_string(::getpid()));
+  std::vector<RunResult> outs;
+  for (int r = 0; r < b.runs; ++r) {
+    auto p = b.whole();
+    outs.push_back(run_outputs(p, b.frames_used, b.every, dir, all));
+    fs::remove_all(dir);
+  }
+  const double loop = median_of(outs, [](const RunResult& r) { return r.loop_fps; });
+  const double cpu = median_of(outs, [](const RunResult& r) { return r.cpu_ms_per_frame; });
+  const double th = median_of(outs, [](const RunResult& r) { return r.thread_cpu_ms_per_frame; });
+  std::printf("outputs loop (lidar-infer sim --every %d): %d frames x %d runs, %d thread(s), UNet on %s\n", b.every,
+              b.frames_used, b.runs, b.threads, all ? "every frame" : "the written frames only");
+  std::printf("  %.1f frames/s wall (median), pipeline stages %.2f ms/frame\n", loop,
+              median_of(outs, [](const RunResult& r) { return r.ms_per_frame; }));
+  print_stages(outs, true);
+  const double wcpu = median_of(outs, [](const RunResult& r) { return r.writer_cpu_ms; });
+  std::printf("  process CPU time %.2f ms/frame (pipeline thread %.2f; OpenMP workers and writer the rest): "
+              "<= %.0f frames/s on %d free cores\n", cpu, th, 1000 * b.threads / cpu, b.threads);
+  std::printf("  writer thread: %.1f ms CPU per written frame (%.1f ms wall), %.2f ms CPU per frame\n", wcpu,
+              median_of(outs, [](const RunResult& r) { return r.writer_ms; }), wcpu / b.every);
+  char row[256];
+  std::snprintf(row, sizeof row, "| lidar-infer sim loop, outputs every %d, UNet on %s | %.1f | <= %.0f | >= 150 | %s |", b.every,
+                all ? "every frame" : "written frames", loop, 1000 * b.threads / cpu, loop >= 150 ? "yes" : "NO");
+  j["outputs"] = {{"every", b.every}, {"unet_every_frame", all}, {"frames", b.frames_used}, {"loop_fps", loop},
+                  {"cpu_ms_per_frame", cpu}, {"thread_cpu_ms_per_frame", th}, {"fps_cpu_bound", 1000 * b.threads / cpu},
+                  {"writer_cpu_ms_per_written_frame", wcpu},
+                  {"stage_ms", stages_json(outs)}};
+  return row;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -251,171 +384,63 @@ int main(int argc, char** argv) {
       std::puts(opts.help().c_str());
       return 0;
     }
-    const int threads = std::max(1, args["threads"].as<int>());
-    const int runs = std::max(1, args["runs"].as<int>());
-    omp_set_num_threads(threads);
-    std::set<std::string> parts;
-    {
-      std::stringstream ss(args["only"].as<std::string>());
-      for (std::string p; std::getline(ss, p, ',');) {
-        if (p != "whole" && p != "objects" && p != "outputs")
-          throw std::runtime_error("--only: unknown part '" + p + "' (whole, objects, outputs)");
-        parts.insert(p);
-      }
-    }
-    const int every = args["every"].as<int>();
-    if (every < 1) throw std::runtime_error("--every must be >= 1");
-
-    // The intensity model: bundled, given, or an untrained unet-ref in a temporary file.
-    fs::path model;
-    std::string model_note;
-    fs::path temp;
-    if (args.count("model")) {
-      model = args["model"].as<std::string>();
-      model_note = "given";
-    } else if (fs::exists(src / "data/models/intensity_unet.h5")) {
-      model = src / "data/models/intensity_unet.h5";
-      model_note = "bundled";
-    } else {
-      temp = fs::temp_directory_path() / ("bench_pipeline_unet_ref_" + std::to_string(::getpid()) + ".h5");
-      infer::write_untrained_checkpoint(temp, 16, 4, 1, pgm::BeamLayout::hdl64e());
-      model = temp;
-      model_note = "untrained unet-ref (no bundled model yet)";
-    }
-    const auto meta = nn::read_checkpoint_meta(model);
-    auto pipeline_factory = [&] {
-      return infer::SimPipeline::from_files(args["scenario"].as<std::string>(), args["kpi"].as<std::string>(), model);
-    };
+    Bench b;
+    b.threads = std::max(1, args["threads"].as<int>());
+    b.runs = std::max(1, args["runs"].as<int>());
+    omp_set_num_threads(b.threads);
+    const std::set<std::string> parts = parse_parts(args["only"].as<std::string>());
+    b.every = args["every"].as<int>();
+    if (b.every < 1) throw std::runtime_error("--every must be >= 1");
+    b.model = choose_model(args, src);
+    b.meta = nn::read_checkpoint_meta(b.model.path);
+    const std::string scenario = args["scenario"].as<std::string>(), kpi_file = args["kpi"].as<std::string>();
+    b.whole = [&] { return infer::SimPipeline::from_files(scenario, kpi_file, b.model.path); };
     const int frames = args["frames"].as<int>();
-    const int n = args["objects"].as<int>(), object_frames = args["object-frames"].as<int>();
-    const sensor::KpiModel kpi = sensor::load_kpi_model(args["kpi"].as<std::string>());
-    auto object_pipeline = [&] {
-      const sensor::Scenario base = sensor::read_scenario(args["scenario"].as<std::string>());
+    b.n = args["objects"].as<int>();
+    b.object_frames = args["object-frames"].as<int>();
+    const sensor::KpiModel kpi = sensor::load_kpi_model(kpi_file);
+    b.objects = [&] {
+      const sensor::Scenario base = sensor::read_scenario(scenario);
       infer::SimOptions object_only;
       object_only.point_cloud = false;
-      return infer::SimPipeline(bench::synthetic_scenario(n, object_frames / 10.0 + 1, base), kpi, nullptr, object_only);
+      return infer::SimPipeline(bench::synthetic_scenario(b.n, b.object_frames / 10.0 + 1, base), kpi, nullptr,
+                                object_only);
     };
 
     if (args.count("digest")) {
-      auto p = pipeline_factory();
+      auto p = b.whole();
       const int f = frames > 0 ? std::min(frames, p.frame_count()) : p.frame_count();
       std::printf("digest whole pipeline (%d frames): %016llx\n", f, static_cast<unsigned long long>(digest_run(p, f)));
-      auto o = object_pipeline();
-      std::printf("digest object-level model (%d objects, %d frames): %016llx\n", n, object_frames,
-                  static_cast<unsigned long long>(digest_run(o, object_frames)));
-      if (!temp.empty()) fs::remove(temp);
+      auto o = b.objects();
+      std::printf("digest object-level model (%d objects, %d frames): %016llx\n", b.n, b.object_frames,
+                  static_cast<unsigned long long>(digest_run(o, b.object_frames)));
+      if (!b.model.temp.empty()) fs::remove(b.model.temp);
       return 0;
     }
 
-    nlohmann::json j{{"threads", threads}, {"runs", runs}};
+    nlohmann::json j{{"threads", b.threads}, {"runs", b.runs}};
     std::vector<std::string> table;
-    int frames_used = 0;
     if (parts.count("whole") || parts.count("outputs")) {
-      auto warm = pipeline_factory();  // first-touch of buffers and weights, not measured
+      auto warm = b.whole();  // first-touch of buffers and weights, not measured
       infer::SimFrame f;
       for (int k = 0; k < 3; ++k) warm.run_frame(k, f);
-      frames_used = frames > 0 ? std::min(frames, warm.frame_count()) : warm.frame_count();
+      b.frames_used = frames > 0 ? std::min(frames, warm.frame_count()) : warm.frame_count();
     }
-
-    // 1. Whole pipeline.
-    if (parts.count("whole")) {
-      std::vector<RunResult> whole;
-      for (int r = 0; r < runs; ++r) {
-        auto p = pipeline_factory();  // fresh tracker/KPI state: every run simulates the same frames
-        whole.push_back(run_once(p, frames_used));
-      }
-      std::vector<double> fps_whole;
-      for (const auto& r : whole) fps_whole.push_back(r.fps);
-      const double whole_median = median(fps_whole), whole_best = *std::max_element(fps_whole.begin(), fps_whole.end());
-      std::printf("whole pipeline: %d frames x %d runs, %d thread(s), PGM 64 x 1024, UNet base %d depth %d in %d (%s)\n",
-                  frames_used, runs, threads, meta.unet.base, meta.unet.depth, meta.unet.in_channels, model_note.c_str());
-      std::printf("  %.1f frames/s median (best %.1f), %.1f ms/frame; %.1f objects in view, %.1f reported, %.0f points per frame\n",
-                  whole_median, whole_best, 1000 / whole_median, whole.front().objects_in_view, whole.front().reported,
-                  whole.front().points);
-      print_stages(whole, true);
-      const double whole_cpu = median_of(whole, [](const RunResult& r) { return r.cpu_ms_per_frame; });
-      std::printf("  process CPU time %.1f ms/frame over all threads (>= %.1f ms/frame of wall time on %d free cores)\n",
-                  whole_cpu, whole_cpu / threads, threads);
-      char row[256];
-      std::snprintf(row, sizeof row, "| whole pipeline, %d threads, UNet base %d depth %d, 64 x 1024 | %.1f | <= %.1f | >= 10 | %s |",
-                    threads, meta.unet.base, meta.unet.depth, whole_median, 1000 * threads / whole_cpu,
-                    whole_median >= 10 ? "yes" : "NO");
-      table.push_back(row);
-      j["whole"] = {{"frames", frames_used}, {"fps", whole_median}, {"fps_best", whole_best}, {"cpu_ms_per_frame", whole_cpu},
-                    {"unet_base", meta.unet.base}, {"unet_depth", meta.unet.depth}, {"model", model_note},
-                    {"stage_ms", stages_json(whole)}};
-    }
-
-    // 2. Object-level model alone.
-    if (parts.count("objects")) {
-      std::vector<RunResult> objects;
-      for (int r = 0; r < runs; ++r) {
-        auto p = object_pipeline();
-        objects.push_back(run_once(p, object_frames));
-      }
-      std::vector<double> fps_objects;
-      for (const auto& r : objects) fps_objects.push_back(r.fps);
-      const double obj_median = median(fps_objects), obj_best = *std::max_element(fps_objects.begin(), fps_objects.end());
-      std::printf("object-level model: %d objects, %d frames x %d runs (sampling, frames, FoV, occlusion, tracking, KPI)\n", n,
-                  object_frames, runs);
-      std::printf("  %.0f frames/s median (best %.0f), %.3f ms/frame; %.1f objects in view, %.1f reported per frame\n",
-                  obj_median, obj_best, 1000 / obj_median, objects.front().objects_in_view, objects.front().reported);
-      print_stages(objects, false);
-      const double obj_cpu = median_of(objects, [](const RunResult& r) { return r.cpu_ms_per_frame; });
-      std::printf("  process CPU time %.3f ms/frame (the object-level model is serial: %.0f frames/s on a free core)\n", obj_cpu,
-                  1000 / obj_cpu);
-      char row[256];
-      std::snprintf(row, sizeof row, "| object-level model, %d objects | %.0f | %.0f | >= 1000 | %s |", n, obj_median,
-                    1000 / obj_cpu, obj_median >= 1000 ? "yes" : "NO");
-      table.push_back(row);
-      j["objects"] = {{"count", n}, {"frames", object_frames}, {"fps", obj_median}, {"fps_best", obj_best},
-                      {"cpu_ms_per_frame", obj_cpu}, {"fps_cpu_bound", 1000 / obj_cpu}, {"stage_ms", stages_json(objects)}};
-    }
-
-    // 3. The lidar-infer sim loop with outputs on every N-th frame.
-    if (parts.count("outputs")) {
-      const bool all = args.count("intensity-every-frame") > 0;
-      const fs::path dir = fs::temp_directory_path() / ("bench_pipeline_outputs_" + std::to_string(::getpid()));
-      std::vector<RunResult> outs;
-      for (int r = 0; r < runs; ++r) {
-        auto p = pipeline_factory();
-        outs.push_back(run_outputs(p, frames_used, every, dir, all));
-        fs::remove_all(dir);
-      }
-      const double loop = median_of(outs, [](const RunResult& r) { return r.loop_fps; });
-      const double cpu = median_of(outs, [](const RunResult& r) { return r.cpu_ms_per_frame; });
-      const double th = median_of(outs, [](const RunResult& r) { return r.thread_cpu_ms_per_frame; });
-      std::printf("outputs loop (lidar-infer sim --every %d): %d frames x %d runs, %d thread(s), UNet on %s\n", every,
-                  frames_used, runs, threads, all ? "every frame" : "the written frames only");
-      std::printf("  %.1f frames/s wall (median), pipeline stages %.2f ms/frame\n", loop,
-                  median_of(outs, [](const RunResult& r) { return r.ms_per_frame; }));
-      print_stages(outs, true);
-      const double wcpu = median_of(outs, [](const RunResult& r) { return r.writer_cpu_ms; });
-      std::printf("  process CPU time %.2f ms/frame (pipeline thread %.2f; OpenMP workers and writer the rest): "
-                  "<= %.0f frames/s on %d free cores\n", cpu, th, 1000 * threads / cpu, threads);
-      std::printf("  writer thread: %.1f ms CPU per written frame (%.1f ms wall), %.2f ms CPU per frame\n", wcpu,
-                  median_of(outs, [](const RunResult& r) { return r.writer_ms; }), wcpu / every);
-      char row[256];
-      std::snprintf(row, sizeof row, "| lidar-infer sim loop, outputs every %d, UNet on %s | %.1f | <= %.0f | >= 150 | %s |", every,
-                    all ? "every frame" : "written frames", loop, 1000 * threads / cpu, loop >= 150 ? "yes" : "NO");
-      table.push_back(row);
-      j["outputs"] = {{"every", every}, {"unet_every_frame", all}, {"frames", frames_used}, {"loop_fps", loop},
-                      {"cpu_ms_per_frame", cpu}, {"thread_cpu_ms_per_frame", th}, {"fps_cpu_bound", 1000 * threads / cpu},
-                      {"writer_cpu_ms_per_written_frame", wcpu},
-                      {"stage_ms", stages_json(outs)}};
-    }
+    if (parts.count("whole")) table.push_back(measure_whole(b, j));
+    if (parts.count("objects")) table.push_back(measure_objects(b, j));
+    if (parts.count("outputs")) table.push_back(measure_outputs(b, args.count("intensity-every-frame") > 0, j));
 
     double load[3] = {0, 0, 0};
     if (getloadavg(load, 3) < 0) load[0] = -1;
     // Wall-clock rates are what a rig sees; on a shared machine they include waiting for a core,
     // so the CPU-time bound is printed next to them (load average at the end of the run).
     std::printf("\n| measurement | frames/s (wall, median of %d) | frames/s bound from CPU time | target | met (wall) |\n"
-                "|---|---:|---:|---:|---|\n", runs);
+                "|---|---:|---:|---:|---|\n", b.runs);
     for (const auto& row : table) std::printf("%s\n", row.c_str());
     std::printf("load average %.2f (1 min) on %ld online CPUs\n", load[0], sysconf(_SC_NPROCESSORS_ONLN));
     j["loadavg_end"] = load[0];
     if (args.count("json")) write_file_atomically(args["json"].as<std::string>(), j.dump(2) + "\n");
-    if (!temp.empty()) fs::remove(temp);
+    if (!b.model.temp.empty()) fs::remove(b.model.temp);
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());

@@ -21,6 +21,7 @@
 #include <functional>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <string>
@@ -147,238 +148,285 @@ std::string loadavg() {
   return a + " " + b + " " + c;
 }
 
+// The options, checked before anything is timed: a bad value must not cost a run.
+struct BenchOptions {
+  int reps = 7, warmup = 2, threads = 2, rows = 64, cols = 1024, gemm_n = 4096, only_batch = 0;
+  float lambda = 1e-4f;
+  std::string python, torch_script, torch_settings, json;
+  std::vector<std::string> wait_policies;
+  bool with_torch = true, want_bf16 = true, infer_only = false, bf16_only = false, train_only = false;
+};
+
+// Returns nullopt after printing the help.
+std::optional<BenchOptions> parse_options(int argc, char** argv) {
+  cxxopts::Options options("bench_unet_vs_torch", "unet-ref: engine vs PyTorch, same run, same threads");
+  options.add_options()
+    ("reps", "timed repetitions per row (median)", cxxopts::value<int>()->default_value("7"))
+    ("warmup", "untimed runs before timing", cxxopts::value<int>()->default_value("2"))
+    ("threads", "OpenMP threads for both engines", cxxopts::value<int>()->default_value("2"))
+    ("rows", "input rows (beams)", cxxopts::value<int>()->default_value("64"))
+    ("cols", "input columns (azimuth bins)", cxxopts::value<int>()->default_value("1024"))
+    ("lambda", "L2 weight", cxxopts::value<float>()->default_value("0.0001"))
+    ("python", "Python with torch", cxxopts::value<std::string>()->default_value("/usr/bin/python3"))
+    ("torch-script", "the PyTorch peer",
+     cxxopts::value<std::string>()->default_value(LIDARSIM_SOURCE_DIR "/bench/torch_unet_bench.py"))
+    ("torch-settings", "PyTorch settings to try, the fastest counts per row (default, no_onednn, channels_last)",
+     cxxopts::value<std::string>()->default_value("default,no_onednn,channels_last"))
+    ("torch-wait-policies", "OMP_WAIT_POLICY values to run the PyTorch peer under, the fastest counts per row",
+     cxxopts::value<std::string>()->default_value("passive,active"))
+    ("no-torch", "time only our engine")
+    ("no-bf16", "leave out the bf16 inference rows (they need AVX-512 BF16)")
+    ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+    ("bf16-only", "only the bf16 inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+    ("train-only", "only the training rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
+    ("batch", "only the rows of this batch size (0: all)", cxxopts::value<int>()->default_value("0"))
+    ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
+    ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
+    ("h,help", "show help");
+  const auto opt = options.parse(argc, argv);
+  if (opt.count("help")) {
+    std::cout << options.help() << "\n";
+    return std::nullopt;
+  }
+  BenchOptions o;
+  o.reps = opt["reps"].as<int>();
+  o.warmup = opt["warmup"].as<int>();
+  o.threads = opt["threads"].as<int>();
+  o.rows = opt["rows"].as<int>();
+  o.cols = opt["cols"].as<int>();
+  o.lambda = opt["lambda"].as<float>();
+  o.gemm_n = opt["gemm"].as<int>();
+  o.only_batch = opt["batch"].as<int>();
+  o.python = opt["python"].as<std::string>();
+  o.torch_script = opt["torch-script"].as<std::string>();
+  o.torch_settings = opt["torch-settings"].as<std::string>();
+  if (opt.count("json")) o.json = opt["json"].as<std::string>();
+  o.with_torch = !opt.count("no-torch");
+  o.want_bf16 = !opt.count("no-bf16");
+  o.infer_only = opt.count("infer-only") > 0;
+  o.bf16_only = opt.count("bf16-only") > 0;
+  o.train_only = opt.count("train-only") > 0;
+  if (o.reps < 1) throw Error("--reps: expected >= 1");
+  if (o.warmup < 0) throw Error("--warmup: expected >= 0");
+  if (o.threads < 1) throw Error("--threads: expected >= 1");
+  if (o.rows < 16 || o.cols < 16) throw Error("--rows/--cols: expected >= 16 (depth 4 halves four times)");
+  std::stringstream list(opt["torch-wait-policies"].as<std::string>());
+  for (std::string p; std::getline(list, p, ',');) {
+    if (p != "passive" && p != "active")
+      throw Error("--torch-wait-policies: expected passive and/or active, got \"" + p + "\"");
+    o.wait_policies.push_back(p);
+  }
+  if (o.wait_policies.empty()) throw Error("--torch-wait-policies: no policy given");
+  return o;
+}
+
+struct Row {
+  std::string name;
+  int batch;
+  bool train;
+  bool bf16 = false;  // our bf16 inference; the peer row is PyTorch's fp32 inference
+  Timing ours, torch, torch_bf16;
+};
+
+// The rows the options ask for; bf16 rows only where the CPU has AVX-512 BF16.
+std::vector<Row> select_rows(const BenchOptions& o, bool bf16) {
+  std::vector<Row> table{{"train_b1", 1, true, false, {}, {}, {}},
+                         {"train_b4", 4, true, false, {}, {}, {}},
+                         {"infer_b1", 1, false, false, {}, {}, {}},
+                         {"infer_b4", 4, false, false, {}, {}, {}}};
+  if (bf16) {
+    table.push_back({"infer_b1_bf16", 1, false, true, {}, {}, {}});
+    table.push_back({"infer_b4_bf16", 4, false, true, {}, {}, {}});
+  }
+  auto drop = [&table](auto pred) { table.erase(std::remove_if(table.begin(), table.end(), pred), table.end()); };
+  if (o.infer_only) drop([](const Row& r) { return r.train; });
+  if (o.bf16_only) drop([](const Row& r) { return !r.bf16; });
+  if (o.train_only) drop([](const Row& r) { return !r.train; });
+  if (o.only_batch > 0) drop([&o](const Row& r) { return r.batch != o.only_batch; });
+  return table;
+}
+
+void time_ours(std::vector<Row>& table, UNet& model, const UNetConfig& cfg, const BenchOptions& o) {
+  OptimizerConfig oc;
+  oc.kind = nn::OptimizerKind::Adam;
+  Optimizer adam(oc, model.params().size());
+  for (Row& row : table) {
+    set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);
+    const Batch b = make_batch(row.batch, cfg.in_channels, o.rows, o.cols, static_cast<std::uint32_t>(row.batch));
+    Tensor y, dy;
+    if (row.train) {
+      row.ours = time_it(
+          [&] {
+            model.params().zero_grads();
+            model.forward(b.x, y);
+            dy.resize(y.shape());
+            masked_mse(y, b.target, b.mask, &dy);
+            l2_penalty(model.params(), o.lambda, true);
+            model.backward(dy);
+            adam.step(model.params());
+          },
+          o.warmup, o.reps);
+    } else {
+      row.ours = time_it([&] { model.predict(b.x, y); }, o.warmup, o.reps);
+    }
+    std::cerr << "bench: ours " << row.name << " " << row.ours.median << " s\n";
+  }
+  set_inference_precision(InferencePrecision::fp32);
+}
+
+// One peer run per wait policy; per row the fastest run's median, minimum and setting, the
+// setting tagged with its policy (CPU time: the lowest, as across the script's settings).
+nlohmann::json run_torch_policies(const BenchOptions& o, bool bf16) {
+  const char* rows_of_peer[] = {"train_b1", "train_b4", "infer_b1", "infer_b4", "infer_b1_bf16", "infer_b4_bf16"};
+  nlohmann::json peer;
+  for (const std::string& policy : o.wait_policies) {
+    nlohmann::json run = run_torch(o.python, o.torch_script, o.threads, o.rows, o.cols, o.reps, o.warmup, o.lambda,
+                                   o.torch_settings, bf16, policy);
+    for (const std::string k : rows_of_peer)
+      if (run.contains(k + "_setting") && run[k + "_setting"].is_string())
+        run[k + "_setting"] = run[k + "_setting"].get<std::string>() + ", " + policy;
+    if (peer.is_null()) {
+      peer = run;
+      continue;
+    }
+    for (const std::string k : rows_of_peer) {
+      if (!run.contains(k) || !run[k].is_number()) continue;
+      const bool faster = !peer.contains(k) || !peer[k].is_number() || run[k].get<double>() < peer[k].get<double>();
+      double cpu = run.value(k + "_cpu", 0.0);
+      if (peer.contains(k + "_cpu") && peer[k + "_cpu"].is_number()) cpu = std::min(cpu, peer[k + "_cpu"].get<double>());
+      if (faster)
+        for (const std::string& e : {k, k + "_min", k + "_setting"})
+          if (run.contains(e)) peer[e] = run[e];
+      peer[k + "_cpu"] = cpu;
+    }
+  }
+  return peer;
+}
+
+void attach_peer(std::vector<Row>& table, const nlohmann::json& peer) {
+  for (Row& row : table) {
+    const std::string peer_row = row.bf16 ? row.name.substr(0, row.name.size() - 5) : row.name;  // fp32 peer
+    row.torch = {peer.at(peer_row).get<double>(), peer.at(peer_row + "_min").get<double>(),
+                 peer.at(peer_row + "_cpu").get<double>()};
+    if (row.bf16 && peer.contains(row.name) && peer.at(row.name).is_number())
+      row.torch_bf16 = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>(),
+                        peer.at(row.name + "_cpu").get<double>()};
+  }
+}
+
+// Prints the table and returns its rows as JSON.
+nlohmann::json print_table(const std::vector<Row>& table, const UNet& model, const BenchOptions& o) {
+  std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", o.rows,
+              o.cols, o.threads, o.reps, o.warmup);
+  std::printf("%-13s %10s %10s %12s %12s %13s %12s %10s %10s %10s\n", "row", "ours (s)", "torch (s)", "ours/torch",
+              "ours GFLOP/s", "torch GFLOP/s", "min ratio", "ours CPU", "torch CPU", "CPU ratio");
+  nlohmann::json out_rows = nlohmann::json::array();
+  for (const Row& row : table) {
+    // A training step counts as 3 forward passes (forward, backward to inputs, to weights).
+    const double flops = (row.train ? 3.0 : 1.0) * model.forward_flops(row.batch, o.rows, o.cols);
+    const double ratio = o.with_torch ? row.ours.median / row.torch.median : 0;
+    const double min_ratio = o.with_torch ? row.ours.min / row.torch.min : 0;
+    const double cpu_ratio = o.with_torch ? row.ours.cpu / row.torch.cpu : 0;
+    if (o.with_torch)
+      std::printf("%-13s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f %10.4f %10.4f %10.3f\n", row.name.c_str(),
+                  row.ours.median, row.torch.median, ratio, flops / row.ours.median * 1e-9,
+                  flops / row.torch.median * 1e-9, min_ratio, row.ours.cpu, row.torch.cpu, cpu_ratio);
+    else
+      std::printf("%-13s %10.4f %10s %12s %12.1f %13s %12s %10.4f %10s %10s\n", row.name.c_str(), row.ours.median,
+                  "-", "-", flops / row.ours.median * 1e-9, "-", "-", row.ours.cpu, "-", "-");
+    out_rows.push_back({{"row", row.name}, {"ours_s", row.ours.median}, {"ours_min_s", row.ours.min},
+                        {"torch_s", row.torch.median}, {"torch_min_s", row.torch.min}, {"ratio", ratio},
+                        {"min_ratio", min_ratio}, {"ours_cpu_s", row.ours.cpu}, {"torch_cpu_s", row.torch.cpu},
+                        {"cpu_ratio", cpu_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
+                        {"flops", flops}});
+    if (row.bf16 && row.torch_bf16.median > 0) {
+      out_rows.back()["torch_bf16_s"] = row.torch_bf16.median;
+      out_rows.back()["torch_bf16_cpu_s"] = row.torch_bf16.cpu;
+    }
+  }
+  return out_rows;
+}
+
+// PyTorch's own bf16 (autocast) beside ours: an extra peer, not the reference; and ours bf16
+// against ours fp32.
+void print_bf16_lines(const std::vector<Row>& table, bool with_torch) {
+  for (const Row& row : table)
+    if (row.bf16 && with_torch) {
+      if (row.torch_bf16.median > 0)
+        std::printf("%s: torch bf16 autocast %.4f s (CPU %.4f s); ours bf16 / torch bf16: %.3f wall, %.3f CPU\n",
+                    row.name.c_str(), row.torch_bf16.median, row.torch_bf16.cpu, row.ours.median / row.torch_bf16.median,
+                    row.ours.cpu / row.torch_bf16.cpu);
+      else
+        std::printf("%s: torch bf16 autocast did not run (see the peer's notes on stderr)\n", row.name.c_str());
+    }
+  for (const Row& row : table)
+    if (row.bf16 && !row.train) {
+      const std::string fp32 = row.name.substr(0, row.name.size() - 5);
+      for (const Row& r32 : table)
+        if (r32.name == fp32)
+          std::printf("%s: ours bf16 / ours fp32: %.3f wall, %.3f CPU\n", row.name.c_str(),
+                      row.ours.median / r32.ours.median, row.ours.cpu / r32.ours.cpu);
+    }
+}
+
+void print_peer(const nlohmann::json& peer) {
+  std::printf("torch %s, %d threads; fastest setting per row: train_b1 %s, train_b4 %s, infer_b1 %s, infer_b4 %s\n",
+              peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
+              peer.value("train_b1_setting", std::string("?")).c_str(),
+              peer.value("train_b4_setting", std::string("?")).c_str(),
+              peer.value("infer_b1_setting", std::string("?")).c_str(),
+              peer.value("infer_b4_setting", std::string("?")).c_str());
+  std::string libs;
+  for (const auto& l : peer["blas"]) libs += " " + l.get<std::string>();
+  std::printf("torch BLAS libraries loaded:%s\n", libs.c_str());
+  std::string ops;
+  for (const auto& o : peer["conv_ops"]) ops += " " + o.get<std::string>();
+  std::printf("torch convolution ops:%s\n", ops.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   try {
-    cxxopts::Options options("bench_unet_vs_torch", "unet-ref: engine vs PyTorch, same run, same threads");
-    options.add_options()
-      ("reps", "timed repetitions per row (median)", cxxopts::value<int>()->default_value("7"))
-      ("warmup", "untimed runs before timing", cxxopts::value<int>()->default_value("2"))
-      ("threads", "OpenMP threads for both engines", cxxopts::value<int>()->default_value("2"))
-      ("rows", "input rows (beams)", cxxopts::value<int>()->default_value("64"))
-      ("cols", "input columns (azimuth bins)", cxxopts::value<int>()->default_value("1024"))
-      ("lambda", "L2 weight", cxxopts::value<float>()->default_value("0.0001"))
-      ("python", "Python with torch", cxxopts::value<std::string>()->default_value("/usr/bin/python3"))
-      ("torch-script", "the PyTorch peer",
-       cxxopts::value<std::string>()->default_value(LIDARSIM_SOURCE_DIR "/bench/torch_unet_bench.py"))
-      ("torch-settings", "PyTorch settings to try, the fastest counts per row (default, no_onednn, channels_last)",
-       cxxopts::value<std::string>()->default_value("default,no_onednn,channels_last"))
-      ("torch-wait-policies", "OMP_WAIT_POLICY values to run the PyTorch peer under, the fastest counts per row",
-       cxxopts::value<std::string>()->default_value("passive,active"))
-      ("no-torch", "time only our engine")
-      ("no-bf16", "leave out the bf16 inference rows (they need AVX-512 BF16)")
-      ("infer-only", "only the inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
-      ("bf16-only", "only the bf16 inference rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
-      ("train-only", "only the training rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
-      ("batch", "only the rows of this batch size (0: all)", cxxopts::value<int>()->default_value("0"))
-      ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
-      ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
-      ("h,help", "show help");
-    const auto opt = options.parse(argc, argv);
-    if (opt.count("help")) {
-      std::cout << options.help() << "\n";
-      return 0;
-    }
-    const int reps = opt["reps"].as<int>(), warmup = opt["warmup"].as<int>();
-    const int threads = opt["threads"].as<int>(), rows = opt["rows"].as<int>(), cols = opt["cols"].as<int>();
-    const float lambda = opt["lambda"].as<float>();
-    if (reps < 1) throw Error("--reps: expected >= 1");
-    if (warmup < 0) throw Error("--warmup: expected >= 0");
-    if (threads < 1) throw Error("--threads: expected >= 1");
-    if (rows < 16 || cols < 16) throw Error("--rows/--cols: expected >= 16 (depth 4 halves four times)");
-    const std::string torch_settings = opt["torch-settings"].as<std::string>();
-    // Checked before anything is timed: a bad value must not cost a run.
-    std::vector<std::string> wait_policies;
-    {
-      std::stringstream list(opt["torch-wait-policies"].as<std::string>());
-      for (std::string p; std::getline(list, p, ',');) {
-        if (p != "passive" && p != "active")
-          throw Error("--torch-wait-policies: expected passive and/or active, got \"" + p + "\"");
-        wait_policies.push_back(p);
-      }
-      if (wait_policies.empty()) throw Error("--torch-wait-policies: no policy given");
-    }
-    omp_set_num_threads(threads);
+    const std::optional<BenchOptions> parsed = parse_options(argc, argv);
+    if (!parsed) return 0;
+    const BenchOptions& o = *parsed;
+    omp_set_num_threads(o.threads);
     const std::string load_before = loadavg();
 
-    // --- our engine -----------------------------------------------------------------------
     const UNetConfig cfg{3, 1, 16, 4};
     UNet model(cfg);
     model.init(1);
-    OptimizerConfig oc;
-    oc.kind = nn::OptimizerKind::Adam;
-    Optimizer adam(oc, model.params().size());
-    struct Row {
-      std::string name;
-      int batch;
-      bool train;
-      bool bf16 = false;  // our bf16 inference; the peer row is PyTorch's fp32 inference
-      Timing ours, torch, torch_bf16;
-    };
-    std::vector<Row> table{{"train_b1", 1, true, false, {}, {}, {}},
-                           {"train_b4", 4, true, false, {}, {}, {}},
-                           {"infer_b1", 1, false, false, {}, {}, {}},
-                           {"infer_b4", 4, false, false, {}, {}, {}}};
-    const bool bf16 = !opt.count("no-bf16") && bf16_supported();
-    if (!opt.count("no-bf16") && !bf16) std::cerr << "bench: this CPU has no AVX-512 BF16: no bf16 rows\n";
-    if (bf16) {
-      table.push_back({"infer_b1_bf16", 1, false, true, {}, {}, {}});
-      table.push_back({"infer_b4_bf16", 4, false, true, {}, {}, {}});
-    }
-    if (opt.count("infer-only"))
-      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return r.train; }), table.end());
-    if (opt.count("bf16-only"))
-      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.bf16; }), table.end());
-    if (opt.count("train-only"))
-      table.erase(std::remove_if(table.begin(), table.end(), [](const Row& r) { return !r.train; }), table.end());
-    if (const int only = opt["batch"].as<int>(); only > 0)
-      table.erase(std::remove_if(table.begin(), table.end(), [only](const Row& r) { return r.batch != only; }),
-                  table.end());
-    for (Row& row : table) {
-      set_inference_precision(row.bf16 ? InferencePrecision::bf16 : InferencePrecision::fp32);
-      const Batch b = make_batch(row.batch, cfg.in_channels, rows, cols, static_cast<std::uint32_t>(row.batch));
-      Tensor y, dy;
-      if (row.train) {
-        row.ours = time_it(
-            [&] {
-              model.params().zero_grads();
-              model.forward(b.x, y);
-              dy.resize(y.shape());
-              masked_mse(y, b.target, b.mask, &dy);
-              l2_penalty(model.params(), lambda, true);
-              model.backward(dy);
-              adam.step(model.params());
-            },
-            warmup, reps);
-      } else {
-        row.ours = time_it([&] { model.predict(b.x, y); }, warmup, reps);
-      }
-      std::cerr << "bench: ours " << row.name << " " << row.ours.median << " s\n";
-    }
-    set_inference_precision(InferencePrecision::fp32);
-
-    // --- PyTorch, same run ----------------------------------------------------------------
+    const bool bf16 = o.want_bf16 && bf16_supported();
+    if (o.want_bf16 && !bf16) std::cerr << "bench: this CPU has no AVX-512 BF16: no bf16 rows\n";
+    std::vector<Row> table = select_rows(o, bf16);
+    time_ours(table, model, cfg, o);
     nlohmann::json peer;
-    const bool with_torch = !opt.count("no-torch");
-    if (with_torch) {
-      // One peer run per wait policy; per row the fastest run's median, minimum and setting, the
-      // setting tagged with its policy (CPU time: the lowest, as across the script's settings).
-      for (const std::string& policy : wait_policies) {
-        nlohmann::json run = run_torch(opt["python"].as<std::string>(), opt["torch-script"].as<std::string>(), threads,
-                                       rows, cols, reps, warmup, lambda, torch_settings, bf16, policy);
-        const char* rows_of_peer[] = {"train_b1", "train_b4", "infer_b1", "infer_b4", "infer_b1_bf16", "infer_b4_bf16"};
-        for (const std::string k : rows_of_peer)
-          if (run.contains(k + "_setting") && run[k + "_setting"].is_string())
-            run[k + "_setting"] = run[k + "_setting"].get<std::string>() + ", " + policy;
-        if (peer.is_null()) {
-          peer = run;
-          continue;
-        }
-        for (const std::string k : rows_of_peer) {
-          if (!run.contains(k) || !run[k].is_number()) continue;
-          const bool faster = !peer.contains(k) || !peer[k].is_number() || run[k].get<double>() < peer[k].get<double>();
-          double cpu = run.value(k + "_cpu", 0.0);
-          if (peer.contains(k + "_cpu") && peer[k + "_cpu"].is_number()) cpu = std::min(cpu, peer[k + "_cpu"].get<double>());
-          if (faster)
-            for (const std::string& e : {k, k + "_min", k + "_setting"})
-              if (run.contains(e)) peer[e] = run[e];
-          peer[k + "_cpu"] = cpu;
-        }
-      }
-      for (Row& row : table) {
-        const std::string peer_row = row.bf16 ? row.name.substr(0, row.name.size() - 5) : row.name;  // fp32 peer
-        row.torch = {peer.at(peer_row).get<double>(), peer.at(peer_row + "_min").get<double>(),
-                     peer.at(peer_row + "_cpu").get<double>()};
-        if (row.bf16 && peer.contains(row.name) && peer.at(row.name).is_number())
-          row.torch_bf16 = {peer.at(row.name).get<double>(), peer.at(row.name + "_min").get<double>(),
-                            peer.at(row.name + "_cpu").get<double>()};
-      }
+    if (o.with_torch) {
+      peer = run_torch_policies(o, bf16);
+      attach_peer(table, peer);
     }
-
-    // --- GEMM peak ------------------------------------------------------------------------
-    const int gemm_n = opt["gemm"].as<int>();
     double gemm_s = 0;
-    if (gemm_n > 0) gemm_s = gemm_seconds(gemm_n, threads, std::max(1, std::min(reps, 3)));
+    if (o.gemm_n > 0) gemm_s = gemm_seconds(o.gemm_n, o.threads, std::max(1, std::min(o.reps, 3)));
     const std::string load_after = loadavg();
 
-    // --- report ---------------------------------------------------------------------------
-    std::printf("unet-ref (3 -> 1, base 16, depth 4) at %d x %d, %d threads, median of %d after %d warm-up\n", rows,
-                cols, threads, reps, warmup);
-    std::printf("%-13s %10s %10s %12s %12s %13s %12s %10s %10s %10s\n", "row", "ours (s)", "torch (s)", "ours/torch",
-                "ours GFLOP/s", "torch GFLOP/s", "min ratio", "ours CPU", "torch CPU", "CPU ratio");
-    nlohmann::json out_rows = nlohmann::json::array();
-    for (const Row& row : table) {
-      // A training step counts as 3 forward passes (forward, backward to inputs, to weights).
-      const double flops = (row.train ? 3.0 : 1.0) * model.forward_flops(row.batch, rows, cols);
-      const double ratio = with_torch ? row.ours.median / row.torch.median : 0;
-      const double min_ratio = with_torch ? row.ours.min / row.torch.min : 0;
-      const double cpu_ratio = with_torch ? row.ours.cpu / row.torch.cpu : 0;
-      if (with_torch)
-        std::printf("%-13s %10.4f %10.4f %12.3f %12.1f %13.1f %12.3f %10.4f %10.4f %10.3f\n", row.name.c_str(),
-                    row.ours.median, row.torch.median, ratio, flops / row.ours.median * 1e-9,
-                    flops / row.torch.median * 1e-9, min_ratio, row.ours.cpu, row.torch.cpu, cpu_ratio);
-      else
-        std::printf("%-13s %10.4f %10s %12s %12.1f %13s %12s %10.4f %10s %10s\n", row.name.c_str(), row.ours.median,
-                    "-", "-", flops / row.ours.median * 1e-9, "-", "-", row.ours.cpu, "-", "-");
-      out_rows.push_back({{"row", row.name}, {"ours_s", row.ours.median}, {"ours_min_s", row.ours.min},
-                          {"torch_s", row.torch.median}, {"torch_min_s", row.torch.min}, {"ratio", ratio},
-                          {"min_ratio", min_ratio}, {"ours_cpu_s", row.ours.cpu}, {"torch_cpu_s", row.torch.cpu},
-                          {"cpu_ratio", cpu_ratio}, {"ours_gflops", flops / row.ours.median * 1e-9},
-                          {"flops", flops}});
-      if (row.bf16 && row.torch_bf16.median > 0) {
-        out_rows.back()["torch_bf16_s"] = row.torch_bf16.median;
-        out_rows.back()["torch_bf16_cpu_s"] = row.torch_bf16.cpu;
-      }
+    const nlohmann::json out_rows = print_table(table, model, o);
+    print_bf16_lines(table, o.with_torch);
+    if (o.gemm_n > 0) {
+      const double gf = 2.0 * o.gemm_n * double(o.gemm_n) * o.gemm_n / gemm_s * 1e-9;
+      std::printf("GEMM %d^3 fp32 (Eigen, %d threads over columns): %.3f s, %.1f GFLOP/s\n", o.gemm_n, o.threads,
+                  gemm_s, gf);
     }
-    // PyTorch's own bf16 (autocast) beside ours: an extra peer, not the reference.
-    for (const Row& row : table)
-      if (row.bf16 && with_torch) {
-        if (row.torch_bf16.median > 0)
-          std::printf("%s: torch bf16 autocast %.4f s (CPU %.4f s); ours bf16 / torch bf16: %.3f wall, %.3f CPU\n",
-                      row.name.c_str(), row.torch_bf16.median, row.torch_bf16.cpu, row.ours.median / row.torch_bf16.median,
-                      row.ours.cpu / row.torch_bf16.cpu);
-        else
-          std::printf("%s: torch bf16 autocast did not run (see the peer's notes on stderr)\n", row.name.c_str());
-      }
-    for (const Row& row : table)
-      if (row.bf16 && !row.train) {
-        const std::string fp32 = row.name.substr(0, row.name.size() - 5);
-        for (const Row& r32 : table)
-          if (r32.name == fp32)
-            std::printf("%s: ours bf16 / ours fp32: %.3f wall, %.3f CPU\n", row.name.c_str(),
-                        row.ours.median / r32.ours.median, row.ours.cpu / r32.ours.cpu);
-      }
-    if (gemm_n > 0) {
-      const double gf = 2.0 * gemm_n * double(gemm_n) * gemm_n / gemm_s * 1e-9;
-      std::printf("GEMM %d^3 fp32 (Eigen, %d threads over columns): %.3f s, %.1f GFLOP/s\n", gemm_n, threads, gemm_s,
-                  gf);
-    }
-    std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, rows, cols) * 1e-9);
-    if (with_torch) {
-      std::printf(
-          "torch %s, %d threads; fastest setting per row: train_b1 %s, train_b4 %s, infer_b1 %s, infer_b4 %s\n",
-          peer.value("torch_version", std::string("?")).c_str(), peer.value("threads", 0),
-          peer.value("train_b1_setting", std::string("?")).c_str(),
-          peer.value("train_b4_setting", std::string("?")).c_str(),
-          peer.value("infer_b1_setting", std::string("?")).c_str(),
-          peer.value("infer_b4_setting", std::string("?")).c_str());
-      std::string libs;
-      for (const auto& l : peer["blas"]) libs += " " + l.get<std::string>();
-      std::printf("torch BLAS libraries loaded:%s\n", libs.c_str());
-      std::string ops;
-      for (const auto& o : peer["conv_ops"]) ops += " " + o.get<std::string>();
-      std::printf("torch convolution ops:%s\n", ops.c_str());
-    }
+    std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, o.rows, o.cols) * 1e-9);
+    if (o.with_torch) print_peer(peer);
     std::printf("load average before / after: %s / %s (numbers are only meaningful on an idle machine)\n",
                 load_before.c_str(), load_after.c_str());
-
-    if (opt.count("json")) {
-      nlohmann::json j{{"rows", rows},         {"cols", cols},   {"threads", threads},
-                       {"reps", reps},         {"warmup", warmup}, {"table", out_rows},
-                       {"gemm_n", gemm_n},     {"gemm_s", gemm_s}, {"torch", peer},
+    if (!o.json.empty()) {
+      nlohmann::json j{{"rows", o.rows},         {"cols", o.cols},     {"threads", o.threads},
+                       {"reps", o.reps},         {"warmup", o.warmup}, {"table", out_rows},
+                       {"gemm_n", o.gemm_n},     {"gemm_s", gemm_s},   {"torch", peer},
                        {"loadavg_before", load_before}, {"loadavg_after", load_after}};
-      write_file_atomically(opt["json"].as<std::string>(), j.dump(2) + "\n");
+      write_file_atomically(o.json, j.dump(2) + "\n");
     }
     return 0;
   } catch (const std::exception& e) {
