@@ -71,6 +71,64 @@ double rel_diff(const Tensor& a, const Tensor& ref) {
   return d / std::max(s, 1e-30);
 }
 
+// One conv shape: forward, input gradient and weight gradient on both paths (direct, Winograd),
+// and bf16 forward where the CPU has it; prints one table row.
+struct ShapeRun {
+  int reps = 5;
+  bool wall = false, fwd_only = false, bf16 = false;
+};
+
+void measure_shape(int n, int ci, int co, int h, int w, const ShapeRun& run, std::mt19937& rng,
+                   std::normal_distribution<float>& normal) {
+  const int reps = run.reps;
+  const bool wall = run.wall, fwd_only = run.fwd_only, bf16 = run.bf16;
+  Tensor x(n, ci, h, w);
+  for (float& v : x) v = std::max(normal(rng), 0.f);
+  std::vector<float> wt(static_cast<std::size_t>(co) * ci * 9), bias(static_cast<std::size_t>(co), 0.01f);
+  for (float& v : wt) v = normal(rng) * std::sqrt(2.f / (9.f * ci));
+  Tensor y[2], d_in[2], g(n, co, h, w);
+  for (float& v : g) v = normal(rng);
+  std::vector<float> d_w[2];
+  double t_fwd[2], t_dgr[2], t_wgr[2];
+  for (int p = 0; p < 2; ++p) {
+    detail::set_conv3x3_path(p ? detail::Conv3x3Path::winograd : detail::Conv3x3Path::direct);
+    t_fwd[p] = median_seconds([&] { conv2d_forward(y[p], x, wt.data(), bias.data(), co, 3, 1, true); }, reps, wall);
+    t_dgr[p] = t_wgr[p] = 0;
+    d_w[p].assign(wt.size(), 0.f);
+    if (fwd_only) continue;
+    t_dgr[p] = median_seconds(
+        [&] { conv2d_backward(&d_in[p], nullptr, nullptr, g, y[0], x, wt.data(), 3, 1, true); }, reps, wall);
+    d_w[p].assign(wt.size(), 0.f);
+    t_wgr[p] = median_seconds(
+        [&] {
+          std::fill(d_w[p].begin(), d_w[p].end(), 0.f);
+          conv2d_backward(nullptr, d_w[p].data(), nullptr, g, y[0], x, wt.data(), 3, 1, true);
+        },
+        reps, wall);
+  }
+  Tensor y16(n, co, h, w);
+  const double t_b16 =
+      bf16 ? median_seconds(
+                 [&] {
+                   detail::conv3x3_bf16_forward_cat(y16.data(), x.data(), ci, nullptr, 0, n, h, w, wt.data(),
+                                                    bias.data(), co, true);
+                 },
+                 reps, wall)
+           : 0;
+  Tensor dw0(1, 1, 1, static_cast<int>(wt.size())), dw1(1, 1, 1, static_cast<int>(wt.size()));
+  std::copy(d_w[0].begin(), d_w[0].end(), dw0.begin());
+  std::copy(d_w[1].begin(), d_w[1].end(), dw1.begin());
+  std::printf("%-5d %4d %4d %4d %5d %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.1e %8.1e %8.1e", n,
+              ci, co, h, w, 1e3 * t_fwd[0], 1e3 * t_fwd[1], t_fwd[0] / t_fwd[1], 1e3 * t_dgr[0],
+              1e3 * t_dgr[1], t_dgr[0] / t_dgr[1], 1e3 * t_wgr[0], 1e3 * t_wgr[1], t_wgr[0] / t_wgr[1],
+              rel_diff(y[1], y[0]), rel_diff(d_in[1], d_in[0]), rel_diff(dw1, dw0));
+  if (bf16)
+    std::printf(" %8.3f %8.2f %8.2f %9.1e", 1e3 * t_b16, t_fwd[0] / t_b16, t_fwd[1] / t_b16,
+                rel_diff(y16, y[0]));
+  std::printf("\n");
+  std::fflush(stdout);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -109,59 +167,14 @@ int main(int argc, char** argv) {
     std::printf("\n");
     std::mt19937 rng(1);
     std::normal_distribution<float> normal;
+    const ShapeRun run{reps, wall, fwd_only, bf16};
     for (int n : opt["batch"].as<std::vector<int>>()) {
       for (int l = 0; l <= depth; ++l) {
         if (opt["level"].as<int>() >= 0 && l != opt["level"].as<int>()) continue;
         const int c = base << l, h = rows >> l, w = cols >> l;
         std::vector<std::pair<int, int>> shapes{{l == 0 ? 3 : c / 2, c}, {c, c}};
         if (l < depth) shapes.push_back({2 * c, c});
-        for (const auto& [ci, co] : shapes) {
-          Tensor x(n, ci, h, w);
-          for (float& v : x) v = std::max(normal(rng), 0.f);
-          std::vector<float> wt(static_cast<std::size_t>(co) * ci * 9), bias(static_cast<std::size_t>(co), 0.01f);
-          for (float& v : wt) v = normal(rng) * std::sqrt(2.f / (9.f * ci));
-          Tensor y[2], d_in[2], g(n, co, h, w);
-          for (float& v : g) v = normal(rng);
-          std::vector<float> d_w[2];
-          double t_fwd[2], t_dgr[2], t_wgr[2];
-          for (int p = 0; p < 2; ++p) {
-            detail::set_conv3x3_path(p ? detail::Conv3x3Path::winograd : detail::Conv3x3Path::direct);
-            t_fwd[p] = median_seconds([&] { conv2d_forward(y[p], x, wt.data(), bias.data(), co, 3, 1, true); }, reps, wall);
-            t_dgr[p] = t_wgr[p] = 0;
-            d_w[p].assign(wt.size(), 0.f);
-            if (fwd_only) continue;
-            t_dgr[p] = median_seconds(
-                [&] { conv2d_backward(&d_in[p], nullptr, nullptr, g, y[0], x, wt.data(), 3, 1, true); }, reps, wall);
-            d_w[p].assign(wt.size(), 0.f);
-            t_wgr[p] = median_seconds(
-                [&] {
-                  std::fill(d_w[p].begin(), d_w[p].end(), 0.f);
-                  conv2d_backward(nullptr, d_w[p].data(), nullptr, g, y[0], x, wt.data(), 3, 1, true);
-                },
-                reps, wall);
-          }
-          Tensor y16(n, co, h, w);
-          const double t_b16 =
-              bf16 ? median_seconds(
-                         [&] {
-                           detail::conv3x3_bf16_forward_cat(y16.data(), x.data(), ci, nullptr, 0, n, h, w, wt.data(),
-                                                            bias.data(), co, true);
-                         },
-                         reps, wall)
-                   : 0;
-          Tensor dw0(1, 1, 1, static_cast<int>(wt.size())), dw1(1, 1, 1, static_cast<int>(wt.size()));
-          std::copy(d_w[0].begin(), d_w[0].end(), dw0.begin());
-          std::copy(d_w[1].begin(), d_w[1].end(), dw1.begin());
-          std::printf("%-5d %4d %4d %4d %5d %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.3f %8.3f %7.2f %8.1e %8.1e %8.1e", n,
-                      ci, co, h, w, 1e3 * t_fwd[0], 1e3 * t_fwd[1], t_fwd[0] / t_fwd[1], 1e3 * t_dgr[0],
-                      1e3 * t_dgr[1], t_dgr[0] / t_dgr[1], 1e3 * t_wgr[0], 1e3 * t_wgr[1], t_wgr[0] / t_wgr[1],
-                      rel_diff(y[1], y[0]), rel_diff(d_in[1], d_in[0]), rel_diff(dw1, dw0));
-          if (bf16)
-            std::printf(" %8.3f %8.2f %8.2f %9.1e", 1e3 * t_b16, t_fwd[0] / t_b16, t_fwd[1] / t_b16,
-                        rel_diff(y16, y[0]));
-          std::printf("\n");
-          std::fflush(stdout);
-        }
+        for (const auto& [ci, co] : shapes) measure_shape(n, ci, co, h, w, run, rng, normal);
       }
     }
     std::printf("%s in ms (median of %d); process CPU time %.1f s; load average before / after: %s / %s\n", wall ? "wall times" : "CPU times (all threads)",

@@ -288,6 +288,32 @@ Image chart(const Series& s) {
   return c.image();
 }
 
+// Fits each series' exponent, prints it with its verdict, and returns the JSON rows and a chart
+// per series.
+nlohmann::json report_series(std::vector<Series>& series, std::vector<Image>& charts) {
+  nlohmann::json out = nlohmann::json::array();
+  for (Series& s : series) {
+    fit(s);
+    std::printf("%s\n", s.name.c_str());
+    for (std::size_t i = 0; i < s.sizes.size(); ++i)
+      std::printf("  %6.0f %s: %.5g %s%s%s\n", s.sizes[i], s.size_label.c_str(),
+                  s.time_label.find("ms") != std::string::npos ? 1e3 * s.seconds[i] : s.seconds[i], s.time_label.c_str(),
+                  s.notes[i].empty() ? "" : "; ", s.notes[i].c_str());
+    std::printf("  fitted exponent %.2f, expected %.0f (%s): %s\n", s.exponent, s.expected_exponent, s.expected.c_str(),
+                verdict(s).c_str());
+    out.push_back({{"name", s.name}, {"size", s.size_label}, {"sizes", s.sizes}, {"seconds", s.seconds},
+                   {"notes", s.notes}, {"exponent", s.exponent}, {"expected", s.expected},
+                   {"expected_exponent", s.expected_exponent}, {"verdict", verdict(s)}});
+    // Charts in the label's unit (ms for the object model).
+    Series shown = s;
+    if (s.time_label.find("ms") != std::string::npos)
+      for (double& v : shown.seconds) v *= 1e3;
+    fit(shown);
+    charts.push_back(chart(shown));
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -340,27 +366,8 @@ int main(int argc, char** argv) {
 
     double load[3] = {0, 0, 0};
     if (getloadavg(load, 3) < 0) load[0] = -1;
-    nlohmann::json out = nlohmann::json::array();
     std::vector<Image> charts;
-    for (Series& s : series) {
-      fit(s);
-      std::printf("%s\n", s.name.c_str());
-      for (std::size_t i = 0; i < s.sizes.size(); ++i)
-        std::printf("  %6.0f %s: %.5g %s%s%s\n", s.sizes[i], s.size_label.c_str(),
-                    s.time_label.find("ms") != std::string::npos ? 1e3 * s.seconds[i] : s.seconds[i], s.time_label.c_str(),
-                    s.notes[i].empty() ? "" : "; ", s.notes[i].c_str());
-      std::printf("  fitted exponent %.2f, expected %.0f (%s): %s\n", s.exponent, s.expected_exponent, s.expected.c_str(),
-                  verdict(s).c_str());
-      out.push_back({{"name", s.name}, {"size", s.size_label}, {"sizes", s.sizes}, {"seconds", s.seconds},
-                     {"notes", s.notes}, {"exponent", s.exponent}, {"expected", s.expected},
-                     {"expected_exponent", s.expected_exponent}, {"verdict", verdict(s)}});
-      // Charts in the label's unit (ms for the object model).
-      Series shown = s;
-      if (s.time_label.find("ms") != std::string::npos)
-        for (double& v : shown.seconds) v *= 1e3;
-      fit(shown);
-      charts.push_back(chart(shown));
-    }
+    const nlohmann::json out = report_series(series, charts);
     std::printf("%d thread(s), load average %.2f at the end\n", threads, load[0]);
     if (args.count("png") && !charts.empty()) write_png(args["png"].as<std::string>(), stack_vertically(charts, 8));
     if (args.count("json"))

@@ -171,6 +171,36 @@ void refit_residual(const std::string& checkpoint, const std::string& out, const
   nn::save_checkpoint(out, model, nullptr, meta);
 }
 
+// Draws the held-out cells once per seed and scores each draw against the measured values
+// (MAE, histogram intersection); --diagnose prints the first draw's diagnosis.
+void score_samples(infer::IntensityModel& model, const data::Dataset& ds, const qualify::IntensityCells& c,
+                   const std::vector<double>& measured, const std::vector<int>& held_out_class, double ceiling,
+                   const cxxopts::ParseResult& args, nlohmann::json& j) {
+  std::string seeds = args["seeds"].as<std::string>();
+  for (std::size_t start = 0; start < seeds.size();) {
+    const std::size_t comma = std::min(seeds.find(',', start), seeds.size());
+    const std::uint64_t seed = std::stoull(seeds.substr(start, comma - start));
+    start = comma + 1;
+    model.sample_from_spread({seed, 0.f, 1.f, args.count("parametric") > 0}, "bench_intensity_spread --spread-scale",
+                             args.count("spread-scale") ? std::optional(args["spread-scale"].as<float>()) : std::nullopt);
+    const std::vector<double> drawn = held_out_prediction(model, ds, c);
+    double dmae = 0;
+    for (std::size_t i = 0; i < drawn.size(); ++i) dmae += std::abs(drawn[i] - measured[i]);
+    dmae /= std::max<std::size_t>(1, drawn.size());
+    const qualify::Similarity ss = qualify::compare(drawn, measured);
+    j["sampled"].push_back({{"seed", seed}, {"mae", dmae}, {"intersection", ss.intersection},
+                            {"interval", {ss.interval.lo, ss.interval.hi}}});
+    std::printf("sampled (seed %llu): MAE %.4f  intersection %.3f [%.3f, %.3f]  = %.3f x ceiling\n",
+                static_cast<unsigned long long>(seed), dmae, ss.intersection, ss.interval.lo, ss.interval.hi,
+                ss.intersection / ceiling);
+    if (args.count("diagnose") && j["sampled"].size() == 1) {
+      std::vector<double> mu, b;
+      held_out_distribution(model, ds, c, mu, b);
+      print_diagnosis(measured, mu, b, drawn, held_out_class);
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -227,29 +257,7 @@ int main(int argc, char** argv) {
                                                       : nn::read_checkpoint_meta(checkpoint).unet.spread_scale;
       j["spread_scale"] = factor;
       std::printf("spread scale factor %.4f (%s)\n", factor, args.count("spread-scale") ? "--spread-scale" : "the checkpoint's");
-      std::string seeds = args["seeds"].as<std::string>();
-      for (std::size_t start = 0; start < seeds.size();) {
-        const std::size_t comma = std::min(seeds.find(',', start), seeds.size());
-        const std::uint64_t seed = std::stoull(seeds.substr(start, comma - start));
-        start = comma + 1;
-        model.sample_from_spread({seed, 0.f, 1.f, args.count("parametric") > 0}, "bench_intensity_spread --spread-scale",
-                                 args.count("spread-scale") ? std::optional(args["spread-scale"].as<float>()) : std::nullopt);
-        const std::vector<double> drawn = held_out_prediction(model, ds, c);
-        double dmae = 0;
-        for (std::size_t i = 0; i < drawn.size(); ++i) dmae += std::abs(drawn[i] - measured[i]);
-        dmae /= std::max<std::size_t>(1, drawn.size());
-        const qualify::Similarity ss = qualify::compare(drawn, measured);
-        j["sampled"].push_back({{"seed", seed}, {"mae", dmae}, {"intersection", ss.intersection},
-                                {"interval", {ss.interval.lo, ss.interval.hi}}});
-        std::printf("sampled (seed %llu): MAE %.4f  intersection %.3f [%.3f, %.3f]  = %.3f x ceiling\n",
-                    static_cast<unsigned long long>(seed), dmae, ss.intersection, ss.interval.lo, ss.interval.hi,
-                    ss.intersection / ceiling);
-        if (args.count("diagnose") && j["sampled"].size() == 1) {
-          std::vector<double> mu, b;
-          held_out_distribution(model, ds, c, mu, b);
-          print_diagnosis(measured, mu, b, drawn, held_out_class);
-        }
-      }
+      score_samples(model, ds, c, measured, held_out_class, ceiling, args, j);
     }
     if (args.count("dump-cells")) dump_cells(model, ds, c, args["dump-cells"].as<std::string>());
     if (!args["out"].as<std::string>().empty()) write_file_atomically(args["out"].as<std::string>(), j.dump(2));
