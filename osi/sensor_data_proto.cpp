@@ -1,12 +1,41 @@
-#include "osi/sensor_data.h"
-
+// build_sensor_data (osi/sensor_data.h): the SensorData as a libprotobuf message, the reference
+// the hand-written encoder is checked against and what `lidar-infer osi --format txth` prints.
+// Kept apart from the encoder so that code which only encodes (the FMU) links no libprotobuf.
 #include <algorithm>
 #include <cmath>
 
 #include "common/error.h"
+#include "osi/osi3_subset.pb.h"
+#include "osi/sensor_data.h"
+#include "osi/sensor_view_decoder.h"
 #include "sensor/frames.h"
 
 namespace lidarsim::osi {
+
+// The plain enums (osi/messages.h) carry the schema's values.
+constexpr bool same(int ours, int schema) { return ours == schema; }
+static_assert(same(msg::kTypeVehicle, osi3::MovingObject::TYPE_VEHICLE) &&
+              same(msg::kTypeAnimal, osi3::MovingObject::TYPE_ANIMAL));
+static_assert(same(msg::kMovingObjectTypeCount, osi3::MovingObject::Type_ARRAYSIZE));
+static_assert(same(msg::kVehicleTypeCount, osi3::MovingObject::VehicleClassification::Type_ARRAYSIZE));
+static_assert(same(msg::kWheelchair, osi3::MovingObject::VehicleClassification::TYPE_WHEELCHAIR));
+static_assert(same(msg::kLaneBoundaryTypeCount, osi3::LaneBoundary::Classification::Type_ARRAYSIZE));
+static_assert(same(msg::kStructure, osi3::LaneBoundary::Classification::TYPE_STRUCTURE));
+static_assert(same(msg::kDataQualifierAvailable, osi3::DetectedEntityHeader::DATA_QUALIFIER_AVAILABLE) &&
+              same(msg::kDataQualifierAvailable, osi3::SensorDetectionHeader::DATA_QUALIFIER_AVAILABLE));
+static_assert(same(msg::kMeasurementStateMeasured, osi3::DetectedItemHeader::MEASUREMENT_STATE_MEASURED) &&
+              same(msg::kMeasurementStatePredicted, osi3::DetectedItemHeader::MEASUREMENT_STATE_PREDICTED));
+static_assert(same(msg::kReferencePointCenter, osi3::DetectedMovingObject::REFERENCE_POINT_CENTER));
+
+namespace {
+
+// An echoed message as the protobuf message it was decoded from.
+template <class M, class P>
+void to_proto(const M& m, P& out) {
+  if (!out.ParseFromString(wire_bytes(m))) throw Error("build_sensor_data: an echoed message does not parse");
+}
+
+}  // namespace
 
 void set_version(osi3::InterfaceVersion& v) {
   v.set_version_major(kOsiVersion[0]);
@@ -20,49 +49,18 @@ void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v) {
   v.set_z(p.z());
 }
 
-osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t) {
-  using C = osi3::LaneBoundary::Classification;
-  switch (t) {
-    case sensor::LaneType::Dashed: return C::TYPE_DASHED_LINE;
-    case sensor::LaneType::RoadEdge: return C::TYPE_ROAD_EDGE;
-    default: return C::TYPE_SOLID_LINE;
-  }
-}
-
-std::uint64_t osi_id_of(int model_id, const IdMap& ids) { return ids.known(model_id) ? ids.to_osi(model_id) : kNoObject; }
-
-std::uint64_t osi_tracking_id(int track_id) {
-  return track_id >= 0 ? static_cast<std::uint64_t>(track_id)
-                       : kFalsePositiveIdBase + static_cast<std::uint64_t>(-static_cast<std::int64_t>(track_id));
-}
-
-int lane_point_count(const sensor::LanePolynomial& p) {
-  return std::max(2, static_cast<int>(std::floor(p.x_max - p.x_min)) + 1);
-}
-
-Eigen::Vector2d lane_point(const sensor::LanePolynomial& p, int k, int n) {
-  const double x = p.x_min + (p.x_max - p.x_min) * k / (n - 1);
-  return {x, p.c0 + x * (p.c1 + x * (p.c2 + x * p.c3))};
-}
-
-std::vector<double> column_azimuths(const pgm::BeamLayout& layout) {
-  std::vector<double> a(static_cast<std::size_t>(layout.columns));
-  for (int c = 0; c < layout.columns; ++c) a[static_cast<std::size_t>(c)] = sensor::wrap_pi(layout.azimuth_of_column(c));
-  return a;
-}
-
 namespace {
 
 // Detector det's header and its cloud's detections into `lidar`.
-void add_detections(const Detector& det, const osi3::Timestamp& time, const CloudRef& cloud, const IdMap& ids,
+void add_detections(const Detector& det, const msg::Timestamp& time, const CloudRef& cloud, const IdMap& ids,
                     std::uint64_t cycle, osi3::LidarDetectionData& lidar) {
   auto* dh = lidar.mutable_header();
-  *dh->mutable_measurement_time() = time;
+  to_proto(time, *dh->mutable_measurement_time());
   dh->set_cycle_counter(cycle);
-  *dh->mutable_mounting_position() = det.mounting_position;
+  to_proto(det.mounting_position, *dh->mutable_mounting_position());
   dh->set_data_qualifier(osi3::SensorDetectionHeader::DATA_QUALIFIER_AVAILABLE);
   dh->set_number_of_valid_detections(static_cast<std::uint32_t>(cloud.size));
-  *dh->mutable_sensor_id() = det.sensor_id;
+  to_proto(det.sensor_id, *dh->mutable_sensor_id());
   if (cloud.size == 0) return;
   const int W = cloud.layout->columns;
   lidar.mutable_detection()->Reserve(static_cast<int>(cloud.size));
@@ -86,10 +84,10 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
                        const IdMap& ids, std::uint64_t cycle, osi3::SensorData& out) {
   out.Clear();
   set_version(*out.mutable_version());
-  *out.mutable_timestamp() = scene.timestamp;
-  *out.mutable_last_measurement_time() = scene.timestamp;
-  *out.mutable_sensor_id() = scene.sensor_id;
-  *out.mutable_mounting_position() = scene.mounting_position;
+  to_proto(scene.timestamp, *out.mutable_timestamp());
+  to_proto(scene.timestamp, *out.mutable_last_measurement_time());
+  to_proto(scene.sensor_id, *out.mutable_sensor_id());
+  to_proto(scene.mounting_position, *out.mutable_mounting_position());
 
   // Velocities and accelerations relative to the sensor: BaseMoving's are relative to its parent
   // frame (the host's rotation rate is not subtracted: the model has none).
@@ -98,7 +96,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
   const Eigen::Vector3d host_acceleration_sensor = map_from_sensor.rotation.transpose() * scene.host_acceleration;
 
   auto* oh = out.mutable_moving_object_header();
-  *oh->mutable_measurement_time() = scene.timestamp;
+  to_proto(scene.timestamp, *oh->mutable_measurement_time());
   oh->set_cycle_counter(cycle);
   oh->set_data_qualifier(osi3::DetectedEntityHeader::DATA_QUALIFIER_AVAILABLE);
   for (const auto& d : objects) {
@@ -110,7 +108,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     h->set_existence_probability(std::clamp(o.score, 0.0, 1.0));
     h->set_measurement_state(d.coasting ? osi3::DetectedItemHeader::MEASUREMENT_STATE_PREDICTED
                                         : osi3::DetectedItemHeader::MEASUREMENT_STATE_MEASURED);
-    *h->add_sensor_id() = scene.sensor_id;
+    to_proto(scene.sensor_id, *h->add_sensor_id());
     auto* b = m->mutable_base();
     set_vector(o.position, *b->mutable_position());
     b->mutable_orientation()->set_roll(0);
@@ -124,13 +122,14 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     m->set_reference_point(osi3::DetectedMovingObject::REFERENCE_POINT_CENTER);
     auto* c = m->add_candidate();
     c->set_probability(1);
-    c->set_type(osi_type(o.cls));
+    c->set_type(static_cast<osi3::MovingObject::Type>(osi_type(o.cls)));
     if (c->type() == osi3::MovingObject::TYPE_VEHICLE)
-      c->mutable_vehicle_classification()->set_type(osi_vehicle_type(o.cls));
+      c->mutable_vehicle_classification()->set_type(
+          static_cast<osi3::MovingObject::VehicleClassification::Type>(osi_vehicle_type(o.cls)));
   }
 
   auto* lh = out.mutable_lane_boundary_header();
-  *lh->mutable_measurement_time() = scene.timestamp;
+  to_proto(scene.timestamp, *lh->mutable_measurement_time());
   lh->set_cycle_counter(cycle);
   lh->set_data_qualifier(osi3::DetectedEntityHeader::DATA_QUALIFIER_AVAILABLE);
   for (const auto& p : lanes) {
@@ -143,7 +142,7 @@ void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetect
     h->set_measurement_state(osi3::DetectedItemHeader::MEASUREMENT_STATE_MEASURED);
     auto* c = l->add_candidate();
     c->set_probability(1);
-    c->mutable_classification()->set_type(osi_lane_type(p.type));
+    c->mutable_classification()->set_type(static_cast<osi3::LaneBoundary::Classification::Type>(osi_lane_type(p.type)));
     const int n = lane_point_count(p);
     for (int k = 0; k < n; ++k) {
       const Eigen::Vector2d xy = lane_point(p, k, n);
