@@ -3,8 +3,7 @@
 // but the runtime's, and a process that runs the FMU (tests/osi/importer, which links nothing
 // but the runtime) loads no other object: no HDF5, no libgomp, no libprotobuf (the SensorView is
 // decoded and the SensorData encoded by hand). Its SensorData are the bytes the in-process model
-// gives (HDF5 checkpoint, libprotobuf's parse of the SensorView), so shipping the UNet as a
-// weights file and decoding by hand changed nothing.
+// gives from the HDF5 checkpoint, so shipping the UNet as a weights file changed nothing.
 #include <gtest/gtest.h>
 
 #include "tests/support/file_bytes.h"
