@@ -10,9 +10,10 @@
 // three run frame k one after the other (each frame another one first) before frame k + 1, so
 // load on the machine falls on all of them alike. Also timed per frame, in process: decoding the
 // SensorView (osi::decode_sensor_view) and libprotobuf's parse it replaces, SensorView -> scene,
-// encoding the SensorData (osi::encode_sensor_data), and the protobuf path it replaces (building the message, SerializeToString); and a client's
-// libprotobuf parse of the SensorData it got. All four must give the same bytes (counted).
-// Median and p99 over --frames after --warmup frames; the CPU and the load average are printed.
+// encoding the SensorData (osi::encode_sensor_data), and the protobuf path it replaces (building
+// the message, SerializeToString); and a client's libprotobuf parse of the SensorData it got. All
+// four must give the same bytes (counted). Median and p99 over --frames after --warmup frames; the
+// CPU and the load average are printed.
 #include <omp.h>
 #include <sys/wait.h>
 #include <unistd.h>

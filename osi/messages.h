@@ -62,7 +62,7 @@ struct BaseMoving {  // dimension (1), position (2), orientation (3), velocity (
 };
 
 // Enum values of the subset (closed proto2 enums: a value outside them leaves the field unset).
-enum MovingObjectType : int { kTypeUnknown = 0, kTypeOther = 1, kTypeVehicle = 2, kTypePedestrian = 3, kTypeAnimal = 4 };
+enum MovingObjectType : int { kTypeUnknown = 0, kTypeOther, kTypeVehicle, kTypePedestrian, kTypeAnimal };
 inline constexpr int kMovingObjectTypeCount = 5;
 enum VehicleType : int {
   kVehicleUnknown = 0, kVehicleOther, kSmallCar, kCompactCar, kMediumCar, kLuxuryCar, kDeliveryVan, kHeavyTruck,

@@ -86,7 +86,9 @@ sensor::LaneType lane_type(const msg::LaneBoundary& b, bool& drawn) {
 }
 
 bool finite(const msg::Vector3d& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
-bool finite(const msg::Orientation3d& o) { return std::isfinite(o.roll) && std::isfinite(o.pitch) && std::isfinite(o.yaw); }
+bool finite(const msg::Orientation3d& o) {
+  return std::isfinite(o.roll) && std::isfinite(o.pitch) && std::isfinite(o.yaw);
+}
 bool finite(const msg::Dimension3d& d) {
   return std::isfinite(d.length) && std::isfinite(d.width) && std::isfinite(d.height);
 }
@@ -231,7 +233,8 @@ void read_lane_boundaries(const msg::GroundTruth& gt, const FieldError& fail, Id
     bool drawn = true;
     const sensor::LaneType type = lane_type(lb, drawn);
     if (!drawn || lb.boundary_line.size() < 2) continue;
-    if (!(lb.has & msg::bit(1))) throw fail("global_ground_truth.lane_boundary[" + std::to_string(i) + "].id", "missing");
+    if (!(lb.has & msg::bit(1)))
+      throw fail("global_ground_truth.lane_boundary[" + std::to_string(i) + "].id", "missing");
     sensor::LanePolyline& lane = out.map.lanes.emplace_back();
     lane.id = ids.to_model(lb.id.value);
     lane.type = type;

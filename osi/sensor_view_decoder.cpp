@@ -98,7 +98,10 @@ void read(Reader& r, msg::MountingPosition& m, bool keep) {
     const Tag t = r.tag();
     switch (t.key()) {
       case key(1, L): r.message("position", [&](Reader& s) { read(s, m.position, keep); }), m.has |= bit(1); break;
-      case key(2, L): r.message("orientation", [&](Reader& s) { read(s, m.orientation, keep); }), m.has |= bit(2); break;
+      case key(2, L):
+        r.message("orientation", [&](Reader& s) { read(s, m.orientation, keep); });
+        m.has |= bit(2);
+        break;
       default: r.skip(t, kept(keep, m.unknown));
     }
   }
@@ -110,9 +113,15 @@ void read(Reader& r, msg::BaseMoving& m) {
     switch (t.key()) {
       case key(1, L): r.message("dimension", [&](Reader& s) { read(s, m.dimension); }), m.has |= bit(1); break;
       case key(2, L): r.message("position", [&](Reader& s) { read(s, m.position, false); }), m.has |= bit(2); break;
-      case key(3, L): r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); }), m.has |= bit(3); break;
+      case key(3, L):
+        r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); });
+        m.has |= bit(3);
+        break;
       case key(4, L): r.message("velocity", [&](Reader& s) { read(s, m.velocity, false); }), m.has |= bit(4); break;
-      case key(5, L): r.message("acceleration", [&](Reader& s) { read(s, m.acceleration, false); }), m.has |= bit(5); break;
+      case key(5, L):
+        r.message("acceleration", [&](Reader& s) { read(s, m.acceleration, false); });
+        m.has |= bit(5);
+        break;
       case key(6, L): r.message("orientation_rate", read_unused); break;
       default: r.skip(t);
     }

@@ -184,7 +184,8 @@ class Reader {
       const char* at = p_;
       const std::uint32_t v = raw_tag(start.field);  // as tag(), but an end-group tag ends the group
       if ((v & 7) == kEndGroup) {
-        if (static_cast<int>(v >> 3) != start.field) fail_at(nullptr, -1, start.field, "group ends with another field's tag");
+        if (static_cast<int>(v >> 3) != start.field)
+          fail_at(nullptr, -1, start.field, "group ends with another field's tag");
         break;
       }
       p_ = at;

@@ -59,7 +59,8 @@ inline void base(Diff& d, const msg::BaseMoving& a, const osi3::BaseMoving& b, c
 inline void ground_truth(Diff& d, const msg::GroundTruth& a, const osi3::GroundTruth& b) {
   const std::string g = "global_ground_truth";
   echoed(d, a.timestamp, b.timestamp(), g + ".timestamp");
-  d.check(((a.has & msg::bit(3)) != 0) == b.has_host_vehicle_id() && a.host_vehicle_id.value == b.host_vehicle_id().value(),
+  d.check(((a.has & msg::bit(3)) != 0) == b.has_host_vehicle_id() &&
+              a.host_vehicle_id.value == b.host_vehicle_id().value(),
           g + ".host_vehicle_id");
   d.check(a.moving_object.size() == static_cast<std::size_t>(b.moving_object_size()), g + ".moving_object (count)");
   for (int i = 0; i < b.moving_object_size() && i < static_cast<int>(a.moving_object.size()); ++i) {
@@ -72,7 +73,8 @@ inline void ground_truth(Diff& d, const msg::GroundTruth& a, const osi3::GroundT
     d.check(static_cast<int>(x.type) == static_cast<int>(y.type()), f + ".type");
     d.check(static_cast<int>(x.vehicle_type) == static_cast<int>(y.vehicle_classification().type()),
             f + ".vehicle_classification.type");
-    vector3d(d, x.bbcenter_to_rear, y.vehicle_attributes().bbcenter_to_rear(), f + ".vehicle_attributes.bbcenter_to_rear");
+    vector3d(d, x.bbcenter_to_rear, y.vehicle_attributes().bbcenter_to_rear(),
+             f + ".vehicle_attributes.bbcenter_to_rear");
   }
   d.check(a.lane_boundary.size() == static_cast<std::size_t>(b.lane_boundary_size()), g + ".lane_boundary (count)");
   for (int i = 0; i < b.lane_boundary_size() && i < static_cast<int>(a.lane_boundary.size()); ++i) {
@@ -100,7 +102,8 @@ inline std::string first_difference(const msg::SensorView& ours, const osi3::Sen
   detail::echoed(d, ours.sensor_id, theirs.sensor_id(), "sensor_id");
   d.check(has(4) == theirs.has_mounting_position(), "mounting_position (presence)");
   detail::echoed(d, ours.mounting_position, theirs.mounting_position(), "mounting_position");
-  detail::vector3d(d, ours.mounting_position.position, theirs.mounting_position().position(), "mounting_position.position");
+  detail::vector3d(d, ours.mounting_position.position, theirs.mounting_position().position(),
+                   "mounting_position.position");
   detail::orientation(d, ours.mounting_position.orientation, theirs.mounting_position().orientation(),
                       "mounting_position.orientation");
   d.check(has(7) == theirs.has_global_ground_truth(), "global_ground_truth (presence)");

@@ -89,7 +89,8 @@ void identifier(Draw& d, osi3::Identifier& id) {
 }
 
 void timestamp(Draw& d, osi3::Timestamp& t) {
-  if (d.coin(0.9)) t.set_seconds(d.coin(0.2) ? -static_cast<std::int64_t>(d.id() >> 1) : static_cast<std::int64_t>(d.id() >> 1));
+  const auto seconds = static_cast<std::int64_t>(d.id() >> 1);
+  if (d.coin(0.9)) t.set_seconds(d.coin(0.2) ? -seconds : seconds);
   if (d.coin(0.9)) t.set_nanos(static_cast<std::uint32_t>(d.id()));
   maybe_unknown(d, t);
 }
@@ -243,7 +244,8 @@ TEST(OsiSensorViewDecoder, AgreesWithLibprotobufOnRandomMergedTruncatedAndMutate
     for (int m = 0; m < 20 && !a.empty(); ++m) {  // a few bytes changed
       std::string b = a;
       for (int c = d.integer(1, 3); c > 0; --c)
-        b[static_cast<std::size_t>(d.integer(0, static_cast<int>(b.size()) - 1))] = static_cast<char>(d.integer(0, 255));
+        b[static_cast<std::size_t>(d.integer(0, static_cast<int>(b.size()) - 1))] =
+            static_cast<char>(d.integer(0, 255));
       error.clear();
       ASSERT_EQ(compare_with_libprotobuf(b, &error), "") << "message " << n << " mutation " << m;
       (error.empty() ? accepted : refused)++;
@@ -278,7 +280,8 @@ TEST(OsiSensorViewDecoder, FollowsLibprotobufOnEveryWireRule) {
       {"tag beyond 32 bits", "\xc8\x80\x80\x80\x70"s + "\x01"s, true},
       {"length of 5 bytes", tag(2, 2) + "\x80\x80\x80\x80\x00"s, true},
       {"length past the end", tag(2, 2) + "\x05"s + tag(1, 0), false},
-      {"known field, other wire type", length_delimited(2, tag(1, 1) + "12345678"s) + length_delimited(3, tag(1, 2) + "\x00"s), true},
+      {"known field, other wire type",
+       length_delimited(2, tag(1, 1) + "12345678"s) + length_delimited(3, tag(1, 2) + "\x00"s), true},
       {"fixed32", tag(50, 5) + "1234"s, true},
       {"fixed32 truncated", tag(50, 5) + "123"s, false},
       {"empty", "", true},
