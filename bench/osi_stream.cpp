@@ -8,11 +8,12 @@
 // and, as the peer, the same frames through OsiRunner in this process, whose model stages
 // (SimPipeline, outputs excluded: what bench_pipeline times) are "the pipeline's own time". The
 // three run frame k one after the other (each frame another one first) before frame k + 1, so
-// load on the machine falls on all of them alike. Also timed per frame, in process: parsing the
-// SensorView, SensorView -> scene, encoding the SensorData (osi::encode_sensor_data), and the
-// protobuf path it replaces (building the message, SerializeToString); and a client's
-// libprotobuf parse of the SensorData it got. All four must give the same bytes (counted).
-// Median and p99 over --frames after --warmup frames; the CPU and the load average are printed.
+// load on the machine falls on all of them alike. Also timed per frame, in process: decoding the
+// SensorView (osi::decode_sensor_view) and libprotobuf's parse it replaces, SensorView -> scene,
+// encoding the SensorData (osi::encode_sensor_data), and the protobuf path it replaces (building
+// the message, SerializeToString); and a client's libprotobuf parse of the SensorData it got. All
+// four must give the same bytes (counted). Median and p99 over --frames after --warmup frames; the
+// CPU and the load average are printed.
 #include <omp.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -39,6 +40,7 @@
 #include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
+#include "osi/sensor_view_decoder.h"
 
 using namespace lidarsim;
 namespace fs = std::filesystem;
@@ -181,11 +183,14 @@ class Stream {
   int to_ = -1, from_ = -1;
 };
 
-enum Phase { kPipeline, kStream, kFmu, kParseView, kScene, kEncode, kBuild, kSerialize, kClientParse, kPhases };
+enum Phase {
+  kPipeline, kStream, kFmu, kDecodeView, kParseView, kScene, kEncode, kBuild, kSerialize, kClientParse, kPhases
+};
 constexpr const char* kPhaseNames[kPhases] = {"the pipeline's own time (model stages, in process)",
                                               "stream round trip (SensorView written -> SensorData read)",
                                               "FMU round trip (set, fmi2DoStep, get)",
-                                              "in process: parse the SensorView (libprotobuf)",
+                                              "in process: decode the SensorView (osi/sensor_view_decoder.h)",
+                                              "in process, replaced: parse the SensorView (libprotobuf)",
                                               "in process: SensorView -> scene",
                                               "in process: encode the SensorData (osi/sensor_data_encoder.cpp)",
                                               "in process, replaced: build the SensorData message",
@@ -206,6 +211,7 @@ Run run_frames(const std::vector<std::string>& msgs, int warmup, infer::OsiRunne
   Run run;
   auto& t = run.t;
   osi3::SensorView view;
+  osi::msg::SensorView decoded;
   osi3::SensorData message, client;
   std::string ours, theirs, reply;
   for (std::size_t k = 0; k < msgs.size(); ++k) {
@@ -232,9 +238,12 @@ Run run_frames(const std::vector<std::string>& msgs, int warmup, infer::OsiRunne
     };
     const auto run_in_process = [&] {
       auto t0 = clock::now();
+      osi::decode_sensor_view(msgs[k], "bench", static_cast<long>(k), decoded);
+      keep(kDecodeView, since(t0));
+      t0 = clock::now();
       view.ParseFromString(msgs[k]);
       keep(kParseView, since(t0));
-      runner.step(view, static_cast<long>(k), "bench", ours);
+      runner.step(decoded, static_cast<long>(k), "bench", ours);
       keep(kPipeline, runner.last_times().model_ms);
       keep(kScene, runner.last_times().scene_ms);
       keep(kEncode, runner.last_times().output_ms);

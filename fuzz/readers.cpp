@@ -23,12 +23,15 @@
 #include "nn/checkpoint.h"
 #include "nn/checkpoint_image.h"
 #include "nn/unet.h"
+#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
+#include "osi/sensor_view_decoder.h"
 #include "osi/trace.h"
 #include "pgm/projection.h"
 #include "sensor/kpi_model.h"
 #include "sensor/scenario.h"
+#include "tests/osi/sensor_view_oracle.h"
 
 namespace lidarsim::fuzz {
 namespace fs = std::filesystem;
@@ -253,20 +256,28 @@ void sensor_layout(const std::uint8_t* data, std::size_t size) {
   });
 }
 
-// A binary OSI trace as `lidar-infer osi` reads it: each message parsed as osi3.SensorView and
-// turned into the scene (at most 16 messages per input), and the scene's SensorData (no objects,
-// empty clouds) encoded by hand and by libprotobuf: what the input echoes (timestamp, ids,
-// mounts, with whatever unknown fields they carry) must give the same bytes both ways.
+// A binary OSI trace as `lidar-infer osi` reads it: each message decoded by hand (osi/sensor_view_decoder.h)
+// and turned into the scene (at most 16 messages per input), and the scene's SensorData (no
+// objects, empty clouds) encoded by hand and by libprotobuf. libprotobuf is the oracle twice: it
+// must parse exactly the messages the decoder accepts, into the same fields
+// (tests/osi/sensor_view_oracle.h), and what the input echoes (timestamp, ids, mounts, with
+// whatever unknown fields they carry) must give the same bytes both ways.
 void osi_trace(const std::uint8_t* data, std::size_t size) {
   expect_error_or_success([&] {
     std::istringstream in(to_text(data, size));
     osi::TraceReader reader(in, "trace.osi");
-    osi3::SensorView view;
+    std::string view_bytes;
+    osi::msg::SensorView view;
     osi::IdMap ids;
     osi::SceneFrame frame;
     osi3::SensorData message;
     std::string bytes;
-    for (int n = 0; n < 16 && reader.next(view); ++n) {
+    for (int n = 0; n < 16 && reader.next(view_bytes); ++n) {
+      if (const std::string diff = osi::oracle::compare_with_libprotobuf(view_bytes); !diff.empty()) {
+        std::fprintf(stderr, "osi_trace: message %d: the decoder and libprotobuf differ: %s\n", n, diff.c_str());
+        std::abort();
+      }
+      osi::decode_sensor_view(view_bytes, "trace.osi", reader.index(), view);
       osi::scene_from_sensor_view(view, reader.index(), "trace.osi", ids, frame);
       const std::vector<osi::CloudRef> clouds(frame.detectors.size());
       osi::build_sensor_data(frame, {}, {}, clouds, ids, static_cast<std::uint64_t>(n), message);

@@ -15,7 +15,9 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "infer/osi_runner.h"
+#include "osi/osi3_subset.pb.h"
 #include "osi/scenario_trace.h"
+#include "osi/sensor_view_decoder.h"
 #include "osi/trace.h"
 
 namespace lidarsim::infer {
@@ -62,13 +64,15 @@ struct StreamStats {
 // Frame after frame until the input ends, each flushed as soon as it is written.
 StreamStats stream_frames(OsiRunner& runner, osi::TraceReader& reader, osi::TraceWriter& writer, osi::TraceFormat format,
                           const std::string& source) {
-  osi3::SensorView view;
+  std::string bytes;            // one SensorView as it arrived
+  osi::msg::SensorView view;    // decoded by hand (osi/sensor_view_decoder.h)
   osi3::SensorData data;  // the text format only: binary output is encoded straight to bytes
   std::string framed;     // length field + SensorData, reused from frame to frame
   StreamStats st;
   using clock = std::chrono::steady_clock;
-  while (reader.next(view)) {
+  while (reader.next(bytes)) {
     const auto t0 = clock::now();  // message in hand: from here to flushed output is our latency
+    osi::decode_sensor_view(bytes, source, reader.index(), view);
     if (format == osi::TraceFormat::Binary) {
       runner.step(view, reader.index(), source, framed, osi::kLengthBytes);
       writer.write_framed(framed);

@@ -48,15 +48,7 @@ OsiRunner::OsiRunner(sensor::SensorSpec sensor, sensor::KpiModel kpi, std::uniqu
   if (options_.intensity && !intensity_) throw Error("osi runner: an intensity model is required");
 }
 
-void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out) {
-  advance(in, index, source);
-  const auto t0 = StepClock::now();
-  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_), out);
-  times_.output_ms = ms_since(t0);
-  ++frames_;
-}
-
-void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
+void OsiRunner::step(const osi::msg::SensorView& in, long index, const std::string& source, std::string& out,
                      std::size_t prefix) {
   advance(in, index, source);
   const auto t0 = StepClock::now();
@@ -66,18 +58,13 @@ void OsiRunner::step(const osi3::SensorView& in, long index, const std::string& 
   ++frames_;
 }
 
-void OsiRunner::last_sensor_data(osi3::SensorData& out) const {
-  if (frames_ == 0) throw Error("osi runner: no frame yet");
-  osi::build_sensor_data(scene_, detections_, frame_.lanes, clouds_, ids_, static_cast<std::uint64_t>(frames_ - 1), out);
-}
-
 std::size_t OsiRunner::reported_points() const {
   std::size_t n = 0;
   for (const auto& c : clouds_) n += c.size;
   return n;
 }
 
-void OsiRunner::advance(const osi3::SensorView& in, long index, const std::string& source) {
+void OsiRunner::advance(const osi::msg::SensorView& in, long index, const std::string& source) {
   auto fail = [&](const std::string& field, const std::string& what) {
     return Error(source + ": message " + std::to_string(index) + ": " + field + ": " + what);
   };

@@ -23,11 +23,15 @@
 
 #include "infer/intensity_model.h"
 #include "infer/sim_pipeline.h"
-#include "osi/osi3_subset.pb.h"
+#include "osi/messages.h"
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
 #include "sensor/kpi_model.h"
 #include "sensor/scenario.h"
+
+namespace osi3 {
+class SensorView;
+}  // namespace osi3
 
 namespace lidarsim::infer {
 
@@ -60,14 +64,20 @@ class OsiRunner {
     return OsiRunner(s.sensor, std::move(k), std::move(m), options, std::move(loader));
   }
 
-  // One frame. Bad input throws lidarsim::Error "<source>: message <index>: <field>: <what>"
-  // (see osi::scene_from_sensor_view; also a mount that changes or a timestamp that does not advance).
-  void step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out);
-  // The same, the SensorData as wire bytes (osi::encode_sensor_data: the same bytes as
-  // SerializeToString of the message above, without building it) from out[prefix] on.
-  void step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
+  // One frame (the SensorView decoded by osi::decode_sensor_view), the SensorData as wire bytes
+  // (osi::encode_sensor_data: the same bytes as SerializeToString of the message build_sensor_data
+  // fills, without building it) from out[prefix] on. Bad input throws lidarsim::Error
+  // "<source>: message <index>: <field>: <what>" (see osi::scene_from_sensor_view; also a mount
+  // that changes or a timestamp that does not advance).
+  void step(const osi::msg::SensorView& in, long index, const std::string& source, std::string& out,
             std::size_t prefix = 0);
 
+  // With libprotobuf (infer/osi_runner_proto.cpp; not in the FMU): the SensorData as a message,
+  // and both from an osi3.SensorView message (its bytes decoded as above).
+  void step(const osi::msg::SensorView& in, long index, const std::string& source, osi3::SensorData& out);
+  void step(const osi3::SensorView& in, long index, const std::string& source, osi3::SensorData& out);
+  void step(const osi3::SensorView& in, long index, const std::string& source, std::string& out,
+            std::size_t prefix = 0);
   // The last step's SensorData built again as a message (the benchmark times both writers on one
   // frame); throws before the first step.
   void last_sensor_data(osi3::SensorData& out) const;
@@ -105,7 +115,7 @@ class OsiRunner {
   std::vector<sensor::Pose> detector_mounts_;  // the first message's
   std::vector<osi::CloudRef> clouds_;
   void build(const std::string& source, long index);
-  void advance(const osi3::SensorView& in, long index, const std::string& source);  // all but the output
+  void advance(const osi::msg::SensorView& in, long index, const std::string& source);  // all but the output
   StepTimes times_;
   osi::IdMap ids_;
   osi::SceneFrame scene_;

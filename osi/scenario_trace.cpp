@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
 #include "sensor/frames.h"
@@ -69,9 +70,10 @@ void sensor_view_from_scenario(const sensor::Scenario& sc, double t, osi3::Senso
   for (const auto& o : frame.objects) {
     auto* m = gt->add_moving_object();
     m->mutable_id()->set_value(static_cast<std::uint64_t>(o.id));
-    m->set_type(osi_type(o.cls));
+    m->set_type(static_cast<osi3::MovingObject::Type>(osi_type(o.cls)));
     if (m->type() == osi3::MovingObject::TYPE_VEHICLE)
-      m->mutable_vehicle_classification()->set_type(osi_vehicle_type(o.cls));
+      m->mutable_vehicle_classification()->set_type(
+          static_cast<osi3::MovingObject::VehicleClassification::Type>(osi_vehicle_type(o.cls)));
     auto* b = m->mutable_base();
     set_vector(o.position, *b->mutable_position());
     b->mutable_orientation()->set_roll(0);

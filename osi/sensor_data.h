@@ -22,10 +22,15 @@
 #include <string>
 #include <vector>
 
-#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_view.h"
 #include "pgm/beam_layout.h"
 #include "sensor/scene.h"
+
+namespace osi3 {
+class InterfaceVersion;
+class SensorData;
+class Vector3d;
+}  // namespace osi3
 
 namespace lidarsim::osi {
 
@@ -50,7 +55,7 @@ struct CloudRef {
   const pgm::BeamLayout* layout = nullptr;
 };
 
-// Fills `out` (cleared first): clouds[i] is the cloud of scene.detectors[i] (same count). `cycle`
+// Fills `out` (cleared first; osi/sensor_data_proto.cpp, with libprotobuf): clouds[i] is the cloud of scene.detectors[i] (same count). `cycle`
 // is the frame counter written into the headers.
 void build_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetection>& objects,
                        const std::vector<sensor::LanePolynomial>& lanes, const std::vector<CloudRef>& clouds,
@@ -66,13 +71,14 @@ void encode_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetec
                         const IdMap& ids, std::uint64_t cycle, std::string& out, std::size_t prefix = 0);
 
 // Values both writers share.
-osi3::LaneBoundary::Classification::Type osi_lane_type(sensor::LaneType t);
+msg::LaneBoundaryType osi_lane_type(sensor::LaneType t);
 std::uint64_t osi_id_of(int model_id, const IdMap& ids);  // kNoObject for ids without an OSI id
 std::uint64_t osi_tracking_id(int track_id);              // false positives above kFalsePositiveIdBase
 int lane_point_count(const sensor::LanePolynomial& p);    // points every 1 m over the valid range, >= 2
 Eigen::Vector2d lane_point(const sensor::LanePolynomial& p, int k, int n);  // (x, y) of point k of n
 std::vector<double> column_azimuths(const pgm::BeamLayout& layout);         // per column, in [-pi, pi]
 
+// With libprotobuf (osi/sensor_data_proto.cpp).
 void set_version(osi3::InterfaceVersion& v);
 // An OSI vector from ours (x, y, z in metres or their derivatives).
 void set_vector(const Eigen::Vector3d& p, osi3::Vector3d& v);

@@ -10,6 +10,7 @@
 
 #include "common/error.h"
 #include "osi/sensor_data.h"
+#include "osi/sensor_view_decoder.h"
 #include "osi/wire.h"
 #include "sensor/frames.h"
 
@@ -21,8 +22,9 @@ using wire::put_f64;
 using wire::put_tag;
 using wire::put_varint;
 
-// Submessages echoed from the SensorView (timestamp, ids, mounts) as libprotobuf serializes them,
-// so fields we do not know survive as they do through build_sensor_data; a few dozen bytes each.
+// Submessages echoed from the SensorView (timestamp, ids, mounts) as libprotobuf serializes them
+// (osi::wire_bytes), so fields we do not know survive as they do through build_sensor_data; a few
+// dozen bytes each.
 struct Echoes {
   std::string timestamp, sensor_id, mounting_position;
   std::vector<std::string> detector_sensor_id, detector_mounting_position;
@@ -46,7 +48,7 @@ template <class Sink>
 void entity_header(Sink& o, const Echoes& e, std::uint64_t cycle) {
   o.bytes(1, e.timestamp);  // DetectedEntityHeader.measurement_time
   o.uint(2, cycle);         // cycle_counter
-  o.sint(3, osi3::DetectedEntityHeader::DATA_QUALIFIER_AVAILABLE);  // data_qualifier
+  o.sint(3, msg::kDataQualifierAvailable);  // data_qualifier
 }
 
 struct ObjectFrame {  // what moving_object needs besides the object
@@ -63,8 +65,8 @@ void moving_object(Sink& o, const ReportedDetection& d, const ObjectFrame& f) {
     if (d.truth_id >= 0 && f.ids.known(d.truth_id))
       h.message(2, [&](auto& id) { id.uint(1, f.ids.to_osi(d.truth_id)); });  // ground_truth_id[0].value
     h.f64(3, std::clamp(obj.score, 0.0, 1.0));                                 // existence_probability
-    h.sint(5, d.coasting ? osi3::DetectedItemHeader::MEASUREMENT_STATE_PREDICTED
-                         : osi3::DetectedItemHeader::MEASUREMENT_STATE_MEASURED);  // measurement_state
+    h.sint(5, d.coasting ? msg::kMeasurementStatePredicted
+                         : msg::kMeasurementStateMeasured);  // measurement_state
     h.bytes(6, f.echoes.sensor_id);                                                // sensor_id[0]
   });
   o.message(2, [&](auto& b) {  // base: BaseMoving
@@ -82,12 +84,12 @@ void moving_object(Sink& o, const ReportedDetection& d, const ObjectFrame& f) {
     b.message(4, [&](auto& v) { vector3d(v, obj.velocity - f.host_velocity); });          // velocity
     b.message(5, [&](auto& v) { vector3d(v, obj.acceleration - f.host_acceleration); });  // acceleration
   });
-  o.sint(4, osi3::DetectedMovingObject::REFERENCE_POINT_CENTER);  // reference_point
+  o.sint(4, msg::kReferencePointCenter);  // reference_point
   o.message(8, [&](auto& c) {                                     // candidate[0]
     const auto type = osi_type(obj.cls);
     c.f64(1, 1.0);   // probability
     c.sint(2, type);  // type
-    if (type == osi3::MovingObject::TYPE_VEHICLE)
+    if (type == msg::kTypeVehicle)
       c.message(3, [&](auto& v) { v.sint(1, osi_vehicle_type(obj.cls)); });  // vehicle_classification.type
   });
 }
@@ -99,7 +101,7 @@ void lane_boundary(Sink& o, const sensor::LanePolynomial& p, const IdMap& ids) {
     h.message(1, [&](auto& v) { v.uint(1, id); });                   // tracking_id.value
     if (id != kNoObject) h.message(2, [&](auto& v) { v.uint(1, id); });  // ground_truth_id[0].value
     h.f64(3, 1.0);                                                     // existence_probability
-    h.sint(5, osi3::DetectedItemHeader::MEASUREMENT_STATE_MEASURED);   // measurement_state
+    h.sint(5, msg::kMeasurementStateMeasured);   // measurement_state
   });
   o.message(2, [&](auto& c) {  // candidate[0]: probability (1), classification (2) { type (1) }
     c.f64(1, 1.0);
@@ -174,7 +176,7 @@ void lidar_sensor(Sink& o, const Echoes& e, std::size_t i, const CloudRef& cloud
     h.bytes(1, e.timestamp);   // measurement_time
     h.uint(2, cycle);          // cycle_counter
     h.bytes(3, e.detector_mounting_position[i]);                          // mounting_position
-    h.sint(5, osi3::SensorDetectionHeader::DATA_QUALIFIER_AVAILABLE);     // data_qualifier
+    h.sint(5, msg::kDataQualifierAvailable);     // data_qualifier
     h.uint(6, static_cast<std::uint32_t>(cloud.size));                    // number_of_valid_detections
     h.bytes(7, e.detector_sensor_id[i]);                                  // sensor_id
   });
@@ -190,12 +192,12 @@ void encode_sensor_data(const SceneFrame& scene, const std::vector<ReportedDetec
     throw Error("encode_sensor_data: clouds: " + std::to_string(clouds.size()) + " for " +
                 std::to_string(scene.detectors.size()) + " detectors");
   Echoes e;
-  scene.timestamp.SerializePartialToString(&e.timestamp);
-  scene.sensor_id.SerializePartialToString(&e.sensor_id);
-  scene.mounting_position.SerializePartialToString(&e.mounting_position);
+  e.timestamp = wire_bytes(scene.timestamp);
+  e.sensor_id = wire_bytes(scene.sensor_id);
+  e.mounting_position = wire_bytes(scene.mounting_position);
   for (const Detector& d : scene.detectors) {
-    e.detector_sensor_id.push_back(d.sensor_id.SerializePartialAsString());
-    e.detector_mounting_position.push_back(d.mounting_position.SerializePartialAsString());
+    e.detector_sensor_id.push_back(wire_bytes(d.sensor_id));
+    e.detector_mounting_position.push_back(wire_bytes(d.mounting_position));
   }
   // Velocities and accelerations relative to the sensor, as build_sensor_data gives them.
   const sensor::Pose map_from_sensor = sensor::compose(scene.map.ego_in_map, scene.mount);

@@ -1,5 +1,6 @@
 #pragma once
-// osi3.SensorView -> the scene our sensor model runs on.
+// osi3.SensorView (decoded into osi::msg::SensorView, osi/sensor_view_decoder.h) -> the scene our
+// sensor model runs on. Nothing here needs Protocol Buffers but the overloads at the end.
 //
 // Frames. OSI's global frame is our map frame. The host vehicle frame of OSI has its origin at
 // the middle of the rear axle (host base.position + R(host orientation) * bbcenter_to_rear), our
@@ -19,8 +20,13 @@
 #include <unordered_map>
 #include <vector>
 
-#include "osi/osi3_subset.pb.h"
+#include "osi/messages.h"
 #include "sensor/scene.h"
+
+namespace osi3 {
+class SensorView;
+class Timestamp;
+}  // namespace osi3
 
 namespace lidarsim::osi {
 
@@ -42,8 +48,8 @@ class IdMap {
 // view_configuration; its features are given in its own frame). Without any lidar_sensor_view
 // the virtual sensor is the one detector.
 struct Detector {
-  osi3::Identifier sensor_id;                // view_configuration.sensor_id, else SensorView.sensor_id
-  osi3::MountingPosition mounting_position;  // view_configuration.mounting_position, else the virtual mount
+  msg::Identifier sensor_id;                // view_configuration.sensor_id, else SensorView.sensor_id
+  msg::MountingPosition mounting_position;  // view_configuration.mounting_position, else the virtual mount
   sensor::Pose mount;                        // the same in our ego frame
 };
 
@@ -54,9 +60,9 @@ struct SceneFrame {
   Eigen::Vector3d host_velocity = Eigen::Vector3d::Zero();      // map frame
   Eigen::Vector3d host_acceleration = Eigen::Vector3d::Zero();  // map frame
   std::uint64_t host_id = 0;
-  osi3::Identifier sensor_id;
-  osi3::Timestamp timestamp;
-  osi3::MountingPosition mounting_position;  // as given (host vehicle frame; see sensor_mount)
+  msg::Identifier sensor_id;
+  msg::Timestamp timestamp;
+  msg::MountingPosition mounting_position;  // as given (host vehicle frame; see sensor_mount)
   std::vector<Detector> detectors;           // one per lidar_sensor_view, at least one
 };
 
@@ -66,27 +72,33 @@ struct SceneFrame {
 // detections of that detector). Our model has one frame for both, so the virtual mount wins when
 // present; without it, the first lidar_sensor_view whose view_configuration has a mount is used.
 // `field` names where it came from (for errors); null when neither is given.
-const osi3::MountingPosition* sensor_mount(const osi3::SensorView& view, std::string& field);
+const msg::MountingPosition* sensor_mount(const msg::SensorView& view, std::string& field);
 
 // Fills `out` from `view`. Errors (lidarsim::Error) read "<source>: message <index>: <field>: <what>":
 // no global_ground_truth, no host id, a host id not among the moving objects, no mount
 // (sensor_mount), a moving object without id or base position, non-finite numbers.
 // Object and lane ids go through `ids` (object ids and lane ids share it).
-void scene_from_sensor_view(const osi3::SensorView& view, long index, const std::string& source, IdMap& ids,
+void scene_from_sensor_view(const msg::SensorView& view, long index, const std::string& source, IdMap& ids,
                             SceneFrame& out);
 
 // Our class for an OSI moving object: pedestrians; vehicles by vehicle_classification.type
 // (vans, trucks and (semi)trailers, buses, trams and trains as buses, motorbikes, bicycles as
 // cyclists, cars and unknown vehicle types as cars); animals and others as Misc.
-sensor::ObjectClass class_from_osi(const osi3::MovingObject& o);
+sensor::ObjectClass class_from_osi(const msg::MovingObject& o);
 // The OSI type and vehicle type we report for one of our classes.
-osi3::MovingObject::Type osi_type(sensor::ObjectClass c);
-osi3::MovingObject::VehicleClassification::Type osi_vehicle_type(sensor::ObjectClass c);
+msg::MovingObjectType osi_type(sensor::ObjectClass c);
+msg::VehicleType osi_vehicle_type(sensor::ObjectClass c);
 
-// Seconds <-> osi3.Timestamp.
-double seconds(const osi3::Timestamp& t);
-void set_timestamp(double seconds, osi3::Timestamp& t);
+double seconds(const msg::Timestamp& t);
 // A pose from an OSI position + orientation (p_parent = R p_child + t, R = Rz(yaw) Ry(pitch) Rx(roll)).
-sensor::Pose pose_from_osi(const osi3::Vector3d& position, const osi3::Orientation3d& orientation);
+sensor::Pose pose_from_osi(const msg::Vector3d& position, const msg::Orientation3d& orientation);
+
+// With libprotobuf (osi/sensor_view_proto.cpp; tests, tools and `lidar-infer osi --format txth`,
+// not the FMU): the same from an osi3.SensorView message (its bytes decoded as above), seconds
+// into an osi3.Timestamp.
+void scene_from_sensor_view(const osi3::SensorView& view, long index, const std::string& source, IdMap& ids,
+                            SceneFrame& out);
+msg::SensorView decoded(const osi3::SensorView& view);
+void set_timestamp(double seconds, osi3::Timestamp& t);
 
 }  // namespace lidarsim::osi

@@ -10,13 +10,13 @@
 
 #include "common/error.h"
 #include "infer/osi_runner.h"
-#include "osi/osi3_subset.pb.h"
+#include "osi/sensor_view_decoder.h"
 
 namespace {
 
 struct Model {
   std::unique_ptr<lidarsim::infer::OsiRunner> runner;
-  osi3::SensorView view;
+  lidarsim::osi::msg::SensorView view;  // decoded by hand: this library links no libprotobuf
   std::string out[2];  // OSMP: the previous output stays valid while the next one is computed
   int current = 0;
   long steps = 0;
@@ -74,9 +74,9 @@ __attribute__((visibility("default"))) int lidarsim_osi_model_step(void* model, 
                                                                    std::size_t error_size) {
   Model& m = *static_cast<Model*>(model);
   try {
-    if (!m.view.ParseFromArray(in, in_size))
-      throw lidarsim::Error("OSMPSensorViewIn: message " + std::to_string(m.steps) +
-                            ": does not parse as osi3.SensorView");
+    if (in_size < 0 || (in_size > 0 && !in)) throw lidarsim::Error("OSMPSensorViewIn: no message");
+    lidarsim::osi::decode_sensor_view(std::string_view(static_cast<const char*>(in), static_cast<std::size_t>(in_size)),
+                                      "OSMPSensorViewIn", m.steps, m.view);
     // Encoded straight into the buffer (osi::encode_sensor_data), which keeps its capacity.
     std::string& buffer = m.out[m.current ^ 1];
     m.runner->step(m.view, m.steps, "OSMPSensorViewIn", buffer);

@@ -18,6 +18,7 @@
 #include "../data/temp_dir.h"
 #include "common/error.h"
 #include "infer/osi_runner.h"
+#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 #include "osi/trace.h"
 #include "tests/support/file_bytes.h"

@@ -1,13 +1,9 @@
 // lidarsim_osi.fmu carries its own model (issue 29): its two libraries need nothing beyond the C
-// and C++ runtime and Protocol Buffers, export only their interface (fmi2* /
-// lidarsim_osi_model_*), and a process that runs the FMU (tests/osi/importer, which links nothing
-// but the runtime) loads no other object: no HDF5, no libgomp. Its SensorData are the bytes the
-// in-process model gives from the HDF5 checkpoint, so shipping the UNet as a weights file
-// changed nothing.
-//
-// Protocol Buffers is the one library left (docs/osi.md "Self-contained"): Debian's libprotobuf.a
-// is compiled for executables (its arena.o uses local-exec TLS), so it cannot be linked into a
-// shared object; it and its libz are allowed here by name, nothing else.
+// and C++ runtime, export only their interface (fmi2* / lidarsim_osi_model_*), import no symbol
+// but the runtime's, and a process that runs the FMU (tests/osi/importer, which links nothing
+// but the runtime) loads no other object: no HDF5, no libgomp, no libprotobuf (the SensorView is
+// decoded and the SensorData encoded by hand). Its SensorData are the bytes the in-process model
+// gives from the HDF5 checkpoint, so shipping the UNet as a weights file changed nothing.
 #include <gtest/gtest.h>
 
 #include "tests/support/file_bytes.h"
@@ -39,9 +35,7 @@ namespace fs = std::filesystem;
 const std::set<std::string> kRuntimes = {"libc.so.6",       "libm.so.6",     "libdl.so.2",
                                          "libpthread.so.0", "librt.so.1",    "ld-linux-x86-64.so.2",
                                          "libstdc++.so.6",  "libgcc_s.so.1"};
-const std::set<std::string> kProtobuf = {"libprotobuf.so.32", "libz.so.1"};
 const char* kLibraries[] = {"lidarsim_osi.so", "lidarsim_osi_model.so"};
-bool is_model(const std::string& name) { return name == "lidarsim_osi_model.so"; }
 
 std::vector<std::string> lines_of(const std::string& command) {
   std::vector<std::string> lines;
@@ -85,7 +79,7 @@ TEST(OsiFmuSelfContained, BinariesNeedOnlyTheCAndCxxRuntime) {
       if (line.find("(NEEDED)") == std::string::npos) continue;
       const auto open = line.find('['), close = line.find(']');
       const std::string lib = line.substr(open + 1, close - open - 1);
-      EXPECT_TRUE(kRuntimes.count(lib) || (is_model(name) && lib == "libprotobuf.so.32")) << name << " needs " << lib;
+      EXPECT_TRUE(kRuntimes.count(lib)) << name << " needs " << lib;
       ++needed;
     }
     EXPECT_GT(needed, 0) << name;
@@ -109,12 +103,12 @@ TEST(OsiFmuSelfContained, ExportsOnlyItsInterfaceAndImportsOnlyFromTheRuntime) {
         const std::string& symbol = f[1];
         if (f[0] == "w") continue;  // weak, optional (e.g. __gmon_start__, _ITM_*)
         EXPECT_NE(symbol.rfind("H5", 0), 0u) << name << " references HDF5: " << symbol;
+        EXPECT_EQ(symbol.find("protobuf"), std::string::npos) << name << " references libprotobuf: " << symbol;
         const auto at = symbol.find('@');
         const std::string version = at == std::string::npos ? "" : symbol.substr(at + 1);
         const bool runtime = version.rfind("GLIBC_", 0) == 0 || version.rfind("GLIBCXX_", 0) == 0 ||
                              version.rfind("CXXABI_", 0) == 0 || version.rfind("GCC_", 0) == 0;
-        const bool protobuf = is_model(name) && version.empty() && symbol.find("6google8protobuf") != std::string::npos;
-        EXPECT_TRUE(runtime || protobuf) << name << " imports " << symbol << " from outside the C/C++ runtime";
+        EXPECT_TRUE(runtime) << name << " imports " << symbol << " from outside the C/C++ runtime";
       } else if (f.size() == 3 && f[1] != "A") {  // defined (A: the version nodes themselves)
         EXPECT_EQ(f[2].rfind(prefix, 0), 0u) << name << " exports " << f[2];
         ++exported;
@@ -167,6 +161,6 @@ TEST(OsiFmuSelfContained, ImporterLoadsOnlyTheRuntimeAndGetsTheInProcessBytes) {
     }
   EXPECT_TRUE(loaded.count("lidarsim_osi.so") && loaded.count("lidarsim_osi_model.so"));
   for (const std::string& lib : loaded)
-    EXPECT_TRUE(kRuntimes.count(lib) || kProtobuf.count(lib) || lib == "lidarsim_osi.so" || lib == "lidarsim_osi_model.so")
+    EXPECT_TRUE(kRuntimes.count(lib) || lib == "lidarsim_osi.so" || lib == "lidarsim_osi_model.so")
         << "the FMU's process loaded " << lib;
 }

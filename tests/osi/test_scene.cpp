@@ -19,6 +19,7 @@
 #include "common/angles.h"
 #include "common/error.h"
 #include "infer/osi_runner.h"
+#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 
 namespace {

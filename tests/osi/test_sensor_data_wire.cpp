@@ -15,8 +15,10 @@
 
 #include "common/error.h"
 #include "infer/osi_runner.h"
+#include "osi/osi3_subset.pb.h"
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
+#include "osi/sensor_view_decoder.h"
 #include "osi/trace.h"
 #include "sensor/frames.h"
 
@@ -52,9 +54,17 @@ class Draw {
   std::mt19937_64 rng_;
 };
 
+// A message built with libprotobuf as the scene carries it (decoded from its bytes).
+template <class M, class P>
+M decoded(const P& message) {
+  M m;
+  lidarsim::osi::decode_message(message.SerializeAsString(), m);
+  return m;
+}
+
 // Some fields set, some not (proto2 presence), sometimes a field our subset does not know
 // (MountingPosition 99, as a newer OSI could add): libprotobuf echoes it, so must we.
-osi3::MountingPosition random_mount(Draw& d) {
+lidarsim::osi::msg::MountingPosition random_mount(Draw& d) {
   osi3::MountingPosition m;
   if (d.coin(0.8)) {
     m.mutable_position()->set_x(d.real(-3, 3));
@@ -62,7 +72,7 @@ osi3::MountingPosition random_mount(Draw& d) {
   }
   if (d.coin()) m.mutable_orientation()->set_yaw(d.real(-3, 3));
   if (d.coin(0.2)) m.mutable_unknown_fields()->AddVarint(99, d.id());
-  return m;
+  return decoded<lidarsim::osi::msg::MountingPosition>(m);
 }
 
 lidarsim::sensor::Pose random_pose(Draw& d) {
@@ -94,9 +104,13 @@ RandomFrame random_frame(unsigned seed) {
   const int model_ids = d.integer(0, 40);
   for (int i = 0; i < model_ids; ++i) f.ids.to_model(d.id());
   SceneFrame& s = f.scene;
-  s.timestamp.set_seconds(d.coin(0.2) ? -d.integer(1, 1 << 30) : d.integer(0, 1 << 30));
-  if (d.coin(0.8)) s.timestamp.set_nanos(static_cast<std::uint32_t>(d.integer(0, 999999999)));
-  if (d.coin(0.9)) s.sensor_id.set_value(d.id());  // else present but empty, as an input without it gives
+  osi3::Timestamp timestamp;
+  timestamp.set_seconds(d.coin(0.2) ? -d.integer(1, 1 << 30) : d.integer(0, 1 << 30));
+  if (d.coin(0.8)) timestamp.set_nanos(static_cast<std::uint32_t>(d.integer(0, 999999999)));
+  s.timestamp = decoded<lidarsim::osi::msg::Timestamp>(timestamp);
+  osi3::Identifier sensor_id;
+  if (d.coin(0.9)) sensor_id.set_value(d.id());  // else present but empty, as an input without it gives
+  s.sensor_id = decoded<lidarsim::osi::msg::Identifier>(sensor_id);
   s.mounting_position = random_mount(d);
   s.map.ego_in_map = random_pose(d);
   s.mount = random_pose(d);
@@ -105,8 +119,10 @@ RandomFrame random_frame(unsigned seed) {
   const int detectors = d.integer(1, 3);
   for (int k = 0; k < detectors; ++k) {
     lidarsim::osi::Detector det;
-    det.sensor_id.set_value(d.id());
-    if (d.coin(0.1)) det.sensor_id.mutable_unknown_fields()->AddFixed64(5, d.id());
+    osi3::Identifier id;
+    id.set_value(d.id());
+    if (d.coin(0.1)) id.mutable_unknown_fields()->AddFixed64(5, d.id());
+    det.sensor_id = decoded<lidarsim::osi::msg::Identifier>(id);
     det.mounting_position = random_mount(d);
     s.detectors.push_back(det);
     random_cloud(d, f, model_ids);

@@ -105,24 +105,25 @@ TEST(OsiSensorView, HostIdNotAmongObjectsIsAnErrorNamingTheField) {
 
 TEST(OsiSensorView, VehicleTypesMapToOurClassesAndBack) {
   using lidarsim::sensor::ObjectClass;
-  using VT = osi3::MovingObject::VehicleClassification;
-  osi3::MovingObject o;
-  o.set_type(osi3::MovingObject::TYPE_VEHICLE);
-  const std::pair<VT::Type, ObjectClass> cases[] = {{VT::TYPE_COMPACT_CAR, ObjectClass::Car},
-                                                    {VT::TYPE_DELIVERY_VAN, ObjectClass::Van},
-                                                    {VT::TYPE_SEMITRAILER, ObjectClass::Truck},
-                                                    {VT::TYPE_BUS, ObjectClass::Bus},
-                                                    {VT::TYPE_MOTORBIKE, ObjectClass::Motorcycle},
-                                                    {VT::TYPE_BICYCLE, ObjectClass::Cyclist}};
+  namespace msg = lidarsim::osi::msg;
+  msg::MovingObject o;
+  o.type = msg::kTypeVehicle;
+  const std::pair<msg::VehicleType, ObjectClass> cases[] = {{msg::kCompactCar, ObjectClass::Car},
+                                                            {msg::kDeliveryVan, ObjectClass::Van},
+                                                            {msg::kSemitrailer, ObjectClass::Truck},
+                                                            {msg::kBus, ObjectClass::Bus},
+                                                            {msg::kMotorbike, ObjectClass::Motorcycle},
+                                                            {msg::kBicycle, ObjectClass::Cyclist}};
   for (const auto& [type, cls] : cases) {
-    o.mutable_vehicle_classification()->set_type(type);
+    o.vehicle_type = type;
     EXPECT_EQ(lidarsim::osi::class_from_osi(o), cls) << type;
-    o.mutable_vehicle_classification()->set_type(lidarsim::osi::osi_vehicle_type(cls));
+    o.vehicle_type = lidarsim::osi::osi_vehicle_type(cls);
     EXPECT_EQ(lidarsim::osi::class_from_osi(o), cls) << "back from " << type;
   }
-  o.set_type(osi3::MovingObject::TYPE_PEDESTRIAN);
+  o.type = msg::kTypePedestrian;
   EXPECT_EQ(lidarsim::osi::class_from_osi(o), ObjectClass::Pedestrian);
-  EXPECT_EQ(lidarsim::osi::osi_type(ObjectClass::Pedestrian), osi3::MovingObject::TYPE_PEDESTRIAN);
+  EXPECT_EQ(static_cast<int>(lidarsim::osi::osi_type(ObjectClass::Pedestrian)),
+            static_cast<int>(osi3::MovingObject::TYPE_PEDESTRIAN));
 }
 
 // Lane boundaries are split to 0.5 m as scenario lanes are: points 1e300 m apart made an
