@@ -321,6 +321,32 @@ std::vector<std::vector<float>> held_out(const std::vector<LoopResidual>& target
   return pred;
 }
 
+// The squared log-scale errors summed per block (a scan's sector) of the scored residuals: the
+// base's and each candidate's, for the max-T bootstrap; counts the scored residuals into r.scored.
+void block_losses(const std::vector<LoopResidual>& target, const std::vector<std::vector<float>>& pred,
+                  const RangeLoopOptions& o, RangeLoopResult& r, std::vector<double>& base_loss,
+                  std::vector<std::vector<double>>& cand_loss) {
+  int max_scan = 0;
+  for (const auto& x : target) max_scan = std::max(max_scan, x.scan);
+  std::vector<int> block_of(target.size(), -1), index(static_cast<std::size_t>(max_scan + 1) * o.sectors, -1);
+  int B = 0;
+  for (std::size_t i = 0; i < target.size(); ++i) {
+    if (!std::isfinite(r.b_before[i])) continue;
+    const int k = fold_of(target[i], o).block;
+    if (index[k] < 0) index[k] = B++;
+    block_of[i] = index[k];
+    ++r.scored;
+  }
+  base_loss.assign(B, 0.0);
+  cand_loss.assign(pred.size(), std::vector<double>(B, 0.0));
+  for (std::size_t i = 0; i < target.size(); ++i) {
+    if (block_of[i] < 0) continue;
+    const double y = log_abs(target[i].r.residual);
+    base_loss[block_of[i]] += (y - r.b_before[i]) * (y - r.b_before[i]);
+    for (std::size_t j = 0; j < pred.size(); ++j) cand_loss[j][block_of[i]] += (y - pred[j][i]) * (y - pred[j][i]);
+  }
+}
+
 void decide(RangeCandidate& c, std::size_t k, std::size_t family, const RangeLoopOptions& o, RangeLoopResult& r) {
   auto pct = [](double v) { return std::to_string(std::lround(v * 10000) / 100.0).substr(0, 5) + " %"; };
   const bool clears = c.selection_lower > 0 && c.score >= o.min_gain;
@@ -421,27 +447,9 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
   }
   const std::vector<Spec> specs = specs_of(target);
   const auto pred = held_out(target, reference, specs, base_features, growth, o, r);
-  // Loss per block (a scan's sector) for the max-T bootstrap.
-  std::vector<int> block_of(target.size(), -1);
-  std::vector<int> index(static_cast<std::size_t>(1 + std::max_element(target.begin(), target.end(), [](auto& a, auto& b) {
-                                                        return a.scan < b.scan;
-                                                      })->scan) * o.sectors, -1);
-  int B = 0;
-  for (std::size_t i = 0; i < target.size(); ++i) {
-    if (!std::isfinite(r.b_before[i])) continue;
-    const int k = fold_of(target[i], o).block;
-    if (index[k] < 0) index[k] = B++;
-    block_of[i] = index[k];
-    ++r.scored;
-  }
-  std::vector<double> base_loss(B, 0.0);
-  std::vector<std::vector<double>> cand_loss(specs.size(), std::vector<double>(B, 0.0));
-  for (std::size_t i = 0; i < target.size(); ++i) {
-    if (block_of[i] < 0) continue;
-    const double y = log_abs(target[i].r.residual);
-    base_loss[block_of[i]] += (y - r.b_before[i]) * (y - r.b_before[i]);
-    for (std::size_t j = 0; j < specs.size(); ++j) cand_loss[j][block_of[i]] += (y - pred[j][i]) * (y - pred[j][i]);
-  }
+  std::vector<double> base_loss;
+  std::vector<std::vector<double>> cand_loss;
+  block_losses(target, pred, o, r, base_loss, cand_loss);
   const MaxTScores m = block_max_t(base_loss, cand_loss, o.replicates, o.level, o.seed);
   r.critical = m.critical;
   r.error_before = log_scale_error(target, r.b_before);
