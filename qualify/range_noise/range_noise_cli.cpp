@@ -48,11 +48,7 @@ Datasheet datasheet_of(const std::string& layout_name) {
   return {0, "no datasheet figure recorded for this sensor"};
 }
 
-// One labelled scan read from the source.
-struct Scan {
-  std::vector<pgm::Point> points;
-  std::string source;
-};
+using Scan = LabelledScan;
 
 json bins_json(const std::vector<SpreadBin>& bins) {
   json a = json::array();
@@ -168,27 +164,7 @@ Args check_args(const cxxopts::ParseResult& a) {
 }
 
 // The labelled scans of the source (at most --max-scans).
-std::vector<Scan> read_scans(const Args& g) {
-  std::vector<Scan> scans;
-  auto enough = [&] { return g.max_scans > 0 && static_cast<int>(scans.size()) >= g.max_scans; };
-  if (g.dataset == "semantickitti") {
-    for (const auto& f : data::list_semantickitti(g.dir)) {
-      if (!f.label || enough()) continue;  // the fit needs classes
-      scans.push_back({data::read_semantickitti_scan(f).points, f.bin.string()});
-    }
-  } else {
-    const auto table = data::read_class_table(g.class_table);
-    if (g.dataset == "nuscenes-lidarseg") {
-      for (const auto& f : data::list_nuscenes_lidarseg(g.dir))
-        if (!enough()) scans.push_back({data::read_nuscenes_lidarseg_scan(f, table).points, f.pcd.string()});
-    } else {
-      for (const auto& f : data::list_rellis3d(g.dir))
-        if (f.label && !enough()) scans.push_back({data::read_rellis3d_scan(f, table).points, f.bin.string()});
-    }
-  }
-  if (scans.empty()) throw input_error(g.dir, "scans", "no labelled scan found");
-  return scans;
-}
+std::vector<Scan> read_scans(const Args& g) { return read_labelled_scans(g.dataset, g.dir, g.class_table, g.max_scans); }
 
 // Half-windows measured beside the main one, to bound the surfaces' own roughness: it grows with
 // the window, the sensor's noise does not.
@@ -378,6 +354,29 @@ void print_report(const Args& g, const sensor::RangeNoiseModel& model, const Tab
 }
 
 }  // namespace
+
+std::vector<LabelledScan> read_labelled_scans(const std::string& dataset, const std::string& dir,
+                                              const std::string& class_table, int max_scans) {
+  std::vector<LabelledScan> scans;
+  auto enough = [&] { return max_scans > 0 && static_cast<int>(scans.size()) >= max_scans; };
+  if (dataset == "semantickitti") {
+    for (const auto& f : data::list_semantickitti(dir)) {
+      if (!f.label || enough()) continue;  // the fit needs classes
+      scans.push_back({data::read_semantickitti_scan(f).points, f.bin.string()});
+    }
+  } else {
+    const auto table = data::read_class_table(class_table);
+    if (dataset == "nuscenes-lidarseg") {
+      for (const auto& f : data::list_nuscenes_lidarseg(dir))
+        if (!enough()) scans.push_back({data::read_nuscenes_lidarseg_scan(f, table).points, f.pcd.string()});
+    } else {
+      for (const auto& f : data::list_rellis3d(dir))
+        if (f.label && !enough()) scans.push_back({data::read_rellis3d_scan(f, table).points, f.bin.string()});
+    }
+  }
+  if (scans.empty()) throw input_error(dir, "scans", "no labelled scan found");
+  return scans;
+}
 
 int run_range_noise(int argc, char** argv) {
   cxxopts::Options opts = range_noise_options();

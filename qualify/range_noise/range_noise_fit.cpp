@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <numeric>
 
 #include "common/error.h"
@@ -111,7 +112,10 @@ std::vector<RangeResidual> range_residuals(const std::vector<pgm::Point>& points
       rr.incidence = incidence.empty() ? std::numeric_limits<float>::quiet_NaN() : incidence[order[k]];
       rr.intensity = c.intensity;
       rr.class_id = c.class_id;
+      rr.material = c.material_id;
       rr.row = rows[order[k]];
+      const double az = azimuth[order[k]] * (180 / std::numbers::pi);
+      rr.azimuth_deg = static_cast<float>(az < 0 ? az + 360 : az);
       out.push_back(rr);
     }
   }

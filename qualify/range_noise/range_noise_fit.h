@@ -48,7 +48,9 @@ struct RangeResidual {
   float incidence = 0;  // rad (NaN when not known)
   float intensity = 0;
   int class_id = 0;
+  int material = 0;     // the point's material id (pgm::material)
   int row = 0;          // beam row (laser)
+  float azimuth_deg = 0;  // atan2(y, x) in [0, 360): the PGM's column convention (0 straight ahead, growing left)
 };
 
 // Residuals of every accepted neighbourhood. rows: the beam row of each point (-1 = skip);

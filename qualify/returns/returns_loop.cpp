@@ -8,6 +8,7 @@
 
 #include "common/error.h"
 #include "pgm/materials.h"
+#include "qualify/returns/max_t.h"
 #include "qualify/similarity.h"
 #include "sensor/return_model.h"
 
@@ -282,41 +283,10 @@ BlockDeviance block_deviance(const std::vector<ReturnCell>& target, const std::v
 // single-step max-T critical value (the same resampled blocks for every candidate) into r.critical.
 void score_candidates(const BlockDeviance& d, const ReturnLoopOptions& o, std::vector<double>& score,
                       std::vector<double>& se, ReturnLoopResult& r) {
-  const int nc = static_cast<int>(d.candidate.size()), B = static_cast<int>(d.base.size());
-  double Db = 0;
-  for (double v : d.base) Db += v;
-  score.assign(nc, 0.0);
-  for (int j = 0; j < nc; ++j) {
-    double Dc = 0;
-    for (double v : d.candidate[j]) Dc += v;
-    score[j] = Db > 0 ? 1 - Dc / Db : 0;
-  }
-  SplitMix rng(o.seed);
-  std::vector<std::vector<double>> reps(nc, std::vector<double>(o.replicates));
-  std::vector<int> cnt(B);
-  for (int b = 0; b < o.replicates; ++b) {
-    std::fill(cnt.begin(), cnt.end(), 0);
-    for (int k = 0; k < B; ++k) ++cnt[rng.next() % B];
-    double sb = 0;
-    for (int k = 0; k < B; ++k) sb += cnt[k] * d.base[k];
-    for (int j = 0; j < nc; ++j) {
-      double sc = 0;
-      for (int k = 0; k < B; ++k) sc += cnt[k] * d.candidate[j][k];
-      reps[j][b] = sb > 0 ? 1 - sc / sb : 0;
-    }
-  }
-  se.assign(nc, 0.0);
-  std::vector<double> rise(o.replicates, -1e300);
-  for (int j = 0; j < nc; ++j) {
-    double mean = 0, var = 0;
-    for (double v : reps[j]) mean += v / o.replicates;
-    for (double v : reps[j]) var += (v - mean) * (v - mean) / std::max(1, o.replicates - 1);
-    se[j] = std::sqrt(var);
-    if (!(se[j] > 1e-12)) continue;
-    for (int b = 0; b < o.replicates; ++b) rise[b] = std::max(rise[b], (reps[j][b] - score[j]) / se[j]);
-  }
-  std::sort(rise.begin(), rise.end());
-  r.critical = std::max(0.0, rise[static_cast<std::size_t>(o.level * (o.replicates - 1))]);
+  MaxTScores m = block_max_t(d.base, d.candidate, o.replicates, o.level, o.seed);
+  score = std::move(m.score);
+  se = std::move(m.se);
+  r.critical = m.critical;
 }
 
 // The decision on the candidate ranked k (0 = best) and why, in words a user reads.

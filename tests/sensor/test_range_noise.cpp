@@ -57,7 +57,7 @@ TEST(RangeNoise, ModelParsesAndBadFieldsAreNamed) {
     return std::string("no error");
   };
   EXPECT_NE(message(R"({"format": "x", "version": 1, "sigma_m": {"a": 0, "b": 0}})").find("m.json: format"), std::string::npos);
-  EXPECT_NE(message(R"({"format": "lidarsim-range-noise", "version": 2, "sigma_m": {"a": 0, "b": 0}})").find("m.json: version"), std::string::npos);
+  EXPECT_NE(message(R"({"format": "lidarsim-range-noise", "version": 3, "sigma_m": {"a": 0, "b": 0}})").find("m.json: version"), std::string::npos);
   EXPECT_NE(message(R"({"format": "lidarsim-range-noise", "version": 1, "sigma_m": {"a": 0.01}})").find("m.json: sigma_m.b"), std::string::npos);
   // Centimetres written as metres: a spread of 2 m is refused.
   EXPECT_NE(message(R"({"format": "lidarsim-range-noise", "version": 1, "sigma_m": {"a": 2, "b": 0}})").find("m.json: sigma_m.a"), std::string::npos);
