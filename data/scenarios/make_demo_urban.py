@@ -81,8 +81,8 @@ def wall(cls, points, width, height):
     return {"kind": "extrusion", "class": cls, "points": points, "width": width, "height": height}
 
 
-def tree(x, y, crown=4.5):
-    return {"kind": "tree", "position": [x, y, KERB], "trunk_diameter": 0.35, "trunk_height": 2.4,
+def tree(x, y, crown=4.5, trunk=2.4):
+    return {"kind": "tree", "position": [x, y, KERB], "trunk_diameter": 0.35, "trunk_height": trunk,
             "crown_diameter": crown, "crown_height": crown}
 
 
@@ -124,12 +124,14 @@ def scenery():
                 else:
                     out.append(wall("vegetation", [[x0 + 0.5, y + side * 0.4], [x1 - 0.5, y + side * 0.4]], 0.8, 1.4))
                 out.append(tree((x0 + x1) / 2, edge + side * (0.3 + setback / 2), crown=min(5.0, setback + 1.0)))
-    # Street trees near the kerbs (none over the parked truck at x = 45, the bus stop at x = 30, the
-    # crosswalk and the junction), street lights between them.
-    for x in [-62, -47, -17, -2, 13, 58, 73, 88, 128, 143, 158]:
-        out.append(tree(float(x), -5.9))
-    for x in [-57, -42, -27, -12, 3, 18, 33, 48, 63, 78, 123, 138, 153]:
-        out.append(tree(float(x), 12.9))
+    # Street trees near the kerbs every 10 m (none over the parked truck at x = 45, the bus stop at
+    # x = 30, the crosswalk and the junction), street lights between them. Broad crowns from 2.7 m
+    # up, clear of the parked van and cars.
+    for x in range(-75, 175, 10):
+        if not (24 <= x <= 52 or 86 <= x <= 122):
+            out.append(tree(float(x), -5.9, crown=6.0, trunk=2.6))
+        if not 86 <= x <= 122:
+            out.append(tree(float(x) + 5, 12.9, crown=6.0, trunk=2.6))
     for x in [-52, -22, 8, 38, 68, 121, 151]:
         out.append(pole(float(x), -5.55))
     for x in [-37, -7, 23, 53, 83, 126, 156]:
