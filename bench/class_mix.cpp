@@ -122,7 +122,7 @@ Image picture(const BandMix& measured, const BandMix& before, const BandMix& aft
   spec.x_lo = 0;
   spec.x_hi = bands;
   spec.y_lo = 0;
-  spec.y_hi = 1.45;  // room above the bars for the legend
+  spec.y_hi = 1.6;  // room above the bars for the legend
   for (int b = 0; b < bands; ++b) {
     const int lo = b * measured.rows_per_band, hi = lo + measured.rows_per_band - 1;
     spec.x_ticks.push_back({b + 0.5, std::to_string(lo) + "-" + std::to_string(hi)});
