@@ -11,6 +11,7 @@
 #include "sensor/fov.h"
 #include "sensor/frames.h"
 #include "sensor/lanes.h"
+#include "sensor/scenery.h"
 
 namespace lidarsim::infer {
 
@@ -121,6 +122,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
 
   sensor::apply_fov(out.sensor.objects, scenario_.sensor.fov, &heading_trig_);
   sensor::apply_fov_to_lanes(out.sensor.lanes, scenario_.sensor.fov);
+  sensor::cull_scenery(out.sensor.scenery, scenario_.sensor.fov.range_max);
   out.objects_in_view = static_cast<int>(out.sensor.objects.size());
   lap(SimStage::FieldOfView);
 
@@ -157,7 +159,7 @@ void SimPipeline::run_stages(int k, const sensor::Frame& map_frame, std::chrono:
 }
 
 void SimPipeline::occlude(SimFrame& out) {
-  occlusion_.apply(out.sensor.objects, out.sensor.lanes, &heading_trig_);
+  occlusion_.apply(out.sensor.objects, out.sensor.lanes, out.sensor.scenery, &heading_trig_);
   out.objects_occluded = out.objects_partly_occluded = 0;
   for (const auto& o : out.sensor.objects) {
     if (o.visible_fraction <= 0) ++out.objects_occluded;
@@ -224,7 +226,7 @@ void SimPipeline::generate_returns(int k, SimFrame& out, bool predict) {
   // Paint exists whether or not the lane model reports it: the rays decide what is seen.
   // Without the UNet on this frame its neighbourhood input channels are not needed either.
   pcl_.set_frame(static_cast<std::uint64_t>(k));  // range noise and return draws follow the frame, not the call count
-  out.returns = pcl_.generate(pcl_objects_, out.ego.lanes, out.pgm, predict || !options_.intensity);
+  out.returns = pcl_.generate(pcl_objects_, out.ego.scenery, out.ego.lanes, out.pgm, predict || !options_.intensity);
 }
 
 // The intensity channel holds 0 from the PCL generator until the UNet fills it.

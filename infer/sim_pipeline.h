@@ -3,9 +3,9 @@
 // phenomenological sensor model and the point-cloud bridge.
 //
 //   sample scenario at t -> map -> ego -> sensor -> field of view -> occlusion (visible fraction,
-//   lanes behind boxes dropped) -> tracking (in the map frame: stable ids, coasting, over-ground
+//   lanes behind boxes dropped; static scenery hides what is behind it but is never an object) -> tracking (in the map frame: stable ids, coasting, over-ground
 //   velocity) -> KPI manager (errors, misses, false positives) = the reported object list;  visible lanes -> cubic polynomials;
-//   PCL generator over the visible boxes, the road and lane paint -> PGM -> UNet intensity per
+//   PCL generator over the visible boxes, the scenery, the road and lane paint -> PGM -> UNet intensity per
 //   cell -> point cloud (sensor frame) with intensity, class, material and object id.
 //
 // Constructed once; run_frame() reuses every buffer, so after the first frames a run allocates

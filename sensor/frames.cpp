@@ -50,6 +50,13 @@ void transform_lane(const Pose& to_from, const LanePolyline& in, LanePolyline& o
   for (std::size_t i = 0; i < in.points.size(); ++i) out.points[i] = apply(to_from, in.points[i]);
 }
 
+void transform_scenery(const Pose& to_from, const SceneryBox& in, SceneryBox& out) {
+  out = in;
+  out.position = apply(to_from, in.position);
+  const Eigen::Vector3d f = to_from.rotation * Eigen::Vector3d(std::cos(in.heading), std::sin(in.heading), 0.0);
+  out.heading = std::atan2(f.y(), f.x());
+}
+
 void transform_frame(const Pose& to_from, const Frame& in, Frame& out) {
   out.time = in.time;
   out.ego_in_map = in.ego_in_map;
@@ -57,6 +64,8 @@ void transform_frame(const Pose& to_from, const Frame& in, Frame& out) {
   for (std::size_t i = 0; i < in.objects.size(); ++i) transform_object(to_from, in.objects[i], out.objects[i]);
   out.lanes.resize(in.lanes.size());
   for (std::size_t i = 0; i < in.lanes.size(); ++i) transform_lane(to_from, in.lanes[i], out.lanes[i]);
+  out.scenery.resize(in.scenery.size());
+  for (std::size_t i = 0; i < in.scenery.size(); ++i) transform_scenery(to_from, in.scenery[i], out.scenery[i]);
 }
 
 void map_to_ego(const Frame& map_frame, Frame& ego_frame) {

@@ -39,8 +39,9 @@ struct HeadingTrig {
 // HeadingTrig::of(in.heading) (the same numbers, not computed again).
 void transform_object(const Pose& to_from, const Object& in, Object& out, const HeadingTrig* trig = nullptr);
 void transform_lane(const Pose& to_from, const LanePolyline& in, LanePolyline& out);
+void transform_scenery(const Pose& to_from, const SceneryBox& in, SceneryBox& out);
 
-// A whole frame: out gets time and ego pose from in, objects and lanes in the new frame.
+// A whole frame: out gets time and ego pose from in, objects, lanes and scenery in the new frame.
 // out's vectors are reused (no allocation once they have grown), and out may not alias in.
 void transform_frame(const Pose& to_from, const Frame& in, Frame& out);
 // Convenience for the two steps of the chain.

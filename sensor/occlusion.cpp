@@ -261,17 +261,18 @@ inline bool height_slab(double se, double z_bot, double z_top, double& t_lo, dou
 
 }  // namespace
 
-void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c) {
+void Occlusion::rasterise(const Eigen::Vector3d& position, const Eigen::Vector3d& size, int index, HeadingTrig h,
+                          double d_c) {
   // The box is a vertical prism, so a ray at azimuth a and elevation e runs through it while its
   // horizontal distance s = t cos e is inside the footprint rectangle's 2-D slab interval
   // [s_in(a), s_out(a)] and its height t sin e is inside [z_bot, z_top]. The 2-D interval is
   // worked out once per column, the height slab once per row: a cell then costs two products
   // and a depth test (the same slab test as ray_box, split by axis), 16 cells at a time.
-  const double cx = o.position.x(), cy = o.position.y();
-  const double hx = 0.5 * o.size.x(), hy = 0.5 * o.size.y();
+  const double cx = position.x(), cy = position.y();
+  const double hx = 0.5 * size.x(), hy = 0.5 * size.y();
   const double ch = h.c, sh = h.s;
   const double lox = -(ch * cx + sh * cy), loy = -(-sh * cx + ch * cy);  // sensor origin in box coordinates
-  const double z_top = o.position.z() + 0.5 * o.size.z(), z_bot = o.position.z() - 0.5 * o.size.z();
+  const double z_top = position.z() + 0.5 * size.z(), z_bot = position.z() - 0.5 * size.z();
 
   const double radius = std::sqrt(hx * hx + hy * hy);  // d_c = hypot(cx, cy), from apply()
   int c_first = 0, n_cols = cols_;
@@ -329,28 +330,43 @@ void Occlusion::rasterise(const Object& o, int index, HeadingTrig h, double d_c)
 
 void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes,
                       const std::vector<HeadingTrig>* trig) {
+  static const std::vector<SceneryBox> none;
+  apply(objects, lanes, none, trig);
+}
+
+void Occlusion::apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes,
+                      const std::vector<SceneryBox>& scenery, const std::vector<HeadingTrig>* trig) {
   // Reset only the runs of cells the previous frame wrote (a full clear costs more than a frame of boxes).
   for (const auto& [start, len] : written_) {
     std::fill_n(depth_.begin() + start, len, std::numeric_limits<float>::infinity());
     std::fill_n(owner_.begin() + start, len, -1);
   }
   written_.clear();
-  const int n = static_cast<int>(objects.size());
-  footprint_.assign(n, 0);
-  visible_.assign(n, 0);
+  // Objects are indices [0, n), scenery boxes [n, n + m): both take part in the depth test, only
+  // the objects' counts become visible fractions.
+  const int n = static_cast<int>(objects.size()), m = static_cast<int>(scenery.size());
+  footprint_.assign(n + m, 0);
+  visible_.assign(n + m, 0);
   // Nearest first: a nearer box then rarely has to take cells from one drawn before it (the
   // result does not depend on the order; the work does).
-  order_.resize(n);
-  key_.resize(n);
-  dist_.resize(n);
-  for (int i = 0; i < n; ++i) {
+  order_.resize(n + m);
+  key_.resize(n + m);
+  dist_.resize(n + m);
+  for (int i = 0; i < n + m; ++i) {
+    const Eigen::Vector3d& p = i < n ? objects[i].position : scenery[i - n].position;
+    const Eigen::Vector3d& size = i < n ? objects[i].size : scenery[i - n].size;
     order_[i] = i;
-    dist_[i] = std::hypot(objects[i].position.x(), objects[i].position.y());
-    key_[i] = dist_[i] - 0.5 * objects[i].size.head<2>().norm();
+    dist_[i] = std::hypot(p.x(), p.y());
+    key_[i] = dist_[i] - 0.5 * size.head<2>().norm();
   }
   std::sort(order_.begin(), order_.end(), [&](int a, int b) { return key_[a] < key_[b]; });
-  for (int i : order_)
-    rasterise(objects[i], i, trig ? (*trig)[i] : HeadingTrig::of(objects[i].heading), dist_[i]);
+  for (int i : order_) {
+    if (i < n)
+      rasterise(objects[i].position, objects[i].size, i, trig ? (*trig)[i] : HeadingTrig::of(objects[i].heading),
+                dist_[i]);
+    else
+      rasterise(scenery[i - n].position, scenery[i - n].size, i, HeadingTrig::of(scenery[i - n].heading), dist_[i]);
+  }
   for (int i = 0; i < n; ++i) {
     Object& obj = objects[i];
     if (footprint_[i] > 0) {

@@ -55,19 +55,25 @@ class Occlusion {
   // `trig`, when given, holds HeadingTrig::of(heading) per object (as apply_fov gives it).
   void apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes,
              const std::vector<HeadingTrig>* trig = nullptr);
+  // The same with static scenery (sensor frame) in the depth test: a wall hides the objects and
+  // lane points behind it. Scenery gets no visible fraction; footprint_cells() and
+  // visible_cells() hold the objects' counts, then the scenery boxes'.
+  void apply(std::vector<Object>& objects, std::vector<LanePolyline>& lanes, const std::vector<SceneryBox>& scenery,
+             const std::vector<HeadingTrig>* trig = nullptr);
 
   // After apply(): per object (same order), cells of its footprint and cells it won.
   const std::vector<int>& footprint_cells() const { return footprint_; }
   const std::vector<int>& visible_cells() const { return visible_; }
   int rows() const { return rows_; }
   int cols() const { return cols_; }
-  // The object index owning each cell (-1 = none) and its depth, [rows * cols], row 0 = top.
+  // The index owning each cell (-1 = none; objects first, then scenery) and its depth, [rows *
+  // cols], row 0 = top.
   const std::vector<int>& owner() const { return owner_; }
   const std::vector<float>& depth() const { return depth_; }
 
  private:
   bool cell_of(const Eigen::Vector3d& p, int& row, int& col) const;
-  void rasterise(const Object& o, int index, HeadingTrig h, double d_c);
+  void rasterise(const Eigen::Vector3d& position, const Eigen::Vector3d& size, int index, HeadingTrig h, double d_c);
 
   OcclusionConfig cfg_;
   int rows_ = 0, cols_ = 0;

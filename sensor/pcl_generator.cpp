@@ -16,9 +16,6 @@
 
 namespace lidarsim::sensor {
 
-namespace {
-}  // namespace
-
 PclConfig PclConfig::from_fov(const FieldOfView& fov) {
   PclConfig c;
   c.min_range = fov.range_min;
@@ -42,6 +39,7 @@ PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclC
   const int H = layout_.rows(), W = layout_.columns;
   dir_sensor_.resize(static_cast<std::size_t>(H) * W);
   dir_ego_.resize(dir_sensor_.size());
+  slope_.resize(dir_sensor_.size());
   cell_in_fov_.resize(dir_sensor_.size());
   FieldOfView fov;  // the angular limits only: range is handled while casting
   fov.azimuth_min = cfg_.azimuth_min;
@@ -58,6 +56,7 @@ PclGenerator::PclGenerator(pgm::BeamLayout layout, const Pose& mount, const PclC
       const std::size_t i = static_cast<std::size_t>(r) * W + c;
       dir_sensor_[i] = Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
       dir_ego_[i] = mount_.rotation * dir_sensor_[i];
+      slope_[i] = static_cast<float>(dir_ego_[i].z() / std::hypot(dir_ego_[i].x(), dir_ego_[i].y()));
       cell_in_fov_[i] = point_in_fov(dir_sensor_[i], fov);
     }
   }
@@ -77,21 +76,59 @@ pgm::PolarGridMap PclGenerator::make_map(const std::vector<std::string>& extra) 
   return pgm::PolarGridMap(layout_, names);
 }
 
-void PclGenerator::prepare_boxes(const std::vector<Object>& objects) {
+void PclGenerator::add_box(const Eigen::Vector3d& position, const Eigen::Vector3d& size, double heading, int id,
+                           int class_id, int material_id) {
+  const Eigen::Vector3d& o = mount_.translation;
+  Box b;
+  b.ray.centre = position;
+  b.ray.half = 0.5 * size;
+  b.ray.cos_h = std::cos(heading);
+  b.ray.sin_h = std::sin(heading);
+  b.id = id;
+  b.class_id = class_id;
+  b.material_id = material_id;
+  // The mount in box axes: the nearest point of the box (a lower bound of any hit's range) and the
+  // nearest and farthest horizontal distance of its footprint.
+  const Eigen::Vector3d r = o - position;
+  const double lx = b.ray.cos_h * r.x() + b.ray.sin_h * r.y(), ly = -b.ray.sin_h * r.x() + b.ray.cos_h * r.y();
+  const double ex = std::max(0.0, std::abs(lx) - b.ray.half.x()), ey = std::max(0.0, std::abs(ly) - b.ray.half.y());
+  const double ez = std::max(0.0, std::abs(r.z()) - b.ray.half.z());
+  const double near = std::sqrt(ex * ex + ey * ey + ez * ez);
+  if (near > cfg_.max_range) return;  // no beam reaches it
+  const double s_near = std::hypot(ex, ey);
+  const double s_far = std::hypot(std::abs(lx) + b.ray.half.x(), std::abs(ly) + b.ray.half.y());
+  // Slopes (dz / horizontal distance) from the mount of the box's highest and lowest points: a
+  // ray whose slope is outside cannot meet it. Widened a little against rounding.
+  const double zt = position.z() + b.ray.half.z() - o.z(), zb = position.z() - b.ray.half.z() - o.z();
+  const double inf = std::numeric_limits<double>::infinity();
+  const double hi = zt > 0 ? (s_near > 0 ? zt / s_near : inf) : zt / s_far;
+  const double lo = zb < 0 ? (s_near > 0 ? zb / s_near : -inf) : zb / s_far;
+  b.near = static_cast<float>(near * (1 - 1e-6));
+  b.slope_lo = static_cast<float>(lo - 1e-5 * (1 + std::abs(lo)));
+  b.slope_hi = static_cast<float>(hi + 1e-5 * (1 + std::abs(hi)));
+  boxes_.push_back(b);
+}
+
+void PclGenerator::prepare_boxes(const std::vector<Object>& objects, const std::vector<SceneryBox>& scenery) {
   const int W = layout_.columns;
   const double res = 2 * kPi / W;
   boxes_.clear();
   box_cols_.clear();
   std::fill(col_start_.begin(), col_start_.end(), 0);
+  for (const auto& o : objects)
+    add_box(o.position, o.size, o.heading, o.id, pgm::class_from_object_type(to_string(o.cls)),
+            pgm::material_from_name(o.material));
+  for (const auto& s : scenery) add_box(s.position, s.size, s.heading, -1, s.class_id, s.material_id);
+  // Nearest first in every column, so that a cast stops at the first box beyond its best hit.
+  std::stable_sort(boxes_.begin(), boxes_.end(), [](const Box& a, const Box& b) { return a.near < b.near; });
+  Object o;
   Eigen::Vector3d corners[8];
-  for (const auto& o : objects) {
-    Box b;
-    b.ray = RayBox::of(o);
-    b.id = o.id;
-    b.class_id = pgm::class_from_object_type(to_string(o.cls));
-    b.material_id = pgm::material_from_name(o.material);
+  for (const auto& b : boxes_) {
     // Column span from the corners seen from the sensor (all columns when the sensor's vertical
     // axis may pass through the box, where corners no longer bound the azimuth).
+    o.position = b.ray.centre;
+    o.size = 2 * b.ray.half;
+    o.heading = std::atan2(b.ray.sin_h, b.ray.cos_h);
     box_corners(o, corners);
     const Eigen::Vector3d c_s = apply(sensor_from_ego_, o.position);
     const double half_diag = 0.5 * o.size.norm();
@@ -112,7 +149,6 @@ void PclGenerator::prepare_boxes(const std::vector<Object>& objects) {
     }
     box_cols_.emplace_back(first, count);
     for (int k = 0; k < count; ++k) ++col_start_[(first + k) % W + 1];
-    boxes_.push_back(b);
   }
   for (int c = 0; c < W; ++c) col_start_[c + 1] += col_start_[c];
   box_index_.resize(col_start_[W]);
@@ -252,33 +288,43 @@ PclGenerator::Hit PclGenerator::cast(std::size_t cell, int c, bool lanes_on) con
   const Eigen::Vector3d& d = dir_ego_[cell];
   Hit h{cfg_.max_range, kNoHit};
   if (!cell_in_fov_[cell]) return h;
+  if (cfg_.ground && d.z() < 0) {
+    const double t = (cfg_.ground_height - origin.z()) / d.z();
+    if (t >= 0 && t < h.range) h = {t, kRoad};
+  }
+  // Boxes come nearest first: once a box's nearest point is beyond the best hit, so are the rest.
+  // A box wins a tie with the road (a box standing on it).
+  const float slope = slope_[cell];
   for (int k = col_start_[c]; k < col_start_[c + 1]; ++k) {
+    const Box& b = boxes_[box_index_[k]];
+    if (b.near > h.range) break;
+    if (slope < b.slope_lo || slope > b.slope_hi) continue;
     double t = 0;
-    if (ray_box(boxes_[box_index_[k]].ray, origin, d, h.range, t) && t < h.range) {
+    if (ray_box(b.ray, origin, d, h.range, t) && (t < h.range || (t == h.range && h.target == kRoad))) {
       h.range = t;
       h.target = box_index_[k];
     }
   }
-  if (cfg_.ground && d.z() < 0) {
-    const double t = (cfg_.ground_height - origin.z()) / d.z();
-    if (t >= 0 && t < h.range) {
-      h.range = t;
-      h.target = kRoad;
-      if (lanes_on) {
-        const Eigen::Vector3d p = origin + t * d;
-        if (painted(p.x(), p.y())) h.target = kLanePaint;
-      }
-    }
+  if (h.target == kRoad && lanes_on) {
+    const Eigen::Vector3d p = origin + h.range * d;
+    if (painted(p.x(), p.y())) h.target = kLanePaint;
   }
   return h;
 }
 
 int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
                            pgm::PolarGridMap& out, bool neighbourhood_channels) {
+  static const std::vector<SceneryBox> none;
+  return generate(objects_ego, none, lanes_ego, out, neighbourhood_channels);
+}
+
+int PclGenerator::generate(const std::vector<Object>& objects_ego, const std::vector<SceneryBox>& scenery_ego,
+                           const std::vector<LanePolyline>& lanes_ego, pgm::PolarGridMap& out,
+                           bool neighbourhood_channels) {
   if (!(out.layout() == layout_)) throw Error("pcl generator: the map's beam layout differs from the generator's");
   for (const auto& name : kPclChannels)
     if (!out.has_channel(name)) out.add_channel(name);
-  prepare_boxes(objects_ego);
+  prepare_boxes(objects_ego, scenery_ego);
   if (cfg_.lanes) prepare_lanes(lanes_ego);
   else segments_.clear();
 

@@ -1,22 +1,25 @@
 #pragma once
 // PCL generator: casts the sensor's beam layout (rows x columns, one ray per cell through the
-// row's elevation and the column's centre azimuth) against boxes, a flat ground plane and lane
-// markings, and writes the nearest return per cell into a Polar Grid Map.
+// row's elevation and the column's centre azimuth) against boxes (objects and static scenery), a
+// flat ground plane and lane markings, and writes the nearest return per cell into a Polar Grid
+// Map.
 //
 // Works in the EGO frame, where boxes are yaw-only and the road is the plane z = ground_height:
 // rays start at the mount position and point along mount.rotation * (sensor direction), so a
 // tilted mount is exact. Pass the ego-frame boxes of the objects the sensor model kept (see
-// select_visible); lanes are painted on the road (thin strips lane_width wide; dashed ones
-// painted dash_length then blank dash_gap along the polyline; road_edge lines are kerbs, not
-// paint, and return asphalt). Every return gets range (m, from the sensor), class and material
-// (pgm/materials.h ids: road/asphalt, lane_marking/lane_paint, objects by class and their
-// material), mask = 1, object_id (the object's id; -1 for road and lanes) and intensity = 0 (the
-// network predicts it). Effect channels present in the map are filled too: elevation, azimuth,
-// height/x/y/z (sensor frame, like pgm::project) and incidence, which is estimated from
-// neighbouring cells by pgm::compute_incidence exactly as for recorded scans, so simulated and
-// real inputs of the network are computed alike. point_index of a cell with a return is the
-// cell's own index (row * cols + col). Rows are parallel (OpenMP); no allocation per frame once
-// the internal buffers have grown.
+// select_visible) and the scenery; lanes are painted on the road (thin strips lane_width wide;
+// dashed ones painted dash_length then blank dash_gap along the polyline; road_edge lines are
+// kerbs, not paint, and return asphalt). Every return gets range (m, from the sensor), class and
+// material (pgm/materials.h ids: road/asphalt, lane_marking/lane_paint, objects by class and
+// their material, scenery with its own), mask = 1, object_id (the object's id; -1 for road, lanes
+// and scenery) and intensity = 0 (the network predicts it). Effect channels present in the map
+// are filled too: elevation, azimuth, height/x/y/z (sensor frame, like pgm::project) and
+// incidence, which is estimated from neighbouring cells by pgm::compute_incidence exactly as for
+// recorded scans, so simulated and real inputs of the network are computed alike. point_index of
+// a cell with a return is the cell's own index (row * cols + col). Rows are parallel (OpenMP); no
+// allocation per frame once the internal buffers have grown. Cost: a cell tests only the boxes
+// of its column whose slope range holds its ray, nearest first, and stops at the first box whose
+// nearest point is beyond its best hit.
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -72,6 +75,10 @@ class PclGenerator {
   // intensity is not predicted need not pay for them (everything else is the same).
   int generate(const std::vector<Object>& objects_ego, const std::vector<LanePolyline>& lanes_ego,
                pgm::PolarGridMap& out, bool neighbourhood_channels = true);
+  // The same with static scenery (ego frame, sensor/scenery.h): its boxes block beams like the
+  // objects' and return with their own class and material and object_id -1.
+  int generate(const std::vector<Object>& objects_ego, const std::vector<SceneryBox>& scenery_ego,
+               const std::vector<LanePolyline>& lanes_ego, pgm::PolarGridMap& out, bool neighbourhood_channels = true);
 
   const pgm::BeamLayout& layout() const { return layout_; }
   const Pose& mount() const { return mount_; }
@@ -84,12 +91,17 @@ class PclGenerator {
   struct Box {
     RayBox ray;
     int id, class_id, material_id;
+    float near;                // distance from the mount to the box's nearest point (a bit less)
+    float slope_lo, slope_hi;  // slopes (dz / horizontal distance) of the rays that can meet it
   };
   struct Segment {
     double ax, ay, bx, by, s0;  // end points and arc length at a
     LaneType type;
   };
-  void prepare_boxes(const std::vector<Object>& objects_ego);
+  // A box in the cast list, unless it is wholly beyond max_range (id -1 for scenery).
+  void add_box(const Eigen::Vector3d& position, const Eigen::Vector3d& size, double heading, int id, int class_id,
+               int material_id);
+  void prepare_boxes(const std::vector<Object>& objects_ego, const std::vector<SceneryBox>& scenery_ego);
   void prepare_lanes(const std::vector<LanePolyline>& lanes_ego);
   bool painted(double x, double y) const;
   // The nearest surface the ray of `cell` (column c) meets within max_range: a box index, or
@@ -107,8 +119,10 @@ class PclGenerator {
   std::uint64_t frame_ = 0;
   std::vector<Eigen::Vector3d> dir_sensor_;  // [rows * cols] unit ray directions, sensor frame
   std::vector<Eigen::Vector3d> dir_ego_;     // the same in the ego frame
+  std::vector<float> slope_;                 // [rows * cols] dz / horizontal length of dir_ego_
   std::vector<char> cell_in_fov_;            // [rows * cols]
-  // Boxes bucketed by column (CSR): column c holds box_index_[col_start_[c] .. col_start_[c+1]).
+  // Boxes (objects' and scenery's, by increasing `near`) bucketed by column (CSR): column c holds
+  // box_index_[col_start_[c] .. col_start_[c+1]), nearest first.
   std::vector<Box> boxes_;
   std::vector<int> col_start_, col_fill_, box_index_;
   std::vector<std::pair<int, int>> box_cols_;  // per box: first column, column count

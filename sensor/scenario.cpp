@@ -14,20 +14,22 @@
 #include "common/error.h"
 #include "pgm/materials.h"
 #include "sensor/frames.h"
+#include "sensor/scenario_reader.h"
 
 namespace lidarsim::sensor {
 
 namespace {
 
 using nlohmann::json;
+using scenario_json::kNonFinite;
+using scenario_json::Reader;
 // Limits that keep a scenario within what a simulation can hold (1e8 columns or 10,000 objects
 // would end in bad_alloc or minutes of work): beyond them the reader refuses, naming the field.
 constexpr std::size_t kMaxObjects = 2000;
 constexpr int kMaxFrames = 1000000;
 constexpr double kMaxLaneLength = 100000;  // m
-// Marks a NaN/Infinity/overflowing literal replaced by a string before parsing, so the reader
+// Replaces a NaN/Infinity/overflowing literal by a marked string before parsing, so the reader
 // can name the field that held it (standard JSON has no such numbers; Python writes them).
-const std::string kNonFinite = "@@lidarsim-nonfinite@@:";
 
 std::string mark_non_finite(const std::string& text) {
   std::string out;
@@ -82,99 +84,6 @@ std::string mark_non_finite(const std::string& text) {
   return out;
 }
 
-class Reader {
- public:
-  static constexpr double kMaxMagnitude = 1e7;
-
-  explicit Reader(std::string file) : file_(std::move(file)) {}
-
-  [[noreturn]] void fail(const std::string& path, const std::string& msg) const {
-    throw input_error(file_, path.empty() ? "(top level)" : path, msg);
-  }
-
-  static std::string describe(const json& j) {
-    if (j.is_string()) {
-      const auto& s = j.get_ref<const std::string&>();
-      if (s.rfind(kNonFinite, 0) == 0) return s.substr(kNonFinite.size());
-      return "\"" + s + "\"";
-    }
-    return j.dump();
-  }
-
-  const json& field(const json& obj, const std::string& path, const char* key) const {
-    if (!obj.is_object()) fail(path, "must be an object, got " + describe(obj));
-    const auto it = obj.find(key);
-    if (it == obj.end()) fail(join(path, key), "missing (required field)");
-    return *it;
-  }
-  const json* optional(const json& obj, const char* key) const {
-    const auto it = obj.find(key);
-    return it == obj.end() ? nullptr : &*it;
-  }
-  static std::string join(const std::string& path, const char* key) {
-    return path.empty() ? std::string(key) : path + "." + key;
-  }
-  static std::string index(const std::string& path, std::size_t i) { return path + "[" + std::to_string(i) + "]"; }
-
-  double number(const json& j, const std::string& path) const {
-    if (j.is_string() && j.get_ref<const std::string&>().rfind(kNonFinite, 0) == 0)
-      fail(path, "must be a finite number, got " + describe(j));
-    if (!j.is_number()) fail(path, "must be a number, got " + describe(j));
-    const double v = j.get<double>();
-    if (!std::isfinite(v)) fail(path, "must be a finite number, got " + describe(j));
-    // Metres, seconds, degrees: nothing in a scenario is this large, and bounding every number
-    // bounds what is derived from them (lane resampling, frame counts).
-    if (std::abs(v) > kMaxMagnitude) fail(path, "must lie within +-1e7, got " + describe(j));
-    return v;
-  }
-  double number(const json& obj, const std::string& path, const char* key) const {
-    return number(field(obj, path, key), join(path, key));
-  }
-  double positive(const json& obj, const std::string& path, const char* key) const {
-    const double v = number(obj, path, key);
-    if (!(v > 0)) fail(join(path, key), "must be positive, got " + fmt(v));
-    return v;
-  }
-  int integer(const json& obj, const std::string& path, const char* key, int min_value) const {
-    const auto& j = field(obj, path, key);
-    const double v = number(j, join(path, key));
-    if (v != std::floor(v) || std::abs(v) > 1e9) fail(join(path, key), "must be an integer, got " + describe(j));
-    if (v < min_value) fail(join(path, key), "must be at least " + std::to_string(min_value) + ", got " + describe(j));
-    return static_cast<int>(v);
-  }
-  std::string string(const json& obj, const std::string& path, const char* key) const {
-    const auto& j = field(obj, path, key);
-    if (!j.is_string() || j.get_ref<const std::string&>().rfind(kNonFinite, 0) == 0)
-      fail(join(path, key), "must be a string, got " + describe(j));
-    return j.get<std::string>();
-  }
-  const json& array(const json& obj, const std::string& path, const char* key, std::size_t min_size) const {
-    const auto& j = field(obj, path, key);
-    if (!j.is_array()) fail(join(path, key), "must be an array, got " + describe(j));
-    if (j.size() < min_size)
-      fail(join(path, key), "must have at least " + std::to_string(min_size) + " entries, got " + std::to_string(j.size()));
-    return j;
-  }
-  Eigen::Vector3d vec(const json& j, const std::string& path, std::size_t min_len = 3) const {
-    if (!j.is_array() || j.size() < min_len || j.size() > 3)
-      fail(path, (min_len == 3 ? "must be an array of 3 numbers, got " : "must be an array of 2 or 3 numbers, got ") +
-                     describe(j));
-    Eigen::Vector3d v = Eigen::Vector3d::Zero();
-    for (std::size_t i = 0; i < j.size(); ++i) v[static_cast<int>(i)] = number(j[i], index(path, i));
-    return v;
-  }
-  Eigen::Vector3d vec(const json& obj, const std::string& path, const char* key) const {
-    return vec(field(obj, path, key), join(path, key));
-  }
-  static std::string fmt(double v) {
-    std::ostringstream s;
-    s << v;
-    return s.str();
-  }
-
- private:
-  std::string file_;
-};
 
 KinematicState read_state(const Reader& r, const json& j, const std::string& path) {
   KinematicState s;
@@ -410,6 +319,7 @@ Scenario parse_scenario(const std::string& text, const std::string& file) {
   sc.ego = read_states(r, r.field(root, "", "ego"), "ego");
   sc.objects = read_objects(r, root);
   sc.lanes = read_lanes(r, root);
+  sc.scenery = scenario_json::read_scenery(r, root);
   return sc;
 }
 
@@ -502,6 +412,7 @@ void sample_frame(const Scenario& sc, double t, Frame& out, SampleCursor* cursor
     out.lanes[i].type = sc.lanes[i].type;
     out.lanes[i].points.assign(sc.lanes[i].points.begin(), sc.lanes[i].points.end());
   }
+  out.scenery.assign(sc.scenery.begin(), sc.scenery.end());
 }
 
 }  // namespace lidarsim::sensor

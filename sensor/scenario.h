@@ -17,7 +17,9 @@
 //     "ego": {"states": [STATE, ...]},               the ego's ground point (z = road height)
 //     "objects": [{"id":1, "class":"Car", "size":[4.5,1.8,1.5], "material":"car_paint",
 //                  "states":[STATE, ...]}, ...],   (material optional: from the class)
-//     "lanes": [{"id":1, "type":"solid"|"dashed"|"road_edge", "points":[[x,y(,z)], ...]}]
+//     "lanes": [{"id":1, "type":"solid"|"dashed"|"road_edge", "points":[[x,y(,z)], ...]}],
+//     "scenery": [{"kind":"box"|"extrusion"|"tree"|"pole", ...}, ...]   (optional: static
+//                 buildings, walls, fences, trees, poles and signs, sidewalks; sensor/scenery.h)
 //   }
 //   STATE = {"t":0.0, "position":[x,y,z], "velocity":[vx,vy,vz], "heading_deg":0,
 //            "acceleration":[ax,ay,az]}             (acceleration optional, default 0)
@@ -85,6 +87,7 @@ struct Scenario {
   std::vector<KinematicState> ego;
   std::vector<ScenarioObject> objects;
   std::vector<LanePolyline> lanes;  // map frame
+  std::vector<SceneryBox> scenery;  // map frame: the "scenery" elements as boxes (sensor/scenery.h)
 
   int frame_count() const;          // floor(duration * rate + 1e-9)
   double frame_time(int k) const { return k / rate_hz; }
@@ -112,7 +115,7 @@ struct SampleCursor {
   std::size_t ego_interval = 0;
 };
 
-// The frame at time t in the map frame (ego pose, existing objects, lanes). `out`'s vectors
+// The frame at time t in the map frame (ego pose, existing objects, lanes, scenery). `out`'s vectors
 // are reused, so a loop over frames does not allocate once they have grown.
 void sample_frame(const Scenario& scenario, double t, Frame& out, SampleCursor* cursor = nullptr);
 

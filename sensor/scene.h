@@ -53,11 +53,25 @@ struct LanePolynomial {
   double x_min = 0, x_max = 0;  // valid range
 };
 
+// A static part of the scene (building, wall, fence, hedge, tree trunk or crown, pole, sign
+// plate, sidewalk slab, terrain patch) as a yaw-only box with its PGM labels. Scenery is not an
+// object: it blocks beams (occlusion of objects and lanes, returns in the point cloud) but is
+// never tracked or reported. Parked cars are objects (a detector must find them), not scenery.
+struct SceneryBox {
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // box centre, in the frame of the list
+  Eigen::Vector3d size = Eigen::Vector3d::Ones();      // length (x), width (y), height (z)
+  double heading = 0;                                  // yaw about z, radians
+  int class_id = 0;                                    // pgm::cls id
+  int material_id = 0;                                 // pgm::material id
+  int element = -1;                                    // index of the scenario's scenery element
+};
+
 struct Frame {
   double time = 0;             // seconds
   Pose ego_in_map;             // ego pose at this time
   std::vector<Object> objects;
   std::vector<LanePolyline> lanes;
+  std::vector<SceneryBox> scenery;  // static scenery (scenario "scenery"; empty from OSI input)
 };
 
 }  // namespace lidarsim::sensor

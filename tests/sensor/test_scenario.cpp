@@ -4,9 +4,11 @@
 
 #include <cmath>
 #include <numbers>
+#include <set>
 #include <string>
 
 #include "common/error.h"
+#include "pgm/materials.h"
 #include "sensor/scenario.h"
 #include "tests/support/shared_data.h"
 
@@ -189,6 +191,13 @@ TEST(Scenario, BundledDemoScenarioReads) {
   EXPECT_EQ(sc.frame_count(), 100);  // 10 s at 10 Hz
   EXPECT_GE(sc.objects.size(), 8u);
   EXPECT_GE(sc.lanes.size(), 3u);
+  // A street: buildings, sidewalks, vegetation, poles and signs among its scenery.
+  std::set<int> scenery_classes;
+  for (const auto& b : sc.scenery) scenery_classes.insert(b.class_id);
+  for (int c : {lidarsim::pgm::cls::building, lidarsim::pgm::cls::sidewalk, lidarsim::pgm::cls::vegetation,
+                lidarsim::pgm::cls::trunk, lidarsim::pgm::cls::pole, lidarsim::pgm::cls::traffic_sign,
+                lidarsim::pgm::cls::fence, lidarsim::pgm::cls::terrain})
+    EXPECT_TRUE(scenery_classes.count(c)) << lidarsim::pgm::class_name(c);
 }
 
 #include <map>
@@ -196,10 +205,12 @@ TEST(Scenario, BundledDemoScenarioReads) {
 
 #include "sensor/frames.h"
 #include "sensor/occlusion.h"
+#include "sensor/scenery.h"
 
 // The bundled demo must exercise every stage: every road-user class, an object hidden for a
 // while (visible fraction < 0.1 for >= 5 consecutive frames after and/or before being seen at
-// > 0.5), an object leaving the field of view for good, and lanes left after occlusion.
+// > 0.5), an object leaving the field of view for good, and lanes left after occlusion (by the
+// objects and the street's scenery).
 TEST(Scenario, BundledDemoExercisesEveryStage) {
   const Scenario sc = read_scenario(lidarsim::testing::source_dir() / "data/scenarios/demo_urban.json");
   std::set<ObjectClass> classes;
@@ -218,7 +229,8 @@ TEST(Scenario, BundledDemoExercisesEveryStage) {
     for (const auto& o : sensor.objects) timeline[o.id][k] = '-';  // exists, out of view
     apply_fov(sensor.objects, sc.sensor.fov);
     apply_fov_to_lanes(sensor.lanes, sc.sensor.fov);
-    occ.apply(sensor.objects, sensor.lanes);
+    cull_scenery(sensor.scenery, sc.sensor.fov.range_max);
+    occ.apply(sensor.objects, sensor.lanes, sensor.scenery);
     for (const auto& o : sensor.objects)
       timeline[o.id][k] = o.visible_fraction > 0.5 ? '#' : (o.visible_fraction < 0.1 ? '.' : '+');
     EXPECT_GE(sensor.lanes.size(), 2u) << "frame " << k;
