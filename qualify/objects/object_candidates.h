@@ -4,6 +4,7 @@
 // sequences and judged on its held-out sequences by a loss per held-out object:
 //   mean_table     per-class binned bias on an error (the loop's first form)     squared error
 //   mean_window    one bias inside a window of the feature with fitted edges    squared error
+//   mean_line      per-class straight line in the feature (object_terms.h)      squared error
 //   rate_table     per-class binned shift of the detection probability          Bernoulli deviance
 //   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
 //   spread_table   the error's sigma x a scale per bin (pooled over classes)     Gaussian deviance
@@ -27,7 +28,7 @@
 
 namespace lidarsim::qualify::obj {
 
-enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow };
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine };
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);

@@ -76,6 +76,9 @@ struct FoldSet {
 struct Judged {
   std::array<Refit, 2> refs;
   std::vector<double> before_r, after_r;  // after_r = before_r when not added
+  // Per held-out record (the order of before_r): its features (kObjectFeatures), so the error can
+  // be read on any group of objects (bench/campaign_objects.h: where a planted effect acts).
+  std::vector<std::vector<double>> held_features;
   std::array<std::pair<double, double>, 2> fold_rms{};  // per fold: RMS before, after
   std::array<double, 2> change{0, 0};  // of the winsorised RMS (detection: deviance per object)
   int tracks = 0, tracks_better = 0;

@@ -277,7 +277,7 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
   j["threshold"] = o.threshold;
   j["distribution_seeds"] = o.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
-      "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "
+      "every feature x target x form is a candidate (kinds: mean_table, mean_window, mean_line on an error; rate_table, "
       "rate_window on detection; spread_table, spread_window on an error's sigma). Each is fitted on a fold's fit "
       "sequences and scored on its held-out ones, pooled over the two-fold cross-fit (fit on the even-indexed "
       "sequences, judge the odd-indexed ones, and the other way round): mean forms by the held-out R^2 of the "
@@ -285,7 +285,9 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "1 - D_after / D_before (Bernoulli deviance with the model's detection probability); spread forms by "
       "1 - exp(-(G_before - G_after) / n) with G the Gaussian deviance around the fit split's per-class range-bin "
       "mean and sd. Tables: 10 equal-count bins on the fit split, shrunk by n/(n+5), per class where >= 200 "
-      "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end). Bias forms "
+      "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end); lines: a "
+      "least-squares line per class (per class where >= 200 samples) on the feature clamped to its 1-99 % range, "
+      "carried as 64 equal-width bins over that range widened by its span on each side. Bias forms "
       "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "
       "interval95 = basic block bootstrap over held-out tracks (a track and its sequence are never on both sides). "
       "selection_lower_bound = the score's lower bound simultaneous over its family (every bias form the base model "
