@@ -11,8 +11,8 @@
 #include <random>
 #include <vector>
 
-#include "qualify/object_candidates.h"
-#include "qualify/object_terms.h"
+#include "qualify/objects/object_candidates.h"
+#include "qualify/objects/object_terms.h"
 
 using namespace lidarsim::qualify;
 using obj::Kind;
