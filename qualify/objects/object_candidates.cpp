@@ -58,6 +58,28 @@ bool used_by_model(const std::string& feature, int target, Kind kind) {
 }
 bool used_by_model(const Candidate& c) { return used_by_model(kObjectFeatures[c.feature], c.target, c.kind); }
 bool clears_selection(const Candidate& c) { return !(c.selection_lower <= 0); }
+bool line_over_table(const Candidate& c) { return c.kind != Kind::MeanLine || !(c.vs_table[0] <= 0); }
+
+namespace {
+// Per block (line's after, table's after, before): the line's R^2 minus the table's.
+double line_minus_table(const std::array<double, 3>& s) { return s[2] > 0 ? (s[1] - s[0]) / s[2] : 0; }
+}  // namespace
+
+void compare_lines_with_tables(std::vector<Candidate>& cands) {
+  for (Candidate& line : cands) {
+    if (line.kind != Kind::MeanLine) continue;
+    for (const Candidate& table : cands) {
+      if (table.kind != Kind::MeanTable || table.feature != line.feature || table.target != line.target ||
+          table.fold_set != line.fold_set || table.blocks.size() != line.blocks.size())
+        continue;
+      // Both are scored on the same held-out records against the same "before", so the blocks pair.
+      BlockSums paired;
+      for (size_t j = 0; j < line.blocks.size(); ++j)
+        if (line.blocks[j][2] > 0) paired.push_back({line.blocks[j][0], table.blocks[j][0], line.blocks[j][1]});
+      line.vs_table = block_bootstrap_interval(paired, line_minus_table);
+    }
+  }
+}
 
 double Effect::mean(int cls, int cell) const {
   const auto it = cell_mean.find({cls, cell});

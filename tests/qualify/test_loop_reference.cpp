@@ -160,10 +160,9 @@ TEST(LoopObjectsStatistical, NamesAspectDependentAcrossErrorAndCutsHeldOutErrorB
 }
 
 // Two effects on different errors planted together (length by truncation, across by aspect): the
-// loop names both (the best form on each target has the planted feature), each effect it adds
-// becomes a term of the written model and cuts its own held-out error to <= 0.7, and the model
-// re-simulated with its terms does so too.
-TEST(LoopObjectsStatistical, TwoEffectsOnDifferentTargetsAreBothNamedAndEachOneAddedCutsItsHeldOutError) {
+// loop adds the best accepted effect per target, so both become terms of the written model, each
+// cuts its own held-out error to <= 0.7, and the model re-simulated with both terms does so too.
+TEST(LoopObjectsStatistical, TwoEffectsOnDifferentTargetsAreBothAddedAndBothCutTheirHeldOutError) {
   const fs::path model = reference_fresh_dir("two_effects_model.json");
   const auto j = object_loop(data::ObjectEffect::TruncationSize, model, 0.05, data::ObjectEffect::AspectAcross);
   std::cout << "  added " << j["added_effects"].dump() << "\n";
@@ -181,37 +180,16 @@ TEST(LoopObjectsStatistical, TwoEffectsOnDifferentTargetsAreBothNamedAndEachOneA
       EXPECT_LE(e["after_simulated"].get<double>(), 0.7 * e["before_simulated"].get<double>()) << e.dump();
     EXPECT_LT(e["change_interval95"][1].get<double>(), 0.0) << e.dump();
   }
-  // Both planted effects are named: the best bias form on each planted target has the planted
-  // feature. The one ranked first is added (the aspect effect as a line outranks the truncation
-  // table); the other is a further term, added or refused by the re-simulated distribution check,
-  // which only further terms face (object_loop_judge.cpp judge): on this set it refuses the
-  // truncation line (Pedestrian length histogram 0.726 -> 0.261), a known limit of that check.
-  const std::map<std::string, std::string> planted = {{"length", "truncation"},
-                                                      {"position_across", "heading_to_line_of_sight"}};
-  for (const auto& [target, feature] : planted) {
-    const nlohmann::json* best = nullptr;
-    for (const auto& c : j["candidates"])
-      if (c["target"] == target && c["kind"].get<std::string>().rfind("spread", 0) != 0 &&
-          (!best || c["score"].get<double>() > (*best)["score"].get<double>()))
-        best = &c;
-    ASSERT_NE(best, nullptr) << target;
-    std::cout << "  best on " << target << ": " << best->dump() << "\n";
-    EXPECT_EQ((*best)["feature"], feature) << best->dump();
-    const std::string decision = (*best)["decision"];
-    EXPECT_TRUE(decision == "added" || decision.rfind("rejected: the re-simulated held-out distribution", 0) == 0)
-        << best->dump();
-    EXPECT_EQ(by_target.count(target), decision == "added" ? 1u : 0u) << target;
-  }
-  ASSERT_FALSE(by_target.empty());
-  EXPECT_EQ(j["added_effects"][0]["feature"], planted.at(j["added_effects"][0]["target"].get<std::string>()));
+  ASSERT_TRUE(by_target.count("length")) << j["added_effects"].dump();
+  ASSERT_TRUE(by_target.count("position_across")) << j["added_effects"].dump();
+  EXPECT_EQ(by_target["length"]["feature"], "truncation");
+  EXPECT_EQ(by_target["position_across"]["feature"], "heading_to_line_of_sight");
   // The first entry is the single-effect fields' effect.
   EXPECT_EQ(j["added_effects"][0]["feature"], j["added_effect"]);
   const sensor::KpiModel m = sensor::load_kpi_model(model);
   const auto& car = m.classes.at("Car");
-  for (const auto& [target, e] : by_target) {
-    const int p = target == "length" ? int(sensor::KpiParam::Length) : int(sensor::KpiParam::PositionAcross);
-    EXPECT_EQ(car.errors[p].conditional.feature, planted.at(target)) << target;
-  }
+  EXPECT_EQ(car.errors[int(sensor::KpiParam::Length)].conditional.feature, "truncation");
+  EXPECT_EQ(car.errors[int(sensor::KpiParam::PositionAcross)].conditional.feature, "heading_to_line_of_sight");
   EXPECT_FALSE(car.errors[int(sensor::KpiParam::Width)].conditional.present());
   fs::remove(model);
 }
