@@ -76,10 +76,12 @@ struct FoldSet {
 // after, and the block-bootstrap interval of the change.
 struct Judged {
   std::array<Refit, 2> refs;
-  std::vector<double> before_r, after_r;  // after_r = before_r when not added
+  // after_r = before_r when not added, and for the records of classes the term is not kept for
+  std::vector<double> before_r, after_r;
   // Per held-out record (the order of before_r): its features (kObjectFeatures), so the error can
   // be read on any group of objects (bench/campaign_objects.h: where a planted effect acts).
   std::vector<std::vector<double>> held_features;
+  std::vector<int> held_class;  // per held-out record: its class (kObjectClasses; -1 other)
   std::array<std::pair<double, double>, 2> fold_rms{};  // per fold: RMS before, after
   std::array<double, 2> change{0, 0};  // of the winsorised RMS (detection: deviance per object)
   int tracks = 0, tracks_better = 0;

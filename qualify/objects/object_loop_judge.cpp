@@ -49,7 +49,7 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
       }
     }
     J.fold_rms[k] = {rms(h.r), rms(a)};
-    for (const ObjectRecord* r : h.rec) J.held_features.push_back(r->feature);
+    for (const ObjectRecord* r : h.rec) J.held_features.push_back(r->feature), J.held_class.push_back(r->cls);
     J.before_r.insert(J.before_r.end(), h.r.begin(), h.r.end());
     J.after_r.insert(J.after_r.end(), a.begin(), a.end());
   }
@@ -123,6 +123,11 @@ Judged judge(LoopContext& L, const Candidate& c) {
     distribution_check(L, S, c, per_class, J);
     const bool any = std::any_of(J.classes.begin(), J.classes.end(), [](bool kept) { return kept; });
     if (!any) J.add = false, J.distribution_rejected = true;
+    // What is added is the term for the kept classes: the others keep their residual.
+    for (size_t i = 0; any && i < J.after_r.size(); ++i) {
+      const int k = J.held_class[i];
+      if (k >= 0 && k < kObjectClassCount && !J.classes[k]) J.after_r[i] = J.before_r[i];
+    }
   }
   J.candidate_after = rms(J.after_r);
   if (!J.add) J.after_r = J.before_r;
