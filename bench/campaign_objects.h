@@ -11,6 +11,12 @@
 //              holds the effect (a dropout beyond a range is the detection rate's range bins), so
 //              there is nothing to add. Counted apart from recall: the table shows both.
 //   other add  anything added that is not the planted effect (on a control: a false add).
+//   where planted  (detection dropouts) recalled with the held-out error read only on the objects
+//              the planted dropout acts on (inside its azimuth window, beyond its range): a 0/1
+//              outcome's noise over every other object, which no term can lower, dilutes the
+//              strict figure (the ideal refit reaches 0.7 x over all objects in 2 and 4 of 10
+//              draws), while on the objects it acts on a term that misses the effect leaves the
+//              error where it was. Other families: the strict rule. Reported beside it.
 //   above floor  recalled with the floor removed: the data's own noise (the ideal refit's error,
 //              data/planted_tracking.h PlantedStats::ideal_after) is taken out of both errors,
 //              sqrt(after^2 - floor^2) <= 0.7 x sqrt(before^2 - floor^2), as the intensity half
@@ -29,7 +35,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/angles.h"
 #include "data/planted_tracking.h"
+#include "qualify/objects/object_loop.h"
 #include "qualify/objects/objects.h"
 
 namespace lidarsim::bench {
@@ -74,6 +82,9 @@ struct DrawScore {
   bool above_floor = false;  // named and the excess over the data's noise floor cut as much (see above)
   bool other_add = false;  // something else added (on a control: a false add)
   bool absorbed = false;   // the base KPI model holds the planted form already (see above)
+  bool where_recalled = false;  // recalled on the objects the planted effect acts on (see above)
+  double where_before = std::numeric_limits<double>::quiet_NaN(), where_after = std::numeric_limits<double>::quiet_NaN();
+  long where_objects = 0;  // held-out objects the planted dropout acts on
   double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
   nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
 };
@@ -139,6 +150,45 @@ inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& 
   return s;
 }
 
+// Whether the planted detection dropout acts on an object with these loop features (kObjectFeatures).
+inline bool planted_acts_on(const data::PlantedDraw& d, const std::vector<double>& f) {
+  const auto& p = d.effect.params;
+  if (d.effect.family == data::PlantedFamily::AzimuthDropout) {
+    const double az = f[qualify::obj::feature_index("azimuth")];
+    return az >= p.at("azimuth_lo_deg") * kDeg && az <= p.at("azimuth_hi_deg") * kDeg;
+  }
+  if (d.effect.family == data::PlantedFamily::RangeDropout)
+    return f[qualify::obj::feature_index("range")] >= p.at("range_m");
+  return false;
+}
+
+// The "where planted" figure (see above) from the loop's typed result: the added term that names
+// the planted dropout, its held-out RMS residual before and after on the objects the dropout acts
+// on. Other families keep the strict rule.
+inline void score_where_planted(const data::PlantedDraw& d, const qualify::obj::ObjectLoopResult& R, DrawScore& s) {
+  s.where_recalled = s.recalled;
+  const bool dropout = d.effect.family == data::PlantedFamily::AzimuthDropout ||
+                       d.effect.family == data::PlantedFamily::RangeDropout;
+  if (!dropout || !s.named) return;
+  for (const qualify::obj::AddedBias& a : R.added) {
+    const qualify::obj::Candidate& c = R.candidates[a.candidate];
+    if (c.target != qualify::kDetectionTarget ||
+        std::find(d.effect.features.begin(), d.effect.features.end(), qualify::kObjectFeatures[c.feature]) ==
+            d.effect.features.end())
+      continue;
+    const qualify::obj::Judged& J = a.judged;
+    double b = 0, f = 0;
+    long n = 0;
+    for (size_t i = 0; i < J.held_features.size(); ++i)
+      if (planted_acts_on(d, J.held_features[i])) b += J.before_r[i] * J.before_r[i], f += J.after_r[i] * J.after_r[i], ++n;
+    s.where_objects = n;
+    if (n == 0) return;
+    s.where_before = std::sqrt(b / n), s.where_after = std::sqrt(f / n);
+    s.where_recalled = s.where_after <= kRecallRatio * s.where_before;
+    return;
+  }
+}
+
 struct DrawResult {
   data::PlantedDraw draw;
   DrawScore score;
@@ -174,6 +224,9 @@ inline nlohmann::json to_json(const DrawResult& r) {
           {"seconds", r.seconds},              {"error", r.error},
           {"added", r.added},                  {"loop_top", r.top},
           {"planted_candidates", r.score.candidates},
+          {"recalled_where_planted", r.score.where_recalled},
+          {"before_where_planted", num(r.score.where_before)}, {"after_where_planted", num(r.score.where_after)},
+          {"objects_where_planted", r.score.where_objects},
           {"ideal_before", num(r.ideal.ideal_before)}, {"ideal_after", num(r.ideal.ideal_after)}};
 }
 
@@ -187,8 +240,12 @@ inline DrawResult run_draw(data::PlantedFamily family, const data::PlantedTracki
     r.draw = data::plan_planted_tracking(family, o);
     std::filesystem::remove_all(dir);
     r.ideal = data::write_planted_tracking(dir, r.draw);
-    const nlohmann::json j = qualify::loop_objects(qualify::load_tracking(dir, "", "pointrcnn", 2), lo);
+    // What qualify::loop_objects returns (no plots here), with the typed result kept for scoring.
+    const qualify::TrackingData data = qualify::load_tracking(dir, "", "pointrcnn", 2);
+    const qualify::obj::ObjectLoopResult R = qualify::obj::run_object_loop(data, lo);
+    const nlohmann::json j = qualify::obj::report_json(R);
     r.score = score_draw(r.draw.effect, j);
+    score_where_planted(r.draw, R, r.score);
     r.score.above_floor = recalled_above_floor(r.score, r.ideal.ideal_after);
     r.added = nlohmann::json::array();
     for (const AddedEffect& a : loop_added_effects(j))

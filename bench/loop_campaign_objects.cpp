@@ -42,6 +42,7 @@ std::uint64_t draw_seed(std::uint64_t seed, int family, int draw) {
 struct FamilyRow {
   int draws = 0, recalled = 0, named = 0, other_adds = 0, errors = 0;
   int above_floor = 0;  // recalled on the error above the data's noise floor (bench/campaign_objects.h)
+  int where_planted = 0;  // recalled on the objects a planted dropout acts on (bench/campaign_objects.h)
   int absorbed = 0;   // the base KPI model holds the planted form (bench/campaign_objects.h)
   int reachable = 0;  // draws whose ideal refit reaches after <= 0.7 x before (data/planted_tracking.h PlantedStats)
   std::vector<double> before, after, seconds;
@@ -52,6 +53,7 @@ nlohmann::json row_json(const FamilyRow& r, bool control) {
   return {{"draws", r.draws},
           {"recall", control ? nlohmann::json(nullptr) : nlohmann::json(r.draws ? double(r.recalled) / r.draws : 0.0)},
           {"recall_above_floor", control ? nlohmann::json(nullptr) : nlohmann::json(r.draws ? double(r.above_floor) / r.draws : 0.0)},
+          {"recall_where_planted", control ? nlohmann::json(nullptr) : nlohmann::json(r.draws ? double(r.where_planted) / r.draws : 0.0)},
           {"named", r.named},
           {"absorbed", r.absorbed},
           {"ideal_reachable", r.reachable},
@@ -65,26 +67,28 @@ nlohmann::json row_json(const FamilyRow& r, bool control) {
 std::string table(const std::vector<std::string>& names, const std::map<std::string, FamilyRow>& rows) {
   std::ostringstream out;
   char line[256];
-  std::snprintf(line, sizeof line, "%-16s %5s %7s %7s %6s %8s %9s %10s %6s %9s %9s %8s\n", "family", "draws", "recall",
-                "a.floor", "named", "absorbed", "reachable", "other_adds", "errors", "med_bef", "med_aft", "med_s");
+  std::snprintf(line, sizeof line, "%-16s %5s %7s %7s %7s %6s %8s %9s %10s %6s %9s %9s %8s\n", "family", "draws", "recall",
+                "a.floor", "where", "named", "absorbed", "reachable", "other_adds", "errors", "med_bef", "med_aft", "med_s");
   out << line;
-  int eff = 0, rec = 0, rec_floor = 0, absorbed = 0, ctl = 0, fa = 0;
+  int eff = 0, rec = 0, rec_floor = 0, rec_where = 0, absorbed = 0, ctl = 0, fa = 0;
   for (const std::string& n : names) {
     const FamilyRow& r = rows.at(n);
     const bool control = n == "control";
-    std::snprintf(line, sizeof line, "%-16s %5d %7s %7s %6d %8d %9d %10.2f %6d %9.4f %9.4f %8.1f\n", n.c_str(), r.draws,
+    std::snprintf(line, sizeof line, "%-16s %5d %7s %7s %7s %6d %8d %9d %10.2f %6d %9.4f %9.4f %8.1f\n", n.c_str(), r.draws,
                   control ? "-" : (std::to_string(r.draws ? double(r.recalled) / r.draws : 0.0).substr(0, 4)).c_str(),
                   control ? "-" : (std::to_string(r.draws ? double(r.above_floor) / r.draws : 0.0).substr(0, 4)).c_str(),
+                  control ? "-" : (std::to_string(r.draws ? double(r.where_planted) / r.draws : 0.0).substr(0, 4)).c_str(),
                   r.named, r.absorbed, r.reachable, r.draws ? double(r.other_adds) / r.draws : 0.0, r.errors, median(r.before),
                   median(r.after), median(r.seconds));
     out << line;
     if (control) ctl += r.draws, fa += r.other_adds;
-    else eff += r.draws, rec += r.recalled, rec_floor += r.above_floor, absorbed += r.absorbed;
+    else eff += r.draws, rec += r.recalled, rec_floor += r.above_floor, rec_where += r.where_planted, absorbed += r.absorbed;
   }
   std::snprintf(line, sizeof line,
-                "overall: recall %d/%d = %.2f over effect families (above the noise floor %d/%d = %.2f; %d more absorbed "
-                "by the base KPI model); false adds on controls %d/%d = %.2f\n",
-                rec, eff, eff ? double(rec) / eff : 0.0, rec_floor, eff, eff ? double(rec_floor) / eff : 0.0, absorbed, fa, ctl, ctl ? double(fa) / ctl : 0.0);
+                "overall: recall %d/%d = %.2f over effect families (above the noise floor %d/%d = %.2f; dropouts read "
+                "where planted %d/%d = %.2f; %d more absorbed by the base KPI model); false adds on controls %d/%d = %.2f\n",
+                rec, eff, eff ? double(rec) / eff : 0.0, rec_floor, eff, eff ? double(rec_floor) / eff : 0.0, rec_where, eff,
+                eff ? double(rec_where) / eff : 0.0, absorbed, fa, ctl, ctl ? double(fa) / ctl : 0.0);
   out << line;
   return out.str();
 }
@@ -148,12 +152,13 @@ int main(int argc, char** argv) {
         const bench::DrawResult r = bench::run_draw(fam, o, work, lo, a.count("keep") > 0);
         FamilyRow& row = rows[data::to_string(fam)];
         ++row.draws;
-        row.recalled += r.score.recalled, row.above_floor += r.score.above_floor, row.named += r.score.named, row.absorbed += r.score.absorbed, row.other_adds += r.score.other_add;
+        row.recalled += r.score.recalled, row.above_floor += r.score.above_floor, row.where_planted += r.score.where_recalled, row.named += r.score.named, row.absorbed += r.score.absorbed, row.other_adds += r.score.other_add;
         row.errors += !r.error.empty();
         row.reachable += r.ideal.ideal_after <= bench::kRecallRatio * r.ideal.ideal_before;
         row.before.push_back(r.score.before), row.after.push_back(r.score.after), row.seconds.push_back(r.seconds);
         std::cerr << "[" << data::to_string(fam) << " " << d + 1 << "/" << draws << "] " << o.sequences << " seq, "
                   << (r.error.empty() ? "" : "ERROR " + r.error + ", ") << (r.score.recalled ? "recalled" : "missed")
+                  << (r.score.where_recalled && !r.score.recalled ? " (recalled where planted)" : "")
                   << (r.score.other_add ? ", other add" : "") << ", ideal " << r.ideal.ideal_after / r.ideal.ideal_before
                   << ", added " << r.added.dump() << ", " << r.seconds
                   << " s\n";

@@ -15,6 +15,7 @@ std::string to_string(Kind k) {
   switch (k) {
     case Kind::MeanTable: return "mean_table";
     case Kind::MeanWindow: return "mean_window";
+    case Kind::MeanLine: return "mean_line";
     case Kind::RateTable: return "rate_table";
     case Kind::RateWindow: return "rate_window";
     case Kind::SpreadTable: return "spread_table";
@@ -26,7 +27,7 @@ bool is_spread(Kind k) { return k == Kind::SpreadTable || k == Kind::SpreadWindo
 bool is_window(Kind k) { return k == Kind::MeanWindow || k == Kind::RateWindow || k == Kind::SpreadWindow; }
 std::vector<Kind> kinds_for(int target) {
   if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow};
-  return {Kind::MeanTable, Kind::MeanWindow, Kind::SpreadTable, Kind::SpreadWindow};
+  return {Kind::MeanTable, Kind::MeanWindow, Kind::MeanLine, Kind::SpreadTable, Kind::SpreadWindow};
 }
 
 namespace {
@@ -57,6 +58,28 @@ bool used_by_model(const std::string& feature, int target, Kind kind) {
 }
 bool used_by_model(const Candidate& c) { return used_by_model(kObjectFeatures[c.feature], c.target, c.kind); }
 bool clears_selection(const Candidate& c) { return !(c.selection_lower <= 0); }
+bool line_over_table(const Candidate& c) { return c.kind != Kind::MeanLine || !(c.vs_table[0] <= 0); }
+
+namespace {
+// Per block (line's after, table's after, before): the line's R^2 minus the table's.
+double line_minus_table(const std::array<double, 3>& s) { return s[2] > 0 ? (s[1] - s[0]) / s[2] : 0; }
+}  // namespace
+
+void compare_lines_with_tables(std::vector<Candidate>& cands) {
+  for (Candidate& line : cands) {
+    if (line.kind != Kind::MeanLine) continue;
+    for (const Candidate& table : cands) {
+      if (table.kind != Kind::MeanTable || table.feature != line.feature || table.target != line.target ||
+          table.fold_set != line.fold_set || table.blocks.size() != line.blocks.size())
+        continue;
+      // Both are scored on the same held-out records against the same "before", so the blocks pair.
+      BlockSums paired;
+      for (size_t j = 0; j < line.blocks.size(); ++j)
+        if (line.blocks[j][2] > 0) paired.push_back({line.blocks[j][0], table.blocks[j][0], line.blocks[j][1]});
+      line.vs_table = block_bootstrap_interval(paired, line_minus_table);
+    }
+  }
+}
 
 double Effect::mean(int cls, int cell) const {
   const auto it = cell_mean.find({cls, cell});
@@ -123,6 +146,12 @@ double spread_score(const std::array<double, 3>& s) { return s[2] > 0 ? 1 - std:
 std::string form_of(const Effect& e) {
   const BinnedTable& t = is_spread(e.kind) ? e.scale : e.bias.table.pooled;
   std::ostringstream o;
+  if (e.kind == Kind::MeanLine) {
+    // The pooled line's slope from two neighbouring bins of its table.
+    const double slope = t.edges.size() >= 2 ? (t.value[2] - t.value[1]) / (t.edges[1] - t.edges[0]) : 0.0;
+    o << "line, pooled slope " << fmt(slope, 4) << " per unit (per class where >= 200 samples)";
+    return o.str();
+  }
   if (!is_window(e.kind)) {
     o << "table, " << t.value.size() << " bins" << (is_spread(e.kind) ? "" : " (per class where >= 200 samples)");
     return o.str();
@@ -162,6 +191,10 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
       if (k.shrink_terms != TermShrink::Off)
         shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), false,
                                   k.shrink_terms == TermShrink::TowardsPooled);
+      break;
+    case Kind::MeanLine:
+      // Not shrunk by the track bootstrap: two numbers per class, not a bin per few tracks.
+      e.bias = backfit_line(x, r, cls, cells, cell_prior);
       break;
     case Kind::MeanWindow:
     case Kind::RateWindow:
@@ -353,6 +386,18 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
   return m;
 }
 
+namespace {
+// A mean_line term as the KPI model carries it (object_terms.h fit_line_table): kLineBins bins of
+// equal width; a table or window has at most --bins bins of equal count.
+bool is_line_term(const sensor::ConditionalTerm& ct) {
+  if (ct.edges.size() != static_cast<size_t>(kLineBins)) return false;
+  const double h = ct.edges[2] - ct.edges[1];
+  for (size_t k = 2; k < ct.edges.size(); ++k)
+    if (!(std::abs(ct.edges[k] - ct.edges[k - 1] - h) <= 1e-6 * std::max(1.0, std::abs(h)))) return false;
+  return h > 0;
+}
+}  // namespace
+
 sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& fit_idx, const sensor::KpiModel& recipe,
                               int bins, TermShrink shrink_terms, bool pool_track_spread, std::uint64_t seed) {
   Fold fold;
@@ -378,7 +423,10 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct->feature);
     if (it == kObjectFeatures.end()) continue;
     const int f = static_cast<int>(it - kObjectFeatures.begin());
-    const Kind kind = t == kDetectionTarget ? Kind::RateTable : ct->scale.empty() ? Kind::MeanTable : Kind::SpreadTable;
+    const Kind kind = t == kDetectionTarget ? Kind::RateTable
+                      : !ct->scale.empty()   ? Kind::SpreadTable
+                      : is_line_term(*ct)    ? Kind::MeanLine
+                                             : Kind::MeanTable;
     const Effect e = fit_effect(fold, t, f, kind, nvis, bins);
     if (is_spread(kind)) m = with_spread_term(m, e, ct->feature);
     else if (t == kDetectionTarget) m = with_term(m, e.bias, t, ct->feature, nvis, classes);

@@ -4,6 +4,7 @@
 // sequences and judged on its held-out sequences by a loss per held-out object:
 //   mean_table     per-class binned bias on an error (the loop's first form)     squared error
 //   mean_window    one bias inside a window of the feature with fitted edges    squared error
+//   mean_line      per-class straight line in the feature (object_terms.h)      squared error
 //   rate_table     per-class binned shift of the detection probability          Bernoulli deviance
 //   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
 //   spread_table   the error's sigma x a scale per bin (pooled over classes)     Gaussian deviance
@@ -27,7 +28,7 @@
 
 namespace lidarsim::qualify::obj {
 
-enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow };
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine };
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);
@@ -91,10 +92,19 @@ struct Candidate {
   double selection_lower = std::numeric_limits<double>::quiet_NaN();
   double selection_critical = 0;
   int selection_family = 0;
+  // mean_line only: basic block-bootstrap 95 % interval of its score minus the mean_table's of the
+  // same feature and target, on the same held-out track blocks (NaN: not compared).
+  std::array<double, 2> vs_table{std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN()};
 };
 bool used_by_model(const Candidate& c);
 // Whether the candidate's selection-aware bound lies above 0 (true when it was not computed).
 bool clears_selection(const Candidate& c);
+// A line is a second mean form of the same feature beside the table: it is kept only where it beats
+// the table on the same held-out tracks (vs_table above 0), so a line is never picked over the
+// table on the noise between two near-equal fits. True for every other form, and when not compared.
+bool line_over_table(const Candidate& c);
+// Sets vs_table of every mean_line in cands from the mean_table of its feature and target.
+void compare_lines_with_tables(std::vector<Candidate>& cands);
 
 // A candidate's score from its held-out loss sums (after, before, n): the R^2 1 - after / before
 // (bias forms) or 1 - exp(-(before - after) / n) (spread forms).

@@ -79,7 +79,8 @@ Decision ranked_decision(const Candidate& c, double threshold) {
   if (used_by_model(c))
     return {DecisionKind::UsedByModel, "not ranked: the base KPI model already conditions " + tn + " on " + fn +
                                            " in this form (" + how_the_model_uses(c) + "); nothing to add"};
-  if (!c.undecided.empty() && (c.score < threshold || c.interval[0] <= 0 || !clears_selection(c)))
+  if (!c.undecided.empty() &&
+      (c.score < threshold || c.interval[0] <= 0 || !clears_selection(c) || !line_over_table(c)))
     return {DecisionKind::CannotDecide, "the data cannot decide: " + c.undecided};
   if (c.score < threshold)
     return {DecisionKind::BelowThreshold, "ruled out: held-out score " + score + " is below the threshold " +
@@ -95,13 +96,18 @@ Decision ranked_decision(const Candidate& c, double threshold) {
                 "high by chance: its bound simultaneous over them (score - " + fmt(c.selection_critical, 3) +
                 " x its bootstrap standard error) is " + fmt(c.selection_lower, 3) +
                 ", not above 0; more held-out tracks would tell"};
+  if (!line_over_table(c))
+    return {DecisionKind::LineNotOverTable,
+            "ruled out: held-out score " + score + ", but the line does not beat the table of the same feature on "
+                "the same held-out tracks (95 % interval of its score minus the table's [" + fmt(c.vs_table[0], 3) +
+                ", " + fmt(c.vs_table[1], 3) + "] reaches 0), so the table is the form kept"};
   return {};
 }
 
 }  // namespace
 
 bool passes_ranking(const Candidate& c, double threshold) {
-  return c.score >= threshold && c.interval[0] > 0 && clears_selection(c);
+  return c.score >= threshold && c.interval[0] > 0 && clears_selection(c) && line_over_table(c);
 }
 
 bool ranks_before(const Candidate& a, const Candidate& b, double threshold) {
@@ -184,6 +190,7 @@ void rank(LoopContext& L, ObjectLoopResult& R) {
         R.candidates.push_back(std::move(c));
       }
     }
+  compare_lines_with_tables(R.candidates);
   // The bias forms and the spread forms are each a family the loop picks from by score (rank,
   // add): each gets a bound that holds whichever of its members the scores pick.
   std::vector<int> bias, spread;

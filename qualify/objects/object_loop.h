@@ -5,7 +5,7 @@
 //   rank            every candidate (feature x target x form) judged on the held-out folds, with a
 //                   bound that holds whichever candidate the scores pick (object_selection.h)
 //   judge           one bias form refitted per fold: the held-out change beyond the track-to-track
-//                   noise and, for a further error term, the re-simulated distribution per class
+//                   noise and, for an error term, the re-simulated distribution per class
 //   add             the top bias form, then the best bias form of each other target, else a spread form
 //   resimulate      what the KPI manager makes of the added terms on the held-out truth objects
 //   refit           the terms on every sequence, the false positives, the model written
@@ -40,6 +40,7 @@ enum class DecisionKind {
   BelowThreshold,          // held-out score below the threshold
   IntervalReachesZero,     // the score's 95 % interval reaches 0
   SelectionReachesZero,    // its bound simultaneous over the candidates picked from reaches 0 (object_selection.h)
+  LineNotOverTable,        // a mean_line that does not beat the mean_table on the same held-out tracks
   BiasAddedFirst,          // a spread form: a bias form was added in this run
   NotInManager,            // the KPI manager cannot compute the feature, so it cannot become a term
   TopNotATerm,             // a further bias form: tried only once the top one is a model term
@@ -75,7 +76,12 @@ struct FoldSet {
 // after, and the block-bootstrap interval of the change.
 struct Judged {
   std::array<Refit, 2> refs;
-  std::vector<double> before_r, after_r;  // after_r = before_r when not added
+  // after_r = before_r when not added, and for the records of classes the term is not kept for
+  std::vector<double> before_r, after_r;
+  // Per held-out record (the order of before_r): its features (kObjectFeatures), so the error can
+  // be read on any group of objects (bench/campaign_objects.h: where a planted effect acts).
+  std::vector<std::vector<double>> held_features;
+  std::vector<int> held_class;  // per held-out record: its class (kObjectClasses; -1 other)
   std::array<std::pair<double, double>, 2> fold_rms{};  // per fold: RMS before, after
   std::array<double, 2> change{0, 0};  // of the winsorised RMS (detection: deviance per object)
   int tracks = 0, tracks_better = 0;
@@ -86,8 +92,13 @@ struct Judged {
   PerClass<double> dist_before{-1, -1, -1}, dist_after{-1, -1, -1};
   PerClass<bool> classes{true, true, true};
   PerClass<std::pair<double, double>> class_rms{};  // winsorised held-out RMS before, after
+  bool distribution_decides = true;  // the histogram half of the check decides (score < kDistributionExemptScore)
   bool distribution_rejected = false;
 };
+
+// A term whose held-out score (R^2) is at least this explains most of its error's spread: the
+// distribution check's histogram half is reported for it, not deciding (judge), whatever its rank.
+inline constexpr double kDistributionExemptScore = 0.5;
 
 // A bias form added (the top one first), with the held-out RMS of its target re-simulated by the
 // KPI manager with each fold's base and with the model carrying every added term.
@@ -149,7 +160,7 @@ struct LoopContext {
 // The steps, in order (object_loop*.cpp).
 void make_fold_sets(LoopContext& L);
 void rank(LoopContext& L, ObjectLoopResult& R);
-Judged judge(LoopContext& L, const Candidate& c, bool distribution_decides);
+Judged judge(LoopContext& L, const Candidate& c);
 void add(LoopContext& L, ObjectLoopResult& R);
 void resimulate(LoopContext& L, ObjectLoopResult& R);
 void refit(LoopContext& L, ObjectLoopResult& R);
@@ -158,7 +169,8 @@ ObjectLoopResult run_object_loop(const TrackingData& data, const LoopOptions& op
 nlohmann::json report_json(const ObjectLoopResult& R);
 
 // Whether a candidate passes the tests the ranking alone applies: its score clears the threshold,
-// its 95 % interval lies above 0 and its selection-aware bound too (when computed).
+// its 95 % interval lies above 0 and its selection-aware bound too (when computed), and a line
+// beats the table (line_over_table).
 bool passes_ranking(const Candidate& c, double threshold);
 // The rankings' order: candidates that pass first, then by score.
 bool ranks_before(const Candidate& a, const Candidate& b, double threshold);

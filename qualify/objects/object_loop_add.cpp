@@ -90,20 +90,20 @@ void add_to_current(LoopContext& L, const Judged& J, const Candidate& c) {
   }
 }
 
-// The top bias form: judged without the distribution check deciding; a model term when the KPI
-// manager computes its feature, else added to the report only.
+// The top bias form: judged as every further one is (judge); a model term when the KPI manager
+// computes its feature, else added to the report only.
 void add_top(LoopContext& L, ObjectLoopResult& R) {
   const Candidate& top = R.candidates[R.top];
-  R.top_judged = judge(L, top, false);
+  R.top_judged = judge(L, top);
   const Judged& J = R.top_judged;
   if (!J.add) R.not_a_term = "no effect added";
   else if (!in_manager(kObjectFeatures[top.feature]))
     R.not_a_term = "the KPI manager cannot compute \"" + kObjectFeatures[top.feature] + "\" from a truth object";
   if (J.add) {
-    R.decisions[R.top] = added(top, J, R.term() ? "" : "; not a model term: " + R.not_a_term);
+    R.decisions[R.top] = added(top, J, (R.term() ? "" : "; not a model term: " + R.not_a_term) + kept_for(top, J));
     R.added.push_back({R.top, J, kNaN, kNaN});
   } else if (J.candidate) {
-    R.decisions[R.top] = rejected(top, J);
+    R.decisions[R.top] = J.distribution_rejected ? rejected_by_distribution(top, J) : rejected(top, J);
   }
   if (R.term()) add_to_current(L, J, top);
 }
@@ -126,13 +126,15 @@ std::array<int, kObjectTargetCount> best_further(const ObjectLoopResult& R) {
 // Greedy over targets: with the top bias form added as a term, the best further bias form of every
 // other target is judged the same way, in order of score, at most one per target and max_effects
 // in all; each must clear the threshold and the block-bootstrap change test on its own, and the
-// distribution check decides. A term on one target leaves the other targets' residuals unchanged,
+// distribution check decides as for the top one. A term on one target leaves the other targets' residuals unchanged,
 // and the KPI model holds one conditional term per target, so each is judged against the base alone.
 void add_further(LoopContext& L, ObjectLoopResult& R) {
   if (!R.term()) return;
   std::vector<int> order;
   for (int i : best_further(R))
-    if (i >= 0 && R.candidates[i].score >= L.options.threshold && clears_selection(R.candidates[i])) order.push_back(i);
+    if (i >= 0 && R.candidates[i].score >= L.options.threshold && clears_selection(R.candidates[i]) &&
+        line_over_table(R.candidates[i]))
+      order.push_back(i);
   std::sort(order.begin(), order.end(), [&](int a, int b) { return R.candidates[a].score > R.candidates[b].score; });
   for (int i : order) {
     const Candidate& c = R.candidates[i];
@@ -146,7 +148,7 @@ void add_further(LoopContext& L, ObjectLoopResult& R) {
                               "test it"};
       continue;
     }
-    Judged J = judge(L, c, true);
+    Judged J = judge(L, c);
     if (J.add) {
       R.decisions[i] = added(c, J, kept_for(c, J));
       add_to_current(L, J, c);

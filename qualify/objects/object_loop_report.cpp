@@ -11,7 +11,7 @@ namespace {
 
 constexpr const char* kDecisionNames[] = {
     "pending",     "added",          "rejected_by_noise", "rejected_by_distribution", "cannot_decide",
-    "used_by_model", "below_threshold", "interval_reaches_zero", "selection_reaches_zero", "bias_added_first", "not_in_manager",
+    "used_by_model", "below_threshold", "interval_reaches_zero", "selection_reaches_zero", "line_not_over_table", "bias_added_first", "not_in_manager",
     "top_not_a_term", "one_per_target", "max_effects",     "one_spread_form"};
 static_assert(std::size(kDecisionNames) == static_cast<size_t>(DecisionKind::Count));
 
@@ -55,6 +55,7 @@ nlohmann::json candidates_json(const ObjectLoopResult& R) {
                   {"significant", c.interval[0] > 0},
                   {"selection_lower_bound", number_or_null(c.selection_lower)},
                   {"selection_family", c.selection_family},
+                  {"vs_table_interval95", c.kind == Kind::MeanLine ? nlohmann::json(c.vs_table) : nlohmann::json(nullptr)},
                   {"error_metric", is_spread(c.kind)              ? "spread error"
                                    : c.target == kDetectionTarget ? "deviance per object"
                                                                   : "RMS residual"},
@@ -168,7 +169,8 @@ nlohmann::json added_effects_json(const ObjectLoopResult& R) {
                   {"held_out_tracks", J.tracks},
                   {"held_out_tracks_better", J.tracks_better},
                   {"distribution", distribution_entry(J)},
-                  {"distribution_decides", a.candidate != R.top}});  // the top effect's is reported only
+                  // false: the histogram half is reported only (the term explains most of the spread)
+                  {"distribution_decides", J.distribution_decides}});
   }
   return aj;
 }
@@ -250,6 +252,7 @@ std::string decision_label(const Decision& d, const Candidate& c) {
     case DecisionKind::SelectionReachesZero:
       return "ruled out: its bound over the " + std::to_string(c.selection_family) +
              " candidates picked from reaches 0 (a chance best)";
+    case DecisionKind::LineNotOverTable: return "ruled out: the line does not beat the table on the same held-out tracks";
     case DecisionKind::BiasAddedFirst: return "not tried: a bias form was added first";
     case DecisionKind::NotInManager:
       return "not added: the KPI manager cannot compute \"" + fn + "\" from a truth object, so " +
@@ -277,7 +280,7 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
   j["threshold"] = o.threshold;
   j["distribution_seeds"] = o.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
-      "every feature x target x form is a candidate (kinds: mean_table, mean_window on an error; rate_table, "
+      "every feature x target x form is a candidate (kinds: mean_table, mean_window, mean_line on an error; rate_table, "
       "rate_window on detection; spread_table, spread_window on an error's sigma). Each is fitted on a fold's fit "
       "sequences and scored on its held-out ones, pooled over the two-fold cross-fit (fit on the even-indexed "
       "sequences, judge the odd-indexed ones, and the other way round): mean forms by the held-out R^2 of the "
@@ -285,7 +288,11 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "1 - D_after / D_before (Bernoulli deviance with the model's detection probability); spread forms by "
       "1 - exp(-(G_before - G_after) / n) with G the Gaussian deviance around the fit split's per-class range-bin "
       "mean and sd. Tables: 10 equal-count bins on the fit split, shrunk by n/(n+5), per class where >= 200 "
-      "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end). Bias forms "
+      "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end); lines: a "
+      "least-squares line per class (per class where >= 200 samples) on the feature clamped to its 1-99 % range, "
+      "carried as 64 equal-width bins over that range widened by its span on each side, ranked only where it beats "
+      "the table (vs_table_interval95: block-bootstrap 95 % interval of its score minus the mean_table's on the "
+      "same held-out tracks, above 0). Bias forms "
       "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "
       "interval95 = basic block bootstrap over held-out tracks (a track and its sequence are never on both sides). "
       "selection_lower_bound = the score's lower bound simultaneous over its family (every bias form the base model "
@@ -293,10 +300,12 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "candidate the scores pick, and a candidate is ranked for adding only when it lies above 0. "
       "The top bias form is added when its score is at least the threshold and the refit lowers the held-out loss "
       "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; each "
-      "further bias form (the best of every other target) passes the same test and, on an error, is kept only for "
-      "the classes whose re-simulated held-out distribution (histogram intersection of the KPI manager's errors, "
-      "32 seeds, against the measured held-out errors, both folds pooled) does not get worse and whose own held-out "
-      "residual falls (rejected when no class keeps it); if no bias form is added, "
+      "further bias form (the best of every other target) passes the same test; on an error, each (top or "
+      "further) is kept only for the classes whose own held-out residual falls and whose re-simulated held-out "
+      "distribution (histogram intersection of the KPI manager's errors, distribution_seeds seeds, against the "
+      "measured held-out errors, both folds pooled) does not get worse (rejected when no class keeps it); the "
+      "histogram is reported only (distribution_decides false) for a term scoring >= 0.5, which explains most of "
+      "its error's spread; if no bias form is added, "
       "the top spread form is added when its score is at least the threshold and its interval lies above 0. "
       "With at most 3 sequences the features fixed to the sensor (azimuth) are judged on folds of time blocks "
       "instead: each sequence cut into 4 blocks of its tracks by middle frame, fit on the even blocks and judge the "

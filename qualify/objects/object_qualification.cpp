@@ -226,13 +226,13 @@ void append_samples(const ObjectSet& set, int c, int t, std::vector<double>& v, 
     }
 }
 
-// The terms the nested loop added (from its JSON): the top effect (and a detection term) goes in
-// for every class; a further one for the classes it kept.
+// The terms the nested loop added (from its JSON): an error term for the classes it kept (top or
+// further: judge applies one rule), a detection term for every class.
 nlohmann::json nested_loop_terms(const nlohmann::json& lj) {
   nlohmann::json terms = nlohmann::json::array();
   for (const auto& e : lj.value("added_effects", nlohmann::json::array())) {
     nlohmann::json kept = nlohmann::json::array();
-    if (e.value("distribution_decides", false) && e.contains("distribution")) {
+    if (e.contains("distribution") && !e["distribution"].empty()) {
       for (const auto& [cls, d] : e["distribution"].items())
         if (d.value("kept", false)) kept.push_back(cls);
     } else {

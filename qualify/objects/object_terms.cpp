@@ -107,6 +107,68 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
   return f;
 }
 
+BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<double>& y) {
+  BinnedTable t;
+  const size_t n = x.size();
+  if (n < 2) {
+    t.value = {n ? y[0] : 0.0};
+    t.count = {static_cast<long>(n)};
+    return t;
+  }
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  const double q1 = sorted[n / 100], q99 = sorted[n - 1 - n / 100];
+  double mx = 0, my = 0;
+  for (size_t i = 0; i < n; ++i) mx += std::clamp(x[i], q1, q99), my += y[i];
+  mx /= double(n), my /= double(n);
+  double sxy = 0, sxx = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const double dx = std::clamp(x[i], q1, q99) - mx;
+    sxy += dx * (y[i] - my), sxx += dx * dx;
+  }
+  const double span = q99 - q1;
+  if (!(span > 0) || !(sxx > 0)) {
+    t.value = {my};
+    t.count = {static_cast<long>(n)};
+    return t;
+  }
+  const double b = sxy / sxx, a = my - b * mx;
+  const double lo = q1 - span, h = 3 * span / kLineBins;
+  for (int k = 1; k < kLineBins; ++k) t.edges.push_back(lo + k * h);
+  for (int k = 0; k < kLineBins; ++k) t.value.push_back(a + b * (lo + (k + 0.5) * h));
+  t.count.assign(kLineBins, 0);
+  for (double v : x) ++t.count[t.bin(v)];
+  return t;
+}
+
+ClassTables fit_class_lines(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& cls) {
+  ClassTables t;
+  t.pooled = fit_line_table(x, y);
+  for (int c = 0; c < kObjectClassCount; ++c) {
+    std::vector<double> xc, yc;
+    for (size_t i = 0; i < x.size(); ++i)
+      if (cls[i] == c) xc.push_back(x[i]), yc.push_back(y[i]);
+    if (xc.size() >= 200) t.per_class[c] = fit_line_table(xc, yc), t.own[c] = true;
+  }
+  return t;
+}
+
+Refit backfit_line(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                   const std::vector<int>& rb, double cell_prior) {
+  Refit f;
+  f.cell_prior = cell_prior;
+  std::vector<double> y(r.size());
+  for (int pass = 0; pass < 4; ++pass) {
+    for (size_t i = 0; i < r.size(); ++i) {
+      const auto it = f.d.find({cls[i], rb[i]});
+      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
+    }
+    f.table = fit_class_lines(x, y, cls);
+    fit_cell_offsets(f, x, r, cls, rb);
+  }
+  return f;
+}
+
 namespace {
 
 // Where each record's term value sits in a flat vector of the refit's table values: the pooled

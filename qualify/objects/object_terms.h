@@ -64,6 +64,20 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                      const std::vector<int>& rb, int fine_bins = 40, double cell_prior = 0);
 
+// A straight line in x per class (pooled for classes with fewer than 200 samples), y = a + b x by
+// least squares on x clamped to its 1-99 % quantiles [q1, q99], carried as a table of kLineBins
+// equal-width bins over [q1 - s, q99 + s] (s = q99 - q1), each holding the line at its centre, flat
+// beyond. A table of equal-count bins is flat beyond the fit split's range, so an effect
+// proportional to a feature (a position lag x velocity, a scale error x size) fitted where the
+// feature spans little (a sequence of parked cars) misses where it spans more; a line carries it
+// there with two numbers per class.
+inline constexpr int kLineBins = 64;
+BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<double>& y);
+ClassTables fit_class_lines(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& cls);
+// backfit with the lines in place of the per-class tables.
+Refit backfit_line(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                   const std::vector<int>& rb, double cell_prior = 0);
+
 // Shrinks a fitted bias term (table or window) towards 0 by its own sampling uncertainty, so that
 // a bin carried by a few tracks is trusted less than one carried by hundreds. The bins' standard
 // errors come from a bootstrap over whole tracks of the fit data (`track`: one id per record;

@@ -183,3 +183,44 @@ TEST(CampaignObjects, ScoresAddedEffectsSpreadAndFalsePositivesFromTheLoopsJson)
   EXPECT_TRUE(s.recalled && s.other_add);
   EXPECT_EQ(bench::loop_added_effects(k).size(), 2u);
 }
+
+// A planted dropout's error read where it acts: the added term's held-out residuals on the objects
+// inside the planted window only. Over every object the cut is diluted by the objects outside,
+// whose 0/1 noise no term lowers; the strict figure stays beside it.
+TEST(CampaignObjects, ADropoutIsAlsoScoredOnTheObjectsItActsOn) {
+  data::PlantedDraw d;
+  d.effect.family = data::PlantedFamily::AzimuthDropout, d.effect.feature = "azimuth";
+  d.effect.features = {"azimuth"}, d.effect.target = "detection";
+  d.effect.params = {{"azimuth_lo_deg", 10.0}, {"azimuth_hi_deg", 30.0}, {"factor", 0.1}};
+  qualify::obj::ObjectLoopResult R;
+  qualify::obj::Candidate c;
+  c.feature = qualify::obj::feature_index("azimuth"), c.target = qualify::kDetectionTarget;
+  c.kind = qualify::obj::Kind::RateWindow;
+  R.candidates = {c};
+  qualify::obj::AddedBias a;
+  auto object = [&](double az_deg, double before, double after) {
+    std::vector<double> f(qualify::kObjectFeatures.size(), 0.0);
+    f[qualify::obj::feature_index("azimuth")] = az_deg * kDeg;
+    a.judged.held_features.push_back(f), a.judged.before_r.push_back(before), a.judged.after_r.push_back(after);
+  };
+  object(20, -0.8, -0.2), object(25, -0.8, -0.2);  // inside: the term cuts the residual
+  for (int k = 0; k < 6; ++k) object(-40, 0.3, 0.3);  // outside: 0/1 noise, unchanged
+  R.added = {a};
+  bench::DrawScore s;
+  s.named = true, s.recalled = false;
+  bench::score_where_planted(d, R, s);
+  EXPECT_EQ(s.where_objects, 2);
+  EXPECT_NEAR(s.where_before, 0.8, 1e-12);
+  EXPECT_NEAR(s.where_after, 0.2, 1e-12);
+  EXPECT_TRUE(s.where_recalled);
+  // Not named: nothing to read. Another family: the strict rule.
+  bench::DrawScore n;
+  bench::score_where_planted(d, R, n);
+  EXPECT_FALSE(n.where_recalled);
+  d.effect.family = data::PlantedFamily::ClassBias;
+  bench::DrawScore e;
+  e.named = true, e.recalled = false;
+  bench::score_where_planted(d, R, e);
+  EXPECT_FALSE(e.where_recalled);
+  EXPECT_EQ(e.where_objects, 0);
+}
