@@ -355,10 +355,7 @@ std::string measure_outputs(const Bench& b, bool all, nlohmann::json& j) {
   return row;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  const fs::path src = LIDARSIM_SOURCE_DIR;
+cxxopts::Options pipeline_options(const fs::path& src) {
   cxxopts::Options opts("bench_pipeline", "lidar-infer sim frame rate: whole pipeline and object-level model");
   // clang-format off
   opts.add_options()
@@ -378,6 +375,14 @@ int main(int argc, char** argv) {
     ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
     ("h,help", "help");
   // clang-format on
+  return opts;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const fs::path src = LIDARSIM_SOURCE_DIR;
+  cxxopts::Options opts = pipeline_options(src);
   try {
     const auto args = opts.parse(argc, argv);
     if (args.count("help")) {
