@@ -26,9 +26,9 @@ using namespace std::string_literals;  // "\x00"s keeps its zero bytes
 using lidarsim::osi::oracle::compare_with_libprotobuf;
 using google::protobuf::UnknownFieldSet;
 
-class Draw {
+class RandomView {
  public:
-  explicit Draw(unsigned seed) : rng_(seed) {}
+  explicit RandomView(unsigned seed) : rng_(seed) {}
   bool coin(double p = 0.5) { return std::bernoulli_distribution(p)(rng_); }
   int integer(int lo, int hi) { return std::uniform_int_distribution<int>(lo, hi)(rng_); }
   double real() { return coin(0.05) ? -0.0 : std::uniform_real_distribution<double>(-1e3, 1e3)(rng_); }
@@ -42,7 +42,7 @@ class Draw {
 
 // Unknown fields of every wire type, sometimes on a known field number (so with another wire type
 // than the schema's: libprotobuf keeps them as unknown) and sometimes nested in groups.
-void add_unknown(Draw& d, UnknownFieldSet& u, int depth = 0) {
+void add_unknown(RandomView& d, UnknownFieldSet& u, int depth = 0) {
   const int n = d.coin(0.7) ? 0 : d.integer(1, 3);
   for (int i = 0; i < n; ++i) {
     const int field = d.coin(0.3) ? d.integer(1, 9) : d.integer(10, 3000);
@@ -59,43 +59,43 @@ void add_unknown(Draw& d, UnknownFieldSet& u, int depth = 0) {
 }
 
 template <class M>
-void maybe_unknown(Draw& d, M& m) {
+void maybe_unknown(RandomView& d, M& m) {
   add_unknown(d, *m.mutable_unknown_fields());
 }
 
-void vector3d(Draw& d, osi3::Vector3d& v) {
+void vector3d(RandomView& d, osi3::Vector3d& v) {
   if (d.coin(0.8)) v.set_x(d.real());
   if (d.coin(0.8)) v.set_y(d.real());
   if (d.coin(0.8)) v.set_z(d.real());
   maybe_unknown(d, v);
 }
 
-void orientation(Draw& d, osi3::Orientation3d& o) {
+void orientation(RandomView& d, osi3::Orientation3d& o) {
   if (d.coin(0.8)) o.set_roll(d.real());
   if (d.coin(0.8)) o.set_pitch(d.real());
   if (d.coin(0.8)) o.set_yaw(d.real());
   maybe_unknown(d, o);
 }
 
-void mount(Draw& d, osi3::MountingPosition& m) {
+void mount(RandomView& d, osi3::MountingPosition& m) {
   if (d.coin(0.8)) vector3d(d, *m.mutable_position());
   if (d.coin(0.8)) orientation(d, *m.mutable_orientation());
   maybe_unknown(d, m);
 }
 
-void identifier(Draw& d, osi3::Identifier& id) {
+void identifier(RandomView& d, osi3::Identifier& id) {
   if (d.coin(0.9)) id.set_value(d.id());
   maybe_unknown(d, id);
 }
 
-void timestamp(Draw& d, osi3::Timestamp& t) {
+void timestamp(RandomView& d, osi3::Timestamp& t) {
   const auto seconds = static_cast<std::int64_t>(d.id() >> 1);
   if (d.coin(0.9)) t.set_seconds(d.coin(0.2) ? -seconds : seconds);
   if (d.coin(0.9)) t.set_nanos(static_cast<std::uint32_t>(d.id()));
   maybe_unknown(d, t);
 }
 
-void moving_object(Draw& d, osi3::MovingObject& o) {
+void moving_object(RandomView& d, osi3::MovingObject& o) {
   if (d.coin(0.9)) identifier(d, *o.mutable_id());
   if (d.coin(0.9)) {
     auto& b = *o.mutable_base();
@@ -132,7 +132,7 @@ void moving_object(Draw& d, osi3::MovingObject& o) {
   maybe_unknown(d, o);
 }
 
-void lane_boundary(Draw& d, osi3::LaneBoundary& l) {
+void lane_boundary(RandomView& d, osi3::LaneBoundary& l) {
   if (d.coin(0.9)) identifier(d, *l.mutable_id());
   for (int k = d.integer(0, 5); k > 0; --k) {
     auto& p = *l.add_boundary_line();
@@ -147,7 +147,7 @@ void lane_boundary(Draw& d, osi3::LaneBoundary& l) {
   maybe_unknown(d, l);
 }
 
-osi3::SensorView random_view(Draw& d) {
+osi3::SensorView random_view(RandomView& d) {
   osi3::SensorView v;
   if (d.coin(0.3)) v.mutable_version()->set_version_major(3);
   if (d.coin(0.9)) timestamp(d, *v.mutable_timestamp());
@@ -227,7 +227,7 @@ TEST(OsiSensorViewDecoder, AgreesWithLibprotobufOnTheBundledTraceAndTheFuzzRegre
 }
 
 TEST(OsiSensorViewDecoder, AgreesWithLibprotobufOnRandomMergedTruncatedAndMutatedMessages) {
-  Draw d(29);
+  RandomView d(29);
   int accepted = 0, refused = 0;
   for (int n = 0; n < 200; ++n) {
     const std::string a = random_view(d).SerializeAsString();

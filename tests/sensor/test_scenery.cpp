@@ -33,7 +33,7 @@ std::string with_scenery(const std::string& scenery) {
          scenery + "}";
 }
 
-std::string error_of(const std::string& scenery) {
+std::string scenery_error(const std::string& scenery) {
   try {
     parse_scenario(with_scenery(scenery), "street.json");
   } catch (const lidarsim::Error& e) {
@@ -98,8 +98,8 @@ TEST(Scenery, ScenarioElementsBecomeBoxesWithTheirClassMaterialAndFoot) {
 }
 
 TEST(Scenery, EachBadFieldIsAnErrorNamingTheFileAndItsJsonPath) {
-  EXPECT_EQ(error_of(kStreet), "");
-  EXPECT_EQ(error_of("[]"), "");
+  EXPECT_EQ(scenery_error(kStreet), "");
+  EXPECT_EQ(scenery_error("[]"), "");
   const std::pair<const char*, const char*> cases[] = {
       {R"({"a": 1})", "scenery: must be an array"},
       {R"([{"class": "building"}])", "scenery[0].kind: missing"},
@@ -138,7 +138,7 @@ TEST(Scenery, EachBadFieldIsAnErrorNamingTheFileAndItsJsonPath) {
        "scenery[0].sign.heading_deg: missing"},
   };
   for (const auto& [scenery, expected] : cases) {
-    const std::string e = error_of(scenery);
+    const std::string e = scenery_error(scenery);
     EXPECT_EQ(e.rfind("street.json: ", 0), 0u) << e;
     EXPECT_NE(e.find(expected), std::string::npos) << "scenery " << scenery << "\n  error: " << e;
   }
