@@ -36,10 +36,11 @@ void fit_cell_offsets(Refit& f, const std::vector<double>& x, const std::vector<
   for (const auto& [k, a] : acc)
     if (a.second >= 20) f.d[k] = a.first / (a.second + f.cell_prior);
 }
-}  // namespace
 
-Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
-              const std::vector<int>& rb, int bins, double cell_prior) {
+// Alternates the term's per-class fit (fit_term) and the base's cell offsets, four passes.
+template <class FitTerm>
+Refit backfit_with(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+                   const std::vector<int>& rb, double cell_prior, const FitTerm& fit_term) {
   Refit f;
   f.cell_prior = cell_prior;
   std::vector<double> y(r.size());
@@ -48,10 +49,18 @@ Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const 
       const auto it = f.d.find({cls[i], rb[i]});
       y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
     }
-    f.table = fit_class_tables(x, y, cls, bins);
+    f.table = fit_term(y);
     fit_cell_offsets(f, x, r, cls, rb);
   }
   return f;
+}
+
+}  // namespace
+
+Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
+              const std::vector<int>& rb, int bins, double cell_prior) {
+  return backfit_with(x, r, cls, rb, cell_prior,
+                      [&](const std::vector<double>& y) { return fit_class_tables(x, y, cls, bins); });
 }
 
 BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& y, int fine_bins, long min_side) {
@@ -155,18 +164,8 @@ ClassTables fit_class_lines(const std::vector<double>& x, const std::vector<doub
 
 Refit backfit_line(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                    const std::vector<int>& rb, double cell_prior) {
-  Refit f;
-  f.cell_prior = cell_prior;
-  std::vector<double> y(r.size());
-  for (int pass = 0; pass < 4; ++pass) {
-    for (size_t i = 0; i < r.size(); ++i) {
-      const auto it = f.d.find({cls[i], rb[i]});
-      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
-    }
-    f.table = fit_class_lines(x, y, cls);
-    fit_cell_offsets(f, x, r, cls, rb);
-  }
-  return f;
+  return backfit_with(x, r, cls, rb, cell_prior,
+                      [&](const std::vector<double>& y) { return fit_class_lines(x, y, cls); });
 }
 
 namespace {
