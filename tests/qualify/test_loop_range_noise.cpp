@@ -104,7 +104,9 @@ TEST(RangeNoiseLoop, GuardBandsLeaveBoundaryResidualsUnscored) {
     EXPECT_EQ(r.fold[i] < 0, near_edge) << "azimuth " << target[i].r.azimuth_deg;
     EXPECT_EQ(std::isfinite(r.b_before[i]), !near_edge);
     guarded += near_edge, scored += !near_edge;
-    if (!near_edge) EXPECT_EQ(r.fold[i], static_cast<int>(target[i].r.azimuth_deg / (360.0 / 64)) % 4);
+    if (!near_edge) {
+      EXPECT_EQ(r.fold[i], static_cast<int>(target[i].r.azimuth_deg / (360.0 / 64)) % 4);
+    }
   }
   EXPECT_EQ(r.scored, scored);
   EXPECT_GT(guarded, 0);
