@@ -101,19 +101,11 @@ BinnedTable fit_window(const std::vector<double>& x, const std::vector<double>& 
 
 Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                      const std::vector<int>& rb, int fine_bins, double cell_prior) {
-  Refit f;
-  f.cell_prior = cell_prior;
-  std::vector<double> y(r.size());
-  for (int pass = 0; pass < 4; ++pass) {
-    for (size_t i = 0; i < r.size(); ++i) {
-      const auto it = f.d.find({cls[i], rb[i]});
-      y[i] = r[i] - (it == f.d.end() ? 0.0 : it->second);
-    }
-    f.table = ClassTables{};
-    f.table.pooled = fit_window(x, y, fine_bins);
-    fit_cell_offsets(f, x, r, cls, rb);
-  }
-  return f;
+  return backfit_with(x, r, cls, rb, cell_prior, [&](const std::vector<double>& y) {
+    ClassTables t;
+    t.pooled = fit_window(x, y, fine_bins);
+    return t;
+  });
 }
 
 BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<double>& y) {
