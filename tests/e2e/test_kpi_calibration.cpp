@@ -136,7 +136,7 @@ TEST(KpiCalibration, ShippedDefaultModelHasTheLoopsTermsKeptPerClass) {
 }
 
 // A campaign (label long, minutes): the loop with the 256 seeds the shipped model was made with. Its
-// small version, QualifyRealDataStatistical.BothLoopsRunOnTheMeasuredDataAndTheObjectLoopRefitsTheShippedTerms,
+// small version, QualifyRealDataStatistical.ObjectLoopOnTheMeasuredDataRefitsTheShippedTerms,
 // runs in every normal pass.
 TEST(KpiCalibrationCampaign, ShippedDefaultModelIsWhatTheObjectLoopWritesWithTermsKeptPerClass) {
   LIDARSIM_REQUIRE_SHARED_DATA(root, "kitti-tracking-gt-pointrcnn");
