@@ -1,4 +1,4 @@
-// Simulation pipeline frame rate (issue 4, "what it must show" 3):
+// Simulation pipeline frame rate, and what each part of a frame costs:
 //   1. the whole pipeline (scenario sampling, frames, FoV, occlusion, tracking, KPI manager, lanes,
 //      PCL generator into a 64 x 1024 PGM, UNet intensity inference, point cloud), writing
 //      outputs excluded, on --threads (2) over the bundled demo scenario: frames/s, target >= 10;
@@ -370,7 +370,7 @@ cxxopts::Options pipeline_options(const fs::path& src) {
     ("only", "parts to run, comma-separated: whole, objects, outputs (the lidar-infer sim --every loop)",
      cxxopts::value<std::string>()->default_value("whole,objects"))
     ("every", "outputs part: write the outputs of every N-th frame", cxxopts::value<int>()->default_value("10"))
-    ("intensity-every-frame", "outputs part: run the UNet on every frame, also those not written (as before issue 16)")
+    ("intensity-every-frame", "outputs part: run the UNet on every frame, also those not written (by default only written frames run it)")
     ("digest", "print digests of what the runs compute (same numbers <=> same digests), no timing")
     ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
     ("h,help", "help");
