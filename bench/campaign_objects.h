@@ -21,6 +21,15 @@
 //              data/planted_tracking.h PlantedStats::ideal_after) is taken out of both errors,
 //              sqrt(after^2 - floor^2) <= 0.7 x sqrt(before^2 - floor^2), as the intensity half
 //              scores excess error over its noise. Where no ideal exists (spread, fp_cell): recalled.
+//   truth      (the headline) the planted feature named on the planted target AND the refitted
+//              model's error against the hidden generating model (truth_score below) after <= 0.7 x
+//              before, on the held-out objects the loop judged the term on: predicted minus true mean
+//              error (bias targets), predicted minus true detection probability (dropouts), log of
+//              predicted over true sigma (spread). Outcome noise no model can remove (a 0/1
+//              detection's Bernoulli draw, each error's Gaussian draw) is not in it, so it measures
+//              the model, not the dice, as the intensity half scores against its noise-free truth.
+//              False-positive cells: the loop's own rate error, which already takes the measured
+//              counts' Poisson noise out (object_false_positives.h fp_rate_error).
 // Everything added is read from the loop's JSON: "added_effects" (bias terms: feature, target,
 // before, after), the spread form ("added_kind" spread_*, "effect".target, "before", "after"), the
 // false positives' table ("false_positives"."added": feature, error_before, error_after) and their
@@ -87,6 +96,10 @@ struct DrawScore {
   long where_objects = 0;  // held-out objects the planted dropout acts on
   double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
   nlohmann::json candidates = nlohmann::json::array();  // the planted feature x target's, with decisions
+  // Against the hidden truth (truth_score): the starting model's error and the refitted model's.
+  bool truth_recalled = false;
+  double truth_before = std::numeric_limits<double>::quiet_NaN(), truth_after = std::numeric_limits<double>::quiet_NaN();
+  long truth_objects = 0;
 };
 
 // The 0.7 rule on the error above the noise floor an ideal refit leaves.
@@ -189,6 +202,86 @@ inline void score_where_planted(const data::PlantedDraw& d, const qualify::obj::
   }
 }
 
+// The loop's object features (kObjectFeatures order) as the generator's description of an object.
+inline data::PlantedObject planted_object(const std::vector<double>& f, int cls) {
+  using qualify::obj::feature_index;
+  data::PlantedObject o;
+  o.cls = cls;
+  o.range = f[feature_index("range")], o.azimuth = f[feature_index("azimuth")];
+  o.radial_velocity = f[feature_index("radial_velocity")], o.speed = f[feature_index("speed")];
+  o.aspect = f[feature_index("heading_to_line_of_sight")] / (kPi / 2);
+  o.occlusion = f[feature_index("occlusion")], o.truncation = f[feature_index("truncation")];
+  o.length = f[feature_index("size")], o.width = f[feature_index("box_width")];
+  return o;
+}
+
+struct TruthError {
+  double before = std::numeric_limits<double>::quiet_NaN(), after = std::numeric_limits<double>::quiet_NaN();
+  long objects = 0;
+};
+
+// A bias form's error against the truth on its held-out records: the model's prediction is the
+// outcome minus its residual (y - r), the truth the generator's mean error of the target (or its
+// detection probability); RMS of prediction minus truth with the starting model's residuals
+// (before) and the refitted model's (after). Records of other classes are left out.
+inline TruthError truth_error(const data::PlantedDraw& d, int target, const std::vector<double>& y,
+                              const std::vector<double>& before_r, const std::vector<double>& after_r,
+                              const std::vector<std::vector<double>>& features, const std::vector<int>& cls) {
+  double b = 0, a = 0;
+  TruthError out;
+  for (size_t i = 0; i < y.size(); ++i) {
+    if (cls[i] < 0 || cls[i] >= qualify::kObjectClassCount) continue;
+    const data::PlantedObject o = planted_object(features[i], cls[i]);
+    const double truth = target == qualify::kDetectionTarget
+                             ? data::planted_detection_probability(d, o)
+                             : data::planted_mean_error(d, qualify::kObjectTargets[target], o);
+    b += std::pow(y[i] - before_r[i] - truth, 2), a += std::pow(y[i] - after_r[i] - truth, 2), ++out.objects;
+  }
+  if (out.objects > 0) out.before = std::sqrt(b / out.objects), out.after = std::sqrt(a / out.objects);
+  return out;
+}
+
+// A spread form's error against the truth: RMS over held-out records of log(predicted / true sigma).
+inline TruthError truth_error_spread(const data::PlantedDraw& d, int target, const qualify::obj::AddedSpread& s) {
+  double b = 0, a = 0;
+  TruthError out;
+  for (size_t i = 0; i < s.sd_before.size(); ++i) {
+    if (s.held_class[i] < 0 || s.held_class[i] >= qualify::kObjectClassCount) continue;
+    const double truth = data::planted_sigma(d, qualify::kObjectTargets[target], planted_object(s.held_features[i], s.held_class[i]));
+    if (!(truth > 0) || !(s.sd_before[i] > 0) || !(s.sd_after[i] > 0)) continue;
+    b += std::pow(std::log(s.sd_before[i] / truth), 2), a += std::pow(std::log(s.sd_after[i] / truth), 2), ++out.objects;
+  }
+  if (out.objects > 0) out.before = std::sqrt(b / out.objects), out.after = std::sqrt(a / out.objects);
+  return out;
+}
+
+// Whether candidate c of the loop's result names the planted feature on the planted target.
+inline bool names_planted(const data::PlantedEffect& e, const qualify::obj::Candidate& c) {
+  return qualify::kObjectTargets[c.target] == e.target &&
+         std::find(e.features.begin(), e.features.end(), qualify::kObjectFeatures[c.feature]) != e.features.end();
+}
+
+// The truth figure (see above) of the term that names the planted effect, from the loop's typed
+// result; a draw where nothing names it keeps NaN and is not recalled.
+inline void truth_score(const data::PlantedDraw& d, const qualify::obj::ObjectLoopResult& R, DrawScore& s) {
+  TruthError t;
+  if (d.effect.target == data::kFalsePositivesTarget) {
+    if (s.named) t.before = s.before, t.after = s.after;
+  } else if (R.spread && names_planted(d.effect, R.candidates[R.spread->candidate])) {
+    t = truth_error_spread(d, R.candidates[R.spread->candidate].target, *R.spread);
+  } else {
+    for (const qualify::obj::AddedBias& a : R.added) {
+      const qualify::obj::Candidate& c = R.candidates[a.candidate];
+      if (!names_planted(d.effect, c)) continue;
+      const qualify::obj::Judged& J = a.judged;
+      t = truth_error(d, c.target, J.held_y, J.before_r, J.after_r, J.held_features, J.held_class);
+      break;
+    }
+  }
+  s.truth_before = t.before, s.truth_after = t.after, s.truth_objects = t.objects;
+  s.truth_recalled = s.named && t.after <= kRecallRatio * t.before;
+}
+
 struct DrawResult {
   data::PlantedDraw draw;
   DrawScore score;
@@ -227,6 +320,9 @@ inline nlohmann::json to_json(const DrawResult& r) {
           {"recalled_where_planted", r.score.where_recalled},
           {"before_where_planted", num(r.score.where_before)}, {"after_where_planted", num(r.score.where_after)},
           {"objects_where_planted", r.score.where_objects},
+          {"recalled_truth", r.score.truth_recalled},
+          {"truth_before", num(r.score.truth_before)}, {"truth_after", num(r.score.truth_after)},
+          {"truth_objects", r.score.truth_objects},
           {"ideal_before", num(r.ideal.ideal_before)}, {"ideal_after", num(r.ideal.ideal_after)}};
 }
 
@@ -246,6 +342,7 @@ inline DrawResult run_draw(data::PlantedFamily family, const data::PlantedTracki
     const nlohmann::json j = qualify::obj::report_json(R);
     r.score = score_draw(r.draw.effect, j);
     score_where_planted(r.draw, R, r.score);
+    truth_score(r.draw, R, r.score);
     r.score.above_floor = recalled_above_floor(r.score, r.ideal.ideal_after);
     r.added = nlohmann::json::array();
     for (const AddedEffect& a : loop_added_effects(j))

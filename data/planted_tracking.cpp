@@ -248,11 +248,11 @@ std::string ab3dmot_line(int frame, int cls, double score, const Eigen::Vector3d
 }
 
 // The planted feature's value scaled to [0, 1] for class_bias.
-double class_bias_x(const PlantedDraw& d, const Truth& t) {
+double class_bias_x(const PlantedDraw& d, const PlantedObject& o) {
   const std::string& f = d.effect.feature;
-  if (f == "speed") return std::clamp(t.v.norm() / 10, 0.0, 1.0);
-  if (f == "heading_to_line_of_sight") return t.aspect;
-  return std::clamp((t.azimuth - d.azimuth_lo) / std::max(d.azimuth_hi - d.azimuth_lo, 1e-6), 0.0, 1.0);
+  if (f == "speed") return std::clamp(o.speed / 10, 0.0, 1.0);
+  if (f == "heading_to_line_of_sight") return o.aspect;
+  return std::clamp((o.azimuth - d.azimuth_lo) / std::max(d.azimuth_hi - d.azimuth_lo, 1e-6), 0.0, 1.0);
 }
 
 // The errors of one detection: base draws (the same draws whatever the family, so a draw and its
@@ -272,54 +272,47 @@ double target_error(const Errors& e, const std::string& target) {
   return e.heading;
 }
 
+PlantedObject object_of(const Truth& t) {
+  PlantedObject o;
+  o.cls = t.cls, o.range = t.range, o.azimuth = t.azimuth;
+  o.radial_velocity = t.v.dot(t.u), o.speed = t.v.norm(), o.aspect = t.aspect;
+  o.occlusion = t.o->occluded, o.truncation = std::clamp(t.o->truncated, 0.0, 1.0);
+  o.length = t.o->object.size.x(), o.width = t.o->object.size.y();
+  return o;
+}
+
+// The errors of one detection: base draws (the same draws whatever the family, so a draw and its
+// control with the same seed differ only by the effect), then the planted effect's mean (the
+// public planted_mean_error, so the scorer's truth is the generator's).
 Errors draw_errors(const PlantedDraw& d, const Truth& t, TrackingRng& rng) {
   const PlantedBaseModel& b = d.base;
   const int c = t.cls;
+  const PlantedObject o = object_of(t);
   Errors e;
   e.u = uni(rng, 0, 1), e.score = uni(rng, 1, 8);
   double sa = b.along[c], sc = b.across[c];
-  const auto& p = d.effect.params;
   const PlantedFamily fam = d.effect.family;
-  if (fam == PlantedFamily::Spread) {
-    const double x = d.effect.feature == "speed" ? t.v.norm() / 10 : t.range / 40;
-    (d.effect.target == "position_along" ? sa : sc) *= 1 + p.at("gain") * x;
-  }
+  if (fam == PlantedFamily::Spread) (d.effect.target == "position_along" ? sa : sc) = planted_sigma(d, d.effect.target, o);
   e.along = sa * gauss(rng), e.across = sc * gauss(rng);
   e.size = {b.length[c] * gauss(rng), b.width[c] * gauss(rng), b.height[c] * gauss(rng)};
   e.heading = b.heading[c] * gauss(rng);
   const Errors base = e;
-  const Eigen::Vector3d& size = t.o->object.size;
-  auto size_index = [&](const std::string& target) { return target == "length" ? 0 : target == "width" ? 1 : 2; };
-  if (fam == PlantedFamily::Lag) {
-    const Eigen::Vector2d lag = -p.at("lag_s") * t.v;
-    e.along += lag.dot(t.u), e.across += lag.dot(t.left);
-  } else if (fam == PlantedFamily::AspectSize) {
-    const int k = size_index(d.effect.target);
-    e.size[k] -= p.at("share") * size[k] * (k == 0 ? 1 - t.aspect : t.aspect);
-  } else if (fam == PlantedFamily::AnnotationSize) {
-    const double level = d.effect.feature == "occlusion" ? t.o->occluded : std::clamp(t.o->truncated, 0.0, 1.0);
-    const int k = size_index(d.effect.target);
-    e.size[k] -= std::min(0.6, p.at("share_per_level") * level) * size[k];
-  } else if (fam == PlantedFamily::ClassBias && c == static_cast<int>(p.at("class"))) {
-    const double bias = p.at("amplitude") * (class_bias_x(d, t) - 0.5);
+  if (!d.effect.target.empty() && d.effect.target != "detection" && d.effect.target != kFalsePositivesTarget) {
+    const double m = planted_mean_error(d, d.effect.target, o);
     const std::string& tg = d.effect.target;
-    if (tg == "position_along") e.along += bias;
-    else if (tg == "position_across") e.across += bias;
-    else if (tg == "heading") e.heading += bias;
-    else e.size[size_index(tg)] += bias;
+    if (tg == "position_along") e.along += m;
+    else if (tg == "position_across") e.across += m;
+    else if (tg == "heading") e.heading += m;
+    else e.size[tg == "length" ? 0 : tg == "width" ? 1 : 2] += m;
   }
+  // The lag's part across the line of sight (not the planted target, and not a loop feature).
+  if (fam == PlantedFamily::Lag) e.across += -d.effect.params.at("lag_s") * t.v.dot(t.left);
   e.planted = target_error(e, d.effect.target) - target_error(base, d.effect.target);
   return e;
 }
 
 double detection_probability(const PlantedDraw& d, const Truth& t) {
-  double pd = d.base.detection[t.cls] * (1 - d.base.occlusion_loss * std::min(t.o->occluded, 2));
-  const auto& p = d.effect.params;
-  if (d.effect.family == PlantedFamily::AzimuthDropout && t.azimuth >= p.at("azimuth_lo_deg") * kDeg &&
-      t.azimuth <= p.at("azimuth_hi_deg") * kDeg)
-    pd *= p.at("factor");
-  if (d.effect.family == PlantedFamily::RangeDropout && t.range >= p.at("range_m")) pd *= p.at("factor");
-  return pd;
+  return planted_detection_probability(d, object_of(t));
 }
 
 // A false positive of class c at (range, azimuth) on the ground, its class's typical box.
@@ -428,6 +421,45 @@ PlantedFamily planted_family_from_string(const std::string& name) {
     valid += std::string(k ? ", " : "") + kPlantedFamilyNames[k];
   }
   throw Error("planted tracking: unknown family \"" + name + "\" (valid: " + valid + ")");
+}
+
+double planted_mean_error(const PlantedDraw& d, const std::string& target, const PlantedObject& o) {
+  const PlantedEffect& e = d.effect;
+  if (target != e.target) return 0;
+  const auto& p = e.params;
+  const double size = target == "length" ? o.length : o.width;
+  switch (e.family) {
+    case PlantedFamily::Lag: return target == "position_along" ? -p.at("lag_s") * o.radial_velocity : 0;
+    case PlantedFamily::AspectSize: return -p.at("share") * size * (target == "length" ? 1 - o.aspect : o.aspect);
+    case PlantedFamily::AnnotationSize: {
+      const double level = e.feature == "occlusion" ? o.occlusion : std::clamp(o.truncation, 0.0, 1.0);
+      return -std::min(0.6, p.at("share_per_level") * level) * size;
+    }
+    case PlantedFamily::ClassBias:
+      return o.cls == static_cast<int>(p.at("class")) ? p.at("amplitude") * (class_bias_x(d, o) - 0.5) : 0;
+    default: return 0;
+  }
+}
+
+double planted_detection_probability(const PlantedDraw& d, const PlantedObject& o) {
+  double pd = d.base.detection[o.cls] * (1 - d.base.occlusion_loss * std::min(o.occlusion, 2.0));
+  const auto& p = d.effect.params;
+  if (d.effect.family == PlantedFamily::AzimuthDropout && o.azimuth >= p.at("azimuth_lo_deg") * kDeg &&
+      o.azimuth <= p.at("azimuth_hi_deg") * kDeg)
+    pd *= p.at("factor");
+  if (d.effect.family == PlantedFamily::RangeDropout && o.range >= p.at("range_m")) pd *= p.at("factor");
+  return pd;
+}
+
+double planted_sigma(const PlantedDraw& d, const std::string& target, const PlantedObject& o) {
+  static const std::vector<std::string> known = {"position_along", "position_across", "length", "width", "height",
+                                                 "heading"};
+  if (std::find(known.begin(), known.end(), target) == known.end())
+    return std::numeric_limits<double>::quiet_NaN();
+  const double s = base_sigma(d.base, target, o.cls);
+  if (d.effect.family != PlantedFamily::Spread || target != d.effect.target) return s;
+  const double x = d.effect.feature == "speed" ? o.speed / 10 : o.range / 40;
+  return s * (1 + d.effect.params.at("gain") * x);
 }
 
 PlantedDraw plan_planted_tracking(PlantedFamily family, const PlantedTrackingOptions& o) {

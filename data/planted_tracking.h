@@ -119,6 +119,26 @@ struct PlantedStats {
   double ideal_after = std::numeric_limits<double>::quiet_NaN();
 };
 
+// The hidden generating model (base + plant) at one truth object, for scoring a refitted model
+// against the truth instead of against noisy outcomes (bench/campaign_objects.h truth_score). The
+// object is described by what the loop's features hold (qualify/objects/objects.h kObjectFeatures),
+// computed from the written labels as the generator computes them.
+struct PlantedObject {
+  int cls = 0;                  // index in sensor::kModelledClasses
+  double range = 0, azimuth = 0;  // BEV m, atan2(y, x) rad
+  double radial_velocity = 0, speed = 0;  // m/s: velocity along the line of sight, its norm
+  double aspect = 0;            // heading to the line of sight folded to [0, 1] (0 end-on)
+  double occlusion = 0, truncation = 0;  // the label's level (0..3) and truncation in [0, 1]
+  double length = 0, width = 0;  // the truth box's, m
+};
+// The mean of `target`'s error (the base's errors are zero-mean: the plant's part only).
+double planted_mean_error(const PlantedDraw& d, const std::string& target, const PlantedObject& o);
+// The detection probability (base x occlusion x the planted dropout).
+double planted_detection_probability(const PlantedDraw& d, const PlantedObject& o);
+// The sigma of `target`'s error (the base's, x the planted growth for the spread family); NaN for
+// a target the base has no sigma of.
+double planted_sigma(const PlantedDraw& d, const std::string& target, const PlantedObject& o);
+
 // Writes DIR/label_02, DIR/calib, DIR/detection/pointrcnn_<Class>_val and DIR/evaluate_tracking.seqmap.val.
 PlantedStats write_planted_tracking(const std::filesystem::path& dir, const PlantedDraw& draw);
 

@@ -1,7 +1,9 @@
 #include "qualify/objects/object_candidates.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <map>
 #include <numeric>
 #include <sstream>
 
@@ -20,14 +22,64 @@ std::string to_string(Kind k) {
     case Kind::RateWindow: return "rate_window";
     case Kind::SpreadTable: return "spread_table";
     case Kind::SpreadWindow: return "spread_window";
+    case Kind::SpreadGrowth: return "spread_growth";
   }
   return "?";
 }
-bool is_spread(Kind k) { return k == Kind::SpreadTable || k == Kind::SpreadWindow; }
+bool is_spread(Kind k) { return k == Kind::SpreadTable || k == Kind::SpreadWindow || k == Kind::SpreadGrowth; }
 bool is_window(Kind k) { return k == Kind::MeanWindow || k == Kind::RateWindow || k == Kind::SpreadWindow; }
 std::vector<Kind> kinds_for(int target) {
   if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow};
-  return {Kind::MeanTable, Kind::MeanWindow, Kind::MeanLine, Kind::SpreadTable, Kind::SpreadWindow};
+  return {Kind::MeanTable, Kind::MeanWindow, Kind::MeanLine, Kind::SpreadTable, Kind::SpreadWindow, Kind::SpreadGrowth};
+}
+bool kind_applies(Kind kind, const std::string& feature) { return kind != Kind::SpreadGrowth || feature == "range"; }
+
+BinnedTable fit_scale_growth(const std::vector<double>& x, const std::vector<double>& u2, const std::vector<int>& cell,
+                             double* k_out) {
+  std::map<int, std::array<double, 4>> bins;  // per cell: sum x, n, min x, max x
+  for (size_t i = 0; i < x.size(); ++i) {
+    auto [it, fresh] = bins.try_emplace(cell[i], std::array<double, 4>{0, 0, x[i], x[i]});
+    auto& b = it->second;
+    b[0] += x[i], b[1] += 1, b[2] = std::min(b[2], x[i]), b[3] = std::max(b[3], x[i]);
+  }
+  std::vector<double> lr(x.size(), 0.0);  // log(x / its cell's mean x)
+  for (size_t i = 0; i < x.size(); ++i) {
+    const double m = bins[cell[i]][0] / bins[cell[i]][1];
+    if (x[i] > 0 && m > 0) lr[i] = std::log(x[i] / m);
+  }
+  // Negative log-likelihood in k (u2 ~ scale^2 chi2_1): sum 2 k lr + u2 exp(-2 k lr); convex in k.
+  auto nll = [&](double k) {
+    double s = 0;
+    for (size_t i = 0; i < x.size(); ++i) s += 2 * k * lr[i] + u2[i] * std::exp(-2 * k * lr[i]);
+    return s;
+  };
+  double a = -1, b = 3;
+  for (int it = 0; it < 60; ++it) {
+    const double m1 = a + (b - a) / 3, m2 = b - (b - a) / 3;
+    if (nll(m1) < nll(m2)) b = m2;
+    else a = m1;
+  }
+  const double k = 0.5 * (a + b);
+  if (k_out) *k_out = k;
+  BinnedTable t;
+  constexpr int kSub = 8;
+  std::vector<std::array<double, 3>> spans;  // lo, hi, mean of each cell, by ascending range
+  for (const auto& [c, v] : bins)
+    if (v[1] > 0) spans.push_back({v[2], v[3], v[0] / v[1]});
+  std::sort(spans.begin(), spans.end());
+  for (size_t j = 0; j < spans.size(); ++j) {
+    const auto [lo, hi, m] = spans[j];
+    if (j > 0) t.edges.push_back(0.5 * (spans[j - 1][1] + lo));
+    const double w = (hi - lo) / kSub;
+    for (int q = 0; q < kSub; ++q) {
+      if (q > 0) t.edges.push_back(lo + q * w);
+      const double centre = lo + (q + 0.5) * w;
+      t.value.push_back(centre > 0 && m > 0 ? std::pow(centre / m, k) : 1.0);
+      t.count.push_back(0);
+    }
+  }
+  if (t.value.empty()) t.value = {1.0}, t.count = {0};
+  return t;
 }
 
 namespace {
@@ -152,6 +204,10 @@ std::string form_of(const Effect& e) {
     o << "line, pooled slope " << fmt(slope, 4) << " per unit (per class where >= 200 samples)";
     return o.str();
   }
+  if (e.kind == Kind::SpreadGrowth) {
+    o << "growth within the model's range bins: sigma x (range / bin mean range)^" << fmt(e.growth, 3);
+    return o.str();
+  }
   if (!is_window(e.kind)) {
     o << "table, " << t.value.size() << " bins" << (is_spread(e.kind) ? "" : " (per class where >= 200 samples)");
     return o.str();
@@ -202,7 +258,8 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
       if (k.shrink_terms != TermShrink::Off) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
       break;
     case Kind::SpreadTable:
-    case Kind::SpreadWindow: {
+    case Kind::SpreadWindow:
+    case Kind::SpreadGrowth: {
       std::map<std::pair<int, int>, std::array<double, 3>> acc;  // sum, sum of squares, n
       PerClass<std::array<double, 3>> by_class{};
       for (size_t i = 0; i < r.size(); ++i) {
@@ -227,7 +284,9 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
         const double u = (r[i] - e.mean(cls[i], cells[i])) / e.sd(cls[i], cells[i]);
         u2[i] = u * u;
       }
-      if (kind == Kind::SpreadWindow) {
+      if (kind == Kind::SpreadGrowth) {
+        e.scale = fit_scale_growth(x, u2, cells, &e.growth);
+      } else if (kind == Kind::SpreadWindow) {
         e.scale = fit_scale_window(x, u2, 4 * bins);
       } else {
         for (double& v : u2) v -= 1;  // shrink towards a scale of 1

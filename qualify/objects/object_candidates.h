@@ -9,6 +9,10 @@
 //   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
 //   spread_table   the error's sigma x a scale per bin (pooled over classes)     Gaussian deviance
 //   spread_window  the error's sigma x one scale inside, one outside a window    Gaussian deviance
+//   spread_growth  range only: the error's sigma x (range / its range bin's mean   Gaussian deviance
+//                  range)^k, one k: a sigma that grows with range within the model's own range
+//                  bins (the model holds a sigma per range bin; equal-count bins of range straddle
+//                  its edges and score about 0 on what is left)
 // A window is the best contiguous run of up to 40 equal-count bins of the fit split (a run that
 // touches an end is a step), chosen by the between-groups sum of squares (bias forms) or the
 // Gaussian likelihood ratio of two variances (spread forms); at least 30 fit samples each side.
@@ -28,11 +32,18 @@
 
 namespace lidarsim::qualify::obj {
 
-enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine };
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth };
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);
 std::vector<Kind> kinds_for(int target);  // errors: mean and spread forms; detection: rate forms
+// Whether form `kind` applies to feature `feature` (spread_growth: range only).
+bool kind_applies(Kind kind, const std::string& feature);
+// The spread_growth scale: per range bin `cell` (its fit records' mean x), sigma x (x / mean)^k with
+// one k by maximum likelihood of the squared standardised residuals u2 (a sigma the model's bins
+// hold on average, growing within each); as a table of 8 equal-width sub-bins per range bin.
+BinnedTable fit_scale_growth(const std::vector<double>& x, const std::vector<double>& u2, const std::vector<int>& cell,
+                             double* k_out = nullptr);
 
 // Whether the base KPI model (sensor/kpi_model.h) already conditions target t on the feature in
 // the form `kind`, so the candidate would only refit what the model has (kObjectModelConditions):
@@ -50,6 +61,7 @@ struct Effect {
   BinnedTable scale;  // spread forms: sigma multiplier per bin of the feature (pooled over classes)
   std::map<std::pair<int, int>, double> cell_mean, cell_sd;  // spread forms: per (class, range bin), fit split
   double class_sd[kObjectClassCount] = {1, 1, 1};
+  double growth = 0;  // spread_growth: the exponent k
   double mean(int cls, int cell) const;
   double sd(int cls, int cell) const;
 };

@@ -183,6 +183,7 @@ void rank(LoopContext& L, ObjectLoopResult& R) {
       if (!enough) continue;
       const std::array<std::vector<int>, 2> blocks_t = {S.block[0][t], S.block[1][t]};
       for (Kind kind : kinds_for(t)) {
+        if (!kind_applies(kind, kObjectFeatures[f])) continue;
         Candidate c = judge_candidate(S.folds, t, static_cast<int>(f), kind, L.nvis, L.options.bins, blocks_t,
                                       S.nblocks);
         c.fold_set = set_of(f);

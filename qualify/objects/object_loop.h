@@ -82,6 +82,9 @@ struct Judged {
   // be read on any group of objects (bench/campaign_objects.h: where a planted effect acts).
   std::vector<std::vector<double>> held_features;
   std::vector<int> held_class;  // per held-out record: its class (kObjectClasses; -1 other)
+  // Per held-out record: its outcome (the error, or detected 0/1), so the model's prediction before
+  // (held_y - before_r) and after (held_y - after_r) can be scored against a known truth.
+  std::vector<double> held_y;
   std::array<std::pair<double, double>, 2> fold_rms{};  // per fold: RMS before, after
   std::array<double, 2> change{0, 0};  // of the winsorised RMS (detection: deviance per object)
   int tracks = 0, tracks_better = 0;
@@ -111,6 +114,11 @@ struct AddedBias {
 // The spread form added when no bias form is.
 struct AddedSpread {
   int candidate = 0;
+  // Per held-out record of both folds: its features, class, and the sigma predicted before (the
+  // fold's base) and after (with the spread form), so the form can be scored against a known truth.
+  std::vector<std::vector<double>> held_features;
+  std::vector<int> held_class;
+  std::vector<double> sd_before, sd_after;
   std::array<std::pair<double, double>, 2> fold{};  // held-out spread error per fold: before, after
   double before_simulated = kNaN, after_simulated = kNaN;
   Effect whole;  // refitted on every sequence

@@ -161,7 +161,7 @@ void add_further(LoopContext& L, ObjectLoopResult& R) {
 
 // No bias form added: the best spread form is, if it clears the threshold, its score's
 // block-bootstrap interval lies above 0 and the KPI manager can compute its feature.
-void add_spread(ObjectLoopResult& R) {
+void add_spread(const LoopContext& L, ObjectLoopResult& R) {
   if (R.top_added() || R.spread_ranking.empty()) return;
   const int i = R.spread_ranking.front();
   const Candidate& sp = R.candidates[i];
@@ -179,6 +179,17 @@ void add_spread(ObjectLoopResult& R) {
                                              " with 95 % interval " + interval_text(sp.interval) + " above 0"};
   R.spread = AddedSpread{};
   R.spread->candidate = i;
+  // The form's sigma per held-out record, before and after, as the candidate was judged.
+  const FoldSet& S = L.set_of(sp);
+  for (int k = 0; k < 2; ++k) {
+    const Losses H = held_losses(S.folds[k], fit_effect(S.folds[k], sp.target, sp.feature, sp.kind, L.nvis,
+                                                        L.options.bins), L.nvis);
+    const Split& h = S.folds[k].held_r[sp.target];
+    for (size_t r = 0; r < H.sd_before.size(); ++r) {
+      R.spread->held_features.push_back(h.rec[r]->feature), R.spread->held_class.push_back(h.rec[r]->cls);
+      R.spread->sd_before.push_back(H.sd_before[r]), R.spread->sd_after.push_back(H.sd_after[r]);
+    }
+  }
 }
 
 // Why each candidate still undecided (its score clears the threshold, its interval lies above 0)
@@ -228,7 +239,7 @@ void settle_untried(ObjectLoopResult& R) {
 void add(LoopContext& L, ObjectLoopResult& R) {
   add_top(L, R);
   add_further(L, R);
-  add_spread(R);
+  add_spread(L, R);
   settle_untried(R);
 }
 

@@ -49,7 +49,8 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
       }
     }
     J.fold_rms[k] = {rms(h.r), rms(a)};
-    for (const ObjectRecord* r : h.rec) J.held_features.push_back(r->feature), J.held_class.push_back(r->cls);
+    for (const ObjectRecord* r : h.rec)
+      J.held_features.push_back(r->feature), J.held_class.push_back(r->cls), J.held_y.push_back(r->value[t]);
     J.before_r.insert(J.before_r.end(), h.r.begin(), h.r.end());
     J.after_r.insert(J.after_r.end(), a.begin(), a.end());
   }

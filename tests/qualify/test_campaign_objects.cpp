@@ -224,3 +224,116 @@ TEST(CampaignObjects, ADropoutIsAlsoScoredOnTheObjectsItActsOn) {
   EXPECT_FALSE(e.where_recalled);
   EXPECT_EQ(e.where_objects, 0);
 }
+
+namespace {
+
+std::vector<double> object_features(double radial_velocity, double azimuth_deg, double range) {
+  std::vector<double> f(qualify::kObjectFeatures.size(), 0.0);
+  f[qualify::obj::feature_index("radial_velocity")] = radial_velocity;
+  f[qualify::obj::feature_index("speed")] = std::abs(radial_velocity);
+  f[qualify::obj::feature_index("azimuth")] = azimuth_deg * kDeg;
+  f[qualify::obj::feature_index("range")] = range;
+  return f;
+}
+
+qualify::obj::Candidate candidate(const std::string& feature, int target) {
+  qualify::obj::Candidate c;
+  c.feature = qualify::obj::feature_index(feature), c.target = target;
+  return c;
+}
+
+}  // namespace
+
+// The truth scorer reads the model's prediction (outcome minus residual) against the hidden
+// generating model: a perfect model scores 0 whatever the outcome noise, a model without the effect
+// scores the plant's own size, half the effect half of it.
+TEST(CampaignObjects, TruthScoreIsZeroForAPerfectModelAndThePlantsSizeWithoutTheEffect) {
+  data::PlantedDraw d;
+  d.effect.family = data::PlantedFamily::Lag, d.effect.feature = "radial_velocity";
+  d.effect.features = {"radial_velocity"}, d.effect.target = "position_along", d.effect.params = {{"lag_s", 0.2}};
+  const int along = 0;
+  qualify::obj::ObjectLoopResult R;
+  R.candidates = {candidate("radial_velocity", along)};
+  qualify::obj::AddedBias perfect, without, half;
+  double plant = 0;
+  for (int i = 0; i < 40; ++i) {
+    const double rv = -5 + 0.25 * i, mu = -0.2 * rv, y = mu + (i % 2 ? 0.3 : -0.3);  // outcome noise +-0.3
+    plant += mu * mu / 40;
+    for (auto* a : {&perfect, &without, &half}) {
+      a->judged.held_features.push_back(object_features(rv, 0, 20)), a->judged.held_class.push_back(0);
+      a->judged.held_y.push_back(y), a->judged.before_r.push_back(y);  // the starting model predicts 0
+    }
+    perfect.judged.after_r.push_back(y - mu), without.judged.after_r.push_back(y), half.judged.after_r.push_back(y - mu / 2);
+  }
+  auto score = [&](const qualify::obj::AddedBias& a) {
+    R.added = {a};
+    bench::DrawScore s;
+    s.named = true;
+    bench::truth_score(d, R, s);
+    return s;
+  };
+  const auto p = score(perfect), w = score(without), h = score(half);
+  EXPECT_NEAR(p.truth_before, std::sqrt(plant), 1e-12);
+  EXPECT_NEAR(p.truth_after, 0, 1e-12);
+  EXPECT_TRUE(p.truth_recalled);
+  EXPECT_NEAR(w.truth_after, std::sqrt(plant), 1e-12);
+  EXPECT_FALSE(w.truth_recalled);
+  EXPECT_NEAR(h.truth_after, std::sqrt(plant) / 2, 1e-12);
+  EXPECT_EQ(p.truth_objects, 40);
+  // Not named: no truth figure, not recalled.
+  R.added.clear();
+  bench::DrawScore none;
+  bench::truth_score(d, R, none);
+  EXPECT_FALSE(none.truth_recalled);
+  EXPECT_TRUE(std::isnan(none.truth_after));
+}
+
+// Detection: predicted against the true detection probability (base x the planted dropout), so
+// the 0/1 outcome's Bernoulli noise is not in the figure.
+TEST(CampaignObjects, TruthScoreOfADropoutIsTheProbabilityError) {
+  data::PlantedDraw d;
+  d.effect.family = data::PlantedFamily::AzimuthDropout, d.effect.feature = "azimuth";
+  d.effect.features = {"azimuth"}, d.effect.target = "detection";
+  d.effect.params = {{"azimuth_lo_deg", 10.0}, {"azimuth_hi_deg", 30.0}, {"factor", 0.2}};
+  d.base.detection = {0.9, 0.8, 0.8}, d.base.occlusion_loss = 0.1;
+  qualify::obj::ObjectLoopResult R;
+  R.candidates = {candidate("azimuth", qualify::kDetectionTarget)};
+  qualify::obj::AddedBias a;
+  for (int i = 0; i < 20; ++i) {
+    const double az = i < 5 ? 20 : -40, p = i < 5 ? 0.18 : 0.9, y = i % 3 ? 1 : 0;
+    a.judged.held_features.push_back(object_features(0, az, 20)), a.judged.held_class.push_back(0);
+    a.judged.held_y.push_back(y), a.judged.before_r.push_back(y - 0.9), a.judged.after_r.push_back(y - p);
+  }
+  R.added = {a};
+  bench::DrawScore s;
+  s.named = true;
+  bench::truth_score(d, R, s);
+  EXPECT_NEAR(s.truth_before, std::sqrt(5.0 / 20) * 0.72, 1e-12);  // 0.9 - 0.18 on a quarter of the objects
+  EXPECT_NEAR(s.truth_after, 0, 1e-12);
+  EXPECT_TRUE(s.truth_recalled);
+}
+
+// Spread: log of predicted over true sigma; the base sigma scores the planted growth, the grown
+// sigma 0.
+TEST(CampaignObjects, TruthScoreOfASpreadIsTheLogSigmaError) {
+  data::PlantedDraw d;
+  d.effect.family = data::PlantedFamily::Spread, d.effect.feature = "range";
+  d.effect.features = {"range"}, d.effect.target = "position_across", d.effect.params = {{"gain", 2.0}};
+  d.base.across = {0.1, 0.08, 0.1};
+  qualify::obj::ObjectLoopResult R;
+  R.candidates = {candidate("range", 1)};
+  R.spread = qualify::obj::AddedSpread{};
+  double plant = 0;
+  for (int i = 0; i < 10; ++i) {
+    const double range = 4.0 * (i + 1), truth = 0.1 * (1 + 2 * range / 40);
+    plant += std::pow(std::log(truth / 0.1), 2) / 10;
+    R.spread->held_features.push_back(object_features(0, 0, range)), R.spread->held_class.push_back(0);
+    R.spread->sd_before.push_back(0.1), R.spread->sd_after.push_back(truth);
+  }
+  bench::DrawScore s;
+  s.named = true;
+  bench::truth_score(d, R, s);
+  EXPECT_NEAR(s.truth_before, std::sqrt(plant), 1e-12);
+  EXPECT_NEAR(s.truth_after, 0, 1e-12);
+  EXPECT_TRUE(s.truth_recalled);
+}
