@@ -3,8 +3,9 @@
 // model library stays loaded once loaded (RTLD_NODELETE), so the tests of a process share one
 // unpacked copy (unpacked_fmu()); a second, separate copy (unpacked_fmu_copy()) is what an
 // importer that unpacks every instance into its own folder loads next to the first.
-// LIDARSIM_TEST_FMU, when set, names another .fmu to unpack instead: an older build, or the
-// ThreadSanitizer build's FMU (docs/osi.md), run by the same tests.
+// LIDARSIM_TEST_FMU, when set, names another .fmu to unpack instead (an older build), or a folder
+// holding one unpacked, which is copied without a shell (the ThreadSanitizer run of docs/osi.md
+// preloads libtsan into this uninstrumented test, and /bin/sh crashes under it).
 #include <unistd.h>
 
 #include <cstdlib>
@@ -25,7 +26,13 @@ struct UnpackedFmu {
     const char* other = std::getenv("LIDARSIM_TEST_FMU");
     const std::string fmu =
         other && *other ? std::string(other) : std::string(LIDARSIM_BINARY_DIR) + "/lidarsim_osi.fmu";
-    if (std::system(("cd " + d.string() + " && cmake -E tar xf " + fmu).c_str()) == 0) dir = d;
+    std::error_code ec;
+    if (std::filesystem::is_directory(fmu)) {
+      std::filesystem::copy(fmu, d, std::filesystem::copy_options::recursive, ec);
+      if (!ec) dir = d;
+    } else if (std::system(("cd " + d.string() + " && cmake -E tar xf " + fmu).c_str()) == 0) {
+      dir = d;
+    }
   }
   ~UnpackedFmu() {
     std::error_code ec;
