@@ -4,15 +4,15 @@
 // same OsiRunner as `lidar-infer osi`.
 //
 // This library holds only the FMI side and passes bytes; the model (lidarsim_osi_model.so, next
-// to it) is dlopen'ed with its symbols kept local. It carries the schema under its own package
-// name (infer/fmu/CMakeLists.txt): importers register the official OSI messages in their
-// libprotobuf, and a second registration of osi3.SensorView in that process-wide pool would abort
-// (tests/osi/test_fmu.cpp runs in a process that has our osi3 registered). dlmopen would isolate
-// libprotobuf too, but a second libc in the process shares the threads' pthread key slots with the
-// first and corrupted the importer's thread-local data.
+// to it) is dlopen'ed with its symbols kept local. Neither library links libprotobuf or exports
+// anything but its entry points (exports.map, model_exports.map), so the model keeps nothing in a
+// process-wide registry: an importer's own libprotobuf and OSI classes do not meet ours, and an
+// importer that unpacks the FMU once per instance may load two copies side by side
+// (tests/osi/test_fmu_multi.cpp). dlmopen is not used: a second libc in the process shares the
+// threads' pthread key slots with the first and corrupted the importer's thread-local data.
 //
-// The model files (intensity_unet.h5, kpi_pointrcnn.json and sensor.json, a scenario whose sensor
-// block gives beams, field of view and range) are read from the FMU's resources folder
+// The model files (intensity_unet.weights, kpi_pointrcnn.json and sensor.json, a scenario whose
+// sensor block gives beams, field of view and range) are read from the FMU's resources folder
 // (fmuResourceLocation), else from the resources folder of the unpacked FMU the library sits in
 // (binaries/linux64/../../resources), else from a "resources" folder next to the library.
 //

@@ -166,54 +166,45 @@ TEST(OsiConventions, FirstLidarViewWithAMountIsUsedWhenTheTopLevelOneIsAbsent) {
 TEST(OsiConventions, TopLevelMountGovernsTheObjectsAndTheViewConfigurationsMountItsDetections) {
   // OSI: SensorView.mounting_position is the virtual sensor's mount, which governs the detected
   // objects; a view configuration's is one physical detector's, which governs its features.
-  std::vector<osi3::SensorView> both, top_only, lidar_only;
-  for (int k = 0; k < 1; ++k) {  // one frame: the detectors are built on the first
-    both.push_back(scene_at(0.1 * k));
-    set_mount(*both.back().mutable_mounting_position(), 1.0, 1.43);
-    set_mount(*both.back().add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.5,
-              1.1, 0.3);
-    top_only.push_back(scene_at(0.1 * k));
-    set_mount(*top_only.back().mutable_mounting_position(), 1.0, 1.43);
-    lidar_only.push_back(scene_at(0.1 * k));
-    set_mount(*lidar_only.back().add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(),
-              2.5, 1.1, 0.3);
-  }
-  const auto b = run_conventions_cli(both, true), t = run_conventions_cli(top_only, true), l = run_conventions_cli(lidar_only, true);
-  for (std::size_t k = 0; k < b.size(); ++k) {
-    EXPECT_TRUE(without_features(b[k]) == without_features(t[k])) << "frame " << k;
-    EXPECT_FALSE(without_features(b[k]) == without_features(l[k]))
-        << "frame " << k << ": the two mounts give the same objects, the rule is untested";
-    const osi3::SensorData db = parsed(b[k]), dt = parsed(t[k]), dl = parsed(l[k]);
-    ASSERT_EQ(db.feature_data().lidar_sensor_size(), 1);
-    EXPECT_TRUE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
-                dl.feature_data().lidar_sensor(0).SerializeAsString())
-        << "frame " << k << ": the detections are not in the detector's own frame";
-    EXPECT_FALSE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
-                 dt.feature_data().lidar_sensor(0).SerializeAsString());
-  }
+  // One frame: the detectors are built on the first, which is where the mounts are read.
+  osi3::SensorView both = scene_at(0), top_only = scene_at(0), lidar_only = scene_at(0);
+  set_mount(*both.mutable_mounting_position(), 1.0, 1.43);
+  set_mount(*both.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.5, 1.1, 0.3);
+  set_mount(*top_only.mutable_mounting_position(), 1.0, 1.43);
+  set_mount(*lidar_only.add_lidar_sensor_view()->mutable_view_configuration()->mutable_mounting_position(), 2.5, 1.1,
+            0.3);
+  const std::string b = run_conventions_cli({both}, true)[0], t = run_conventions_cli({top_only}, true)[0],
+                    l = run_conventions_cli({lidar_only}, true)[0];
+  EXPECT_TRUE(without_features(b) == without_features(t));
+  EXPECT_FALSE(without_features(b) == without_features(l))
+      << "the two mounts give the same objects, the rule is untested";
+  const osi3::SensorData db = parsed(b), dt = parsed(t), dl = parsed(l);
+  ASSERT_EQ(db.feature_data().lidar_sensor_size(), 1);
+  EXPECT_TRUE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
+              dl.feature_data().lidar_sensor(0).SerializeAsString())
+      << "the detections are not in the detector's own frame";
+  EXPECT_FALSE(db.feature_data().lidar_sensor(0).SerializeAsString() ==
+               dt.feature_data().lidar_sensor(0).SerializeAsString());
 }
 
 TEST(OsiConventions, SeveralLidarViewsAreAnsweredPerDetectorWithTheirOwnSensorIdAndMount) {
   // Two detectors of one virtual sensor (id 7): one at the virtual mount (id 70), one on the
   // right (id 71). Each gets its own lidar_sensor entry, the same as that detector alone.
-  std::vector<osi3::SensorView> two, first, second;
-  for (int k = 0; k < 1; ++k) {  // one frame: the detectors are built on the first
-    two.push_back(scene_at(0.1 * k));
-    set_mount(*two.back().mutable_mounting_position(), 1.0, 1.43);
-    auto* c0 = two.back().add_lidar_sensor_view()->mutable_view_configuration();
-    c0->mutable_sensor_id()->set_value(70);
-    auto* c1 = two.back().add_lidar_sensor_view()->mutable_view_configuration();
-    c1->mutable_sensor_id()->set_value(71);
-    set_mount(*c1->mutable_mounting_position(), 2.5, 1.1, -0.3);
-    first.push_back(scene_at(0.1 * k));
-    set_mount(*first.back().mutable_mounting_position(), 1.0, 1.43);
-    second.push_back(scene_at(0.1 * k));
-    set_mount(*second.back().mutable_mounting_position(), 2.5, 1.1, -0.3);
-  }
-  const auto b = run_conventions_cli(two, true), f = run_conventions_cli(first, true), s = run_conventions_cli(second, true);
-  const osi3::SensorData d = parsed(b.back()), df = parsed(f.back()), ds = parsed(s.back());
+  // One frame: the detectors are built on the first.
+  osi3::SensorView two = scene_at(0), first = scene_at(0), second = scene_at(0);
+  set_mount(*two.mutable_mounting_position(), 1.0, 1.43);
+  auto* c0 = two.add_lidar_sensor_view()->mutable_view_configuration();
+  c0->mutable_sensor_id()->set_value(70);
+  auto* c1 = two.add_lidar_sensor_view()->mutable_view_configuration();
+  c1->mutable_sensor_id()->set_value(71);
+  set_mount(*c1->mutable_mounting_position(), 2.5, 1.1, -0.3);
+  set_mount(*first.mutable_mounting_position(), 1.0, 1.43);
+  set_mount(*second.mutable_mounting_position(), 2.5, 1.1, -0.3);
+  const std::string b = run_conventions_cli({two}, true)[0], f = run_conventions_cli({first}, true)[0],
+                    s = run_conventions_cli({second}, true)[0];
+  const osi3::SensorData d = parsed(b), df = parsed(f), ds = parsed(s);
   EXPECT_EQ(d.sensor_id().value(), 7u);
-  EXPECT_TRUE(without_features(b.back()) == without_features(f.back()));
+  EXPECT_TRUE(without_features(b) == without_features(f));
   ASSERT_EQ(d.feature_data().lidar_sensor_size(), 2);
   const auto& l0 = d.feature_data().lidar_sensor(0);
   const auto& l1 = d.feature_data().lidar_sensor(1);

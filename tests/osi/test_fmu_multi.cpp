@@ -158,6 +158,37 @@ class Instance {
 
 using Outputs = std::vector<std::vector<std::string>>;  // [lidar][frame]
 
+// Lidar i on fmus[i], all lidars' frames stepped one after the other (frame by frame, lidar by
+// lidar: the instances alternate) or each lidar in a thread of its own.
+Outputs run_in_turn(const std::vector<const Fmu*>& fmus, const Outputs& views) {
+  Outputs out(kLidarCount, std::vector<std::string>(kFrames));
+  std::vector<std::unique_ptr<Instance>> insts;
+  for (int i = 0; i < kLidarCount; ++i) insts.push_back(std::make_unique<Instance>(*fmus[i], kLidars[i]));
+  for (int k = 0; k < kFrames; ++k)
+    for (int i = 0; i < kLidarCount; ++i) out[i][k] = insts[i]->step(views[i][k], k);
+  return out;
+}
+Outputs run_threaded(const std::vector<const Fmu*>& fmus, const Outputs& views) {
+  Outputs out(kLidarCount, std::vector<std::string>(kFrames));
+  std::vector<std::unique_ptr<Instance>> insts;
+  for (int i = 0; i < kLidarCount; ++i) insts.push_back(std::make_unique<Instance>(*fmus[i], kLidars[i]));
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kLidarCount; ++i)
+    threads.emplace_back([&, i] {
+      for (int k = 0; k < kFrames; ++k) out[i][k] = insts[i]->step(views[i][k], k);
+    });
+  for (std::thread& t : threads) t.join();
+  return out;
+}
+
+void expect_same(const Outputs& got, const Outputs& alone, const char* how) {
+  for (int i = 0; i < kLidarCount; ++i)
+    for (int k = 0; k < kFrames; ++k) {
+      ASSERT_FALSE(alone[i][k].empty()) << kLidars[i].layout << " frame " << k;
+      EXPECT_TRUE(got[i][k] == alone[i][k]) << kLidars[i].layout << " frame " << k << ": " << how;
+    }
+}
+
 std::string g_logged;
 void multi_logger(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String, fmi2String message, ...) {
   char text[2048];
@@ -200,30 +231,36 @@ TEST(OsiFmuMulti, OneInstancePerLidarGivesTheSameBytesAloneInTurnAndInParallelTh
   }
   EXPECT_NE(alone[0][kFrames - 1], alone[1][kFrames - 1]);
 
-  Outputs in_turn(kLidarCount, std::vector<std::string>(kFrames));
-  {
-    std::vector<std::unique_ptr<Instance>> insts;
-    for (const Lidar& l : kLidars) insts.push_back(std::make_unique<Instance>(fmu, l));
-    for (int k = 0; k < kFrames; ++k)
-      for (int i = 0; i < kLidarCount; ++i) in_turn[i][k] = insts[i]->step(views[i][k], k);
+  expect_same(run_in_turn({&fmu, &fmu}, views), alone, "in turn");
+  expect_same(run_threaded({&fmu, &fmu}, views), alone, "in parallel threads");
+}
+
+// An importer that unpacks every instance into a folder of its own loads two copies of the
+// libraries (two paths, two files: two dlopen'ed objects with their own static state). Each copy
+// must run as if it were alone, whether the copies' instances alternate or run in two threads:
+// nothing may be registered process-wide (the libprotobuf-linked model aborted here, registering
+// its schema a second time) and no symbol of one copy may bind to the other's (only fmi2* and
+// lidarsim_osi_model_* are exported; infer/fmu/*exports.map).
+TEST(OsiFmuMulti, TwoUnpackedCopiesInOneProcessGiveTheSameBytesAlternatelyAndInTwoThreads) {
+  const Fmu a(lidarsim::testing::unpacked_fmu()), b(lidarsim::testing::unpacked_fmu_copy());
+  ASSERT_TRUE(a.ok() && b.ok()) << "cannot unpack or load " << LIDARSIM_BINARY_DIR << "/lidarsim_osi.fmu twice";
+  ASSERT_NE(a.lib, b.lib) << "the second folder's library is the first one again";
+  Outputs views(kLidarCount);
+  for (int i = 0; i < kLidarCount; ++i) views[i] = views_of(kLidars[i]);
+  // Each lidar alone on its copy, the other copy loaded but idle.
+  Outputs alone(kLidarCount, std::vector<std::string>(kFrames));
+  const Fmu* copies[kLidarCount] = {&a, &b};
+  for (int i = 0; i < kLidarCount; ++i) {
+    Instance inst(*copies[i], kLidars[i]);
+    ASSERT_TRUE(inst.ok()) << kLidars[i].layout;
+    for (int k = 0; k < kFrames; ++k) alone[i][k] = inst.step(views[i][k], k);
   }
-  Outputs threaded(kLidarCount, std::vector<std::string>(kFrames));
-  {
-    std::vector<std::unique_ptr<Instance>> insts;
-    for (const Lidar& l : kLidars) insts.push_back(std::make_unique<Instance>(fmu, l));
-    std::vector<std::thread> threads;
-    for (int i = 0; i < kLidarCount; ++i)
-      threads.emplace_back([&, i] {
-        for (int k = 0; k < kFrames; ++k) threaded[i][k] = insts[i]->step(views[i][k], k);
-      });
-    for (std::thread& t : threads) t.join();
-  }
-  for (int i = 0; i < kLidarCount; ++i)
-    for (int k = 0; k < kFrames; ++k) {
-      ASSERT_FALSE(alone[i][k].empty()) << kLidars[i].layout << " frame " << k;
-      EXPECT_TRUE(in_turn[i][k] == alone[i][k]) << kLidars[i].layout << " frame " << k << ": in turn";
-      EXPECT_TRUE(threaded[i][k] == alone[i][k]) << kLidars[i].layout << " frame " << k << ": in parallel threads";
-    }
+  expect_same(run_in_turn({&a, &b}, views), alone, "two copies in turn");
+  expect_same(run_threaded({&a, &b}, views), alone, "two copies in two threads");
+  // And the copies compute the same model: lidar 0 on the second copy as on the first.
+  Instance on_b(b, kLidars[0]);
+  ASSERT_TRUE(on_b.ok());
+  EXPECT_TRUE(on_b.step(views[0][0], 0) == alone[0][0]) << "the second copy differs from the first";
 }
 
 TEST(OsiFmuMulti, UnknownSensorLayoutFailsInitializationNamingTheLayouts) {
