@@ -13,7 +13,7 @@ installed=$(date +%s)
 # a few translation units), without the tests, benchmarks and the FMU, whose targets it would
 # otherwise configure (the FMU keeps the libraries per file). scripts/test.sh builds the tests and
 # scripts/bench.sh the benchmarks, in build/. Same code, same flags: the outputs are the same
-# bytes as from a per-file build (docs/performance.md, "Build time").
+# bytes as from a per-file build (docs/testing.md, "The demo's build").
 build_dir=${LIDARSIM_BUILD_DIR:-build-demo}
 echo "demo: building lidar-infer in $build_dir/ (the first time takes a few minutes on 2 cores)" >&2
 # Ninja's progress line: files done of all, and seconds since the build started.
