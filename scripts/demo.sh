@@ -39,3 +39,4 @@ echo "  $out/bev_NNNN.png    bird's-eye view per frame: ground truth, reported o
 echo "  $out/pgm_NNNN.png    PGM channels per frame: range, class, material, predicted intensity"
 echo "  $out/cloud_NNNN.pcd  point clouds with intensity (open in CloudCompare or Open3D)"
 echo "  $out/objects_NNNN.csv|json, lanes_NNNN.json   object lists and lane polynomials"
+echo "demo: it ran $build_dir/infer/lidar-infer; scripts/bootstrap.sh --build builds every command into build/"
