@@ -30,9 +30,11 @@ fi
 ((build)) || exit 0
 
 build_dir=${LIDARSIM_BUILD_DIR:-build}
-# Per-file build with the benchmarks unless LIDARSIM_CMAKE_ARGS says otherwise (scripts/test.sh
-# asks for a unity build without them; without this, its choice would stay in build/'s cache).
-settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} -DCMAKE_UNITY_BUILD=OFF -DLIDARSIM_BENCH=ON)
+# Per-file build of everything (benchmarks, tests, the FMU) unless LIDARSIM_CMAKE_ARGS says
+# otherwise (scripts/test.sh asks for a unity build without the benchmarks, scripts/demo.sh for a
+# unity build of the commands only; without this, their choice would stay in the folder's cache).
+settings=(-DCMAKE_BUILD_TYPE=${CMAKE_BUILD_TYPE:-Release} -DCMAKE_UNITY_BUILD=OFF -DLIDARSIM_BENCH=ON
+          -DLIDARSIM_TESTS=ON -DLIDARSIM_FMU=ON)
 # A folder configured before keeps its generator (CMake refuses to switch); a new one takes Ninja
 # where it is installed.
 if [ ! -f "$build_dir/CMakeCache.txt" ] && command -v ninja >/dev/null; then
