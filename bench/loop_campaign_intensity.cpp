@@ -130,6 +130,17 @@ nlohmann::json run_draw(const Source& src, data::PlantedScanFamily family, std::
   j["scenery_correlation"] = {{"between_scans", loop.value("scenery_correlation_between_scans", 0.0)},
                               {"between_time_blocks", loop.value("scenery_correlation_between_time_blocks", 0.0)}};
   if (loop.contains("rejected_effect")) j["rejected_effect"] = loop["rejected_effect"];
+  // Why a draw is missed: the planted feature's own candidates (score, decision, reason), the
+  // refits of the top feature, and why the top feature was not tried.
+  nlohmann::json planted = nlohmann::json::array();
+  for (const auto& k : loop["candidates_tested"])
+    if (std::find(draw.effect.accepted.begin(), draw.effect.accepted.end(), k["feature"].get<std::string>()) !=
+        draw.effect.accepted.end())
+      planted.push_back(k);
+  j["planted_candidates"] = planted;
+  j["refits"] = loop["candidates_held_out_mae"];
+  if (loop.contains("top_not_tried")) j["top_not_tried"] = loop["top_not_tried"];
+  if (loop.contains("azimuth_cross_fit")) j["azimuth_cross_fit"] = loop["azimuth_cross_fit"];
   j["seconds"] = seconds;
   std::fprintf(stderr, "  %-17s %-13s seed %-12llu added %-16s excess %.4f -> %.4f (floor %.4f) %s%s (%.1f s)\n",
                data::to_string(family).c_str(), src.name.c_str(), static_cast<unsigned long long>(seed),

@@ -228,6 +228,17 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
 std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, const Pooled& p, Form form,
                                              const std::vector<double>& edges, const std::vector<double>& fine);
 inline constexpr int kJointRounds = 3;
+// The azimuth window gain's window, searched as the joint model itself: level(fold, class x range
+// bin) x (g_in inside, g_out outside), every window of kWindowFineBins equal-count azimuth bins
+// (coarse on every kWindowCoarse-th edge, then each edge refined within one coarse step), the
+// levels refitted on the folds' fit cells, the gains and the error on `fit` (pooled held-out cells
+// of the opposite group). A WindowGain form (outside 1, inside g_in / g_out), or empty when no
+// window has kWindowMinShare of the cells on each side. intensity_scenery.cpp says why.
+FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, const std::vector<size_t>& fit,
+                             const std::vector<double>& fine);
+inline constexpr int kWindowFineBins = 256;
+inline constexpr int kWindowCoarse = 4;
+inline constexpr double kWindowMinShare = 0.01;
 // Whether `form` of `feature` is scored and refitted so (a lookup base's first round only).
 bool joint_azimuth_gain(const Pooled& p, const std::string& feature, Form form);
 
