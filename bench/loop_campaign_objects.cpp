@@ -107,10 +107,34 @@ std::string table(const std::vector<std::string>& names, const std::map<std::str
   return out.str();
 }
 
+// One draw's scores into its family's row.
+void add_draw(FamilyRow& row, const bench::DrawResult& r) {
+  ++row.draws;
+  row.truth += r.score.truth_recalled;
+  row.truth_before.push_back(r.score.truth_before), row.truth_after.push_back(r.score.truth_after);
+  row.recalled += r.score.recalled, row.above_floor += r.score.above_floor, row.where_planted += r.score.where_recalled;
+  row.named += r.score.named, row.absorbed += r.score.absorbed, row.other_adds += r.score.other_add;
+  row.errors += !r.error.empty();
+  row.reachable += r.ideal.ideal_after <= bench::kRecallRatio * r.ideal.ideal_before;
+  row.before.push_back(r.score.before), row.after.push_back(r.score.after), row.seconds.push_back(r.seconds);
+}
+
+// The progress line of one draw: how it was scored and what the loop added.
+std::string draw_line(const bench::DrawResult& r) {
+  std::ostringstream l;
+  l << (r.error.empty() ? "" : "ERROR " + r.error + ", ") << (r.score.truth_recalled ? "recalled (truth)" : "missed (truth)")
+    << " truth " << r.score.truth_before << " -> " << r.score.truth_after << ", outcome "
+    << (r.score.recalled ? "recalled" : "missed")
+    << (r.score.where_recalled && !r.score.recalled ? " (recalled where planted)" : "")
+    << (r.score.other_add ? ", other add" : "") << ", ideal " << r.ideal.ideal_after / r.ideal.ideal_before
+    << ", added " << r.added.dump() << ", " << r.seconds << " s";
+  return l.str();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  cxxopts::Options opts("bench_loop_campaign_objects", "the object loop on planted effects (issue 26)");
+  cxxopts::Options opts("bench_loop_campaign_objects", "the object loop on planted effects, scored per family");
   const std::string default_source =
       (fs::path(LIDARSIM_SOURCE_DIR) / "../shared/data/kitti-tracking-gt-pointrcnn").lexically_normal().string();
   opts.add_options()("draws", "draws per family", cxxopts::value<int>()->default_value("10"))(
@@ -164,22 +188,9 @@ int main(int argc, char** argv) {
         qualify::LoopOptions lo;
         lo.selection_bound = a.count("no-selection-bound") == 0;
         const bench::DrawResult r = bench::run_draw(fam, o, work, lo, a.count("keep") > 0);
-        FamilyRow& row = rows[data::to_string(fam)];
-        ++row.draws;
-        row.truth += r.score.truth_recalled;
-        row.truth_before.push_back(r.score.truth_before), row.truth_after.push_back(r.score.truth_after);
-        row.recalled += r.score.recalled, row.above_floor += r.score.above_floor, row.where_planted += r.score.where_recalled, row.named += r.score.named, row.absorbed += r.score.absorbed, row.other_adds += r.score.other_add;
-        row.errors += !r.error.empty();
-        row.reachable += r.ideal.ideal_after <= bench::kRecallRatio * r.ideal.ideal_before;
-        row.before.push_back(r.score.before), row.after.push_back(r.score.after), row.seconds.push_back(r.seconds);
+        add_draw(rows[data::to_string(fam)], r);
         std::cerr << "[" << data::to_string(fam) << " " << d + 1 << "/" << draws << "] " << o.sequences << " seq, "
-                  << (r.error.empty() ? "" : "ERROR " + r.error + ", ") << (r.score.truth_recalled ? "recalled (truth)" : "missed (truth)")
-                  << " truth " << r.score.truth_before << " -> " << r.score.truth_after << ", outcome "
-                  << (r.score.recalled ? "recalled" : "missed")
-                  << (r.score.where_recalled && !r.score.recalled ? " (recalled where planted)" : "")
-                  << (r.score.other_add ? ", other add" : "") << ", ideal " << r.ideal.ideal_after / r.ideal.ideal_before
-                  << ", added " << r.added.dump() << ", " << r.seconds
-                  << " s\n";
+                  << draw_line(r) << "\n";
         nlohmann::json dj = bench::to_json(r);
         dj["draw"] = d;
         out["draws"].push_back(dj);
