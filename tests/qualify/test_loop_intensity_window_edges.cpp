@@ -10,6 +10,7 @@
 #include <cmath>
 #include <random>
 
+#include "common/angles.h"
 #include "qualify/intensity/intensity_internal.h"
 #include "qualify/windows.h"
 
@@ -19,10 +20,8 @@ using namespace lidarsim::qualify::intensity_detail;
 
 namespace {
 
-constexpr double kDeg = M_PI / 180;
-
 struct Scene {
-  std::vector<Fold> folds;
+  std::vector<intensity_detail::Fold> folds;
   Pooled pool;
   std::vector<double> truth;  // noise-free intensity per pooled cell
 };
@@ -37,7 +36,7 @@ Scene window_scene() {
   std::normal_distribution<double> noise(0, 0.01);
   const double albedo[4] = {0.5, 0.25, 0.45, 0.3};  // spanning, spread, spanning, spread
   Scene s;
-  Fold f;
+  intensity_detail::Fold f;
   IntensityCells& c = f.cells;
   c.feature.assign(kIntensityFeatures.size(), {});
   std::vector<double> truth;
