@@ -1,4 +1,4 @@
-// Soak run of the OSMP FMU (issue 29, item 5): --minutes of simulated time at --rate Hz through
+// Soak run of the OSMP FMU: --minutes of simulated time at --rate Hz through
 // lidarsim_osi.fmu as an importer drives it (unzip, dlopen, fmi2Instantiate, set the SensorView
 // pointer integers, fmi2DoStep, read the SensorData pointer), in this process. The scene never
 // ends: the host drives at 10 m/s along x, --objects cars and crossing pedestrians stay in a window

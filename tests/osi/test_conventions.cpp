@@ -1,4 +1,4 @@
-// OSI conventions (issue 29, item 4): where the mount may come from and which wins, the ideal
+// OSI conventions: where the mount may come from and which wins, the ideal
 // model's first frame, the version we write, and traces written by an older version.
 //
 // Scene (as in test_scene.cpp): the host (99) stands at the origin, a van (11) 15 m ahead, a car

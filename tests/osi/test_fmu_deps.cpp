@@ -1,4 +1,4 @@
-// lidarsim_osi.fmu carries its own model (issue 29): its two libraries need nothing beyond the C
+// lidarsim_osi.fmu carries its own model: its two libraries need nothing beyond the C
 // and C++ runtime, export only their interface (fmi2* / lidarsim_osi_model_*), import no symbol
 // but the runtime's, and a process that runs the FMU (tests/osi/importer, which links nothing
 // but the runtime) loads no other object: no HDF5, no libgomp, no libprotobuf (the SensorView is

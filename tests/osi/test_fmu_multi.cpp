@@ -1,4 +1,4 @@
-// Every lidar of a car in one process (issue 29, item 3): several instances of lidarsim_osi.fmu,
+// Every lidar of a car in one process: several instances of lidarsim_osi.fmu,
 // each with its own beam layout (the `sensor` parameter, a data/sensors/ layout) and its own
 // SensorView (mount, sensor_id), give the same SensorData bytes when each runs alone, when they
 // step one after the other, and when they step at the same time in threads of their own. The

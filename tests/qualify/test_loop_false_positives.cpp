@@ -1,4 +1,4 @@
-// The object loop on false positives (issue 11): the reference sensor's fp_hotspot (extra false
+// The object loop on false positives: the reference sensor's fp_hotspot (extra false
 // detections in a window of azimuth at 15-25 m; the base model's independent range and azimuth
 // quantiles hold both marginals but not the spot) must be named on the false-positive rate by a
 // window of azimuth or of range, cut the held-out false-positive rate error to <= 0.7 of the base model's (and so

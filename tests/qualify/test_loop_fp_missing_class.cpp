@@ -1,4 +1,4 @@
-// False positives need no truth (issue 26, the campaign's fp_cell misses): a class with too few matched
+// False positives need no truth: a class with too few matched
 // detections on one fold's fit sequences is left out of that fold's base KPI model (kpi_fit's
 // min_samples; KITTI has many sequences without a pedestrian or a cyclist), yet its false positives
 // are there. The false-positive analysis must still model them from the fit split's false positives,

@@ -1,4 +1,4 @@
-// The object loop on false-positive persistence (ghost tracks, issue 11): the reference sensor's planted
+// The object loop on false-positive persistence (ghost tracks): the reference sensor's planted
 // ghosts (extra Car false positives that survive to the next frame with probability 0.8) must be named
 // by the persistence candidate, cut the held-out persistence-share error to <= 0.7 of the base model's
 // and be written into the refitted model; without ghosts nothing may be added.

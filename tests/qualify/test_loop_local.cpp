@@ -1,4 +1,4 @@
-// The object loop on local and spread effects (issue 11): a detection dropout inside a window of
+// The object loop on local and spread effects: a detection dropout inside a window of
 // azimuth (two edges, a smooth table over equal-count bins cannot see it) must be named with the
 // feature azimuth on detection and cut the held-out deviance to <= 0.7 of the base model's; an
 // error that gets noisier with the aspect (box seen side-on) (its mean unchanged) must be named as a spread term on the

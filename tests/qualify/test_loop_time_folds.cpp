@@ -1,4 +1,4 @@
-// The object loop with few sequences (issue 26): the features fixed to the sensor (azimuth) are
+// The object loop with few sequences: the features fixed to the sensor (azimuth) are
 // judged on folds of time blocks within each sequence, tracks kept whole, so a detection dropout
 // in a window of azimuth is found with two sequences; a candidate the held-out data cannot judge
 // is reported as "the data cannot decide", never as ruled out.
