@@ -57,7 +57,7 @@ nlohmann::json record(const qualify::RangeDrawResult& d, std::uint64_t seed, dou
   j["named"] = d.named, j["cut"] = d.cut, j["hit"] = d.hit, j["false_add"] = d.false_add;
   nlohmann::json top = nlohmann::json::array();
   for (std::size_t k = 0; k < std::min<std::size_t>(3, r.candidates.size()); ++k)
-    top.push_back({{"feature", r.candidates[k].feature}, {"form", r.candidates[k].form}, {"score", r.candidates[k].score},
+    top.push_back({{"feature", r.candidates[k].feature}, {"form", to_string(r.candidates[k].form)}, {"score", r.candidates[k].score},
                    {"selection_lower", r.candidates[k].selection_lower}});
   j["ranking_top3"] = top;
   j["seconds"] = seconds;

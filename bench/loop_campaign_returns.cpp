@@ -144,7 +144,7 @@ nlohmann::json run_draw(const std::vector<const Place*>& ps, qualify::PlantedRet
   j["named"] = named, j["cut"] = cut, j["hit"] = hit, j["false_add"] = false_add;
   nlohmann::json top = nlohmann::json::array();
   for (std::size_t k = 0; k < std::min<std::size_t>(3, r.candidates.size()); ++k)
-    top.push_back({{"feature", r.candidates[k].feature}, {"form", r.candidates[k].form}, {"score", r.candidates[k].score},
+    top.push_back({{"feature", r.candidates[k].feature}, {"form", to_string(r.candidates[k].form)}, {"score", r.candidates[k].score},
                    {"selection_lower", r.candidates[k].selection_lower}});
   j["ranking_top3"] = top;
   j["seconds"] = seconds;

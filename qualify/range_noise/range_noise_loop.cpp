@@ -65,7 +65,7 @@ struct Feature {
 
 struct Spec {
   Feature feature;
-  std::string form;  // table | window | growth (range only: a spread c r added in quadrature)
+  TermForm form;  // growth: range only (qualify/returns/term_form.h)
 };
 
 double log_abs(float e) { return std::log(std::max<double>(std::abs(e), kFloor)); }
@@ -101,10 +101,10 @@ Feature feature_named(const std::string& name, const std::vector<LoopResidual>& 
 std::vector<Spec> specs_of(const std::vector<LoopResidual>& target) {
   std::vector<Spec> s;
   for (const char* name : {"laser", "range", "class", "material", "azimuth", "incidence", "intensity"}) {
-    s.push_back({feature_named(name, target, false), "table"});
+    s.push_back({feature_named(name, target, false), TermForm::table});
     const std::string n = name;
-    if (n != "class" && n != "material") s.push_back({feature_named(name, target, true), "window"});
-    if (n == "range") s.push_back({feature_named(name, target, false), "growth"});
+    if (n != "class" && n != "material") s.push_back({feature_named(name, target, true), TermForm::window});
+    if (n == "range") s.push_back({feature_named(name, target, false), TermForm::growth});
   }
   return s;
 }
@@ -118,7 +118,7 @@ struct BinSums {
 std::vector<double> fit_shifts(const Spec& spec, const BinSums& b, double shrink, json* fitted) {
   const int K = spec.feature.bins;
   std::vector<double> t(K, 0.0);
-  if (spec.form == "table") {
+  if (spec.form == TermForm::table) {
     for (int k = 0; k < K; ++k) t[k] = b.s[k] / (b.n[k] + shrink);
     if (fitted) *fitted = {{"bins", K}, {"width", spec.feature.width}, {"residuals", b.n}};
     return t;
@@ -298,7 +298,7 @@ std::vector<std::vector<float>> held_out(const std::vector<LoopResidual>& target
     const Base base = fit_base(dr, base_features, growth, o.shrink, [&](std::size_t i) { return fitted_in(fr[i], f); });
     for (std::size_t i = 0; i < target.size(); ++i) b[i] = base.predict(dt, i);
     for (std::size_t j = 0; j < specs.size(); ++j) {
-      if (specs[j].form == "growth") {
+      if (specs[j].form == TermForm::growth) {
         std::vector<double> d, q;
         for (std::size_t i = 0; i < target.size(); ++i)
           if (fitted_in(ft[i], f)) d.push_back(dt.y[i] - b[i]), q.push_back(growth_q_of(dt.range[i], b[i]));
@@ -358,7 +358,7 @@ void decide(RangeCandidate& c, std::size_t k, std::size_t family, const RangeLoo
     r.added = 0;
     r.added_feature = c.feature;
   } else if (k > 0 && clears) {
-    c.reason = "one term is added per run, the best first (" + r.candidates[0].feature + " " + r.candidates[0].form +
+    c.reason = "one term is added per run, the best first (" + r.candidates[0].feature + " " + to_string(r.candidates[0].form) +
                " cut more); rerun with it in the base (--rounds) to judge this one";
   } else if (c.score <= 0) {
     c.reason = "it does not cut the held-out error (" + pct(c.score) + "): fitted on the other sectors, it does not carry";
@@ -415,7 +415,7 @@ sensor::RangeNoiseTerm term_of(const Feature& f, const std::vector<double>& shif
 
 }  // namespace
 
-std::string base_term_name(const RangeCandidate& c) { return c.form == "growth" ? c.feature + " growth" : c.feature; }
+std::string base_term_name(const RangeCandidate& c) { return c.form == TermForm::growth ? c.feature + " growth" : c.feature; }
 
 double log_scale_error(const std::vector<LoopResidual>& target, const std::vector<float>& b) {
   double e = 0;
@@ -466,7 +466,7 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
     c.lower = c.score - 1.96 * c.se, c.upper = c.score + 1.96 * c.se;
     c.selection_lower = c.score - m.critical * c.se;
     const Feature& fe = specs[j].feature;
-    if (specs[j].form == "growth") {
+    if (specs[j].form == TermForm::growth) {
       std::vector<double> d, q;
       for (std::size_t i = 0; i < target.size(); ++i) {
         const double b = full.predict(dt, i);
@@ -490,9 +490,9 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
   if (r.added >= 0) {
     r.b_after = pred[order[0]];
     auto& c = r.candidates[0];
-    c.term.note = "lidar-qualify loop range-noise: " + c.feature + " " + c.form + ", held-out log-scale error cut " +
+    c.term.note = "lidar-qualify loop range-noise: " + c.feature + " " + to_string(c.form) + ", held-out log-scale error cut " +
                   std::to_string(c.score);
-    if (c.form == "growth") extra = std::hypot(extra, c.extra_per_m);
+    if (c.form == TermForm::growth) extra = std::hypot(extra, c.extra_per_m);
     else model_terms.push_back(c.term);
   } else {
     r.b_after = r.b_before;
@@ -512,8 +512,8 @@ json to_json(const RangeLoopResult& r) {
   j["candidates"] = json::array();
   for (const auto& c : r.candidates) {
     json f = c.fitted;
-    if (c.form != "growth") f["factor_per_bin"] = c.term.factor;
-    j["candidates"].push_back({{"feature", c.feature}, {"form", c.form}, {"score", c.score}, {"se", c.se},
+    if (c.form != TermForm::growth) f["factor_per_bin"] = c.term.factor;
+    j["candidates"].push_back({{"feature", c.feature}, {"form", to_string(c.form)}, {"score", c.score}, {"se", c.se},
                                {"interval", {c.lower, c.upper}}, {"selection_lower", c.selection_lower},
                                {"decision", c.decision}, {"reason", c.reason}, {"fitted", f}});
   }
@@ -537,7 +537,7 @@ std::string to_markdown(const RangeLoopResult& r, const std::string& command) {
                    ".\n\n| feature | form | held-out cut | 95 % interval | selection bound | decision | reason |\n"
                    "|---|---|---|---|---|---|---|\n";
   for (const auto& c : r.candidates)
-    md += "| " + c.feature + " | " + c.form + " | " + f4(c.score) + " | " + f4(c.lower) + " – " + f4(c.upper) + " | " +
+    md += "| " + c.feature + " | " + to_string(c.form) + " | " + f4(c.score) + " | " + f4(c.lower) + " – " + f4(c.upper) + " | " +
           f4(c.selection_lower) + " | " + c.decision + " | " + c.reason + " |\n";
   return md;
 }

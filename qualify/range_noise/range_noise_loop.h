@@ -32,6 +32,7 @@
 #include <nlohmann/json.hpp>
 
 #include "qualify/range_noise/range_noise_fit.h"
+#include "qualify/returns/term_form.h"
 #include "sensor/range_noise.h"
 
 namespace lidarsim::qualify {
@@ -60,7 +61,8 @@ struct RangeLoopOptions {
 };
 
 struct RangeCandidate {
-  std::string feature, form;  // form: table | window
+  std::string feature;
+  TermForm form = TermForm::table;  // table | window | growth
   double score = 0, se = 0, lower = 0, upper = 0, selection_lower = 0;
   std::string decision, reason;
   sensor::RangeNoiseTerm term;  // fitted on every target residual against the base on every reference one

@@ -106,7 +106,7 @@ int run_loop_range_noise(int argc, char** argv) {
               << " scored); held-out log-scale error " << r.error_before << " -> " << r.error_after << ", added: "
               << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
     for (const auto& c : r.candidates)
-      std::cout << "  " << c.feature << " " << c.form << ": cut " << c.score << " (bound " << c.selection_lower << ") "
+      std::cout << "  " << c.feature << " " << to_string(c.form) << ": cut " << c.score << " (bound " << c.selection_lower << ") "
                 << c.decision << ": " << c.reason << "\n";
     if (r.added < 0) break;
     o.base_terms.push_back(base_term_name(r.candidates[r.added]));

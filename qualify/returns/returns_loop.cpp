@@ -49,18 +49,19 @@ using Key = sensor::ReturnKey;
 constexpr int kKeys = 8;
 
 struct Spec {
-  std::string feature, form;
+  std::string feature;
+  TermForm form;
   Key key;
 };
 
 const std::vector<Spec>& specs() {
   static const std::vector<Spec> s = {
-      {"laser", "table", Key::Laser},       {"laser", "window", Key::Laser},
-      {"range", "table", Key::Range5m},       {"range", "window", Key::Range5m},
-      {"class", "table", Key::Class},       {"material", "table", Key::Material},
-      {"azimuth", "table", Key::Azimuth10}, {"azimuth", "window", Key::Azimuth5},
-      {"height", "table", Key::Height},     {"height", "window", Key::Height},
-      {"class x range", "step", Key::ClassRange5m}};
+      {"laser", TermForm::table, Key::Laser},       {"laser", TermForm::window, Key::Laser},
+      {"range", TermForm::table, Key::Range5m},       {"range", TermForm::window, Key::Range5m},
+      {"class", TermForm::table, Key::Class},       {"material", TermForm::table, Key::Material},
+      {"azimuth", TermForm::table, Key::Azimuth10}, {"azimuth", TermForm::window, Key::Azimuth5},
+      {"height", TermForm::table, Key::Height},     {"height", TermForm::window, Key::Height},
+      {"class x range", TermForm::step, Key::ClassRange5m}};
   return s;
 }
 
@@ -91,7 +92,7 @@ double shrunk(double y, double p, double s) { return (y + s) / (p + s); }
 std::vector<double> fit_multipliers(const Spec& spec, const Sums& s, double shrink, json* fitted) {
   const int K = static_cast<int>(s.n.size());
   std::vector<double> m(K, 1.0);
-  if (spec.form == "table") {
+  if (spec.form == TermForm::table) {
     for (int k = 0; k < K; ++k) m[k] = s.n[k] > 0 ? shrunk(s.y[k], s.p[k], shrink) : 1.0;
     if (fitted) {
       (*fitted)["bins"] = K;
@@ -101,7 +102,7 @@ std::vector<double> fit_multipliers(const Spec& spec, const Sums& s, double shri
     return m;
   }
   const double kMinCells = 200;
-  if (spec.form == "window") {
+  if (spec.form == TermForm::window) {
     const bool circular = spec.key == Key::Azimuth5;
     double best = 0, bm = 1;
     int ba = -1, bb = -1;
@@ -301,7 +302,7 @@ void decide(ReturnCandidate& c, std::size_t k, const ReturnLoopOptions& o, Retur
     r.added = 0;
     r.added_feature = c.feature;
   } else if (k > 0 && clears) {
-    c.reason = "one effect is added per run, the best first (" + r.candidates[0].feature + " " + r.candidates[0].form +
+    c.reason = "one effect is added per run, the best first (" + r.candidates[0].feature + " " + to_string(r.candidates[0].form) +
                " cut more); rerun on the corrected model to judge it";
   } else if (c.score <= 0) {
     c.reason = "it does not cut the held-out deviance (" + pct(c.score) + "): fitted on the fit scans, it does not carry to the held-out ones";
@@ -361,7 +362,7 @@ ReturnLoopResult loop_returns(const std::vector<ReturnCell>& target, const std::
   if (r.added >= 0) {
     r.p_after = p_cand[order[0]];
     const ReturnCandidate& c = r.candidates[0];
-    r.model.multipliers.push_back({c.key, c.factor, "loop returns: " + c.feature + " " + c.form + ", held-out deviance cut " +
+    r.model.multipliers.push_back({c.key, c.factor, "loop returns: " + c.feature + " " + to_string(c.form) + ", held-out deviance cut " +
                                                          std::to_string(c.score)});
   } else {
     r.p_after = r.p_before;
@@ -379,7 +380,7 @@ json to_json(const ReturnLoopResult& r) {
   j["selection_critical"] = r.critical;
   j["candidates"] = json::array();
   for (const auto& c : r.candidates)
-    j["candidates"].push_back({{"feature", c.feature}, {"form", c.form}, {"score", c.score}, {"se", c.se},
+    j["candidates"].push_back({{"feature", c.feature}, {"form", to_string(c.form)}, {"score", c.score}, {"se", c.se},
                                {"interval", {c.lower, c.upper}}, {"selection_lower", c.selection_lower},
                                {"decision", c.decision}, {"reason", c.reason}, {"fitted", c.fitted}});
   if (r.added >= 0) j["added"] = j["candidates"][r.added];
@@ -400,7 +401,7 @@ std::string to_markdown(const ReturnLoopResult& r, const std::string& command) {
                    (r.added_feature.empty() ? "nothing" : r.added_feature) + ". Selection-aware critical value " +
                    f4(r.critical) + ".\n\n| feature | form | held-out cut | 95 % interval | selection bound | decision | reason |\n|---|---|---|---|---|---|---|\n";
   for (const auto& c : r.candidates)
-    md += "| " + c.feature + " | " + c.form + " | " + f4(c.score) + " | " + f4(c.lower) + " – " + f4(c.upper) + " | " +
+    md += "| " + c.feature + " | " + to_string(c.form) + " | " + f4(c.score) + " | " + f4(c.lower) + " – " + f4(c.upper) + " | " +
           f4(c.selection_lower) + " | " + c.decision + " | " + c.reason + " |\n";
   return md;
 }

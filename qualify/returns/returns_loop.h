@@ -31,6 +31,7 @@
 #include "pgm/beam_layout.h"
 #include "pgm/polar_grid_map.h"
 #include "pgm/return_target.h"
+#include "qualify/returns/term_form.h"
 #include "sensor/return_model.h"
 
 namespace lidarsim::qualify {
@@ -71,7 +72,8 @@ struct ReturnLoopOptions {
 };
 
 struct ReturnCandidate {
-  std::string feature, form;  // form: table | window | step
+  std::string feature;
+  TermForm form = TermForm::table;
   double score = 0;           // held-out deviance cut, share of the base's
   double se = 0, lower = 0, upper = 0;  // bootstrap standard error and 95 % interval
   double selection_lower = 0;           // the max-T bound over the family

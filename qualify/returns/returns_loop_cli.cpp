@@ -77,7 +77,7 @@ void write_loop_report(const ReturnLoopResult& r, const std::string& command, co
             << "held-out deviance " << r.deviance_before << " -> " << r.deviance_after << ", added: "
             << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
   for (const auto& c : r.candidates)
-    std::cout << "  " << c.feature << " " << c.form << ": cut " << c.score << " (bound " << c.selection_lower << ") "
+    std::cout << "  " << c.feature << " " << to_string(c.form) << ": cut " << c.score << " (bound " << c.selection_lower << ") "
               << c.decision << "\n";
   std::cout << "wrote " << report << " and " << md << "\n";
 }

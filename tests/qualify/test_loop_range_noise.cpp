@@ -60,7 +60,7 @@ TEST(RangeNoiseLoop, NamesTwoNoisyLasersAndRecoversTheirFactor) {
   a.range_m = b.range_m = 20, a.row = 12, b.row = 30;
   EXPECT_NEAR(r.model.sigma_at(a) / r.model.sigma_at(b), 2.5, 0.3);
   // Every candidate is listed with its decision and a reason.
-  for (const auto& c : r.candidates) EXPECT_FALSE(c.reason.empty()) << c.feature << " " << c.form;
+  for (const auto& c : r.candidates) EXPECT_FALSE(c.reason.empty()) << c.feature << " " << to_string(c.form);
 }
 
 TEST(RangeNoiseLoop, NamesANoisierClassAndASpreadGrowingWithRange) {

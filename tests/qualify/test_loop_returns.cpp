@@ -66,7 +66,7 @@ TEST(ReturnLoop, NamesAPlantedLaserDropout) {
   EXPECT_NEAR(ratio4, 1.0, 0.03);
   // The fitted table holds the dropout on laser 5 only.
   const auto& m = r.candidates[r.added].fitted["multiplier"];
-  if (r.candidates[r.added].form == "table") {
+  if (r.candidates[r.added].form == qualify::TermForm::table) {
     EXPECT_NEAR(m[5].get<double>(), 0.5, 0.06);
     EXPECT_NEAR(m[4].get<double>(), 1.0, 0.03);
   }
@@ -78,7 +78,7 @@ TEST(ReturnLoop, AddsNothingOnAControl) {
   EXPECT_EQ(r.added_feature, "");
   EXPECT_EQ(r.deviance_after, r.deviance_before);
   EXPECT_TRUE(r.model.multipliers.empty());
-  for (const auto& c : r.candidates) EXPECT_EQ(c.decision, "not added") << c.feature << " " << c.form;
+  for (const auto& c : r.candidates) EXPECT_EQ(c.decision, "not added") << c.feature << " " << to_string(c.form);
 }
 
 TEST(ReturnLoop, NeedsTwoScans) {
