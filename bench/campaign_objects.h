@@ -163,6 +163,12 @@ inline DrawScore score_draw(const data::PlantedEffect& e, const nlohmann::json& 
   return s;
 }
 
+// Whether candidate c of the loop's result names the planted feature on the planted target.
+inline bool names_planted(const data::PlantedEffect& e, const qualify::obj::Candidate& c) {
+  return qualify::kObjectTargets[c.target] == e.target &&
+         std::find(e.features.begin(), e.features.end(), qualify::kObjectFeatures[c.feature]) != e.features.end();
+}
+
 // Whether the planted detection dropout acts on an object with these loop features (kObjectFeatures).
 inline bool planted_acts_on(const data::PlantedDraw& d, const std::vector<double>& f) {
   const auto& p = d.effect.params;
@@ -184,11 +190,7 @@ inline void score_where_planted(const data::PlantedDraw& d, const qualify::obj::
                        d.effect.family == data::PlantedFamily::RangeDropout;
   if (!dropout || !s.named) return;
   for (const qualify::obj::AddedBias& a : R.added) {
-    const qualify::obj::Candidate& c = R.candidates[a.candidate];
-    if (c.target != qualify::kDetectionTarget ||
-        std::find(d.effect.features.begin(), d.effect.features.end(), qualify::kObjectFeatures[c.feature]) ==
-            d.effect.features.end())
-      continue;
+    if (!names_planted(d.effect, R.candidates[a.candidate])) continue;  // dropouts: the detection target
     const qualify::obj::Judged& J = a.judged;
     double b = 0, f = 0;
     long n = 0;
@@ -253,12 +255,6 @@ inline TruthError truth_error_spread(const data::PlantedDraw& d, int target, con
   }
   if (out.objects > 0) out.before = std::sqrt(b / out.objects), out.after = std::sqrt(a / out.objects);
   return out;
-}
-
-// Whether candidate c of the loop's result names the planted feature on the planted target.
-inline bool names_planted(const data::PlantedEffect& e, const qualify::obj::Candidate& c) {
-  return qualify::kObjectTargets[c.target] == e.target &&
-         std::find(e.features.begin(), e.features.end(), qualify::kObjectFeatures[c.feature]) != e.features.end();
 }
 
 // The truth figure (see above) of the term that names the planted effect, from the loop's typed

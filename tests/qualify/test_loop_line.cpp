@@ -51,24 +51,36 @@ obj::Split split_of(const std::vector<ObjectRecord>& recs) {
   return s;
 }
 
+// Two folds crossing two sequences on target 0: fold 0 fits a and judges b, fold 1 the other way
+// round. The splits point into a and b, which must outlive the folds.
+std::array<obj::Fold, 2> crossed_folds(const std::vector<ObjectRecord>& a, const std::vector<ObjectRecord>& b) {
+  std::array<obj::Fold, 2> folds;
+  for (int k = 0; k < 2; ++k) {
+    folds[k].fit_r.assign(kObjectTargetCount, {});
+    folds[k].held_r.assign(kObjectTargetCount, {});
+    folds[k].win.assign(kObjectTargetCount, {});
+    folds[k].fit_r[0] = split_of(k == 0 ? a : b);
+    folds[k].held_r[0] = split_of(k == 0 ? b : a);
+  }
+  return folds;
+}
+
+// Bootstrap blocks: each held-out track its own (fold 0's tracks 0-59, fold 1's 60-119).
+std::array<std::vector<int>, 2> held_track_blocks(const std::array<obj::Fold, 2>& folds) {
+  std::array<std::vector<int>, 2> block;
+  for (int k = 0; k < 2; ++k)
+    for (const ObjectRecord* r : folds[k].held_r[0].rec) block[k].push_back(60 * k + r->track);
+  return block;
+}
+
 }  // namespace
 
 TEST(ObjectLoopLine, AnErrorProportionalToAFeatureCarriesToAFoldWithAWiderRangeOfIt) {
   std::mt19937_64 rng(3);
   const std::vector<ObjectRecord> slow = sequence(0, 3, rng), fast = sequence(1, 12, rng);
   // Fold 0 fits the slow sequence and judges the fast one; fold 1 the other way round.
-  std::array<obj::Fold, 2> folds;
-  for (int k = 0; k < 2; ++k) {
-    folds[k].fit_r.assign(kObjectTargetCount, {});
-    folds[k].held_r.assign(kObjectTargetCount, {});
-    folds[k].win.assign(kObjectTargetCount, {});
-    folds[k].fit_r[0] = split_of(k == 0 ? slow : fast);
-    folds[k].held_r[0] = split_of(k == 0 ? fast : slow);
-  }
-  // Bootstrap blocks: each held-out track its own (fold 0's tracks 0-59, fold 1's 60-119).
-  std::array<std::vector<int>, 2> block;
-  for (int k = 0; k < 2; ++k)
-    for (const ObjectRecord* r : folds[k].held_r[0].rec) block[k].push_back(60 * k + r->track);
+  const std::array<obj::Fold, 2> folds = crossed_folds(slow, fast);
+  const std::array<std::vector<int>, 2> block = held_track_blocks(folds);
   const int f = obj::feature_index("radial_velocity");
   double best = -1e9, table = -1e9;
   for (Kind kind : obj::kinds_for(0)) {
@@ -105,17 +117,8 @@ TEST(ObjectLoopLine, ALineThatDoesNotBeatTheTableOnTheSameHeldOutTracksIsNotRank
     // A small lag with a slight curvature (which a table follows and a line does not), well inside
     // the noise: on the same speeds the line and the table fit about equally well.
     const std::vector<ObjectRecord> a = sequence(0, vmax_fit, rng, 0.01, 3e-4), b = sequence(1, vmax_held, rng, 0.01, 3e-4);
-    std::array<obj::Fold, 2> folds;
-    for (int k = 0; k < 2; ++k) {
-      folds[k].fit_r.assign(kObjectTargetCount, {});
-      folds[k].held_r.assign(kObjectTargetCount, {});
-      folds[k].win.assign(kObjectTargetCount, {});
-      folds[k].fit_r[0] = split_of(k == 0 ? a : b);
-      folds[k].held_r[0] = split_of(k == 0 ? b : a);
-    }
-    std::array<std::vector<int>, 2> block;
-    for (int k = 0; k < 2; ++k)
-      for (const ObjectRecord* r : folds[k].held_r[0].rec) block[k].push_back(60 * k + r->track);
+    const std::array<obj::Fold, 2> folds = crossed_folds(a, b);
+    const std::array<std::vector<int>, 2> block = held_track_blocks(folds);
     std::vector<obj::Candidate> cands;
     for (Kind kind : {Kind::MeanTable, Kind::MeanLine})
       cands.push_back(obj::judge_candidate(folds, 0, f, kind, 1, 10, block, 120));
