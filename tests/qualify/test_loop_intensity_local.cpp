@@ -95,7 +95,7 @@ TEST(LoopIntensityUnetLocalStatistical, NamesPerLaserGainAsBeamRowAddsARowAffine
   data::write_reference_semantickitti(dir, o);
   qualify::IntensityLoopOptions lo;
   lo.base_model = qualify::IntensityBase::Unet;
-  lo.unet.steps = 300;
+  lo.unet.steps = 200;
   lo.unet.seeds = 1;
   lo.unet.crop_columns = 128;
   lo.out_model = dir / "loop_model.h5";

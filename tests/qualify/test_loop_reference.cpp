@@ -69,7 +69,7 @@ qualify::IntensityLoopOptions lookup_base() {
 qualify::IntensityLoopOptions unet_base() {
   qualify::IntensityLoopOptions o;
   o.base_model = qualify::IntensityBase::Unet;
-  o.unet.steps = 300;
+  o.unet.steps = 200;
   o.unet.seeds = 1;
   o.unet.crop_columns = 128;
   return o;
