@@ -25,6 +25,7 @@
 //              the selection-aware bound from the max-T block bootstrap (blocks = one scan's
 //              sector) shared with the return loop (qualify/returns/max_t.h). The best candidate
 //              is added when its bound is above 0 and its score at least `min_gain`.
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -105,10 +106,21 @@ int run_loop_range_noise(int argc, char** argv);
 // ---- planted range noise (the campaign and the tests) ----
 // Extra Gaussian noise along each beam, on top of the measured scan's own: extra spread
 // s(point) drawn with sensor::range_noise_normal(seed, scan, point index).
-enum class PlantedRangeFamily { RangeGrowth, LaserNoise, ClassNoise, Control };
+// Enumerators keep their values (the campaign's seeds derive from them): new ones go last.
+enum class PlantedRangeFamily { RangeGrowth, LaserNoise, ClassNoise, Control, AzimuthNoise, IncidenceNoise, IntensityNoise };
 const std::vector<PlantedRangeFamily>& all_planted_range_families();
 std::string to_string(PlantedRangeFamily f);
 PlantedRangeFamily planted_range_family_from_string(const std::string& name);
+
+// What a planted effect may depend on, for one point.
+struct PlantedPoint {
+  int row = 0;
+  double range_m = 0;
+  int class_id = 0;
+  double azimuth_deg = 0;      // atan2(y, x) in [0, 360), the residuals' convention
+  double incidence_rad = NAN;  // NaN when not estimated
+  double intensity = 0;
+};
 
 struct PlantedRangeEffect {
   PlantedRangeFamily family = PlantedRangeFamily::Control;
@@ -116,16 +128,24 @@ struct PlantedRangeEffect {
   double per_metre = 0;               // RangeGrowth: s = per_metre x range
   std::vector<double> row_sigma;      // LaserNoise: s per row (0 elsewhere)
   int class_id = -1;                  // ClassNoise
-  double sigma = 0;                   // ClassNoise: s on that class
+  double sigma = 0;                   // ClassNoise, AzimuthNoise, IntensityNoise: s where it acts
+  double window_start_deg = 0, window_width_deg = 0;  // AzimuthNoise: [start, start + width), circular
+  double per_tan = 0;                 // IncidenceNoise: s = per_tan x tan(min(incidence, 80 deg))
+  double intensity_below = 0;         // IntensityNoise: acts on returns weaker than this
   nlohmann::json parameters;
-  double extra_sigma(int row, double range_m, int class_id) const;  // m
+  double extra_sigma(const PlantedPoint& p) const;  // m
 };
 
 // Draws one effect of `family` from `seed`: RangeGrowth s = a r with a in 0.5-2 mm/m; LaserNoise
 // 2-10 lasers (among those holding >= 0.5 % of the residuals: `row_share`), each 1-3 cm;
-// ClassNoise one planar class holding >= 5 % of the residuals (`class_share`) at 1-3 cm.
+// ClassNoise one planar class holding >= 5 % of the residuals (`class_share`) at 1-3 cm;
+// AzimuthNoise 1-3 cm over a window 20-120 deg wide anywhere in 0-360 deg (a sector the sensor
+// sees through a dirty or damaged window); IncidenceNoise s = a tan(incidence), a in 2-5 mm (the
+// footprint stretched at grazing angles; 80 deg caps it); IntensityNoise 1-3 cm on the returns
+// below a quantile 0.1-0.4 of the residuals' intensities (`intensity_quantiles`, 0..100 %).
 PlantedRangeEffect draw_planted_range(PlantedRangeFamily family, std::uint64_t seed, const std::vector<double>& row_share,
-                                      const std::vector<double>& class_share);
+                                      const std::vector<double>& class_share,
+                                      const std::vector<double>& intensity_quantiles);
 
 // The scan with the effect planted (each point moved along its beam); rows from the projection
 // onto `layout` (the same rows range_noise_fit reads).
@@ -143,6 +163,7 @@ struct RangeCampaignData {
   std::vector<std::vector<pgm::Point>> scans;
   std::vector<LoopResidual> reference;
   std::vector<double> row_share, class_share;  // shares of the residuals per laser and class
+  std::vector<double> intensity_quantiles;     // of the residuals' intensities, at 0, 1, ..., 100 %
   std::vector<std::string> base_terms;
 };
 RangeCampaignData prepare_range_campaign(std::vector<std::vector<pgm::Point>> scans, const pgm::BeamLayout& layout,

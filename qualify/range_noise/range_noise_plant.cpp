@@ -13,8 +13,10 @@
 namespace lidarsim::qualify {
 
 const std::vector<PlantedRangeFamily>& all_planted_range_families() {
-  static const std::vector<PlantedRangeFamily> f = {PlantedRangeFamily::RangeGrowth, PlantedRangeFamily::LaserNoise,
-                                                     PlantedRangeFamily::ClassNoise, PlantedRangeFamily::Control};
+  static const std::vector<PlantedRangeFamily> f = {
+      PlantedRangeFamily::RangeGrowth,    PlantedRangeFamily::LaserNoise,     PlantedRangeFamily::ClassNoise,
+      PlantedRangeFamily::AzimuthNoise,   PlantedRangeFamily::IncidenceNoise, PlantedRangeFamily::IntensityNoise,
+      PlantedRangeFamily::Control};
   return f;
 }
 
@@ -23,6 +25,9 @@ std::string to_string(PlantedRangeFamily f) {
     case PlantedRangeFamily::RangeGrowth: return "range_growth";
     case PlantedRangeFamily::LaserNoise: return "laser_noise";
     case PlantedRangeFamily::ClassNoise: return "class_noise";
+    case PlantedRangeFamily::AzimuthNoise: return "azimuth_noise";
+    case PlantedRangeFamily::IncidenceNoise: return "incidence_noise";
+    case PlantedRangeFamily::IntensityNoise: return "intensity_noise";
     case PlantedRangeFamily::Control: return "control";
   }
   return "?";
@@ -31,22 +36,33 @@ std::string to_string(PlantedRangeFamily f) {
 PlantedRangeFamily planted_range_family_from_string(const std::string& name) {
   for (auto f : all_planted_range_families())
     if (to_string(f) == name) return f;
-  throw Error("unknown range-noise family \"" + name + "\" (range_growth, laser_noise, class_noise, control)");
+  throw Error("unknown range-noise family \"" + name + "\" (range_growth, laser_noise, class_noise, azimuth_noise, "
+              "incidence_noise, intensity_noise, control)");
 }
 
-double PlantedRangeEffect::extra_sigma(int row, double range_m, int cls) const {
+double PlantedRangeEffect::extra_sigma(const PlantedPoint& p) const {
   switch (family) {
-    case PlantedRangeFamily::RangeGrowth: return per_metre * range_m;
+    case PlantedRangeFamily::RangeGrowth: return per_metre * p.range_m;
     case PlantedRangeFamily::LaserNoise:
-      return row >= 0 && row < static_cast<int>(row_sigma.size()) ? row_sigma[row] : 0.0;
-    case PlantedRangeFamily::ClassNoise: return cls == class_id ? sigma : 0.0;
+      return p.row >= 0 && p.row < static_cast<int>(row_sigma.size()) ? row_sigma[p.row] : 0.0;
+    case PlantedRangeFamily::ClassNoise: return p.class_id == class_id ? sigma : 0.0;
+    case PlantedRangeFamily::AzimuthNoise: {
+      const double into = std::fmod(p.azimuth_deg - window_start_deg + 720.0, 360.0);
+      return into < window_width_deg ? sigma : 0.0;
+    }
+    case PlantedRangeFamily::IncidenceNoise: {
+      constexpr double kCap = 80.0 * M_PI / 180.0;
+      return std::isfinite(p.incidence_rad) ? per_tan * std::tan(std::min(p.incidence_rad, kCap)) : 0.0;
+    }
+    case PlantedRangeFamily::IntensityNoise: return p.intensity < intensity_below ? sigma : 0.0;
     case PlantedRangeFamily::Control: return 0;
   }
   return 0;
 }
 
 PlantedRangeEffect draw_planted_range(PlantedRangeFamily family, std::uint64_t seed, const std::vector<double>& row_share,
-                                      const std::vector<double>& class_share) {
+                                      const std::vector<double>& class_share,
+                                      const std::vector<double>& intensity_quantiles) {
   SplitMix rng(splitmix64(seed ^ 0x72616e67656e6f69ULL));  // hashed: consecutive seeds give unrelated streams
   PlantedRangeEffect e;
   e.family = family;
@@ -80,6 +96,29 @@ PlantedRangeEffect draw_planted_range(PlantedRangeFamily family, std::uint64_t s
     e.accepted = {"class", "material"};
     e.parameters["class"] = pgm::class_name(e.class_id);
     e.parameters["extra_sigma_cm"] = 100 * e.sigma;
+  } else if (family == PlantedRangeFamily::AzimuthNoise) {
+    e.window_width_deg = 20 + 100 * rng.uniform();
+    e.window_start_deg = 360 * rng.uniform();
+    e.sigma = 0.01 + 0.02 * rng.uniform();
+    e.accepted = {"azimuth"};
+    e.parameters["window_start_deg"] = e.window_start_deg;
+    e.parameters["window_width_deg"] = e.window_width_deg;
+    e.parameters["extra_sigma_cm"] = 100 * e.sigma;
+  } else if (family == PlantedRangeFamily::IncidenceNoise) {
+    e.per_tan = 0.002 + 0.003 * rng.uniform();
+    e.accepted = {"incidence"};
+    e.parameters["extra_sigma_mm_per_tan"] = 1000 * e.per_tan;
+  } else if (family == PlantedRangeFamily::IntensityNoise) {
+    if (intensity_quantiles.size() != 101) throw Error("intensity_noise: the residuals' intensity quantiles are missing");
+    const double q = 0.1 + 0.3 * rng.uniform();
+    e.intensity_below = intensity_quantiles[static_cast<std::size_t>(std::lround(100 * q))];
+    if (!(e.intensity_below > intensity_quantiles.front()))
+      throw Error("intensity_noise: the scans' intensities are constant below their " + std::to_string(q) + " quantile");
+    e.sigma = 0.01 + 0.02 * rng.uniform();
+    e.accepted = {"intensity"};
+    e.parameters["intensity_quantile"] = q;
+    e.parameters["intensity_below"] = e.intensity_below;
+    e.parameters["extra_sigma_cm"] = 100 * e.sigma;
   }
   return e;
 }
@@ -88,13 +127,23 @@ std::vector<pgm::Point> plant_range_noise(const std::vector<pgm::Point>& points,
                                           const PlantedRangeEffect& effect, std::uint64_t seed, std::uint64_t scan) {
   std::vector<pgm::Point> out = points;
   if (effect.family == PlantedRangeFamily::Control) return out;
-  const auto p = pgm::project(points, layout, pgm::ProjectOptions{}, "planted scan");
+  pgm::ProjectOptions po;
+  po.extra_channels = {"incidence"};  // as the residuals read it (scan_range_residuals)
+  const auto p = pgm::project(points, layout, po, "planted scan");
+  const float* incidence = p.pgm.channel("incidence");
   for (std::size_t i = 0; i < out.size(); ++i) {
     const std::int64_t cell = p.point_cell[i];
     if (cell < 0) continue;
     pgm::Point& q = out[i];
     const double r = std::sqrt(double(q.x) * q.x + double(q.y) * q.y + double(q.z) * q.z);
-    const double s = effect.extra_sigma(static_cast<int>(cell / layout.columns), r, q.class_id);
+    PlantedPoint at;
+    at.row = static_cast<int>(cell / layout.columns);
+    at.range_m = r;
+    at.class_id = q.class_id;
+    at.azimuth_deg = std::fmod(std::atan2(double(q.y), double(q.x)) * 180.0 / M_PI + 360.0, 360.0);
+    if (incidence[cell] > 0) at.incidence_rad = incidence[cell];
+    at.intensity = q.intensity;
+    const double s = effect.extra_sigma(at);
     if (!(s > 0) || !(r > 0)) continue;
     const double noisy = std::max(1e-3, r + s * sensor::range_noise_normal(seed, scan, i));
     const double k = noisy / r;
@@ -119,6 +168,12 @@ RangeCampaignData prepare_range_campaign(std::vector<std::vector<pgm::Point>> sc
     d.row_share[x.r.row] += 1.0 / d.reference.size();
     d.class_share[x.r.class_id] += 1.0 / d.reference.size();
   }
+  {
+    std::vector<double> v;
+    for (const auto& x : d.reference) v.push_back(x.r.intensity);
+    std::sort(v.begin(), v.end());
+    for (int q = 0; q <= 100; ++q) d.intensity_quantiles.push_back(v[std::min(v.size() - 1, v.size() * q / 100)]);
+  }
   // Every term that cuts the held-out error on the unplanted scans by at least min_gain, whether or
   // not its bound clears: a real effect the loop cannot decide on (seq00's class, 0.2-0.3 %) would
   // otherwise be left out of the base and found again on some controls.
@@ -138,7 +193,7 @@ RangeCampaignData prepare_range_campaign(std::vector<std::vector<pgm::Point>> sc
 RangeDrawResult run_range_draw(const RangeCampaignData& data, PlantedRangeFamily family, std::uint64_t seed,
                                RangeLoopOptions o) {
   RangeDrawResult out;
-  out.effect = draw_planted_range(family, seed, data.row_share, data.class_share);
+  out.effect = draw_planted_range(family, seed, data.row_share, data.class_share, data.intensity_quantiles);
   std::vector<LoopResidual> target;
   for (std::size_t s = 0; s < data.scans.size(); ++s) {
     const auto planted = plant_range_noise(data.scans[s], data.layout, out.effect, seed, s);
@@ -152,7 +207,11 @@ RangeDrawResult run_range_draw(const RangeCampaignData& data, PlantedRangeFamily
   std::vector<float> oracle(target.size());
   for (std::size_t i = 0; i < target.size(); ++i) {
     const double b = out.loop.b_before[i];
-    const double s = out.effect.extra_sigma(target[i].r.row, target[i].r.range, target[i].r.class_id);
+    const RangeResidual& x = target[i].r;
+    PlantedPoint at;
+    at.row = x.row, at.range_m = x.range, at.class_id = x.class_id, at.azimuth_deg = x.azimuth_deg;
+    at.incidence_rad = x.incidence, at.intensity = x.intensity;
+    const double s = out.effect.extra_sigma(at);
     const double sigma = std::exp(b - kGaussLogScale);
     oracle[i] = static_cast<float>(std::log(std::sqrt(sigma * sigma + s * s)) + kGaussLogScale);
   }
