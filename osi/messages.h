@@ -79,6 +79,33 @@ inline constexpr int kDataQualifierAvailable = 2;  // DetectedEntityHeader and S
 inline constexpr int kMeasurementStateMeasured = 2, kMeasurementStatePredicted = 3;
 inline constexpr int kReferencePointCenter = 2;
 
+struct BaseStationary {  // dimension (1), position (2), orientation (3)
+  Dimension3d dimension;
+  Vector3d position;
+  Orientation3d orientation;
+  std::uint32_t has = 0;
+};
+
+// StationaryObject.Classification's enums.
+enum StationaryType : int {
+  kStationaryUnknown = 0, kStationaryOther, kBridge, kBuilding, kPole, kPylon, kDelineator, kTree, kBarrier,
+  kVegetation, kCurbstone, kWall, kVerticalStructure, kRectangularStructure, kOverheadStructure,
+  kReflectiveStructure, kConstructionSiteElement, kSpeedBump, kEmittingStructure
+};
+inline constexpr int kStationaryTypeCount = 19;
+enum StationaryMaterial : int {
+  kMaterialUnknown = 0, kMaterialOther, kWood, kPlastic, kConcrete, kMetal, kStone, kGlas, kMud
+};
+inline constexpr int kStationaryMaterialCount = 9;
+
+struct StationaryObject {  // id (1), base (2), classification (3: type (1), material (2))
+  Identifier id;
+  BaseStationary base;
+  StationaryType type = kStationaryUnknown;
+  StationaryMaterial material = kMaterialUnknown;
+  std::uint32_t has = 0;
+};
+
 struct MovingObject {  // id (1), base (2), type (3), vehicle_attributes (5), vehicle_classification (6)
   Identifier id;
   BaseMoving base;
@@ -95,9 +122,11 @@ struct LaneBoundary {  // id (1), boundary_line (2: BoundaryPoint.position), cla
   std::uint32_t has = 0;
 };
 
-struct GroundTruth {  // timestamp (2), host_vehicle_id (3), moving_object (5), lane_boundary (9)
+// timestamp (2), host_vehicle_id (3), stationary_object (4), moving_object (5), lane_boundary (9)
+struct GroundTruth {
   Timestamp timestamp;
   Identifier host_vehicle_id;
+  std::vector<StationaryObject> stationary_object;
   std::vector<MovingObject> moving_object;
   std::vector<LaneBoundary> lane_boundary;
   std::uint32_t has = 0;

@@ -4,8 +4,10 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "pgm/materials.h"
 #include "sensor/frames.h"
 #include "sensor/scenario.h"
+#include "sensor/scenery.h"
 
 namespace lidarsim::osi {
 
@@ -95,6 +97,41 @@ bool finite(const msg::Dimension3d& d) {
 Eigen::Vector3d vec(const msg::Vector3d& v) { return {v.x, v.y, v.z}; }
 
 }  // namespace
+
+int scenery_class_from_osi(msg::StationaryType type) {
+  namespace c = pgm::cls;
+  switch (type) {
+    case msg::kBuilding: return c::building;
+    case msg::kPole:
+    case msg::kDelineator:
+    case msg::kVerticalStructure:
+    case msg::kReflectiveStructure:
+    case msg::kEmittingStructure: return c::pole;  // street lights, reflector posts
+    case msg::kTree: return c::trunk;               // a trunk under a crown (see read_stationary_objects)
+    case msg::kBarrier: return c::fence;            // guard rails, barriers
+    case msg::kVegetation: return c::vegetation;
+    case msg::kCurbstone: return c::sidewalk;       // SemanticKITTI labels kerbs sidewalk
+    case msg::kSpeedBump: return c::road;
+    case msg::kBridge:
+    case msg::kWall:
+    case msg::kRectangularStructure:
+    case msg::kOverheadStructure: return c::other_structure;
+    default: return c::other_object;  // pylons, construction site elements, other, unknown
+  }
+}
+
+int scenery_material_from_osi(const msg::StationaryObject& o, int class_id) {
+  namespace m = pgm::material;
+  if (o.type == msg::kReflectiveStructure) return m::retroreflective_sign;
+  switch (o.material) {
+    case msg::kConcrete:
+    case msg::kStone: return m::concrete;
+    case msg::kMetal: return m::metal;
+    case msg::kGlas: return m::glass;
+    case msg::kMud: return m::terrain;
+    default: return pgm::default_material(class_id);  // wood, plastic, other, unknown: the class's own
+  }
+}
 
 const msg::MountingPosition* sensor_mount(const msg::SensorView& view, std::string& field) {
   if (view.has & msg::bit(4)) {
@@ -200,6 +237,41 @@ void read_moving_objects(const msg::GroundTruth& gt, const FieldError& fail, IdM
   }
 }
 
+// Stationary objects become scenery boxes (sensor/scenery.h) in the map frame, as a scenario's
+// "scenery" does: never tracked or reported, but they occlude and return points. Boxes are
+// yaw-only, as every box of the model is: roll and pitch are not used.
+void read_stationary_objects(const msg::GroundTruth& gt, const FieldError& fail, SceneFrame& out) {
+  out.map.scenery.clear();
+  if (gt.stationary_object.size() > static_cast<std::size_t>(sensor::kMaxSceneryElements))
+    throw fail("global_ground_truth.stationary_object",
+               std::to_string(gt.stationary_object.size()) + " objects, at most " +
+                   std::to_string(sensor::kMaxSceneryElements) + " (no street holds more)");
+  for (std::size_t i = 0; i < gt.stationary_object.size(); ++i) {
+    const auto& o = gt.stationary_object[i];
+    const std::string field = "global_ground_truth.stationary_object[" + std::to_string(i) + "]";
+    if (!(o.has & msg::bit(2)) || !(o.base.has & msg::bit(2))) throw fail(field + ".base.position", "missing");
+    const auto& b = o.base;
+    if (!finite(b.position) || !finite(b.orientation) || !finite(b.dimension)) throw fail(field + ".base", "not finite");
+    if (!(b.dimension.length > 0 && b.dimension.width > 0 && b.dimension.height > 0))
+      throw fail(field + ".base.dimension", "must be positive (length, width and height)");
+    const Eigen::Vector3d foot(b.position.x, b.position.y, b.position.z - 0.5 * b.dimension.height);
+    const int element = static_cast<int>(i);
+    if (o.type == msg::kTree) {
+      // The box holds the crown; the trunk is the lower 40 % of the height.
+      sensor::TreeShape t;
+      t.crown_diameter = 0.5 * (b.dimension.length + b.dimension.width);
+      t.crown_height = 0.6 * b.dimension.height;
+      t.trunk_height = b.dimension.height - t.crown_height;
+      t.trunk_diameter = std::clamp(0.1 * t.crown_diameter, 0.1, 0.6);
+      sensor::add_scenery_tree(out.map.scenery, foot, t, element);
+      continue;
+    }
+    const int cls = scenery_class_from_osi(o.type);
+    sensor::add_scenery_box(out.map.scenery, foot, {b.dimension.length, b.dimension.width, b.dimension.height},
+                            b.orientation.yaw, cls, scenery_material_from_osi(o, cls), element);
+  }
+}
+
 // At most 0.5 m between points, as scenario lanes (sensor/scenario.h), which are at most 100 km
 // long: points 1e300 m apart made an infinite count (UBSan, the osi_trace fuzz target), 1e7 m
 // apart 2e7 points.
@@ -270,6 +342,7 @@ void scene_from_sensor_view(const msg::SensorView& view, long index, const std::
   out.mount = mount_in_ego(mp, axle_height);
   read_detectors(view, mp, axle_height, fail, out);
   read_moving_objects(gt, fail, ids, out);
+  read_stationary_objects(gt, fail, out);
   read_lane_boundaries(gt, fail, ids, out);
 }
 

@@ -55,7 +55,7 @@ struct Detector {
 
 struct SceneFrame {
   double time = 0;                 // s (SensorView timestamp, else the ground truth's)
-  sensor::Frame map;               // map frame: ego pose, objects (host excluded), lanes
+  sensor::Frame map;               // map frame: ego pose, objects (host excluded), lanes, scenery
   sensor::Pose mount;              // sensor in our ego frame
   Eigen::Vector3d host_velocity = Eigen::Vector3d::Zero();      // map frame
   Eigen::Vector3d host_acceleration = Eigen::Vector3d::Zero();  // map frame
@@ -76,7 +76,9 @@ const msg::MountingPosition* sensor_mount(const msg::SensorView& view, std::stri
 
 // Fills `out` from `view`. Errors (lidarsim::Error) read "<source>: message <index>: <field>: <what>":
 // no global_ground_truth, no host id, a host id not among the moving objects, no mount
-// (sensor_mount), a moving object without id or base position, non-finite numbers.
+// (sensor_mount), a moving object without id or base position, a stationary object without base
+// position or with a dimension that is not positive, more stationary objects than
+// sensor::kMaxSceneryElements, non-finite numbers.
 // Object and lane ids go through `ids` (object ids and lane ids share it).
 void scene_from_sensor_view(const msg::SensorView& view, long index, const std::string& source, IdMap& ids,
                             SceneFrame& out);
@@ -88,6 +90,16 @@ sensor::ObjectClass class_from_osi(const msg::MovingObject& o);
 // The OSI type and vehicle type we report for one of our classes.
 msg::MovingObjectType osi_type(sensor::ObjectClass c);
 msg::VehicleType osi_vehicle_type(sensor::ObjectClass c);
+
+// Our class for an OSI stationary object (global_ground_truth.stationary_object, read as static
+// scenery): buildings; poles, delineators, vertical, reflective and emitting structures (street
+// lights) as poles; trees as a trunk under a crown of vegetation; barriers as fences; vegetation;
+// curbstones as sidewalk (SemanticKITTI labels kerbs so); speed bumps as road; bridges, walls,
+// rectangular and overhead structures as other_structure; the rest (pylons, construction site
+// elements, other, unknown) as other_object. The material: concrete and stone as concrete,
+// metal, glass, mud as terrain, reflective structures retroreflective; else the class's own.
+int scenery_class_from_osi(msg::StationaryType type);
+int scenery_material_from_osi(const msg::StationaryObject& o, int class_id);
 
 double seconds(const msg::Timestamp& t);
 // A pose from an OSI position + orientation (p_parent = R p_child + t, R = Rz(yaw) Ry(pitch) Rx(roll)).

@@ -174,6 +174,48 @@ void read(Reader& r, msg::MovingObject& m) {
   }
 }
 
+void read(Reader& r, msg::BaseStationary& m) {
+  while (r.more()) {
+    const Tag t = r.tag();
+    switch (t.key()) {
+      case key(1, L): r.message("dimension", [&](Reader& s) { read(s, m.dimension); }), m.has |= bit(1); break;
+      case key(2, L): r.message("position", [&](Reader& s) { read(s, m.position, false); }), m.has |= bit(2); break;
+      case key(3, L):
+        r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); });
+        m.has |= bit(3);
+        break;
+      default: r.skip(t);  // base_polygon, bounding_box_section: not in the subset
+    }
+  }
+}
+
+void read_stationary_classification(Reader& r, msg::StationaryObject& m) {
+  std::uint32_t has = 0;
+  while (r.more()) {
+    const Tag t = r.tag();
+    switch (t.key()) {
+      case key(1, V): read_enum(r, "type", msg::kStationaryTypeCount, m.type, has, 1); break;
+      case key(2, V): read_enum(r, "material", msg::kStationaryMaterialCount, m.material, has, 2); break;
+      default: r.skip(t);  // density, color, ...: not in the subset
+    }
+  }
+}
+
+void read(Reader& r, msg::StationaryObject& m) {
+  while (r.more()) {
+    const Tag t = r.tag();
+    switch (t.key()) {
+      case key(1, L): r.message("id", [&](Reader& s) { read(s, m.id, false); }), m.has |= bit(1); break;
+      case key(2, L): r.message("base", [&](Reader& s) { read(s, m.base); }), m.has |= bit(2); break;
+      case key(3, L):
+        r.message("classification", [&](Reader& s) { read_stationary_classification(s, m); });
+        m.has |= bit(3);
+        break;
+      default: r.skip(t);  // model_reference, source_reference, ...: not in the subset
+    }
+  }
+}
+
 // LaneBoundary.BoundaryPoint: position (1) is used; width and height are skipped.
 void read_boundary_point(Reader& r, msg::Vector3d& position) {
   while (r.more()) {
@@ -222,6 +264,12 @@ void read(Reader& r, msg::GroundTruth& m) {
         r.message("host_vehicle_id", [&](Reader& s) { read(s, m.host_vehicle_id, false); });
         m.has |= bit(3);
         break;
+      case key(4, L): {
+        const long i = static_cast<long>(m.stationary_object.size());
+        msg::StationaryObject& o = m.stationary_object.emplace_back();
+        r.message("stationary_object", [&](Reader& s) { read(s, o); }, i);
+        break;
+      }
       case key(5, L): {
         const long i = static_cast<long>(m.moving_object.size());
         msg::MovingObject& o = m.moving_object.emplace_back();

@@ -71,7 +71,7 @@ struct Frame {
   Pose ego_in_map;             // ego pose at this time
   std::vector<Object> objects;
   std::vector<LanePolyline> lanes;
-  std::vector<SceneryBox> scenery;  // static scenery (scenario "scenery"; empty from OSI input)
+  std::vector<SceneryBox> scenery;  // static scenery (scenario "scenery", OSI stationary objects)
 };
 
 }  // namespace lidarsim::sensor

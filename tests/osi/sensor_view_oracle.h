@@ -56,12 +56,35 @@ inline void base(Diff& d, const msg::BaseMoving& a, const osi3::BaseMoving& b, c
   vector3d(d, a.acceleration, b.acceleration(), f + ".acceleration");
 }
 
+inline void stationary_objects(Diff& d, const msg::GroundTruth& a, const osi3::GroundTruth& b, const std::string& g) {
+  d.check(a.stationary_object.size() == static_cast<std::size_t>(b.stationary_object_size()),
+          g + ".stationary_object (count)");
+  for (int i = 0; i < b.stationary_object_size() && i < static_cast<int>(a.stationary_object.size()); ++i) {
+    const auto& x = a.stationary_object[static_cast<std::size_t>(i)];
+    const auto& y = b.stationary_object(i);
+    const std::string f = g + ".stationary_object[" + std::to_string(i) + "]";
+    d.check(((x.has & msg::bit(1)) != 0) == y.has_id() && x.id.value == y.id().value(), f + ".id");
+    d.check(((x.has & msg::bit(2)) != 0) == y.has_base(), f + ".base (presence)");
+    d.f64(x.base.dimension.length, y.base().dimension().length(), f + ".base.dimension.length");
+    d.f64(x.base.dimension.width, y.base().dimension().width(), f + ".base.dimension.width");
+    d.f64(x.base.dimension.height, y.base().dimension().height(), f + ".base.dimension.height");
+    d.check(((x.base.has & msg::bit(1)) != 0) == y.base().has_dimension(), f + ".base.dimension (presence)");
+    d.check(((x.base.has & msg::bit(2)) != 0) == y.base().has_position(), f + ".base.position (presence)");
+    vector3d(d, x.base.position, y.base().position(), f + ".base.position");
+    orientation(d, x.base.orientation, y.base().orientation(), f + ".base.orientation");
+    d.check(static_cast<int>(x.type) == static_cast<int>(y.classification().type()), f + ".classification.type");
+    d.check(static_cast<int>(x.material) == static_cast<int>(y.classification().material()),
+            f + ".classification.material");
+  }
+}
+
 inline void ground_truth(Diff& d, const msg::GroundTruth& a, const osi3::GroundTruth& b) {
   const std::string g = "global_ground_truth";
   echoed(d, a.timestamp, b.timestamp(), g + ".timestamp");
   d.check(((a.has & msg::bit(3)) != 0) == b.has_host_vehicle_id() &&
               a.host_vehicle_id.value == b.host_vehicle_id().value(),
           g + ".host_vehicle_id");
+  stationary_objects(d, a, b, g);
   d.check(a.moving_object.size() == static_cast<std::size_t>(b.moving_object_size()), g + ".moving_object (count)");
   for (int i = 0; i < b.moving_object_size() && i < static_cast<int>(a.moving_object.size()); ++i) {
     const auto& x = a.moving_object[static_cast<std::size_t>(i)];

@@ -132,6 +132,31 @@ void moving_object(RandomView& d, osi3::MovingObject& o) {
   maybe_unknown(d, o);
 }
 
+void stationary_object(RandomView& d, osi3::StationaryObject& o) {
+  if (d.coin(0.9)) identifier(d, *o.mutable_id());
+  if (d.coin(0.9)) {
+    auto& b = *o.mutable_base();
+    if (d.coin(0.9)) {
+      b.mutable_dimension()->set_length(d.real());
+      if (d.coin(0.9)) b.mutable_dimension()->set_width(d.real());
+      b.mutable_dimension()->set_height(d.real());
+    }
+    if (d.coin(0.9)) vector3d(d, *b.mutable_position());
+    if (d.coin(0.8)) orientation(d, *b.mutable_orientation());
+    if (d.coin(0.1)) b.mutable_unknown_fields()->AddLengthDelimited(4, std::string("\x09\0\0\0\0\0\0\xf0\x3f", 9));
+    maybe_unknown(d, b);
+  }
+  if (d.coin(0.8)) {
+    auto& c = *o.mutable_classification();
+    if (d.coin(0.9)) c.set_type(static_cast<osi3::StationaryObject::Classification::Type>(d.integer(0, 18)));
+    if (d.coin(0.7)) c.set_material(static_cast<osi3::StationaryObject::Classification::Material>(d.integer(0, 8)));
+    if (d.coin(0.1)) c.mutable_unknown_fields()->AddVarint(1, d.coin() ? 19 : (1ull << 32) + 3);  // out of the enum
+    if (d.coin(0.1)) c.mutable_unknown_fields()->AddVarint(3, 2);  // density, not in the subset
+  }
+  if (d.coin(0.1)) o.mutable_unknown_fields()->AddLengthDelimited(4, "tree.glb");  // model_reference
+  maybe_unknown(d, o);
+}
+
 void lane_boundary(RandomView& d, osi3::LaneBoundary& l) {
   if (d.coin(0.9)) identifier(d, *l.mutable_id());
   for (int k = d.integer(0, 5); k > 0; --k) {
@@ -160,6 +185,7 @@ osi3::SensorView random_view(RandomView& d) {
     if (d.coin(0.5)) timestamp(d, *gt.mutable_timestamp());
     if (d.coin(0.5)) identifier(d, *gt.mutable_host_vehicle_id());
     for (int i = d.integer(0, 6); i > 0; --i) moving_object(d, *gt.add_moving_object());
+    for (int i = d.integer(0, 3); i > 0; --i) stationary_object(d, *gt.add_stationary_object());
     for (int i = d.integer(0, 3); i > 0; --i) lane_boundary(d, *gt.add_lane_boundary());
     maybe_unknown(d, gt);
   }
