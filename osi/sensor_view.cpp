@@ -270,6 +270,10 @@ void read_stationary_objects(const msg::GroundTruth& gt, const FieldError& fail,
     sensor::add_scenery_box(out.map.scenery, foot, {b.dimension.length, b.dimension.width, b.dimension.height},
                             b.orientation.yaw, cls, scenery_material_from_osi(o, cls), element);
   }
+  if (out.map.scenery.size() > static_cast<std::size_t>(sensor::kMaxSceneryBoxes))  // a tree is 5 boxes
+    throw fail("global_ground_truth.stationary_object",
+               std::to_string(out.map.scenery.size()) + " scenery boxes, at most " +
+                   std::to_string(sensor::kMaxSceneryBoxes));
 }
 
 // At most 0.5 m between points, as scenario lanes (sensor/scenario.h), which are at most 100 km

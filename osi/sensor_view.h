@@ -78,7 +78,7 @@ const msg::MountingPosition* sensor_mount(const msg::SensorView& view, std::stri
 // no global_ground_truth, no host id, a host id not among the moving objects, no mount
 // (sensor_mount), a moving object without id or base position, a stationary object without base
 // position or with a dimension that is not positive, more stationary objects than
-// sensor::kMaxSceneryElements, non-finite numbers.
+// sensor::kMaxSceneryElements or scenery boxes than sensor::kMaxSceneryBoxes, non-finite numbers.
 // Object and lane ids go through `ids` (object ids and lane ids share it).
 void scene_from_sensor_view(const msg::SensorView& view, long index, const std::string& source, IdMap& ids,
                             SceneFrame& out);

@@ -13,6 +13,7 @@
 #include "osi/sensor_data.h"
 #include "osi/sensor_view.h"
 #include "pgm/materials.h"
+#include "sensor/scenery.h"
 
 namespace {
 
@@ -137,6 +138,12 @@ TEST(OsiStationaryObjects, BadOnesAreOneErrorNamingTheField) {
     osi3::SensorView v = stationary_view_with_host(0);
     stationary_add(v, 1, Classification::TYPE_POLE, 20, NAN, 1, 1, 9);
     EXPECT_EQ(message(v), "hand: message 0: global_ground_truth.stationary_object[0].base: not finite");
+  }
+  {  // more trees than the model takes boxes (each is a trunk and four crown boxes)
+    osi3::SensorView v = stationary_view_with_host(0);
+    for (int k = 0; k < lidarsim::sensor::kMaxSceneryBoxes / 5 + 1; ++k)
+      stationary_add(v, 10 + k, Classification::TYPE_TREE, k, 30, 4, 4, 8);
+    EXPECT_EQ(message(v), "hand: message 0: global_ground_truth.stationary_object: 50005 scenery boxes, at most 50000");
   }
 }
 
