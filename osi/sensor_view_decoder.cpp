@@ -107,16 +107,26 @@ void read(Reader& r, msg::MountingPosition& m, bool keep) {
   }
 }
 
+// The fields BaseMoving and BaseStationary share: dimension (1), position (2), orientation (3).
+// False when `t` is none of them.
+template <class Base>
+bool read_box_field(Reader& r, const Tag& t, Base& m) {
+  switch (t.key()) {
+    case key(1, L): r.message("dimension", [&](Reader& s) { read(s, m.dimension); }), m.has |= bit(1); return true;
+    case key(2, L): r.message("position", [&](Reader& s) { read(s, m.position, false); }), m.has |= bit(2); return true;
+    case key(3, L):
+      r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); });
+      m.has |= bit(3);
+      return true;
+    default: return false;
+  }
+}
+
 void read(Reader& r, msg::BaseMoving& m) {
   while (r.more()) {
     const Tag t = r.tag();
+    if (read_box_field(r, t, m)) continue;
     switch (t.key()) {
-      case key(1, L): r.message("dimension", [&](Reader& s) { read(s, m.dimension); }), m.has |= bit(1); break;
-      case key(2, L): r.message("position", [&](Reader& s) { read(s, m.position, false); }), m.has |= bit(2); break;
-      case key(3, L):
-        r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); });
-        m.has |= bit(3);
-        break;
       case key(4, L): r.message("velocity", [&](Reader& s) { read(s, m.velocity, false); }), m.has |= bit(4); break;
       case key(5, L):
         r.message("acceleration", [&](Reader& s) { read(s, m.acceleration, false); });
@@ -177,15 +187,7 @@ void read(Reader& r, msg::MovingObject& m) {
 void read(Reader& r, msg::BaseStationary& m) {
   while (r.more()) {
     const Tag t = r.tag();
-    switch (t.key()) {
-      case key(1, L): r.message("dimension", [&](Reader& s) { read(s, m.dimension); }), m.has |= bit(1); break;
-      case key(2, L): r.message("position", [&](Reader& s) { read(s, m.position, false); }), m.has |= bit(2); break;
-      case key(3, L):
-        r.message("orientation", [&](Reader& s) { read(s, m.orientation, false); });
-        m.has |= bit(3);
-        break;
-      default: r.skip(t);  // base_polygon, bounding_box_section: not in the subset
-    }
+    if (!read_box_field(r, t, m)) r.skip(t);  // base_polygon, bounding_box_section: not in the subset
   }
 }
 

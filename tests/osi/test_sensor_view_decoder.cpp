@@ -95,17 +95,23 @@ void timestamp(RandomView& d, osi3::Timestamp& t) {
   maybe_unknown(d, t);
 }
 
+// The fields BaseMoving and BaseStationary share: dimension, position, orientation.
+template <class Base>
+void random_box(RandomView& d, Base& b) {
+  if (d.coin(0.9)) {
+    b.mutable_dimension()->set_length(d.real());
+    if (d.coin(0.9)) b.mutable_dimension()->set_width(d.real());
+    b.mutable_dimension()->set_height(d.real());
+  }
+  if (d.coin(0.9)) vector3d(d, *b.mutable_position());
+  if (d.coin(0.8)) orientation(d, *b.mutable_orientation());
+}
+
 void moving_object(RandomView& d, osi3::MovingObject& o) {
   if (d.coin(0.9)) identifier(d, *o.mutable_id());
   if (d.coin(0.9)) {
     auto& b = *o.mutable_base();
-    if (d.coin(0.9)) {
-      b.mutable_dimension()->set_length(d.real());
-      if (d.coin(0.9)) b.mutable_dimension()->set_width(d.real());
-      b.mutable_dimension()->set_height(d.real());
-    }
-    if (d.coin(0.9)) vector3d(d, *b.mutable_position());
-    if (d.coin(0.8)) orientation(d, *b.mutable_orientation());
+    random_box(d, b);
     if (d.coin(0.5)) vector3d(d, *b.mutable_velocity());
     if (d.coin(0.5)) vector3d(d, *b.mutable_acceleration());
     if (d.coin(0.2)) orientation(d, *b.mutable_orientation_rate());
@@ -136,13 +142,7 @@ void stationary_object(RandomView& d, osi3::StationaryObject& o) {
   if (d.coin(0.9)) identifier(d, *o.mutable_id());
   if (d.coin(0.9)) {
     auto& b = *o.mutable_base();
-    if (d.coin(0.9)) {
-      b.mutable_dimension()->set_length(d.real());
-      if (d.coin(0.9)) b.mutable_dimension()->set_width(d.real());
-      b.mutable_dimension()->set_height(d.real());
-    }
-    if (d.coin(0.9)) vector3d(d, *b.mutable_position());
-    if (d.coin(0.8)) orientation(d, *b.mutable_orientation());
+    random_box(d, b);
     if (d.coin(0.1)) b.mutable_unknown_fields()->AddLengthDelimited(4, std::string("\x09\0\0\0\0\0\0\xf0\x3f", 9));
     maybe_unknown(d, b);
   }
