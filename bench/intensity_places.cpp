@@ -13,6 +13,7 @@
 // Before scoring, the training datasets the checkpoint itself names (its train_config) are opened
 // and checked to hold no frame of the held-out place.
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cxxopts.hpp>
 #include <filesystem>
@@ -173,11 +174,12 @@ std::vector<std::string> checked_training_names(const fs::path& ck, const data::
   return names;
 }
 
+// The model's output (the mean, or after sample_from_spread a draw keyed by frame and cell).
 std::vector<double> predict_returning_cells(infer::IntensityModel& model, const data::Dataset& held) {
   std::vector<double> unet;
   std::vector<float> out;
   for (int n = 0; n < held.size(); ++n) {
-    model.predict(held.frame_pgm(n), out);
+    model.predict(held.frame_pgm(n), out, static_cast<std::uint64_t>(n));
     const float* m = held.mask.image(n);
     for (int i = 0; i < held.rows() * held.cols(); ++i)
       if (m[i] > 0) unet.push_back(out[i]);
@@ -185,18 +187,35 @@ std::vector<double> predict_returning_cells(infer::IntensityModel& model, const 
   return unet;
 }
 
+// A checkpoint with a spread head, drawn once per seed (infer/intensity_sampling.h: its residual
+// table and grid when it has them, fitted by lidar-train --early-stop on the training places' inner
+// region): MAE and intersection of each draw. Empty without a spread head.
+nlohmann::json score_draws(infer::IntensityModel& model, const data::Dataset& held, const HeldOutPlace& place,
+                           const std::vector<std::uint64_t>& seeds, std::string& md) {
+  nlohmann::json draws = nlohmann::json::array();
+  if (!model.spread()) return draws;
+  for (const std::uint64_t seed : seeds) {
+    model.sample_from_spread({seed, 0.f, 1.f, false}, "bench_intensity_places");
+    const Scored sd = score(predict_returning_cells(model, held), place.measured);
+    draws.push_back({{"seed", seed}, {"mae", sd.mae}, {"intersection", sd.intersection}});
+    md += (md.empty() ? "" : ", ") + fmt(sd.intersection, 3);
+  }
+  return draws;
+}
+
 struct Report {
   nlohmann::json rows = nlohmann::json::array();
   std::string md =
       "| held out | trained on | variant | cells | UNet MAE | best lookup MAE (which) | global mean MAE | "
-      "UNet hist. int. | class x range + beam hist. int. | ceiling | UNet / ceiling |\n"
-      "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+      "UNet hist. int. | class x range + beam hist. int. | ceiling | UNet / ceiling | sampled hist. int. (seeds) | "
+      "sampled / ceiling |\n"
+      "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
 };
 
 // One checkpoint variant of one fold, scored on every returning cell of the held-out place.
 void score_variant(const data::PlaceFold& f, const data::PlacedSet& held, const data::Dataset& held_ds,
                    const HeldOutPlace& place, const Lookups& lookups, const fs::path& models,
-                   const std::string& variant, Report& report) {
+                   const std::string& variant, const std::vector<std::uint64_t>& seeds, Report& report) {
   const fs::path ck = models / (f.held_out + "." + variant + ".h5");
   if (!fs::exists(ck)) throw Error(ck.string() + ": missing (run scripts/intensity_places.sh)");
   const std::vector<std::string> trained_on = checked_training_names(ck, held);
@@ -205,6 +224,12 @@ void score_variant(const data::PlaceFold& f, const data::PlacedSet& held, const 
   infer::IntensityModel model = infer::IntensityModel::load(ck);
   const Scored su = score(predict_returning_cells(model, held_ds), place.measured);
   const double ceiling = place.ceiling, global = lookups.mae.at("global_mean").get<double>();
+  const auto attrs = nn::read_checkpoint_meta(ck).attributes;
+  const auto calibration = attrs.find("spread_calibration");  // where its table was fitted
+  std::string drawn_md;
+  const nlohmann::json draws = score_draws(model, held_ds, place, seeds, drawn_md);
+  double drawn_mean = 0;
+  for (const auto& d : draws) drawn_mean += d["intersection"].get<double>() / static_cast<double>(draws.size());
   report.rows.push_back({{"held_out", f.held_out},
                          {"training", f.training},
                          {"excluded", f.excluded},
@@ -219,16 +244,20 @@ void score_variant(const data::PlaceFold& f, const data::PlacedSet& held, const 
                          {"best_lookup_mae", lookups.best},
                          {"unet_intersection", su.intersection},
                          {"lookup_beam_intersection", lookups.beam_intersection},
+                         {"sampled", draws},
+                         {"spread_calibration", calibration == attrs.end() ? nlohmann::json(nullptr)
+                                                                            : nlohmann::json(calibration->second)},
                          {"ceiling", ceiling < 0 ? nlohmann::json(nullptr) : nlohmann::json(ceiling)}});
   report.md += "| " + f.held_out + " | " + join(f.training, ", ") + " | " + variant + " (" +
                join(model.encoder().channels, ",") + ") | " + std::to_string(place.measured.size()) + " | " +
                fmt(su.mae) + " | " + fmt(lookups.best) + " (" + lookups.best_name + ") | " + fmt(global) + " | " +
                fmt(su.intersection, 3) + " | " + fmt(lookups.beam_intersection, 3) + " | " +
                (ceiling < 0 ? "n/a" : fmt(ceiling, 3)) + " | " +
-               (ceiling < 0 ? "n/a" : fmt(su.intersection / ceiling, 2)) + " |\n";
-  std::fprintf(stderr, "intensity_places: %s held out, %s: UNet MAE %.4f, best lookup %.4f (%s), hist %.3f / %.3f\n",
+               (ceiling < 0 ? "n/a" : fmt(su.intersection / ceiling, 2)) + " | " + (draws.empty() ? "–" : drawn_md) +
+               " | " + (draws.empty() || ceiling < 0 ? "–" : fmt(drawn_mean / ceiling, 2)) + " |\n";
+  std::fprintf(stderr, "intensity_places: %s held out, %s: UNet MAE %.4f, best lookup %.4f (%s), hist %.3f / %.3f%s%s\n",
                f.held_out.c_str(), variant.c_str(), su.mae, lookups.best, lookups.best_name.c_str(), su.intersection,
-               ceiling);
+               ceiling, draws.empty() ? "" : ", sampled ", drawn_md.c_str());
 }
 
 const data::PlacedSet& set_named(const std::vector<data::PlacedSet>& sets, const std::string& name) {
@@ -239,7 +268,7 @@ const data::PlacedSet& set_named(const std::vector<data::PlacedSet>& sets, const
 
 // One held-out place: its lookups once, then every checkpoint variant trained without it.
 void score_fold(const data::PlaceFold& f, const std::vector<data::PlacedSet>& sets, const fs::path& models,
-                const std::vector<std::string>& variants, Report& report) {
+                const std::vector<std::string>& variants, const std::vector<std::uint64_t>& seeds, Report& report) {
   const data::PlacedSet& held = set_named(sets, f.held_out);
   std::vector<data::PlacedSet> train;
   for (const auto& n : f.training) train.push_back(set_named(sets, n));
@@ -248,7 +277,7 @@ void score_fold(const data::PlaceFold& f, const std::vector<data::PlacedSet>& se
                f.training.empty() ? "(none compatible)" : join(f.training, ", ").c_str());
   if (f.training.empty()) {
     report.rows.push_back({{"held_out", f.held_out}, {"training", f.training}, {"excluded", f.excluded}});
-    report.md += "| " + f.held_out + " | none (below) | – | – | – | – | – | – | – | – | – |\n";
+    report.md += "| " + f.held_out + " | none (below) | – | – | – | – | – | – | – | – | – | – | – |\n";
     return;
   }
   const data::Dataset held_ds = data::read_dataset(held.path);
@@ -258,7 +287,7 @@ void score_fold(const data::PlaceFold& f, const std::vector<data::PlacedSet>& se
   std::fprintf(stderr, "intensity_places: %s held out: lookups...\n", f.held_out.c_str());
   const Lookups lookups = score_lookups(train_ds, held_ds, place.measured);
   for (const std::string& variant : variants)
-    score_variant(f, held, held_ds, place, lookups, models, variant, report);
+    score_variant(f, held, held_ds, place, lookups, models, variant, seeds, report);
 }
 
 std::vector<data::PlacedSet> read_sets(const std::string& list) {
@@ -281,6 +310,7 @@ int main(int argc, char** argv) {
       "variants", "checkpoint variants, names",
       cxxopts::value<std::string>()->default_value("rcm,range"))(
       "out", "output prefix: PREFIX.json, PREFIX.md", cxxopts::value<std::string>()->default_value(""))(
+      "seeds", "draw seeds for checkpoints with a spread head", cxxopts::value<std::string>()->default_value("1,2,3"))(
       "h,help", "help");
   try {
     const auto args = opts.parse(argc, argv);
@@ -299,8 +329,11 @@ int main(int argc, char** argv) {
     const fs::path models = args["models"].as<std::string>();
     const std::string prefix = args["out"].as<std::string>();
     if (models.empty() || prefix.empty()) throw Error("--models and --out are needed unless --plan");
+    std::vector<std::uint64_t> seeds;
+    for (const std::string& seed : split_list(args["seeds"].as<std::string>())) seeds.push_back(std::stoull(seed));
     Report report;
-    for (const auto& f : folds) score_fold(f, sets, models, split_list(args["variants"].as<std::string>()), report);
+    for (const auto& f : folds)
+      score_fold(f, sets, models, split_list(args["variants"].as<std::string>()), seeds, report);
     std::string excluded_md;
     for (const auto& f : folds)
       for (const auto& e : f.excluded) excluded_md += "- " + f.held_out + " held out, not trained on " + e + "\n";

@@ -188,11 +188,14 @@ void score_samples(infer::IntensityModel& model, const data::Dataset& ds, const 
     for (std::size_t i = 0; i < drawn.size(); ++i) dmae += std::abs(drawn[i] - measured[i]);
     dmae /= std::max<std::size_t>(1, drawn.size());
     const qualify::Similarity ss = qualify::compare(drawn, measured);
+    const auto zeros = [](const std::vector<double>& v) {
+      return static_cast<double>(std::count(v.begin(), v.end(), 0.0)) / std::max<std::size_t>(1, v.size());
+    };
     j["sampled"].push_back({{"seed", seed}, {"mae", dmae}, {"intersection", ss.intersection},
-                            {"interval", {ss.interval.lo, ss.interval.hi}}});
-    std::printf("sampled (seed %llu): MAE %.4f  intersection %.3f [%.3f, %.3f]  = %.3f x ceiling\n",
+                            {"interval", {ss.interval.lo, ss.interval.hi}}, {"zeros", zeros(drawn)}});
+    std::printf("sampled (seed %llu): MAE %.4f  intersection %.3f [%.3f, %.3f]  = %.3f x ceiling; zeros %.4f (measured %.4f)\n",
                 static_cast<unsigned long long>(seed), dmae, ss.intersection, ss.interval.lo, ss.interval.hi,
-                ss.intersection / ceiling);
+                ss.intersection / ceiling, zeros(drawn), zeros(measured));
     if (args.count("diagnose") && j["sampled"].size() == 1) {
       std::vector<double> mu, b;
       held_out_distribution(model, ds, c, mu, b);

@@ -109,11 +109,24 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
   // The empirical residual fitted with the scale when the checkpoint has one (format 4).
   const nn::SpreadResidual& residual = model_.config().spread_residual;
   const bool empirical = !residual.empty() && !sampling_->parametric;
+  // With a zero head: 0 with its probability, otherwise a draw around the centre of the values
+  // that are not 0 (the residual table was fitted around the same centre).
+  const int zc = nn::head_channel(model_.config().heads, nn::HeadKind::zero_logit);
+  const float* zero_logit = zc >= 0 ? output_.data() + static_cast<std::size_t>(zc) * pgm.cells() : nullptr;
   for (std::size_t i = 0; i < pgm.cells(); ++i) {
     if (mask[i] <= 0) continue;
+    float centre = mean[i];
+    if (zero_logit) {
+      const double p_zero = nn::logit_probability(zero_logit[i]);
+      if (draws_zero(p_zero, *sampling_, frame, i)) {
+        out[i] = sampling_->min;
+        continue;
+      }
+      centre = static_cast<float>(nn::nonzero_center(mean[i], p_zero));
+    }
     const float scale = scale_of(log_scale[i]);
-    out[i] = empirical ? sample_intensity_empirical(residual, mean[i], scale, *sampling_, frame, i)
-                       : sample_intensity(*spread(), mean[i], scale, *sampling_, frame, i);
+    out[i] = empirical ? sample_intensity_empirical(residual, centre, scale, *sampling_, frame, i)
+                       : sample_intensity(*spread(), centre, scale, *sampling_, frame, i);
   }
 }
 

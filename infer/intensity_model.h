@@ -45,7 +45,8 @@ class IntensityModel {
 
   // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0. By
   // default the mean (channel 0); with sample_from_spread, a draw per cell depending only on
-  // (seed, frame, cell).
+  // (seed, frame, cell): with a zero head (nn/heads.h zero_logit) the range's minimum with the
+  // head's probability, otherwise from the spread around nn::nonzero_center.
   void predict(const pgm::PolarGridMap& pgm, std::vector<float>& out, std::uint64_t frame = 0);
   // The predicted distribution per cell, [rows * cols]: the mean (channel 0) and the spread head's
   // scale (clamped as in training, times the calibration factor in use). Cells without a return get

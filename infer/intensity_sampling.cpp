@@ -20,6 +20,11 @@ void cell_uniforms(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell, 
   u2 = to_unit(splitmix64(key ^ 0x2ull));
 }
 
+bool draws_zero(double p_zero, const IntensitySampling& s, std::uint64_t frame, std::uint64_t cell) {
+  const std::uint64_t key = splitmix64(splitmix64(splitmix64(s.seed) ^ frame) ^ cell);
+  return to_unit(splitmix64(key ^ 0x3ull)) < p_zero;
+}
+
 float sample_intensity(nn::HeadKind spread, float mean, float scale, const IntensitySampling& s, std::uint64_t frame,
                        std::uint64_t cell) {
   double u1 = 0, u2 = 0;

@@ -18,6 +18,10 @@ struct IntensitySampling {
   bool parametric = false;
 };
 
+// With a zero head (nn/heads.h zero_logit): whether the cell's draw is the sensor's 0, with
+// probability p_zero, from a uniform of (seed, frame, cell) independent of cell_uniforms' two.
+bool draws_zero(double p_zero, const IntensitySampling& s, std::uint64_t frame, std::uint64_t cell);
+
 // Two independent uniforms in (0, 1) for (seed, frame, cell).
 void cell_uniforms(std::uint64_t seed, std::uint64_t frame, std::uint64_t cell, double& u1, double& u2);
 

@@ -30,12 +30,16 @@ using namespace checkpoint_h5;
 // format 3 with `unet.spread_residual` (UNetConfig::spread_residual, JSON: the residual's
 // quantiles per bin of the mean and the targets' grid): builds that read formats 1-3 would draw
 // from the Laplace/Gaussian instead, so they refuse it by its number; without a table, 1-3 as before.
+// Format 5 is format 4 (every field of it written, the table possibly empty) with a zero_logit head
+// in `unet.heads` (nn/heads.h): the table is then fitted on the values that are not 0, so a build
+// that reads 1-4 would draw without the zeros from a table that lacks them; it refuses the number.
 constexpr const char* kFormatPrefix = "lidarsim-checkpoint ";
-constexpr int kNewestCheckpointFormat = 4;
+constexpr int kNewestCheckpointFormat = 5;
 
 bool needs_format2(const UNetConfig& c) { return c.out_channels != 1 || !c.heads.empty(); }
 bool needs_format3(const UNetConfig& c) { return c.spread_scale != 1.f; }
 bool needs_format4(const UNetConfig& c) { return !c.spread_residual.empty(); }
+bool needs_format5(const UNetConfig& c) { return head_channel(c.heads, HeadKind::zero_logit) >= 0; }
 
 bool reserved_attribute(const std::string& key) {
   return key == "format" || key.rfind("unet.", 0) == 0 || key.rfind("optimizer.", 0) == 0;
@@ -87,9 +91,9 @@ void save_checkpoint(const std::filesystem::path& path, const UNet& model, const
     Writer w(path);
     {
       Handle config = w.group("config");
-      const bool v2 = needs_format2(model.config()), v4 = needs_format4(model.config()),
-                 v3 = v4 || needs_format3(model.config());
-      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v4 ? 4 : v3 ? 3 : v2 ? 2 : 1));
+      const bool v2 = needs_format2(model.config()), v5 = needs_format5(model.config()),
+                 v4 = v5 || needs_format4(model.config()), v3 = v4 || needs_format3(model.config());
+      w.attr(config.get(), "config", "format", kFormatPrefix + std::to_string(v5 ? 5 : v4 ? 4 : v3 ? 3 : v2 ? 2 : 1));
       w.attr(config.get(), "config", "unet.in_channels", std::int64_t{model.config().in_channels});
       if (!v2) w.attr(config.get(), "config", "unet.out_channels", std::int64_t{model.config().out_channels});
       if (v2) w.attr(config.get(), "config", "unet.outputs", std::int64_t{model.config().out_channels});
@@ -178,6 +182,10 @@ void outputs_of(const Reader& r, UNetConfig& c) {
       r.fail("config/unet.heads", e.what());
     }
   }
+  const bool zero_head = head_channel(c.heads, HeadKind::zero_logit) >= 0;
+  if (zero_head && format < 5)
+    r.fail("config/unet.heads", "a zero_logit head in a format-" + std::to_string(format) + " checkpoint (format 5 carries it)");
+  if (format >= 5 && !zero_head) r.fail("config/unet.heads", "format 5, but no zero_logit head");
   c.spread_scale = 1.f;
   if (format >= 3) {
     const double v = r.double_attr("config", "unet.spread_scale");

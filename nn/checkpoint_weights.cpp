@@ -23,7 +23,9 @@ static_assert(std::endian::native == std::endian::little, "the value bytes are w
 // refuses the file by its magic line. A model whose factor is 1 is still written as format 1.
 // Format 3 is format 2 with header.unet.spread_residual (UNetConfig::spread_residual, the
 // residual's quantiles and the targets' grid), refused by format-1-2 readers for the same reason.
-constexpr int kNewestWeightsFormat = 3;
+// Format 4 is format 3 (every field of it) with a zero_logit head (nn/heads.h; as checkpoint
+// format 5, nn/checkpoint.cpp): format-1-3 readers would draw without the zeros.
+constexpr int kNewestWeightsFormat = 4;
 constexpr std::size_t kMaxHeader = std::size_t{64} << 20;
 
 std::uint64_t fnv1a64(const unsigned char* p, std::size_t n) {
@@ -40,7 +42,10 @@ std::string hex16(std::uint64_t v) {
 
 nlohmann::json shape_json(const Shape& s) { return nlohmann::json::array({s.n, s.c, s.h, s.w}); }
 
-int format_for(const UNetConfig& c) { return !c.spread_residual.empty() ? 3 : c.spread_scale != 1.f ? 2 : 1; }
+int format_for(const UNetConfig& c) {
+  if (head_channel(c.heads, HeadKind::zero_logit) >= 0) return 4;
+  return !c.spread_residual.empty() ? 3 : c.spread_scale != 1.f ? 2 : 1;
+}
 
 nlohmann::json unet_json(const UNetConfig& c) {
   nlohmann::json u = {{"in_channels", c.in_channels},
@@ -138,6 +143,10 @@ UNetConfig unet_from(const Fields& f, const nlohmann::json& h, int format) {
   } else if (u.contains("spread_residual")) {
     f.fail("header.unet.spread_residual", "present in a format-" + std::to_string(format) + " file (format 3 carries it)");
   }
+  const bool zero_head = head_channel(c.heads, HeadKind::zero_logit) >= 0;
+  if (zero_head && format < 4)
+    f.fail("header.unet.heads", "a zero_logit head in a format-" + std::to_string(format) + " file (format 4 carries it)");
+  if (format >= 4 && !zero_head) f.fail("header.unet.heads", "format 4, but no zero_logit head");
   return c;
 }
 

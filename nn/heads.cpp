@@ -48,10 +48,12 @@ void check_heads(const std::vector<HeadKind>& heads, int out_channels, const std
     if (static_cast<int>(h) < 0 || h >= HeadKind::count) fail("unknown head kind");
     ++count[static_cast<int>(h)];
   }
-  for (HeadKind h : {HeadKind::mean, HeadKind::return_logit, HeadKind::log_scale_gaussian, HeadKind::log_scale_laplace})
-    if (count[static_cast<int>(h)] > 1) fail(std::string("head \"") + head_name(h) + "\" appears more than once");
-  if (count[static_cast<int>(HeadKind::log_scale_gaussian)] + count[static_cast<int>(HeadKind::log_scale_laplace)] > 1)
-    fail("at most one spread head (log_scale_gaussian or log_scale_laplace)");
+  for (int h = 0; h < static_cast<int>(HeadKind::count); ++h)
+    if (count[h] > 1) fail(std::string("head \"") + head_name(static_cast<HeadKind>(h)) + "\" appears more than once");
+  const int spreads = count[static_cast<int>(HeadKind::log_scale_gaussian)] + count[static_cast<int>(HeadKind::log_scale_laplace)];
+  if (spreads > 1) fail("at most one spread head (log_scale_gaussian or log_scale_laplace)");
+  if (count[static_cast<int>(HeadKind::zero_logit)] > 0 && spreads == 0)
+    fail("zero_logit needs a spread head (a draw that is not 0 comes from the spread)");
 }
 
 namespace {
@@ -110,6 +112,7 @@ HeadsLoss heads_loss(const std::vector<HeadKind>& heads, const Tensor& pred, con
         parts = masked_mse(mean, *t.target, *t.mask, g, t.denominator);
         break;
       case HeadKind::return_logit:
+      case HeadKind::zero_logit:
         copy_channel(own, pred, h);
         parts = masked_bce_logits(own, *t.target, *t.mask, g, t.denominator);
         break;
@@ -144,6 +147,23 @@ void sigmoid_forward(Tensor& out, const Tensor& in) {
   }
 }
 
+int head_channel(const std::vector<HeadKind>& heads, HeadKind kind) {
+  const auto it = std::find(heads.begin(), heads.end(), kind);
+  return it == heads.end() ? -1 : static_cast<int>(it - heads.begin());
+}
+
+void zero_indicator(Tensor& out, const Tensor& target) {
+  if (!(out.shape() == target.shape())) out.resize(target.shape());
+  for (std::size_t i = 0; i < target.numel(); ++i) out.data()[i] = target.data()[i] <= 0.f ? 1.f : 0.f;
+}
+
+double logit_probability(double z) {
+  const double e = std::exp(-std::abs(z));
+  return z >= 0 ? 1 / (1 + e) : e / (1 + e);
+}
+
+double nonzero_center(double mean, double p_zero) { return mean / (1 - std::clamp(p_zero, 0.0, 0.9)); }
+
 bool has_spread_head(const std::vector<HeadKind>& heads) {
   return std::any_of(heads.begin(), heads.end(),
                      [](HeadKind h) { return h == HeadKind::log_scale_gaussian || h == HeadKind::log_scale_laplace; });
@@ -157,7 +177,7 @@ void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogSc
   for (int n = 0; n < s.n; ++n)
     for (int c = 0; c < s.c; ++c) {
       float* v = y.channel(n, c);
-      if (heads[c] == HeadKind::return_logit)
+      if (heads[c] == HeadKind::return_logit || heads[c] == HeadKind::zero_logit)
         for (std::size_t i = 0; i < s.plane(); ++i) {
           const float e = std::exp(-std::abs(v[i]));
           v[i] = v[i] >= 0 ? 1.f / (1.f + e) : e / (1.f + e);

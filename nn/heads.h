@@ -8,8 +8,11 @@
 //                       at inference sigma = exp(clamp(s))
 //   log_scale_laplace   log b of a Laplace around the mean head, masked Laplace NLL;
 //                       at inference b = exp(clamp(s))
+//   zero_logit          logit of P(target == 0) (a sensor's zero intensity readings), masked BCE
+//                       on logits against the indicator (target <= 0); at inference sigmoid(z)
 // Rules (check_heads): channel 0 is the mean (a lookup base is added to it); every other kind
-// appears at most once, and at most one of the two spread kinds.
+// appears at most once, at most one of the two spread kinds, and zero_logit only with a spread
+// (a draw is 0 with its probability, else from the spread: infer/intensity_sampling.h).
 #include <array>
 #include <string>
 #include <vector>
@@ -19,9 +22,9 @@
 
 namespace lidarsim::nn {
 
-enum class HeadKind { mean, return_logit, log_scale_gaussian, log_scale_laplace, count };
-inline constexpr std::array<const char*, 4> kHeadNames = {"mean", "return_logit", "log_scale_gaussian",
-                                                          "log_scale_laplace"};
+enum class HeadKind { mean, return_logit, log_scale_gaussian, log_scale_laplace, zero_logit, count };
+inline constexpr std::array<const char*, 5> kHeadNames = {"mean", "return_logit", "log_scale_gaussian",
+                                                          "log_scale_laplace", "zero_logit"};
 static_assert(kHeadNames.size() == static_cast<std::size_t>(HeadKind::count), "one name per head kind");
 
 const char* head_name(HeadKind kind);
@@ -59,10 +62,21 @@ HeadsLoss heads_loss(const std::vector<HeadKind>& heads, const Tensor& pred, con
 
 // True when one of the heads is log_scale_gaussian or log_scale_laplace.
 bool has_spread_head(const std::vector<HeadKind>& heads);
+// The channel of head `kind`, -1 when absent.
+int head_channel(const std::vector<HeadKind>& heads, HeadKind kind);
+// The zero head's target: 1 where target <= 0 (the sensor reported 0), else 0; shape of `target`.
+void zero_indicator(Tensor& out, const Tensor& target);
+// sigmoid(z), stable for any z (the zero and return heads' probability).
+double logit_probability(double z);
+// Where the draws that are not 0 are centred: for a target >= 0, E[y] = (1 - p0) E[y | y > 0], so
+// the mean head's value divided by 1 - p0 (p0 capped at 0.9: no blow-up where the head is sure of
+// a zero). The residual table of a model with a zero head is fitted around this centre on the
+// cells that are not 0 (train/spread_metrics.h), and draws use the same centre.
+double nonzero_center(double mean, double p_zero);
 
 // Numerically stable logistic function, elementwise: in and out any shape (out may be in).
 void sigmoid_forward(Tensor& out, const Tensor& in);
-// Inference: in place on y [N, K, H, W], return_logit channels become probabilities and log-scale
+// Inference: in place on y [N, K, H, W], return_logit and zero_logit channels become probabilities and log-scale
 // channels scales (spread_scale * exp of the clamped log-scale: UNetConfig::spread_scale, the
 // calibration factor); mean channels stay.
 void heads_output_transform(Tensor& y, const std::vector<HeadKind>& heads, LogScaleClamp clamp = {},

@@ -64,7 +64,8 @@ cxxopts::Options command_line() {
      "=groups (default): the class groups of the input encoding; =classes: every class, per-beam offsets as the intensity loop fits them (its best lookup)",
      cxxopts::value<std::string>()->implicit_value("groups"))
     ("heads", "output heads: mean (default: the paper's single output), or mean,log_scale_laplace / mean,log_scale_gaussian: "
-     "a per-cell intensity spread trained with the NLL around the mean (the mean keeps masked MSE + L2)",
+     "a per-cell intensity spread trained with the NLL around the mean (the mean keeps masked MSE + L2); "
+     "then ,zero_logit: P(intensity = 0) trained with BCE (sampling draws 0 with it)",
      cxxopts::value<std::string>()->default_value("mean"))
     ("early-stop", "choose the epoch on an inner region carved out of the training columns (with its own guard band; never the scored regions), "
      "keep that epoch's weights, score the validation regions once")
@@ -174,7 +175,7 @@ void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::t
                 "receptive field half-width %d columns; split %s\n",
                 result.inner_region.c_str(), result.chosen_epoch, result.epochs.size(), chosen.inner->mae,
                 result.chosen_validation->mae, result.chosen_validation->rmse, result.chosen_validation->cells,
-                result.chosen_epoch, config.out.c_str(), half_width, config.split.c_str());
+                result.chosen_epoch, config.out.c_str(), half_width, config.validation ? "--val" : config.split.c_str());
   } else if (!result.epochs.empty()) {
     const auto& last = result.epochs.back();
     std::printf("final: val MAE %.4f RMSE %.4f over %ld cells; checkpoint %s; receptive field half-width %d columns; "
@@ -201,6 +202,9 @@ void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::t
   if (final_spread)
     std::printf("final spread (%s): NLL %.4f nats/cell; inside the 50%% interval %.3f, the 90%% interval %.3f (%ld cells)\n",
                 config.heads.c_str(), final_spread->nll, final_spread->within50, final_spread->within90, final_spread->cells);
+  if (final_spread && final_spread->zero_predicted >= 0)
+    std::printf("final zero head: predicted P(intensity = 0) %.4f on average, measured share of zeros %.4f (same cells)\n",
+                final_spread->zero_predicted, final_spread->zero_measured);
 }
 
 }  // namespace

@@ -118,9 +118,12 @@ void validate_settings(const TrainConfig& c) {
   const std::vector<nn::HeadKind> heads = nn::parse_heads(c.heads, "lidar-train: --heads");
   if (heads.empty() || heads[0] != nn::HeadKind::mean)
     refuse("heads", "must start with mean (channel 0 is the intensity mean)", "\"" + c.heads + "\"");
-  if (heads.size() > 2 || (heads.size() == 2 && heads[1] != nn::HeadKind::log_scale_gaussian &&
-                           heads[1] != nn::HeadKind::log_scale_laplace))
-    refuse("heads", "supported: mean, mean,log_scale_gaussian or mean,log_scale_laplace (a return head needs a return target)",
+  if (heads.size() > 3 ||
+      (heads.size() >= 2 && heads[1] != nn::HeadKind::log_scale_gaussian && heads[1] != nn::HeadKind::log_scale_laplace) ||
+      (heads.size() == 3 && heads[2] != nn::HeadKind::zero_logit))
+    refuse("heads",
+           "supported: mean, mean,log_scale_gaussian or mean,log_scale_laplace, each spread optionally followed by "
+           "zero_logit (a return head needs a return target)",
            "\"" + c.heads + "\"");
   if (heads.size() > 1 && c.shrink_residual)
     refuse("shrink-residual", "not supported with a spread head (the residual scale would scale the log-scale too)",

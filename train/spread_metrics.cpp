@@ -80,14 +80,24 @@ SpreadMetrics validate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder
   const auto& heads = model.config().heads;
   if (heads.size() < 2) throw Error("validate_spread: the model has no spread head");
   SpreadSums sums;
+  const int zc = nn::head_channel(heads, nn::HeadKind::zero_logit);
+  double p0 = 0, zeros = 0, cells = 0;
   for_each_prediction(model, encoder, sets, split,
                       [&](const data::FrameRef& frame, const float* pred, const std::vector<std::uint8_t>& roles, int rows,
                           int cols) {
                         const std::size_t plane = static_cast<std::size_t>(rows) * cols;
                         add_spread_cells(sums, heads[1], pred, pred + plane, frame.target, frame.mask, roles, rows,
                                          cols, data::kValidation, {}, model.config().spread_scale);
+                        if (zc < 0) return;
+                        for (std::size_t i = 0; i < plane; ++i)
+                          if (frame.mask[i] > 0 && roles[i % static_cast<std::size_t>(cols)] == data::kValidation) {
+                            p0 += nn::logit_probability(pred[static_cast<std::size_t>(zc) * plane + i]);
+                            zeros += frame.target[i] <= 0, cells += 1;
+                          }
                       });
-  return sums.get();
+  SpreadMetrics m = sums.get();
+  if (zc >= 0 && cells > 0) m.zero_predicted = p0 / cells, m.zero_measured = zeros / cells;
+  return m;
 }
 
 SpreadMetrics calibrate_spread(nn::UNet& model, const pgm::EncoderConfig& encoder,
@@ -159,6 +169,8 @@ nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig
   const auto& heads = model.config().heads;
   if (heads.size() < 2 || !nn::has_spread_head(heads)) throw Error("fit_spread_residual: the model has no spread head");
   const nn::LogScaleClamp clamp{};
+  // With a zero head the table describes the cells that are not 0, around their centre.
+  const int zc = nn::head_channel(heads, nn::HeadKind::zero_logit);
   std::vector<double> mean, z, y;
   for_each_prediction(model, encoder, sets, region,
                       [&](const data::FrameRef& frame, const float* mu, const std::vector<std::uint8_t>& roles, int rows,
@@ -168,10 +180,14 @@ nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig
                         for (std::size_t i = 0; i < plane; ++i) {
                           if (frame.mask[i] <= 0 || roles[i % static_cast<std::size_t>(cols)] != data::kValidation)
                             continue;
+                          if (zc >= 0 && frame.target[i] <= 0) continue;
                           const double scale =
                               model.config().spread_scale * std::exp(std::clamp(log_scale[i], clamp.min, clamp.max));
-                          mean.push_back(mu[i]);
-                          z.push_back((frame.target[i] - mu[i]) / scale);
+                          const double centre =
+                              zc < 0 ? mu[i]
+                                     : nn::nonzero_center(mu[i], nn::logit_probability(mu[static_cast<std::size_t>(zc) * plane + i]));
+                          mean.push_back(centre);
+                          z.push_back((frame.target[i] - centre) / scale);
                           y.push_back(frame.target[i]);
                         }
                       });

@@ -66,7 +66,9 @@ nn::SpreadResidual spread_residual_from(const std::vector<double>& mean, const s
 // Fits that table on the validation cells of `region` (lidar-train: the --early-stop inner region,
 // after calibrate_spread, with the calibrated scale) and stores it in the model
 // (UNetConfig::spread_residual). Why there: the residuals of cells the mean trained on are smaller
-// and shaped by the fit; on cells it never saw they are what a new place gets. Returns the table.
+// and shaped by the fit; on cells it never saw they are what a new place gets. With a zero head
+// (nn/heads.h zero_logit) only cells with a target above 0 enter, around nn::nonzero_center (the
+// zeros are drawn from the head). Returns the table.
 nn::SpreadResidual fit_spread_residual(nn::UNet& model, const pgm::EncoderConfig& encoder,
                                        const std::vector<const data::FrameSource*>& sets,
                                        const data::SectorSplit& region, int bins = 8, int levels = 64);

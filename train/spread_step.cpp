@@ -29,11 +29,18 @@ double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& h
   nn::Tensor &pred = b.pred, &d_pred = b.d_pred, &d_spread = b.d_spread;
   std::vector<float>& spread_grads = b.spread_grads;
   model.forward(x, pred);
-  const nn::HeadTarget cells{&y, &m}, spread_cells{&y, &m, spread_weight};
-  const nn::HeadsLoss loss = nn::heads_loss(heads, pred, {cells, spread_cells}, &d_pred);
+  std::vector<nn::HeadTarget> targets;
+  for (const nn::HeadKind h : heads)
+    if (h == nn::HeadKind::zero_logit) {
+      nn::zero_indicator(b.zero_target, y);  // the zero head: BCE on the cells with a return
+      targets.push_back({&b.zero_target, &m});
+    } else {
+      targets.push_back({&y, &m, h == nn::HeadKind::mean ? 1.f : spread_weight});
+    }
+  const nn::HeadsLoss loss = nn::heads_loss(heads, pred, targets, &d_pred);
   const std::size_t plane = static_cast<std::size_t>(pred.shape().h) * pred.shape().w;
   const int n = pred.shape().n, k = pred.shape().c;
-  // The spread channel's gradient alone.
+  // The other heads' channels' gradients alone.
   d_spread.resize(pred.shape());
   std::fill(d_spread.begin(), d_spread.end(), 0.f);
   for (int b = 0; b < n; ++b)
@@ -44,8 +51,12 @@ double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& h
     }
   nn::ParamArena& params = model.params();
   model.backward(d_spread);
+  // Channel c's own output parameters see only channel c's loss, so one backward pass serves
+  // every head after the mean.
   spread_grads.clear();
-  const auto slices = channel_slices(params, 1, k);
+  std::vector<std::pair<std::size_t, std::size_t>> slices;
+  for (int c = 1; c < k; ++c)
+    for (const auto& slice : channel_slices(params, c, k)) slices.push_back(slice);
   for (const auto& [offset, count] : slices) spread_grads.insert(spread_grads.end(), params.grads() + offset, params.grads() + offset + count);
   params.zero_grads();
   model.backward(d_pred);  // the mean's MSE: every shared layer, and channel 0's own parameters
@@ -68,6 +79,13 @@ void start_spread_at(nn::UNet& model, const nn::Tensor& y, const nn::Tensor& m) 
     if (m.data()[i] > 0) dev += std::abs(y.data()[i] - mean);
   const int bias = model.params().find("head/bias");
   model.params().value(bias)[1] = static_cast<float>(std::log(std::max(dev / count, 1e-3)));
+  // A zero head starts at the logit of the batch's share of zeros (kept inside [0.001, 0.999]).
+  const int zc = nn::head_channel(model.config().heads, nn::HeadKind::zero_logit);
+  if (zc < 0) return;
+  double zeros = 0;
+  for (std::size_t i = 0; i < m.numel(); ++i) zeros += m.data()[i] > 0 && y.data()[i] <= 0;
+  const double share = std::clamp(zeros / count, 1e-3, 1 - 1e-3);
+  model.params().value(bias)[zc] = static_cast<float>(std::log(share / (1 - share)));
 }
 
 }  // namespace lidarsim::train

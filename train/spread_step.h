@@ -1,6 +1,6 @@
 #pragma once
-// lidar-train with a spread head (--heads mean,log_scale_...): the spread's NLL trains only the
-// spread channel's own output parameters, the mean's masked MSE everything else, so the mean is
+// lidar-train with a spread head (--heads mean,log_scale_...[,zero_logit]): the spread's NLL (and the
+// zero head's BCE) trains only that channel's own output parameters, the mean's masked MSE everything else, so the mean is
 // trained exactly as without the head (on a shared trunk the NLL's gradients moved the mean's
 // features: its MAE 0.061 -> 0.114 on a synthetic set).
 #include <vector>
@@ -13,7 +13,7 @@ namespace lidarsim::train {
 
 // Scratch kept between steps (no allocation per step once grown).
 struct SpreadStepBuffers {
-  nn::Tensor pred, d_pred, d_spread;
+  nn::Tensor pred, d_pred, d_spread, zero_target;
   std::vector<float> spread_grads;
 };
 
@@ -24,7 +24,7 @@ double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& h
 
 // Sets the spread head's bias to the log of the first batch's mean absolute deviation: from a
 // log-scale near 0 (scale 1, twenty times intensity's typical spread) a short run would spend its
-// steps walking the bias down.
+// steps walking the bias down. A zero head's bias: the logit of the batch's share of zeros.
 void start_spread_at(nn::UNet& model, const nn::Tensor& y, const nn::Tensor& m);
 
 }  // namespace lidarsim::train

@@ -132,6 +132,9 @@ struct SpreadMetrics {
   // The factor of the predicted scale that maximises the likelihood of these cells (Laplace:
   // mean |y - mean| / b; Gaussian: sqrt(mean (y - mean)^2 / sigma^2)); 1 = already calibrated.
   double mle_factor = 1;
+  // With a zero head (nn/heads.h zero_logit): the mean predicted P(intensity = 0) and the measured
+  // share of zeros on the same cells; -1 without one.
+  double zero_predicted = -1, zero_measured = -1;
 };
 
 struct EpochReport {

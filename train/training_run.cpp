@@ -88,6 +88,7 @@ class TrainingRun {
   void check_grids();
   void check_intensity_scales() const;
   void hold_out_inner_frames();
+  void hold_out_inner_of_training_sets();
   void hold_out_inner_columns();
   void calibrate_spread_on_inner();
   void resume_from_checkpoint();
@@ -204,12 +205,12 @@ void TrainingRun::check_intensity_scales() const {
 // --- early stopping: the inner hold-out that chooses the epoch ---------------------------------
 void TrainingRun::plan_early_stop() {
   if (!config.early_stop) return;
-  if (!sector_split)
-    throw Error("lidar-train: --early-stop: needs the split of --data (not --val): the inner region is carved out of its training columns");
   // Frames name places; a column split has no frame to hold out, so the option would be ignored.
-  if (split.validation_frames.empty() && !config.inner_frames.empty())
-    throw Error("lidar-train: --inner-frames: needs --split frames:...; with a column split the inner region is columns (--inner-columns)");
-  if (!split.validation_frames.empty())
+  if ((!sector_split || split.validation_frames.empty()) && !config.inner_frames.empty())
+    throw Error("lidar-train: --inner-frames: needs --split frames:... (not --val); with a column split the inner region is columns (--inner-columns)");
+  if (!sector_split)
+    hold_out_inner_of_training_sets();
+  else if (!split.validation_frames.empty())
     hold_out_inner_frames();
   else
     hold_out_inner_columns();
@@ -239,6 +240,17 @@ void TrainingRun::hold_out_inner_frames() {
                std::to_string(train_n) + " training frames left";
 }
 
+// With a separate validation set (--val: another place) every column of --data trains, so the
+// inner region is the guarded split's (the same columns, so the same kind of view), with its guard
+// band of 2 h on both sides; the --val set is read once, for the chosen epoch.
+void TrainingRun::hold_out_inner_of_training_sets() {
+  inner = data::inner_split(data::guarded_split(half_width, cols), half_width, cols, config.inner_columns);
+  train_split = *inner;
+  const long b = std::lround(inner->regions[0].first * cols), e = std::lround(inner->regions[0].second * cols);
+  inner_text = "inner region [" + std::to_string(b) + ", " + std::to_string(e) + ") of every --data scan chooses the epoch; guard bands of " +
+               std::to_string(inner->guard_columns) + " columns on both sides; the --val set is scored once, for the chosen epoch";
+}
+
 // With a guarded region split: an inner region of columns with its own guard band.
 void TrainingRun::hold_out_inner_columns() {
   if (split.regions.empty())
@@ -262,7 +274,7 @@ void TrainingRun::plan_frames() {
     throw Error("lidar-train: --train-also needs --data to validate on");
   split_sets = static_cast<int>(train_sets.size() - config.train_also.size());
   scored.assign(train_sets.begin(), train_sets.begin() + split_sets);
-  frames.emplace(train_sets, config.encoder, sector_split ? std::optional(train_split) : std::nullopt, split_sets);
+  frames.emplace(train_sets, config.encoder, sector_split || inner ? std::optional(train_split) : std::nullopt, split_sets);
   num_frames = frames->size();
   // Rolling or mirroring the azimuth would contradict channels that encode direction.
   roll = config.augment_roll, mirror = config.augment_mirror;

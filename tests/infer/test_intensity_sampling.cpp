@@ -276,3 +276,44 @@ TEST(IntensitySampling, ACheckpointWithAResidualTableDrawsThroughIt) {
     EXPECT_GT(differ, 100) << file;
   }
 }
+
+// A zero head (nn/heads.h zero_logit, checkpoint format 5, weights format 4): a draw is 0 with the
+// head's probability, from a uniform independent of the spread's; otherwise mean / (1 - p0) plus
+// the table's draw (the table describes the values that are not 0, around that centre).
+TEST(IntensitySampling, AZeroHeadDrawsZeroWithItsProbabilityAndCentresTheRest) {
+  const fs::path untrained = checkpoint("zero", {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace, nn::HeadKind::zero_logit});
+  const nn::Checkpoint meta = nn::read_checkpoint_meta(untrained);
+  EXPECT_EQ(meta.unet.heads.size(), 3u);
+  // Outputs = the head's biases: mean 0.28, scale 0.02, P(0) = 0.3.
+  nn::UNet raw(meta.unet);
+  std::fill(raw.params().values(), raw.params().values() + raw.params().size(), 0.f);
+  float* bias = raw.params().value(raw.params().find("head/bias"));
+  bias[0] = 0.28f, bias[1] = std::log(0.02f), bias[2] = static_cast<float>(std::log(0.3 / 0.7));
+  raw.set_spread_residual(table([](double) { return 2.0; }, [](double) { return 2.0; }, 0.01f, 4));
+  const fs::path ck = untrained.parent_path() / "zero_table.h5", weights = untrained.parent_path() / "zero_table.bin";
+  nn::save_checkpoint(ck, raw, nullptr, meta);
+  nn::save_weights(weights, raw, meta.attributes);
+  const pgm::PolarGridMap map = scan();
+  for (const fs::path& file : {ck, weights}) {
+    infer::IntensityModel model = infer::IntensityModel::load(file);
+    std::vector<float> mean, scale, drawn;
+    model.predict_distribution(map, mean, scale);
+    long zeros = 0, cells = 0;
+    for (int frame = 0; frame < 4; ++frame) {
+      model.sample_from_spread({9}, "test");
+      model.predict(map, drawn, static_cast<std::uint64_t>(frame));
+      for (std::size_t i = 0; i < map.cells(); ++i) {
+        if (map.channel("mask")[i] <= 0) continue;
+        ++cells;
+        if (drawn[i] == 0.f) {
+          ++zeros;
+          continue;
+        }
+        // Not 0: the centre 0.28 / 0.7 = 0.4, + 2 scales, on the grid.
+        const double want = std::round((mean[i] / 0.7 + 2.0 * scale[i]) * 100) / 100;
+        ASSERT_NEAR(drawn[i], want, 1e-6) << file << " cell " << i;
+      }
+    }
+    EXPECT_NEAR(static_cast<double>(zeros) / cells, 0.3, 0.02) << file << " over " << cells << " cells";
+  }
+}

@@ -191,9 +191,9 @@ TEST_F(CheckpointHeadsTest, CheckpointsFromAnOlderBuildLoadAndFormat1IsWrittenBy
 
 TEST_F(CheckpointHeadsTest, ANewerOrUnknownFormatIsRefusedNamingTheField) {
   const fs::path p = save(kHeads, "newer.h5");
-  set_string_attr(p, "format", "lidarsim-checkpoint 5");
+  set_string_attr(p, "format", "lidarsim-checkpoint 6");
   const std::string e = error_of([&] { read_checkpoint_meta(p); });
-  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 5\": this build reads formats 1 to 4"),
+  EXPECT_NE(e.find(p.string() + ": config/format: \"lidarsim-checkpoint 6\": this build reads formats 1 to 5"),
             std::string::npos)
       << e;
   EXPECT_NE(e.find("newer lidarsim"), std::string::npos) << e;
@@ -265,4 +265,27 @@ TEST_F(CheckpointHeadsTest, ASpreadCalibrationIsFormat3AndOlderFilesLoadWithFact
   EXPECT_NE(error_of([&] { read_checkpoint_meta(three_heads_format3); }).find("unet.spread_scale"), std::string::npos);
   // No spread head: no factor.
   EXPECT_THROW(UNet(UNetConfig{3, 1, 4, 2, 0, {}, {}, 2.f}), Error);
+}
+
+// A zero head (nn/heads.h zero_logit) is format 5: format 4's fields (a factor of 1 and an empty
+// table written too) and the head. A build that reads formats 1-4 refuses it by its number
+// ("lidarsim-checkpoint 5": the refusal above, one format up); a zero head under a lower number is
+// refused naming the field, and files of formats 1-4 still load (the tests above).
+TEST_F(CheckpointHeadsTest, AZeroHeadIsFormat5AndOlderNumbersCannotCarryIt) {
+  const UNetConfig zero{3, 3, 4, 2, 0, {}, {HeadKind::mean, HeadKind::log_scale_laplace, HeadKind::zero_logit}};
+  const fs::path p = save(zero, "zero.h5");
+  EXPECT_EQ(string_attr(p, "format"), "lidarsim-checkpoint 5");
+  EXPECT_TRUE(has_attr(p, "unet.spread_scale"));
+  EXPECT_TRUE(has_attr(p, "unet.spread_residual"));
+  const Checkpoint back = read_checkpoint_meta(p);
+  EXPECT_EQ(back.unet, zero);
+  UNet model(zero);
+  EXPECT_NO_THROW(load_checkpoint(p, model, nullptr));
+  set_string_attr(p, "format", "lidarsim-checkpoint 4");
+  const std::string e = error_of([&] { read_checkpoint_meta(p); });
+  EXPECT_NE(e.find("config/unet.heads: a zero_logit head in a format-4 checkpoint (format 5 carries it)"), std::string::npos) << e;
+  const fs::path no_zero = save(kHeads, "no_zero.h5");
+  set_string_attr(no_zero, "format", "lidarsim-checkpoint 5");
+  EXPECT_NE(error_of([&] { read_checkpoint_meta(no_zero); }).find("config/unet.heads: format 5, but no zero_logit head"),
+            std::string::npos);
 }

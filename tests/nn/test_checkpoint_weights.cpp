@@ -99,7 +99,9 @@ TEST(CheckpointWeights, BrokenFilesAreOneErrorNamingTheFileAndField) {
 
   EXPECT_EQ(error_of([&] { read_weights(good); }), "");
   EXPECT_EQ(error_for("\x89HDF\r\n\x1a\n" + bytes.substr(8)).rfind(file + "magic: not a lidarsim weights file", 0), 0u);
-  EXPECT_EQ(error_for("lidarsim-weights 4" + bytes.substr(18)), file + "magic: \"lidarsim-weights 4\": this build reads formats 1 to 3");
+  EXPECT_EQ(error_for("lidarsim-weights 5" + bytes.substr(18)), file + "magic: \"lidarsim-weights 5\": this build reads formats 1 to 4");
+  // Format 4 carries a zero head (and format 3's fields): without them the file is torn.
+  EXPECT_EQ(error_for("lidarsim-weights 4" + bytes.substr(18)), file + "header.unet.spread_scale: missing");
   // Format 3 carries the spread residual table (and the factor): without them the file is torn.
   EXPECT_EQ(error_for("lidarsim-weights 3" + bytes.substr(18)), file + "header.unet.spread_scale: missing");
   // Format 2 carries the spread head's calibration factor: without it the file is torn.

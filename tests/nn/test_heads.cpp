@@ -7,7 +7,9 @@
 
 #include <cmath>
 #include <cstring>
+#include <algorithm>
 #include <functional>
+#include <random>
 #include <cstdio>
 #include <string>
 
@@ -315,6 +317,39 @@ TEST(Heads, OutputTransformGivesProbabilitiesAndScalesAndLeavesTheMean) {
   EXPECT_FLOAT_EQ(y.data()[10], std::exp(3.f));
   EXPECT_FLOAT_EQ(y.data()[11], 1.f);
   EXPECT_THROW(heads_output_transform(y, {HeadKind::mean, HeadKind::return_logit}), Error);
+}
+
+// The zero head reuses the return head's op (masked BCE on logits, checked above and against
+// PyTorch) on the indicator target <= 0: its loss and gradient are that op's, bit for bit; its
+// output is a probability; it needs a spread (a draw that is not 0 comes from it).
+TEST(Heads, ZeroHeadIsTheBceOfTheZeroIndicatorAndNeedsASpread) {
+  const std::vector<HeadKind> heads{HeadKind::mean, HeadKind::log_scale_laplace, HeadKind::zero_logit};
+  EXPECT_EQ(parse_heads("mean,log_scale_laplace,zero_logit", "x"), heads);
+  EXPECT_EQ(head_channel(heads, HeadKind::zero_logit), 2);
+  EXPECT_EQ(head_channel(heads, HeadKind::return_logit), -1);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-2.f, 2.f);
+  Tensor pred(Shape{2, 3, 3, 5}), y(Shape{2, 1, 3, 5}), m(Shape{2, 1, 3, 5});
+  for (float& v : pred) v = u(rng);
+  for (std::size_t i = 0; i < y.numel(); ++i) {
+    y.data()[i] = i % 3 == 0 ? 0.f : 0.5f + 0.2f * u(rng);
+    m.data()[i] = i % 5 == 0 ? 0.f : 1.f;
+  }
+  Tensor zero, d_pred, z(Shape{2, 1, 3, 5}), g;
+  zero_indicator(zero, y);
+  for (std::size_t i = 0; i < y.numel(); ++i) EXPECT_EQ(zero.data()[i], y.data()[i] <= 0 ? 1.f : 0.f);
+  const HeadsLoss loss = heads_loss(heads, pred, {{&y, &m}, {&y, &m}, {&zero, &m}}, &d_pred);
+  for (int n = 0; n < 2; ++n) std::copy_n(pred.channel(n, 2), 15, z.image(n));
+  const LossParts bce = masked_bce_logits(z, zero, m, &g);
+  EXPECT_EQ(loss.per_head[2].data, bce.data);
+  for (int n = 0; n < 2; ++n)
+    for (int i = 0; i < 15; ++i) EXPECT_EQ(d_pred.channel(n, 2)[i], g.image(n)[i]);
+  Tensor out = pred;
+  heads_output_transform(out, heads);
+  EXPECT_FLOAT_EQ(out.channel(0, 2)[0], static_cast<float>(logit_probability(pred.channel(0, 2)[0])));
+  EXPECT_THROW(check_heads({HeadKind::mean, HeadKind::zero_logit}, 2, "cfg"), Error);
+  EXPECT_NEAR(nonzero_center(0.28, 0.3), 0.4, 1e-12);
+  EXPECT_NEAR(nonzero_center(0.28, 0.99), 2.8, 1e-12);  // p0 capped at 0.9
 }
 
 }  // namespace

@@ -140,7 +140,7 @@ TEST(EarlyStop, ScoredCellsDoNotChangeTheChoiceAndInnerCellsDoNotTrain) {
   }
 }
 
-TEST(EarlyStop, PatienceEndsTheRunAndSeparateValidationIsRefused) {
+TEST(EarlyStop, PatienceEndsTheRunAndAnUnguardedSplitIsRefused) {
   train::TrainConfig c = config();
   c.patience = 1;
   c.epochs = 12;
@@ -149,10 +149,49 @@ TEST(EarlyStop, PatienceEndsTheRunAndSeparateValidationIsRefused) {
   ASSERT_GT(r.chosen_epoch, 0);
   // Stopped one epoch after the best, unless the best was the last.
   EXPECT_EQ(static_cast<int>(r.epochs.size()), std::min(12, r.chosen_epoch + 1));
-  EXPECT_THROW(train::train_on(config(), {&d}, {"synthetic"}, &d), Error);  // --val: no training columns to carve from
   c = config();
   c.split = "interleaved";
   EXPECT_THROW(train::train_on(c, {&d}, {"synthetic"}), Error);
+}
+
+// With --val (another place held out whole), the inner region is carved out of every --data scan:
+// the --val set plays no part until the chosen epoch is scored, and the inner cells do not train.
+TEST(EarlyStop, WithSeparateValidationChoosesOnTheTrainingSetsInnerRegionAlone) {
+  train::TrainConfig c = config();
+  c.epochs = 3;  // four runs: half the epochs of the tests above
+  const data::Dataset d = synthetic();
+  const data::SectorSplit inner = data::inner_split(data::guarded_split(kHalf, kCols), kHalf, kCols, 8);
+  data::Dataset place = synthetic();
+  for (std::size_t i = 0; i < place.target.numel(); ++i) place.target.data()[i] = 0.9f - 0.5f * place.target.data()[i];
+  const train::TrainResult r = train::train_on(c, {&d}, {"synthetic"}, &place);
+  data::Dataset wild = place;
+  for (std::size_t i = 0; i < wild.target.numel(); ++i) wild.target.data()[i] = 5.f;  // same place, wild targets
+  const train::TrainResult s = train::train_on(c, {&d}, {"synthetic"}, &wild);
+  ASSERT_EQ(r.epochs.size(), 3u);
+  ASSERT_EQ(s.epochs.size(), r.epochs.size());
+  for (std::size_t k = 0; k < r.epochs.size(); ++k) {
+    ASSERT_TRUE(r.epochs[k].inner.has_value());
+    EXPECT_EQ(r.epochs[k].validation.cells, 0) << k;  // --val is not looked at per epoch
+    EXPECT_EQ(s.epochs[k].train_loss, r.epochs[k].train_loss) << k;
+    EXPECT_EQ(s.epochs[k].inner->mae, r.epochs[k].inner->mae) << k;
+  }
+  EXPECT_EQ(s.chosen_epoch, r.chosen_epoch);
+  ASSERT_TRUE(r.chosen_validation.has_value() && s.chosen_validation.has_value());
+  EXPECT_LT(r.chosen_validation->mae, 1.0);
+  EXPECT_GT(s.chosen_validation->mae, 3.0);  // --val is scored once, at the end
+  // Every --data column but the inner region and its bands trains: other targets there, the same run.
+  data::Dataset inner_changed = d;
+  overwrite(inner_changed, inner, data::kValidation, 5.f);
+  overwrite(inner_changed, inner, data::kGuard, 5.f);
+  const train::TrainResult t = train::train_on(c, {&inner_changed}, {"synthetic"}, &place);
+  for (std::size_t k = 0; k < r.epochs.size(); ++k) {
+    EXPECT_EQ(t.epochs[k].train_loss, r.epochs[k].train_loss) << k;
+    EXPECT_GT(t.epochs[k].inner->mae, 1.0) << k;
+  }
+  // ... and the training columns do train: other targets there, another run.
+  data::Dataset train_changed = d;
+  overwrite(train_changed, inner, data::kTrain, 0.f);
+  EXPECT_NE(train::train_on(c, {&train_changed}, {"synthetic"}, &place).epochs[0].train_loss, r.epochs[0].train_loss);
 }
 
 TEST(EarlyStop, InnerFramesWithAColumnSplitIsAnErrorNotIgnored) {

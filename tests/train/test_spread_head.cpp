@@ -17,6 +17,8 @@
 
 #include "common/error.h"
 #include "data/dataset.h"
+#include "data/frame_source.h"
+#include "data/split.h"
 #include "nn/checkpoint.h"
 #include "nn/cpu_features.h"
 #include "tests/support/temp_path.h"
@@ -284,4 +286,68 @@ TEST(SpreadHead, MeanWeightsAreTheSameBitsWithOrWithoutTheHead) {
     for (std::size_t i = 0; i < n; ++i)
       ASSERT_EQ(a.values()[a.infos()[p].offset + i], b.values()[info.offset + i]) << info.name << "[" << i << "]";
   }
+}
+
+namespace {
+
+// noisy_dataset with the sensor's zeros: a car cell reads 0 with probability `share` (a hash of
+// frame and cell), a road cell never.
+data::Dataset with_zeros(data::Dataset d, double share) {
+  const int cls = d.channel_index("class");
+  for (int n = 0; n < d.size(); ++n)
+    for (std::size_t i = 0; i < static_cast<std::size_t>(d.rows()) * d.cols(); ++i) {
+      const std::uint64_t h = (static_cast<std::uint64_t>(n) * 1000003u + i) * 0x9E3779B97F4A7C15ull;
+      if (d.pgm.channel(n, cls)[i] == static_cast<float>(pgm::cls::car) && static_cast<double>(h >> 40) / (1ull << 24) < share)
+        d.target.image(n)[i] = 0.f;
+    }
+  return d;
+}
+
+}  // namespace
+
+// A zero head (--heads mean,log_scale_laplace,zero_logit) costs the mean and the spread nothing:
+// with the same seed every parameter they use is the same bits as without it (its BCE updates
+// only its own row of the 1x1 output).
+TEST(SpreadHead, MeanAndSpreadWeightsAreTheSameBitsWithOrWithoutTheZeroHead) {
+  const data::Dataset d = with_zeros(noisy_dataset(2, 8), 0.3);
+  auto short_config = [](const std::string& heads) {
+    train::TrainConfig c = spread_config(heads);
+    c.epochs = 1;
+    c.steps_per_epoch = 12;
+    return c;
+  };
+  const auto with = train::train_on(short_config("mean,log_scale_laplace,zero_logit"), {&d}, {"noisy"});
+  const auto without = train::train_on(short_config("mean,log_scale_laplace"), {&d}, {"noisy"});
+  const nn::ParamArena &a = with.model->params(), &b = without.model->params();
+  ASSERT_EQ(a.infos().size(), b.infos().size());
+  for (std::size_t p = 0; p < b.infos().size(); ++p) {
+    const nn::ParamInfo& info = b.infos()[p];
+    ASSERT_EQ(a.infos()[p].name, info.name);
+    const std::size_t n = info.shape.numel();  // the head's [K, ...]: the first 2 of 3 rows
+    for (std::size_t i = 0; i < n; ++i)
+      ASSERT_EQ(a.values()[a.infos()[p].offset + i], b.values()[info.offset + i]) << info.name << "[" << i << "]";
+  }
+}
+
+// The residual table of a model with a zero head is fitted on the values that are not 0, around
+// their centre (nn::nonzero_center): its low quantiles are the noise's, not the zeros' (8 scales
+// below the mean). A model whose outputs are its biases: mean 0.4, scale 0.05, P(0) 0.15.
+TEST(SpreadHead, WithAZeroHeadTheResidualTableLeavesTheZerosOut) {
+  const data::Dataset d = with_zeros(noisy_dataset(2, 8), 0.3);
+  pgm::EncoderConfig encoder;
+  encoder.channels = {"range", "class", "material"};
+  const auto source = data::memory_frame_source(d, "noisy");
+  auto lowest = [&](const std::vector<nn::HeadKind>& heads) {
+    nn::UNet model(nn::UNetConfig{encoder.input_channels(), static_cast<int>(heads.size()), 4, 2, 0, {}, heads});
+    std::fill(model.params().values(), model.params().values() + model.params().size(), 0.f);
+    float* bias = model.params().value(model.params().find("head/bias"));
+    bias[0] = 0.4f, bias[1] = std::log(0.05f);
+    if (heads.size() > 2) bias[2] = static_cast<float>(std::log(0.15 / 0.85));
+    const nn::SpreadResidual table = train::fit_spread_residual(model, encoder, {source.get()}, data::reference_split(), 1, 64);
+    return table.z[1];  // at probability 1.5 / 64
+  };
+  const float with = lowest({nn::HeadKind::mean, nn::HeadKind::log_scale_laplace, nn::HeadKind::zero_logit});
+  const float without = lowest({nn::HeadKind::mean, nn::HeadKind::log_scale_laplace});
+  EXPECT_LT(without, -7.f);  // (0 - 0.4) / 0.05: the zeros
+  EXPECT_GT(with, -6.f);     // road's low tail around 0.4 / 0.85: about -4.5
 }
