@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "qualify/objects/object_false_positives.h"
+#include "qualify/objects/object_spread_forms.h"
 #include "qualify/report.h"
 #include "sensor/kpi_fit.h"
 
@@ -23,14 +24,18 @@ std::string to_string(Kind k) {
     case Kind::SpreadTable: return "spread_table";
     case Kind::SpreadWindow: return "spread_window";
     case Kind::SpreadGrowth: return "spread_growth";
+    case Kind::SpreadLine: return "spread_line";
   }
   return "?";
 }
-bool is_spread(Kind k) { return k == Kind::SpreadTable || k == Kind::SpreadWindow || k == Kind::SpreadGrowth; }
+bool is_spread(Kind k) {
+  return k == Kind::SpreadTable || k == Kind::SpreadWindow || k == Kind::SpreadGrowth || k == Kind::SpreadLine;
+}
 bool is_window(Kind k) { return k == Kind::MeanWindow || k == Kind::RateWindow || k == Kind::SpreadWindow; }
 std::vector<Kind> kinds_for(int target) {
   if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow};
-  return {Kind::MeanTable, Kind::MeanWindow, Kind::MeanLine, Kind::SpreadTable, Kind::SpreadWindow, Kind::SpreadGrowth};
+  return {Kind::MeanTable,    Kind::MeanWindow,   Kind::MeanLine,  Kind::SpreadTable,
+          Kind::SpreadWindow, Kind::SpreadGrowth, Kind::SpreadLine};
 }
 bool kind_applies(Kind kind, const std::string& feature) { return kind != Kind::SpreadGrowth || feature == "range"; }
 
@@ -142,6 +147,12 @@ double Effect::sd(int cls, int cell) const {
   return it != cell_sd.end() ? it->second : cls >= 0 && cls < kObjectClassCount ? class_sd[cls] : 1.0;
 }
 
+double Effect::level(int cls, int cell) const {
+  if (cell_level.empty()) return 1.0;
+  auto it = cell_level.find({cls, cell_sd.count({cls, cell}) ? cell : -1});
+  return it != cell_level.end() ? it->second : 1.0;
+}
+
 double deviance(double y, double p) {
   p = std::clamp(p, 0.005, 0.995);
   return -2 * (y * std::log(p) + (1 - y) * std::log(1 - p));
@@ -208,6 +219,12 @@ std::string form_of(const Effect& e) {
     o << "growth within the model's range bins: sigma x (range / bin mean range)^" << fmt(e.growth, 3);
     return o.str();
   }
+  if (e.kind == Kind::SpreadLine) {
+    const double lo = t.edges.empty() ? 0.0 : t.edges.front() - (t.edges.size() > 1 ? t.edges[1] - t.edges[0] : 0.0);
+    o << "line: sigma x (1 + b (x - " << fmt(lo, 3) << ")), " << fmt(t.value.back() / t.value.front(), 3)
+      << " x from the 1 % to the 99 % quantile, level per class x range bin refitted";
+    return o.str();
+  }
   if (!is_window(e.kind)) {
     o << "table, " << t.value.size() << " bins" << (is_spread(e.kind) ? "" : " (per class where >= 200 samples)");
     return o.str();
@@ -218,6 +235,21 @@ std::string form_of(const Effect& e) {
   o << "; " << (is_spread(e.kind) ? "scale" : "bias");
   for (double v : t.value) o << " " << fmt(v, 3);
   return o.str();
+}
+
+// The spread_line form (object_spread_forms.h) into e: its scale and the level of every group of
+// cells e.sd() tells apart (a cell with its own sd, else its class).
+void fit_spread_line(Effect& e, const std::vector<double>& x, const std::vector<double>& u2,
+                     const std::vector<int>& cls, const std::vector<int>& cells) {
+  std::map<std::pair<int, int>, int> id;
+  std::vector<int> group(x.size());
+  for (size_t i = 0; i < x.size(); ++i) {
+    const std::pair<int, int> key{cls[i], e.cell_sd.count({cls[i], cells[i]}) ? cells[i] : -1};
+    group[i] = id.try_emplace(key, static_cast<int>(id.size())).first->second;
+  }
+  const ScaleLine line = fit_scale_line(x, u2, group, static_cast<int>(id.size()));
+  e.scale = line.scale;
+  for (const auto& [key, k] : id) e.cell_level[key] = line.level[k];
 }
 
 }  // namespace
@@ -259,7 +291,8 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
       break;
     case Kind::SpreadTable:
     case Kind::SpreadWindow:
-    case Kind::SpreadGrowth: {
+    case Kind::SpreadGrowth:
+    case Kind::SpreadLine: {
       std::map<std::pair<int, int>, std::array<double, 3>> acc;  // sum, sum of squares, n
       PerClass<std::array<double, 3>> by_class{};
       for (size_t i = 0; i < r.size(); ++i) {
@@ -284,7 +317,9 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
         const double u = (r[i] - e.mean(cls[i], cells[i])) / e.sd(cls[i], cells[i]);
         u2[i] = u * u;
       }
-      if (kind == Kind::SpreadGrowth) {
+      if (kind == Kind::SpreadLine) {
+        fit_spread_line(e, x, u2, cls, cells);
+      } else if (kind == Kind::SpreadGrowth) {
         e.scale = fit_scale_growth(x, u2, cells, &e.growth);
       } else if (kind == Kind::SpreadWindow) {
         e.scale = fit_scale_window(x, u2, 4 * bins);
@@ -327,7 +362,8 @@ Losses held_losses(const Fold& k, const Effect& e, int nvis) {
   }
   L.x = x;
   for (size_t i = 0; i < r.size(); ++i) {
-    const double c = r[i] - e.mean(cls[i], cells[i]), sd = e.sd(cls[i], cells[i]), sa = sd * e.scale(x[i]);
+    const double c = r[i] - e.mean(cls[i], cells[i]), sd = e.sd(cls[i], cells[i]);
+    const double sa = sd * e.level(cls[i], cells[i]) * e.scale(x[i]);
     L.before[i] = gaussian_deviance(c, sd);
     L.after[i] = gaussian_deviance(c, sa);
     L.centred.push_back(c);
@@ -438,7 +474,10 @@ sensor::KpiModel with_spread_term(const sensor::KpiModel& base, const Effect& e,
   for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end()) continue;
-    it->second.errors[int(kTargetParam[e.target])].conditional = ct;
+    sensor::ErrorModel& em = it->second.errors[int(kTargetParam[e.target])];
+    em.conditional = ct;
+    // spread_line: each range bin's sigma carries its refitted level (1 for the other forms).
+    for (size_t rb = 0; rb < em.sigma.size(); ++rb) em.sigma[rb] *= e.level(c, static_cast<int>(rb));
   }
   m.source = base.source + "; plus the object loop's spread term on " + feature + " (" + kObjectTargets[e.target] +
              " sigma x scale per bin)";
@@ -483,7 +522,7 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     if (it == kObjectFeatures.end()) continue;
     const int f = static_cast<int>(it - kObjectFeatures.begin());
     const Kind kind = t == kDetectionTarget ? Kind::RateTable
-                      : !ct->scale.empty()   ? Kind::SpreadTable
+                      : !ct->scale.empty()   ? (is_line_term(*ct) ? Kind::SpreadLine : Kind::SpreadTable)
                       : is_line_term(*ct)    ? Kind::MeanLine
                                              : Kind::MeanTable;
     const Effect e = fit_effect(fold, t, f, kind, nvis, bins);

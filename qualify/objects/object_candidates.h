@@ -13,6 +13,11 @@
 //                  range)^k, one k: a sigma that grows with range within the model's own range
 //                  bins (the model holds a sigma per range bin; equal-count bins of range straddle
 //                  its edges and score about 0 on what is left)
+//   spread_line    the error's sigma x (1 + b x) on x clamped to its 1-99 %      Gaussian deviance
+//                  quantiles, one b, with each (class, range bin)'s level refitted with it
+//                  (object_spread_forms.h): a sigma that grows with the feature, held by the
+//                  cells where the feature is constant per cell (speed: parked cars and walking
+//                  pedestrians need their own levels), within them where it is not (range)
 // A window is the best contiguous run of up to 40 equal-count bins of the fit split (a run that
 // touches an end is a step), chosen by the between-groups sum of squares (bias forms) or the
 // Gaussian likelihood ratio of two variances (spread forms); at least 30 fit samples each side.
@@ -32,7 +37,7 @@
 
 namespace lidarsim::qualify::obj {
 
-enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth };
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth, SpreadLine };
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);
@@ -62,8 +67,12 @@ struct Effect {
   std::map<std::pair<int, int>, double> cell_mean, cell_sd;  // spread forms: per (class, range bin), fit split
   double class_sd[kObjectClassCount] = {1, 1, 1};
   double growth = 0;  // spread_growth: the exponent k
+  // spread_line: per (class, range bin) the refitted level over sd(), keyed as sd() finds it (a
+  // cell without its own sd: (class, -1)); empty: 1 everywhere.
+  std::map<std::pair<int, int>, double> cell_level;
   double mean(int cls, int cell) const;
   double sd(int cls, int cell) const;
+  double level(int cls, int cell) const;  // cell_level's, 1 where absent
 };
 Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins);
 

@@ -282,7 +282,8 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
   j["score_definition"] =
       "every feature x target x form is a candidate (kinds: mean_table, mean_window, mean_line on an error; rate_table, "
       "rate_window on detection; spread_table, spread_window, spread_growth (range only: sigma x (range / its range "
-      "bin's mean)^k) on an error's sigma). Each is fitted on a fold's fit "
+      "bin's mean)^k), spread_line (sigma x (1 + b x) on x clamped to its 1-99 % range, with a level per class x range bin "
+      "refitted with it) on an error's sigma). Each is fitted on a fold's fit "
       "sequences and scored on its held-out ones, pooled over the two-fold cross-fit (fit on the even-indexed "
       "sequences, judge the odd-indexed ones, and the other way round): mean forms by the held-out R^2 of the "
       "winsorised residual (measured - base model) against the fit split's mean; rate forms by the deviance R^2 "

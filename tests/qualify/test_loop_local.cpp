@@ -96,7 +96,9 @@ TEST(LoopLocalStatistical, NamesErrorSpreadGrowingWithAspectAndCutsHeldOutSpread
   const LocalLoopRun run = local_loop_on(data::ObjectEffect::AspectSpread, 4, 48);
   const nlohmann::json& j = run.report;
   print_local(j);
-  EXPECT_TRUE(j["added_kind"] == "spread_table" || j["added_kind"] == "spread_window") << j["added_kind"];
+  EXPECT_TRUE(j["added_kind"] == "spread_table" || j["added_kind"] == "spread_window" ||
+              j["added_kind"] == "spread_line")
+      << j["added_kind"];
   EXPECT_EQ(j["added_effect"], "heading_to_line_of_sight") << j["spread_ranking"].dump();
   EXPECT_EQ(j["model_term_on"], "errors.position_across.scale");
   EXPECT_EQ(j["error_metric"], "spread error");
