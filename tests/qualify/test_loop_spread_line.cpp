@@ -22,16 +22,16 @@ namespace {
 // Objects of two classes (group = class), half of each standing: class 0 else at 5-15 m/s,
 // class 1 at 0-2 m/s. True sigma s_c (1 + g speed / 10); the model's sigma is each group's RMS true sigma
 // (what fit_effect's cell sd measures), u2 the squared error in its units.
-struct Sample {
+struct LineSample {
   std::vector<double> x, u2, truth, model;  // truth, model: sigmas
   std::vector<int> group;
 };
 
-Sample speed_sample(int n, double g, std::uint64_t seed) {
+LineSample speed_sample(int n, double g, std::uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0, 1);
   std::normal_distribution<double> z(0, 1);
-  Sample s;
+  LineSample s;
   std::vector<double> ss(2, 0.0), nn(2, 0.0);
   for (int i = 0; i < n; ++i) {
     const int c = i % 2;
@@ -48,7 +48,7 @@ Sample speed_sample(int n, double g, std::uint64_t seed) {
 }
 
 // RMS over the sample of log(predicted / true sigma), predicted = model x level x scale.
-double truth_error(const Sample& s, const BinnedTable& scale, const std::vector<double>& level) {
+double truth_error(const LineSample& s, const BinnedTable& scale, const std::vector<double>& level) {
   double acc = 0;
   for (size_t i = 0; i < s.x.size(); ++i)
     acc += std::pow(std::log(s.model[i] * level[s.group[i]] * scale(s.x[i]) / s.truth[i]), 2);
@@ -58,7 +58,7 @@ double truth_error(const Sample& s, const BinnedTable& scale, const std::vector<
 }  // namespace
 
 TEST(ObjectLoopSpreadLine, GivesEachClassItsLevelForASigmaGrowingWithSpeed) {
-  const Sample fit = speed_sample(6000, 2.5, 1), held = speed_sample(6000, 2.5, 2);
+  const LineSample fit = speed_sample(6000, 2.5, 1), held = speed_sample(6000, 2.5, 2);
   const obj::ScaleLine line = obj::fit_scale_line(fit.x, fit.u2, fit.group, 2);
   // The spread_table's scale: 10 equal-count bins of speed pooled over the classes.
   std::vector<double> v = fit.u2;
@@ -81,7 +81,7 @@ TEST(ObjectLoopSpreadLine, CarriesTheGrowthLeftInsideTheModelsRangeBins) {
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> r(3, 50);
   std::normal_distribution<double> z(0, 1);
-  Sample s;
+  LineSample s;
   std::vector<double> ss(5, 0.0), nn(5, 0.0);
   for (int i = 0; i < 8000; ++i) {
     s.x.push_back(r(rng)), s.group.push_back(static_cast<int>(s.x.back() / 10));
@@ -102,7 +102,7 @@ TEST(ObjectLoopSpreadLine, CarriesTheGrowthLeftInsideTheModelsRangeBins) {
 
 // No growth: the ratio about 1 and every level about 1, so the form is the model.
 TEST(ObjectLoopSpreadLine, FindsNoGrowthWhereTheSigmaIsConstant) {
-  const Sample fit = speed_sample(6000, 0.0, 3);
+  const LineSample fit = speed_sample(6000, 0.0, 3);
   const obj::ScaleLine line = obj::fit_scale_line(fit.x, fit.u2, fit.group, 2);
   EXPECT_NEAR(line.ratio, 1.0, 0.1);
   for (double l : line.level) EXPECT_NEAR(l, 1.0, 0.05);
