@@ -35,6 +35,8 @@ bool additive(Form f) { return f == Form::Table || f == Form::Window; }
 
 bool range_interaction_applies(const std::string& feature) { return feature == "beam_row" || feature == "elevation"; }
 
+bool scenery_feature(const std::string& feature) { return feature == "height"; }
+
 namespace {
 // ln of the range, held at 1 m below it (the housing region, where no fall-off law holds).
 double log_range(double range_m) { return std::log(std::max(range_m, 1.0)); }
@@ -222,7 +224,7 @@ std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feat
 
 FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vector<double>& edges,
                      const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected,
-                     const std::vector<Fold>* folds) {
+                     const std::vector<Fold>* folds, const CrossFit* cross) {
   const std::vector<double>& x = p.feature[feature];
   const std::vector<double>& range = p.feature[0];  // kIntensityFeatures starts with range
   FormScore s;
@@ -233,7 +235,7 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
   s.corrected = p.base;
   std::map<long, std::array<double, 3>> blocks;  // block -> (sse, sst, n)
   double abs_sum = 0;
-  const CrossFit cf = cross_fit_for(p, kIntensityFeatures[feature]);
+  const CrossFit cf = cross ? *cross : cross_fit_for(p, kIntensityFeatures[feature]);
   const bool joint = folds && joint_azimuth_gain(p, kIntensityFeatures[feature], form);
   if (joint) {
     // Its one-bin version is a gain common to every azimuth, which the refitted levels absorb:

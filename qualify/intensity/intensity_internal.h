@@ -79,8 +79,8 @@ struct Fold {
 };
 
 // Cross-fit groups of the candidate forms. Plain (crossed = false): a group's cells are scored by a
-// form fitted on every other group. Crossed: group = 2 * class group + row block, and a group is
-// scored by a form fitted on the cells that share neither its class group nor its row block.
+// form fitted on every other group. Crossed: group = 2 * class + row block, and a group is scored
+// by a form fitted on the cells that share neither its class nor its row block.
 struct CrossFit {
   std::vector<int> group;  // per pooled cell
   int groups = 0;          // 0: not in use
@@ -141,16 +141,16 @@ inline constexpr double kSameSceneryCorrelationBetweenBlocks = 0.2;
 Pooled pool(const std::vector<Fold>& folds, int columns, double scenery, const TimeBlocks& time);
 // The azimuth cross-fit for scans of one scenery (intensity_scenery.cpp). A sensor-fixed effect at
 // an azimuth scales every material seen there; scenery that mimics it (a dark wall) is one class
-// at some rows. So an azimuth form is fitted on one group of classes in one block of rows and
-// scored on the other classes in the other rows, in the SAME columns (the pooled held-out cells
-// keep the folds' guard bands). Sets p.azimuth_scenery, or p.azimuth_undecided with the reason
-// (one class group or row block, or too few cells of the opposite group at the cells' azimuths).
+// at some rows. So an azimuth form is fitted on the other classes in the other block of rows and
+// scored on one class in one block, in the SAME columns (the pooled held-out cells keep the folds'
+// guard bands). Sets p.azimuth_scenery, or p.azimuth_undecided with the reason (one class or row
+// block, or too few cells of the other classes in the other rows at the cells' azimuths).
 // `columns_reason` is what the column groups cannot decide (prefixed to a failure's reason).
 void scenery_cross_fit(Pooled& p, const std::string& columns_reason);
 // The groups the forms of `feature` are cross-fitted over: azimuth_scenery for azimuth when in use.
 CrossFit cross_fit_for(const Pooled& p, const std::string& feature);
 inline constexpr int kSceneryFineBins = 32;        // azimuth bins of the coverage check (the windows' fine bins)
-inline constexpr long kSceneryMinCellsPerBin = 20;  // cells of the opposite group a bin needs to count covered
+inline constexpr long kSceneryMinCellsPerBin = 20;  // fit cells (other classes, other rows) a bin needs to count covered
 inline constexpr double kSceneryMinCoverage = 0.5;  // share of cells in covered bins, else undecided
 
 // Per-fold predictions (indexed by each fold's cells) to pooled held-out cells.
@@ -212,19 +212,27 @@ struct FormScore {
   FittedForm shown;                   // fitted on every pooled cell: for the report and the plot
 };
 // `folds` (a lookup base's first round): azimuth gain forms cross-fitted over classes x row blocks
-// are scored by lookup_with_azimuth_gain; without it, as every form.
+// are scored by lookup_with_azimuth_gain; without it, as every form. `cross`: these groups instead
+// of cross_fit_for(p, feature) (a scenery feature judged by the azimuth's crossed split).
 FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vector<double>& edges,
                      const std::vector<double>& fine, const std::vector<double>& rc, bool keep_corrected = false,
-                     const std::vector<Fold>* folds = nullptr);
+                     const std::vector<Fold>* folds = nullptr, const CrossFit* cross = nullptr);
+
+// Features whose value at a cell is fixed by the scenery in its columns, as azimuth's is: on scans
+// of one scenery (azimuth cross-fitted over classes x row blocks) their column cross-fit carries
+// whatever lies in those columns (a window of azimuth over a hill shows up in the hill's heights),
+// so they are scored by the crossed split too, and rank by the lower of the two scores.
+bool scenery_feature(const std::string& feature);
 
 // An azimuth gain form (GainTable or WindowGain) cross-fitted over classes x row blocks, with each
 // fold's lookup refitted jointly: level(class, range bin) = sum m G / sum G^2 over the fold's fit
 // cells, G the gain of the cell's azimuth. The plain lookup's levels average the window's gain
 // over the share of each class's fit cells inside it, a bias per class that no gain common to
-// the classes undoes, and that differs between the class groups, so a gain fitted on one group
-// over the plain lookup is wrong for the other. The gain of a group is fitted on the opposite
-// group's cells over levels refitted with that same gain (kJointRounds alternations), so nothing
-// of the group's own cells enters its prediction. Pooled predictions: G x level.
+// the classes undoes, and that differs between classes, so a gain fitted on some classes over
+// the plain lookup is wrong for the others. The gain of a group (a class in a row block) is fitted
+// on the other classes in the other rows over levels refitted with that same gain (kJointRounds
+// alternations), so nothing of the group's own cells enters its prediction. Pooled predictions:
+// G x level.
 std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, const Pooled& p, Form form,
                                              const std::vector<double>& edges, const std::vector<double>& fine);
 inline constexpr int kJointRounds = 3;
@@ -232,7 +240,7 @@ inline constexpr int kJointRounds = 3;
 // bin) x (g_in inside, g_out outside), every window of kWindowFineBins equal-count azimuth bins
 // (coarse on every kWindowCoarse-th edge, then each edge refined within one coarse step), the
 // levels refitted on the folds' fit cells, the gains and the error on `fit` (pooled held-out cells
-// of the opposite group). A WindowGain form (outside 1, inside g_in / g_out), or empty when no
+// of the other classes in the other rows). A WindowGain form (outside 1, inside g_in / g_out), or empty when no
 // window has kWindowMinShare of the cells on each side. intensity_scenery.cpp says why.
 FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, const std::vector<size_t>& fit,
                              const std::vector<double>& fine);
@@ -253,10 +261,18 @@ struct Candidate {
   bool used = false;  // a form the base model already has
   bool undecided = false;  // the held-out data cannot judge it (Decision::CannotDecide)
   FormScore score;
+  double column_r2 = 0;    // scenery_feature on one scenery: its score over the column groups
+  bool scenery_checked = false;  // score.r2 is then the lower of column_r2 and the crossed split's
   Decision decision = Decision::NotTried;
   std::string reason;  // in words a user acts on
   std::string name() const { return form_name(form, per_row); }
 };
+
+// A scenery_feature's candidate on scans of one scenery (p.azimuth_scenery in use): scored again
+// across classes x row blocks in the same columns, and k.score becomes the lower of the two (the
+// column score kept in k.column_r2). Any other candidate is left as it is.
+void check_across_scenery(Candidate& k, const Pooled& p, size_t feature, const std::vector<double>& edges,
+                          const std::vector<double>& fine, const std::vector<double>& rc);
 
 struct Refit {
   std::string method;

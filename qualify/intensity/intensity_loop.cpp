@@ -133,6 +133,7 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       k.score = score_form(form, cx.pool, f, edges, fine, rc, false, joint_folds(cx, added_before));
       if (!k.score.shown.ok()) continue;  // a window needs 3 fine bins (depth_discontinuity has 2)
       k.reason = used_reason(cx.base, name, form, added_before);
+      if (k.reason.empty()) check_across_scenery(k, cx.pool, f, edges, fine, rc);
       k.used = !k.reason.empty();
       if (k.used) k.decision = Decision::NotRanked;
       if (!k.used && name == "azimuth" && !cx.pool.azimuth_undecided.empty()) {
@@ -313,6 +314,10 @@ void decide(RoundResult& r, const Context& cx, const std::vector<double>& after)
       k.reason = "tried: held-out MAE " + num(k.score.mae_after) + " with it; the refit \"" + r.method +
                  "\" is lower (" + num(r.tried.mae) + ")";
     }
+    if (k.scenery_checked && k.column_r2 > k.score.r2)
+      k.reason += "; held-out R^2 " + num(k.column_r2) + " cross-fitted over columns, " + num(k.score.r2) +
+                  " across classes x row blocks in the same columns (the lower counts: on scans of one scenery " +
+                  k.feature + " may stand in for an effect of azimuth)";
   }
 }
 

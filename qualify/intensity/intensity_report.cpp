@@ -54,7 +54,7 @@ nlohmann::json scores(const std::vector<FeatureScore>& list, const std::vector<s
 
 nlohmann::json candidate_json(const Candidate& k) {
   const bool window = k.form == Form::Window || k.form == Form::WindowGain;
-  return {{"feature", k.feature},
+  nlohmann::json j = {{"feature", k.feature},
           {"form", k.name()},
           {"effect_size", k.score.effect},
           {"held_out_r2", k.score.r2},
@@ -64,6 +64,9 @@ nlohmann::json candidate_json(const Candidate& k) {
           {"edges", window ? nlohmann::json(k.score.shown.table.edges) : nlohmann::json(nullptr)},
           {"decision", decision_name(k.decision)},
           {"reason", k.reason}};
+  // held_out_r2 is then the lower of this and the score across classes x row blocks.
+  if (k.scenery_checked) j["held_out_r2_column_groups"] = k.column_r2;
+  return j;
 }
 
 }  // namespace
