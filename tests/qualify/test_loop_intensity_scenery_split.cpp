@@ -25,17 +25,17 @@ using namespace lidarsim::qualify::intensity_detail;
 
 namespace {
 
-size_t index_of(const std::string& name) {
+size_t split_index_of(const std::string& name) {
   return std::find(kIntensityFeatures.begin(), kIntensityFeatures.end(), name) - kIntensityFeatures.begin();
 }
 
-struct Scene {
+struct SplitScene {
   std::vector<intensity_detail::Fold> folds;
   Pooled pool;
   std::vector<double> truth;  // noise-free intensity per pooled cell
 };
 
-struct CellDraw {
+struct SplitCellDraw {
   int cls = 1, row = 0;
   double deg = 0, height = 0, truth = 0;
 };
@@ -43,17 +43,17 @@ struct CellDraw {
 // One fold holding out every other pair of cells, the pool of its held-out cells with the plain
 // lookup (class x range bin over the fit cells) as base, noise sigma 0.01, one range bin.
 template <class Draw>
-Scene build(int cells, Draw draw) {
-  const size_t iaz = index_of("azimuth"), ih = index_of("height");
+SplitScene split_build(int cells, Draw draw) {
+  const size_t iaz = split_index_of("azimuth"), ih = split_index_of("height");
   std::mt19937_64 rng(11);
   std::normal_distribution<double> noise(0, 0.01);
-  Scene s;
+  SplitScene s;
   intensity_detail::Fold f;
   IntensityCells& c = f.cells;
   c.feature.assign(kIntensityFeatures.size(), {});
   std::vector<double> truth;
   for (int i = 0; i < cells; ++i) {
-    const CellDraw d = draw(rng, i);
+    const SplitCellDraw d = draw(rng, i);
     c.measured.push_back(d.truth + noise(rng));
     c.cls.push_back(d.cls), c.row.push_back(d.row);
     c.frame.push_back(0), c.sector.push_back(0), c.region.push_back(0), c.cell.push_back(i);
@@ -85,7 +85,7 @@ Scene build(int cells, Draw draw) {
   return s;
 }
 
-double rms_against(const std::vector<double>& pred, const std::vector<double>& truth) {
+double split_rms_against(const std::vector<double>& pred, const std::vector<double>& truth) {
   double sq = 0;
   for (size_t i = 0; i < pred.size(); ++i) sq += (pred[i] - truth[i]) * (pred[i] - truth[i]);
   return std::sqrt(sq / pred.size());
@@ -97,10 +97,10 @@ double rms_against(const std::vector<double>& pred, const std::vector<double>& t
 // two class groups of about equal size are {1, 4} and {2, 3}, each on one half only. A gain of 2
 // over 30-90 deg.
 TEST(LoopIntensityScenerySplit, WindowWhereOneClassGroupIsSeenIsJudgedAgainstTheOtherClasses) {
-  Scene s = build(40000, [](std::mt19937_64& rng, int) {
+  SplitScene s = split_build(40000, [](std::mt19937_64& rng, int) {
     std::uniform_real_distribution<double> u(0, 1);
     const double albedo[5] = {0, 0.5, 0.25, 0.45, 0.3};
-    CellDraw d;
+    SplitCellDraw d;
     const double r = u(rng);
     d.cls = r < 0.4 ? 1 : r < 0.7 ? 2 : r < 0.9 ? 3 : 4;
     const bool first_half = d.cls == 1 || d.cls == 4;
@@ -113,10 +113,10 @@ TEST(LoopIntensityScenerySplit, WindowWhereOneClassGroupIsSeenIsJudgedAgainstThe
   scenery_cross_fit(p, "1 scan");
   ASSERT_EQ(p.azimuth_undecided, "") << "the window's classes 1 and 4 are fitted on each other";
   ASSERT_TRUE(p.azimuth_scenery.crossed);
-  const size_t iaz = index_of("azimuth");
+  const size_t iaz = split_index_of("azimuth");
   const auto edges = equal_count_edges(p.feature[iaz], 16), fine = equal_count_edges(p.feature[iaz], 32);
-  const double plain = rms_against(p.lookup, s.truth);
-  const double after = rms_against(lookup_with_azimuth_gain(s.folds, p, Form::WindowGain, edges, fine), s.truth);
+  const double plain = split_rms_against(p.lookup, s.truth);
+  const double after = split_rms_against(lookup_with_azimuth_gain(s.folds, p, Form::WindowGain, edges, fine), s.truth);
   std::printf("  error against the truth: plain lookup %.4f, window gain across classes x row blocks %.4f\n", plain, after);
   EXPECT_GT(plain, 0.05);
   EXPECT_LT(after, 0.3 * plain);
@@ -127,10 +127,10 @@ TEST(LoopIntensityScenerySplit, WindowWhereOneClassGroupIsSeenIsJudgedAgainstThe
 // height's table carries the window from one group to the other; across classes x row blocks the
 // rows' heights do not overlap inside the window, and it carries nothing.
 TEST(LoopIntensityScenerySplit, HeightDoesNotStandInForAWindowOfAzimuthOnOneScenery) {
-  Scene s = build(40000, [](std::mt19937_64& rng, int i) {
+  SplitScene s = split_build(40000, [](std::mt19937_64& rng, int i) {
     std::uniform_real_distribution<double> u(0, 1);
     const double albedo[4] = {0, 0.5, 0.25, 0.4};
-    CellDraw d;
+    SplitCellDraw d;
     d.cls = 1 + i % 3;
     d.deg = 360 * u(rng);
     const bool upper = u(rng) < 0.5;
@@ -143,7 +143,7 @@ TEST(LoopIntensityScenerySplit, HeightDoesNotStandInForAWindowOfAzimuthOnOneScen
   Pooled& p = s.pool;
   scenery_cross_fit(p, "1 scan");
   ASSERT_TRUE(p.azimuth_scenery.crossed);
-  const size_t ih = index_of("height");
+  const size_t ih = split_index_of("height");
   std::vector<double> rc(p.size());
   for (size_t i = 0; i < p.size(); ++i) rc[i] = p.measured[i] - p.base[i];
   const auto edges = equal_count_edges(p.feature[ih], 16), fine = equal_count_edges(p.feature[ih], 32);
@@ -160,7 +160,7 @@ TEST(LoopIntensityScenerySplit, HeightDoesNotStandInForAWindowOfAzimuthOnOneScen
   // Any other feature is left as scored.
   Candidate other;
   other.feature = "incidence_angle", other.score.r2 = 0.4;
-  check_across_scenery(other, p, index_of("incidence_angle"), edges, fine, rc);
+  check_across_scenery(other, p, split_index_of("incidence_angle"), edges, fine, rc);
   EXPECT_FALSE(other.scenery_checked);
   EXPECT_DOUBLE_EQ(other.score.r2, 0.4);
 }
@@ -168,10 +168,10 @@ TEST(LoopIntensityScenerySplit, HeightDoesNotStandInForAWindowOfAzimuthOnOneScen
 // A real effect of height, common to the classes and rows at the heights they share, passes the
 // crossed split: the check refutes what only the columns carry, not every effect of height.
 TEST(LoopIntensityScenerySplit, AnEffectOfHeightSharedAcrossClassesAndRowsPassesTheCheck) {
-  Scene s = build(40000, [](std::mt19937_64& rng, int i) {
+  SplitScene s = split_build(40000, [](std::mt19937_64& rng, int i) {
     std::uniform_real_distribution<double> u(0, 1);
     const double albedo[4] = {0, 0.5, 0.25, 0.4};
-    CellDraw d;
+    SplitCellDraw d;
     d.cls = 1 + i % 3;
     d.deg = 360 * u(rng);
     d.row = u(rng) < 0.5 ? 5 : 40;
@@ -182,7 +182,7 @@ TEST(LoopIntensityScenerySplit, AnEffectOfHeightSharedAcrossClassesAndRowsPasses
   Pooled& p = s.pool;
   scenery_cross_fit(p, "1 scan");
   ASSERT_TRUE(p.azimuth_scenery.crossed);
-  const size_t ih = index_of("height");
+  const size_t ih = split_index_of("height");
   std::vector<double> rc(p.size());
   for (size_t i = 0; i < p.size(); ++i) rc[i] = p.measured[i] - p.base[i];
   const auto edges = equal_count_edges(p.feature[ih], 16), fine = equal_count_edges(p.feature[ih], 32);
