@@ -109,9 +109,7 @@ Refit fit_rate_gain(const std::vector<double>& x, const std::vector<double>& y, 
   for (const auto& [key, G] : by_key) groups.push_back(G);
   std::vector<long> N(K + 1, 0);
   for (int f = 0; f < K; ++f) N[f + 1] = N[f] + per_bin[f];
-  // Every window is scored after a few alternations (the gain settles within 2-3 on the campaign's
-  // draws), the chosen one refitted to convergence.
-  constexpr int kSearchIterations = 3, kFinalIterations = 10;
+  constexpr int kIterations = 6;  // alternations of cells and gain per window
   GainFit best = fit_window_gain(groups, K, 0, -1, nrange, nvis, 1);  // no window: the base's own rule
   int ba = -1, bb = -1;
   for (int a = 0; a < K; ++a)
@@ -119,10 +117,9 @@ Refit fit_rate_gain(const std::vector<double>& x, const std::vector<double>& y, 
       if (a == 0 && b == K - 1) continue;
       const long in = N[b + 1] - N[a];
       if (in < min_side || N[K] - in < min_side) continue;
-      GainFit f = fit_window_gain(groups, K, a, b, nrange, nvis, kSearchIterations);
+      GainFit f = fit_window_gain(groups, K, a, b, nrange, nvis, kIterations);
       if (f.loglik > best.loglik) best = std::move(f), ba = a, bb = b;
     }
-  if (ba >= 0) best = fit_window_gain(groups, K, ba, bb, nrange, nvis, kFinalIterations);
   Refit out;
   out.table.pooled.value = {0.0};
   out.table.pooled.count = {N[K]};
