@@ -172,7 +172,9 @@ double KpiManager::detection_probability(int slot, int rb, int vb, const Object&
   double p = cm.detection_probability[rb][vb];
   if (detection_feature_[slot] >= 0) {
     const auto f = static_cast<Feature>(detection_feature_[slot]);
-    p += cm.detection_conditional.bias[cm.detection_conditional.bin(feature_value(f, o, range, track_age))];
+    const ConditionalTerm& ct = cm.detection_conditional;
+    const int b = ct.bin(feature_value(f, o, range, track_age));
+    p = (ct.scale.empty() ? p : p * ct.scale[b]) + ct.bias[b];
   }
   return std::clamp(p, 0.0, 1.0);
 }

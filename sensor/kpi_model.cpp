@@ -206,9 +206,8 @@ void check_conditional(const ConditionalTerm& ct, const std::string& file, const
   }
   const double inf = std::numeric_limits<double>::infinity();
   check_vector(ct.bias, ct.edges.size(), file, cf + ".bias", detection ? -1 : -inf, detection ? 1 : inf);
-  if (detection && !ct.scale.empty())
-    throw input_error(file, cf + ".scale", "must be absent: a detection term has only a bias on the probability");
-  if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", 1e-6, inf);
+  // A detection term's scale multiplies the cell's probability (a gain), its bias then shifts it.
+  if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", detection ? 0 : 1e-6, inf);
 }
 
 ConditionalTerm read_conditional(const json& j, const std::string& file, const std::string& cf) {

@@ -53,8 +53,9 @@ struct Innovation {
 // per-object feature, `bias` is added to the error's mean and `scale` multiplies its sigma.
 // Feature names are the object loop's vocabulary (qualify/objects/objects.h) that the KPI manager can
 // compute from a truth object: kConditionalFeatures. The same shape serves as the class's
-// conditional term on detection probability (ClassModel::detection_conditional): there `bias`
-// is added to the probability (then clamped to [0, 1]) and `scale` must stay empty.
+// conditional term on detection probability (ClassModel::detection_conditional): there `scale`
+// (optional, >= 0) multiplies the cell's probability (a gain: a dropout that removes a share of
+// detections wherever the cell's probability stands) and `bias` is then added (clamped to [0, 1]).
 struct ConditionalTerm {
   std::string feature;        // empty: no term (the file has no "conditional")
   std::vector<double> edges;  // lower bin edges, increasing; values below edges[0] use bin 0
@@ -117,8 +118,8 @@ struct ErrorModel {
 struct ClassModel {
   std::array<ErrorModel, kNumKpiParams> errors;
   std::vector<std::vector<double>> detection_probability;  // [range bin][visibility bin]
-  // Optional ("detection_conditional" in the file): p = clamp(detection_probability[r][v] +
-  // bias[bin of feature], 0, 1); bias per bin in [-1, 1], no scale.
+  // Optional ("detection_conditional" in the file): p = clamp(detection_probability[r][v] x
+  // scale[bin of feature] + bias[bin], 0, 1); bias per bin in [-1, 1], scale >= 0 (empty: 1).
   ConditionalTerm detection_conditional;
   double miss_burst_mean = 1;       // mean length of a run of misses, frames (>= 1)
   double heading_flip_probability = 0;

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "qualify/objects/object_false_positives.h"
+#include "qualify/objects/object_rate_gain.h"
 #include "qualify/objects/object_spread_forms.h"
 #include "qualify/report.h"
 #include "sensor/kpi_fit.h"
@@ -25,15 +26,18 @@ std::string to_string(Kind k) {
     case Kind::SpreadWindow: return "spread_window";
     case Kind::SpreadGrowth: return "spread_growth";
     case Kind::SpreadLine: return "spread_line";
+    case Kind::RateGain: return "rate_gain";
   }
   return "?";
 }
 bool is_spread(Kind k) {
   return k == Kind::SpreadTable || k == Kind::SpreadWindow || k == Kind::SpreadGrowth || k == Kind::SpreadLine;
 }
-bool is_window(Kind k) { return k == Kind::MeanWindow || k == Kind::RateWindow || k == Kind::SpreadWindow; }
+bool is_window(Kind k) {
+  return k == Kind::MeanWindow || k == Kind::RateWindow || k == Kind::SpreadWindow || k == Kind::RateGain;
+}
 std::vector<Kind> kinds_for(int target) {
-  if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow};
+  if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow, Kind::RateGain};
   return {Kind::MeanTable,    Kind::MeanWindow,   Kind::MeanLine,  Kind::SpreadTable,
           Kind::SpreadWindow, Kind::SpreadGrowth, Kind::SpreadLine};
 }
@@ -207,7 +211,7 @@ double gaussian_deviance(double r, double sd) {
 double spread_score(const std::array<double, 3>& s) { return s[2] > 0 ? 1 - std::exp(-(s[1] - s[0]) / s[2]) : 0; }
 
 std::string form_of(const Effect& e) {
-  const BinnedTable& t = is_spread(e.kind) ? e.scale : e.bias.table.pooled;
+  const BinnedTable& t = is_spread(e.kind) ? e.scale : e.kind == Kind::RateGain ? e.bias.gain.pooled : e.bias.table.pooled;
   std::ostringstream o;
   if (e.kind == Kind::MeanLine) {
     // The pooled line's slope from two neighbouring bins of its table.
@@ -232,7 +236,7 @@ std::string form_of(const Effect& e) {
   if (t.edges.empty()) return "no window found";
   o << (t.edges.size() == 2 ? "window, edges" : "step, edge");
   for (double v : t.edges) o << " " << fmt(v, 3);
-  o << "; " << (is_spread(e.kind) ? "scale" : "bias");
+  o << "; " << (is_spread(e.kind) ? "scale" : e.kind == Kind::RateGain ? "gain on the probability" : "bias");
   for (double v : t.value) o << " " << fmt(v, 3);
   return o.str();
 }
@@ -289,6 +293,12 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
       e.bias = backfit_window(x, r, cls, cells, 4 * bins, cell_prior);
       if (k.shrink_terms != TermShrink::Off) shrink_by_track_bootstrap(e.bias, x, r, cls, cells, s.tracks(), true);
       break;
+    case Kind::RateGain: {
+      std::vector<double> y(s.rec.size());
+      for (size_t i = 0; i < y.size(); ++i) y[i] = s.rec[i]->value[t];
+      e.bias = fit_rate_gain(x, y, cls, cells, k.base, nvis, 4 * bins);
+      break;
+    }
     case Kind::SpreadTable:
     case Kind::SpreadWindow:
     case Kind::SpreadGrowth:
@@ -417,6 +427,8 @@ Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind k
         for (int q = 0; q < kObjectClassCount; ++q)
           if (e.bias.table.own[q])
             for (double v : e.bias.table.per_class[q].value) m = std::max(m, std::abs(v));
+        if (e.bias.has_gain())  // a gain's size: how far it moves the probability from 1 x
+          for (double v : e.bias.gain.pooled.value) m = std::max(m, std::abs(v - 1));
         c.effect_size = m;
       }
     }
@@ -521,7 +533,7 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct->feature);
     if (it == kObjectFeatures.end()) continue;
     const int f = static_cast<int>(it - kObjectFeatures.begin());
-    const Kind kind = t == kDetectionTarget ? Kind::RateTable
+    const Kind kind = t == kDetectionTarget ? (ct->scale.empty() ? Kind::RateTable : Kind::RateGain)
                       : !ct->scale.empty()   ? (is_line_term(*ct) ? Kind::SpreadLine : Kind::SpreadTable)
                       : is_line_term(*ct)    ? Kind::MeanLine
                                              : Kind::MeanTable;

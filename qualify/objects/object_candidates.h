@@ -7,6 +7,8 @@
 //   mean_line      per-class straight line in the feature (object_terms.h)      squared error
 //   rate_table     per-class binned shift of the detection probability          Bernoulli deviance
 //   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
+//   rate_gain      the cell's probability x one gain inside a window with fitted  Bernoulli deviance
+//                  edges, the cells refitted with it (object_rate_gain.h)
 //   spread_table   the error's sigma x a scale per bin (pooled over classes)     Gaussian deviance
 //   spread_window  the error's sigma x one scale inside, one outside a window    Gaussian deviance
 //   spread_growth  range only: the error's sigma x (range / its range bin's mean   Gaussian deviance
@@ -37,7 +39,8 @@
 
 namespace lidarsim::qualify::obj {
 
-enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth, SpreadLine };
+enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth,
+                  SpreadLine, RateGain };
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);

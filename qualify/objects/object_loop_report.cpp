@@ -76,7 +76,11 @@ nlohmann::json bias_effect_json(const ObjectLoopResult& R) {
   nlohmann::json e = {{"feature", kObjectFeatures[top.feature]},
                       {"target", kObjectTargets[top.target]},
                       {"kind", to_string(top.kind) +
-                                   (is_window(top.kind)
+                                   (top.kind == Kind::RateGain
+                                        ? ": one gain on the detection probability inside a window of the feature "
+                                          "with fitted edges (pooled over classes), the range x visibility cells "
+                                          "refitted with it by the base model's rule on every sequence"
+                                    : is_window(top.kind)
                                         ? ": one bias inside a window of the feature with fitted edges (pooled over "
                                           "classes), refitted jointly with per-class range-bin offsets on every sequence"
                                         : ": per-class per-bin bias table (pooled for classes with < 200 fit "
@@ -85,6 +89,8 @@ nlohmann::json bias_effect_json(const ObjectLoopResult& R) {
                       {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
   for (int c = 0; c < kObjectClassCount; ++c)
     if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+  if (R.top_whole.has_gain())  // rate_gain: the cells are refitted with it, the gain multiplies them
+    e["pooled"]["gain"] = R.top_whole.gain.pooled.value, e["pooled"]["edges"] = R.top_whole.gain.pooled.edges;
   if (R.options.shrink_terms != TermShrink::Off) {  // per bin: the share of the fitted (deviation) kept
     e["pooled"]["shrink_factor"] = R.top_whole.factor.pooled.value;
     for (int c = 0; c < kObjectClassCount; ++c)

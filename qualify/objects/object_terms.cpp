@@ -479,7 +479,8 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
 
 double refit_probability(const Refit& ref, int cls, int cell, double x, double p) {
   const auto it = ref.d.find({cls, cell});
-  const double q = std::clamp(p + (it == ref.d.end() ? 0.0 : it->second), 0.0, 1.0);
+  double q = std::clamp(p + (it == ref.d.end() ? 0.0 : it->second), 0.0, 1.0);
+  if (ref.has_gain()) q *= std::max(0.0, ref.gain(cls, x));
   return std::clamp(q + std::clamp(ref.table(cls, x), -1.0, 1.0), 0.0, 1.0);
 }
 
@@ -510,6 +511,14 @@ sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t
           if (d != ref.d.end()) p = std::clamp(p + d->second, 0.0, 1.0);
         }
       for (double& b : ct.bias) b = std::clamp(b, -1.0, 1.0);  // a probability shift
+      if (ref.has_gain()) {  // a gain term's table of shifts is zero on the gain's own bins
+        const BinnedTable& g = ref.gain.own[c] ? ref.gain.per_class[c] : ref.gain.pooled;
+        ct.edges.assign(1, g.edges.empty() ? 0.0 : g.edges.front() - 1);
+        ct.edges.insert(ct.edges.end(), g.edges.begin(), g.edges.end());
+        ct.bias.assign(g.value.size(), 0.0);
+        ct.scale = g.value;
+        for (double& v : ct.scale) v = std::max(v, 0.0);
+      }
       cm.detection_conditional = ct;
     } else {
       sensor::ErrorModel& em = cm.errors[int(kTargetParam[t])];

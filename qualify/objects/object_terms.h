@@ -44,6 +44,10 @@ struct Refit {
   // After shrink_by_track_bootstrap: each bin's factor (fitted value x factor = the value kept) and
   // its bootstrap standard error, laid out like `table`; empty value vectors when not shrunk.
   ClassTables factor, se;
+  // Detection only (rate_gain, object_rate_gain.h): a gain per bin of the feature on the cell's
+  // probability, applied before the table's shift (empty pooled.value: none).
+  ClassTables gain;
+  bool has_gain() const { return !gain.pooled.value.empty(); }
   double operator()(int cls, int rb, double x) const {
     const auto it = d.find({cls, rb});
     return (it == d.end() ? 0.0 : it->second) + table(cls, x);
@@ -110,7 +114,8 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
                            const Winsor& w, int nvis, PerClass<bool> classes = {true, true, true});
 
 // The detection probability the KPI manager uses with a rate term (with_term): the cell's
-// probability p plus the refitted cell offset, clamped to [0, 1], plus the term's bias, clamped again.
+// probability p plus the refitted cell offset, clamped to [0, 1], times the term's gain (when it has
+// one), plus the term's bias, clamped again.
 double refit_probability(const Refit& ref, int cls, int cell, double x, double p);
 
 // Target t's term on feature f fitted on fold k's fit residuals (winsorised).

@@ -287,6 +287,20 @@ TEST(KpiDetectionConditional, AzimuthBiasSetsTheMissRateInItsBinAndTheProbabilit
   EXPECT_EQ(k[2], n[2]) << "0.9 + 0.5 clamped to 1: never missed";
 }
 
+// A gain (scale) multiplies the cell's probability before the bias is added: 0.9 x 0.2 = 0.18 in
+// the window, 0.9 outside; written and read back unchanged.
+TEST(KpiDetectionConditional, ScaleMultipliesTheCellProbabilityBeforeTheBiasAndRoundTrips) {
+  KpiModel m = one_bin_car(0.0);
+  m.classes["Car"].detection_probability = {{0.9}};
+  m.classes["Car"].detection_conditional = {"azimuth", {-4, 0, 0.5}, {0, 0, 0.05}, {1, 0.2, 0.5}};
+  const KpiManager kpi(m, 3);
+  EXPECT_DOUBLE_EQ(kpi.detection_probability(car(0, {20, -3, -0.9}, {0, 0, 0})), 0.9);         // az < 0
+  EXPECT_NEAR(kpi.detection_probability(car(1, {30, 3, -0.9}, {0, 0, 0})), 0.18, 1e-12);        // az 0.1
+  EXPECT_NEAR(kpi.detection_probability(car(2, {5, 10, -0.9}, {0, 0, 0})), 0.9 * 0.5 + 0.05, 1e-12);  // az 1.1
+  const KpiModel back = parse_kpi_model(kpi_model_to_json(m), "m.json");
+  EXPECT_EQ(back.classes.at("Car").detection_conditional.scale, (std::vector<double>{1, 0.2, 0.5}));
+}
+
 TEST(KpiDetectionConditional, AbsentTermIsNotWrittenAndZeroTermChangesNoDrawAndRoundTrips) {
   const KpiModel plain = default_kpi_model();
   KpiModel zero = plain;
@@ -349,8 +363,10 @@ TEST(KpiDetectionConditional, BadTermsAreOneErrorNamingFileAndPath) {
   t["bias"] = {0, -1.5};
   EXPECT_NE(with(t).find(f + ".bias[1]: must be in [-1, 1]"), std::string::npos) << with(t);
   t = ok;
-  t["scale"] = {1, 1};
-  EXPECT_NE(with(t).find(f + ".scale: must be absent"), std::string::npos) << with(t);
+  t["scale"] = {1, 0.2};  // a gain on the cell's probability
+  EXPECT_EQ(with(t), "(no error)");
+  t["scale"] = {1, -0.2};
+  EXPECT_NE(with(t).find(f + ".scale[1]: must be in [0, "), std::string::npos) << with(t);
   t = ok;
   t["bias"] = {0};
   EXPECT_NE(with(t).find(f + ".bias: must have 2 entries, got 1"), std::string::npos) << with(t);
