@@ -19,6 +19,10 @@
 #include "qualify/intensity/intensity_internal.h"
 #include "qualify/windows.h"
 
+// A named namespace: the using-directives below must not reach the other test files of a unity
+// batch (intensity_detail::Candidate would make their obj::Candidate ambiguous).
+namespace scenery_split_test {
+
 using namespace lidarsim;
 using namespace lidarsim::qualify;
 using namespace lidarsim::qualify::intensity_detail;
@@ -194,3 +198,5 @@ TEST(LoopIntensityScenerySplit, AnEffectOfHeightSharedAcrossClassesAndRowsPasses
   EXPECT_TRUE(k.scenery_checked);
   EXPECT_GT(k.score.r2, 0.5);
 }
+
+}  // namespace scenery_split_test

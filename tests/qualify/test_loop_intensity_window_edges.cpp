@@ -14,6 +14,10 @@
 #include "qualify/intensity/intensity_internal.h"
 #include "qualify/windows.h"
 
+// A named namespace: the using-directives below must not reach the other test files of a unity
+// batch (intensity_detail::Candidate would make their obj::Candidate ambiguous).
+namespace window_edges_test {
+
 using namespace lidarsim;
 using namespace lidarsim::qualify;
 using namespace lidarsim::qualify::intensity_detail;
@@ -111,3 +115,5 @@ TEST(LoopIntensityWindowEdges, WindowGainIsFoundAsTheJointModelNotTheAdditiveRes
   EXPECT_NEAR(w.table.edges[1] / kDeg, 60, 3);
   EXPECT_NEAR(w.table.value[1], 2.0, 0.15);  // 3 alternations of levels and gains: within a few %
 }
+
+}  // namespace window_edges_test
