@@ -26,6 +26,8 @@ namespace scenery_split_test {
 using namespace lidarsim;
 using namespace lidarsim::qualify;
 using namespace lidarsim::qualify::intensity_detail;
+using intensity_detail::Candidate;  // over an obj::Candidate another file of the batch declares globally
+using intensity_detail::Fold;
 
 namespace {
 
