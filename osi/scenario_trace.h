@@ -7,6 +7,8 @@
 // above the scenario's ego point; the mounting position is the scenario's mount expressed in
 // the OSI vehicle frame (rear-axle centre). Objects keep their scenario ids; lanes become lane
 // boundaries with ids kLaneIdBase + their id. Velocities and accelerations are over ground.
+// Scenery becomes stationary objects with ids kSceneryIdBase + their index: one per box, a tree as
+// one TYPE_TREE box (scenario_trace.cpp says which classes OSI has no type for).
 #include <cstdint>
 
 #include "osi/osi3_subset.pb.h"
@@ -16,6 +18,7 @@ namespace lidarsim::osi {
 
 inline constexpr std::uint64_t kHostId = 1000000;
 inline constexpr std::uint64_t kLaneIdBase = 2000000;
+inline constexpr std::uint64_t kSceneryIdBase = 3000000;
 inline constexpr std::uint64_t kSensorId = 1;
 // The host's box and rear axle as the converter writes them.
 inline constexpr double kHostLength = 4.5, kHostWidth = 1.8, kHostHeight = 1.5;

@@ -98,9 +98,9 @@ Eigen::Vector3d vec(const msg::Vector3d& v) { return {v.x, v.y, v.z}; }
 
 }  // namespace
 
-int scenery_class_from_osi(msg::StationaryType type) {
+int scenery_class_from_osi(const msg::StationaryObject& o) {
   namespace c = pgm::cls;
-  switch (type) {
+  switch (o.type) {
     case msg::kBuilding: return c::building;
     case msg::kPole:
     case msg::kDelineator:
@@ -116,7 +116,9 @@ int scenery_class_from_osi(msg::StationaryType type) {
     case msg::kWall:
     case msg::kRectangularStructure:
     case msg::kOverheadStructure: return c::other_structure;
-    default: return c::other_object;  // pylons, construction site elements, other, unknown
+    case msg::kStationaryOther:
+    case msg::kStationaryUnknown: return o.material == msg::kMud ? c::terrain : c::other_object;
+    default: return c::other_object;  // pylons, construction site elements
   }
 }
 
@@ -266,7 +268,7 @@ void read_stationary_objects(const msg::GroundTruth& gt, const FieldError& fail,
       sensor::add_scenery_tree(out.map.scenery, foot, t, element);
       continue;
     }
-    const int cls = scenery_class_from_osi(o.type);
+    const int cls = scenery_class_from_osi(o);
     sensor::add_scenery_box(out.map.scenery, foot, {b.dimension.length, b.dimension.width, b.dimension.height},
                             b.orientation.yaw, cls, scenery_material_from_osi(o, cls), element);
   }

@@ -95,10 +95,11 @@ msg::VehicleType osi_vehicle_type(sensor::ObjectClass c);
 // scenery): buildings; poles, delineators, vertical, reflective and emitting structures (street
 // lights) as poles; trees as a trunk under a crown of vegetation; barriers as fences; vegetation;
 // curbstones as sidewalk (SemanticKITTI labels kerbs so); speed bumps as road; bridges, walls,
-// rectangular and overhead structures as other_structure; the rest (pylons, construction site
+// rectangular and overhead structures as other_structure; other and unknown of mud as terrain (a
+// patch of soil, as osi/scenario_trace.cpp writes terrain); the rest (pylons, construction site
 // elements, other, unknown) as other_object. The material: concrete and stone as concrete,
 // metal, glass, mud as terrain, reflective structures retroreflective; else the class's own.
-int scenery_class_from_osi(msg::StationaryType type);
+int scenery_class_from_osi(const msg::StationaryObject& o);
 int scenery_material_from_osi(const msg::StationaryObject& o, int class_id);
 
 double seconds(const msg::Timestamp& t);

@@ -2,11 +2,14 @@
 // below it) line up, the host is dropped, classes and ids map both ways.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <numbers>
 #include <string>
 
 #include "common/error.h"
 #include "osi/scenario_trace.h"
 #include "osi/sensor_view.h"
+#include "pgm/materials.h"
 #include "sensor/frames.h"
 #include "sensor/scenario.h"
 
@@ -150,4 +153,53 @@ TEST(OsiSensorView, LaneBoundaryLongerThanAScenarioLaneIsAnErrorNamingThePoint) 
           << e.what();
     }
   }
+}
+
+// Scenery goes out as stationary objects and comes back as the same boxes, class and material
+// where OSI has a type for them; a tree goes out as one box and comes back as a tree of the
+// reader's proportions standing on the same foot, as tall and as wide.
+TEST(OsiSensorView, ScenarioSceneryThroughOsiComesBackBoxForBoxAndTreeForTree) {
+  using namespace lidarsim;
+  namespace c = pgm::cls;
+  osi3::SensorView v;
+  osi::sensor_view_from_scenario(demo(), 1.0, v);
+  osi::IdMap ids;
+  osi::SceneFrame scene;
+  osi::scene_from_sensor_view(v, 0, "demo", ids, scene);
+  sensor::Frame truth;
+  sensor::sample_frame(demo(), 1.0, truth);
+  const auto& in = truth.scenery;
+  const auto& out = scene.map.scenery;
+  ASSERT_GT(in.size(), 100u);
+  ASSERT_EQ(out.size(), in.size());  // a tree is five boxes either way
+  int trees = 0, exact = 0;
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    SCOPED_TRACE("box " + std::to_string(i) + " of class " + pgm::class_name(in[i].class_id));
+    if (in[i].class_id == c::trunk) {  // the trunk, then the crown's four boxes
+      ++trees;
+      const double foot = in[i].position.z() - 0.5 * in[i].size.z();
+      EXPECT_EQ(out[i].class_id, c::trunk);
+      EXPECT_NEAR(out[i].position.z() - 0.5 * out[i].size.z(), foot, 1e-9);
+      EXPECT_NEAR((out[i].position - in[i].position).head<2>().norm(), 0, 1e-9);
+      const auto top = [](const sensor::SceneryBox& b) { return b.position.z() + 0.5 * b.size.z(); };
+      EXPECT_NEAR(top(out[i + 4]), top(in[i + 4]), 1e-9);                    // as tall
+      EXPECT_NEAR(out[i + 2].size.x(), in[i + 2].size.x(), 1e-9);            // as wide
+      for (int k = 1; k <= 4; ++k) EXPECT_EQ(out[i + k].class_id, c::vegetation);
+      i += 4;
+      continue;
+    }
+    EXPECT_LT((out[i].position - in[i].position).norm(), 1e-9);
+    EXPECT_LT((out[i].size - in[i].size).norm(), 1e-9);
+    EXPECT_NEAR(std::remainder(out[i].heading - in[i].heading, 2 * std::numbers::pi), 0, 1e-12);
+    if (in[i].class_id == c::traffic_sign) {  // OSI has no sign among stationary objects
+      EXPECT_EQ(out[i].class_id, c::pole);
+      EXPECT_EQ(out[i].material_id, pgm::material::retroreflective_sign);
+      continue;
+    }
+    EXPECT_EQ(out[i].class_id, in[i].class_id);
+    EXPECT_EQ(out[i].material_id, in[i].material_id);
+    ++exact;
+  }
+  EXPECT_EQ(trees, 48);
+  EXPECT_GT(exact, 50);
 }

@@ -111,6 +111,28 @@ TEST(OsiStationaryObjects, BecomeSceneryBoxesWithTheirClassMaterialAndPose) {
   EXPECT_NEAR(s[5].position.z() - 0.5 * s[5].size.z(), 0, 1e-9);
 }
 
+// A patch of soil has no OSI type: "other" or "unknown" of mud is terrain (osi/scenario_trace.cpp
+// writes terrain so); of any other material, or a pylon of mud, it stays other_object.
+TEST(OsiStationaryObjects, OtherOrUnknownOfMudIsTerrain) {
+  using namespace lidarsim;
+  osi3::SensorView v = stationary_view_with_host(0);
+  stationary_add(v, 1, Classification::TYPE_OTHER, 20, 10, 5, 5, 0.1).mutable_classification()->set_material(
+      Classification::MATERIAL_MUD);
+  stationary_add(v, 2, Classification::TYPE_UNKNOWN, 20, -10, 5, 5, 0.1).mutable_classification()->set_material(
+      Classification::MATERIAL_MUD);
+  stationary_add(v, 3, Classification::TYPE_OTHER, 30, 0, 5, 5, 0.1).mutable_classification()->set_material(
+      Classification::MATERIAL_WOOD);
+  stationary_add(v, 4, Classification::TYPE_PYLON, 10, 0, 0.3, 0.3, 0.8).mutable_classification()->set_material(
+      Classification::MATERIAL_MUD);
+  const auto& s = stationary_scene(v).map.scenery;
+  ASSERT_EQ(s.size(), 4u);
+  EXPECT_EQ(s[0].class_id, pgm::cls::terrain);
+  EXPECT_EQ(s[1].class_id, pgm::cls::terrain);
+  EXPECT_EQ(s[0].material_id, pgm::material::terrain);
+  EXPECT_EQ(s[2].class_id, pgm::cls::other_object);
+  EXPECT_EQ(s[3].class_id, pgm::cls::other_object);
+}
+
 TEST(OsiStationaryObjects, BadOnesAreOneErrorNamingTheField) {
   using namespace lidarsim;
   const auto message = [](const osi3::SensorView& v) {
