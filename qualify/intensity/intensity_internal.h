@@ -184,7 +184,8 @@ struct FittedForm {
   double centre = 0;
   Form form = Form::Table;
   bool ok() const { return !table.value.empty(); }
-  double delta(double x, double base, double range_m) const;
+  double delta(double x, double base, double range_m) const { return delta_in(table.bin(x), base, range_m); }
+  double delta_in(int bin, double base, double range_m) const;  // delta with x's bin of `table` given
 };
 
 // Fits `form` of the winsorised residual rc (= clamp(measured - base)) over x on the cells idx:
