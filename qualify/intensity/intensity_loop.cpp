@@ -118,14 +118,24 @@ std::string used_reason(Base base, const std::string& feature, Form form, const 
   return "";
 }
 
+// A feature's bins: the tables' (cx.o.bins equal-count bins, or one per beam row) and the windows'
+// fine bins (32). Equal-count edges depend only on the values, so both are found on one sorted
+// copy (sorting and binning sorted values is the cheap case).
+std::pair<std::vector<double>, std::vector<double>> feature_bins(const std::vector<double>& x, bool per_row,
+                                                                 const Context& cx) {
+  if (per_row) return {category_edges(cx.ds.rows()), category_edges(cx.ds.rows())};
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  return {equal_count_edges(sorted, cx.o.bins), equal_count_edges(sorted, 32)};
+}
+
 // Step 2: every feature in every form, scored on the pooled held-out residual; best first.
 void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, const std::vector<std::string>& added_before) {
   for (size_t f = 0; f < kIntensityFeatures.size(); ++f) {
     const std::string& name = kIntensityFeatures[f];
     const bool per_row = name == "beam_row";
     const auto& x = cx.pool.feature[f];
-    const auto edges = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, cx.o.bins);
-    const auto fine = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, 32);
+    const auto [edges, fine] = feature_bins(x, per_row, cx);
     for (Form form : kForms) {
       if (form == Form::RangeSlope && !range_interaction_applies(name)) continue;
       Candidate k;
@@ -228,8 +238,7 @@ std::vector<double> refit_lookup(RoundResult& r, const Context& cx, const std::v
                     kIntensityFeatures.begin();
   const auto& x = cx.pool.feature[tf];
   const bool per_row = r.top_feature == "beam_row";
-  const auto edges = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, cx.o.bins);
-  const auto fine = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, 32);
+  const auto [edges, fine] = feature_bins(x, per_row, cx);
   std::vector<double> best = cx.pool.base;
   double best_mae = errors(cx.pool.base, cx.pool.measured).mae;
   for (Candidate& k : r.candidates) {

@@ -376,7 +376,11 @@ std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, con
   const std::vector<double>& x = p.feature[azimuth_feature()];
   std::vector<double> out = p.lookup;
   BinnedTable window_bins, edge_bins;
-  if (form == Form::WindowGain) window_bins.edges = equal_count_edges(x, kWindowFineBins);
+  if (form == Form::WindowGain) {
+    std::vector<double> sorted = x;  // equal-count edges depend on the values only: sorted is the cheap case
+    std::sort(sorted.begin(), sorted.end());
+    window_bins.edges = equal_count_edges(sorted, kWindowFineBins);
+  }
   edge_bins.edges = edges;
   const JointIndex ix = joint_index(folds, p, window_bins, edge_bins);
   const WindowSums ws = form == Form::WindowGain ? window_sums(ix, window_bins.edges.size() + 1) : WindowSums{};
