@@ -175,11 +175,19 @@ std::vector<double> levels_with_gain(const JointIndex& ix, const Pooled& p, Gain
   for (size_t k = 0; k < ix.folds.size(); ++k) {
     const FoldIndex& f = ix.folds[k];
     t.assign(ix.keys, {0.0, 0.0});
+    // Neighbouring cells mostly share a key: its sums stay in registers over a run of them (the
+    // same additions in the same order as through t).
+    int run = -1;
+    double s0 = 0, s1 = 0;
     for (size_t j = 0; j < f.fit_key.size(); ++j) {
+      if (f.fit_key[j] != run) {
+        if (run >= 0) t[run] = {s0, s1};
+        run = f.fit_key[j], s0 = t[run][0], s1 = t[run][1];
+      }
       const double G = gain(k, j);
-      auto& e = t[f.fit_key[j]];
-      e[0] += f.fit_measured[j] * G, e[1] += G * G;
+      s0 += f.fit_measured[j] * G, s1 += G * G;
     }
+    if (run >= 0) t[run] = {s0, s1};
     for (size_t j = 0; j < f.held_key.size(); ++j) {
       const auto& e = t[f.held_key[j]];
       if (e[1] > 0) level[p.offset[k] + j] = e[0] / e[1];
@@ -261,11 +269,21 @@ WindowFit fit_joint_window(const WindowSums& ws, const std::vector<double>& held
   split(ws.fit_m, w.fmi, w.fmo), split(ws.fit_n, w.fni, w.fno);
   split(held_m, w.hmi, w.hmo), split(held_n, w.hni, w.hno);
   double g_in = 1, g_out = 1;
+  const double *__restrict fmi = w.fmi.data(), *__restrict fmo = w.fmo.data();
+  const double *__restrict fni = w.fni.data(), *__restrict fno = w.fno.data();
+  double* __restrict level = w.level.data();
   for (int round = 0; round < kJointRounds; ++round) {
-    for (size_t k = 0; k < S; ++k) {
-      const double den = g_in * g_in * w.fni[k] + g_out * g_out * w.fno[k];
-      const double q = (g_in * w.fmi[k] + g_out * w.fmo[k]) / (den > 0 ? den : 1.0);
-      w.level[k] = den > 0 ? q : 0;
+    // Every slot has fit cells (fni + fno >= 1), so with both squared gains > 0 every den is > 0:
+    // that case is a loop without a branch, which runs on whole vectors.
+    const double a = g_in * g_in, c = g_out * g_out;
+    if (a > 0 && c > 0) {
+      for (size_t k = 0; k < S; ++k)
+        level[k] = (g_in * fmi[k] + g_out * fmo[k]) / (a * fni[k] + c * fno[k]);
+    } else {
+      for (size_t k = 0; k < S; ++k) {
+        const double den = a * fni[k] + c * fno[k];
+        level[k] = den > 0 ? (g_in * fmi[k] + g_out * fmo[k]) / den : 0;
+      }
     }
     double xy_in = 0, xx_in = 0, xy_out = 0, xx_out = 0;
     for (size_t k = 0; k < S; ++k) {
