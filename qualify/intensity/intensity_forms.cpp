@@ -175,12 +175,15 @@ struct FitCells {
   std::vector<double> x, r, base, measured, range;  // range: RangeSlope only
 };
 
-FitCells pick_cells(const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
-                    const std::vector<double>& range, const std::vector<size_t>& idx, bool with_range) {
-  FitCells c{pick(x, idx), pick(rc, idx), pick(base, idx), {}, {}};
+// What `form` reads: the additive window x and r only; RangeSlope the range too.
+FitCells pick_cells(Form form, const std::vector<double>& x, const std::vector<double>& rc,
+                    const std::vector<double>& base, const std::vector<double>& range, const std::vector<size_t>& idx) {
+  FitCells c{pick(x, idx), pick(rc, idx), {}, {}, {}};
+  if (form == Form::Window) return c;
+  c.base = pick(base, idx);
   c.measured.resize(c.x.size());
   for (size_t i = 0; i < c.measured.size(); ++i) c.measured[i] = c.base[i] + c.r[i];
-  if (with_range) c.range = pick(range, idx);
+  if (form == Form::RangeSlope) c.range = pick(range, idx);
   return c;
 }
 
@@ -280,7 +283,7 @@ std::vector<int> block_ids(const Pooled& p, int& blocks) {
 FittedForm fit_form(Form form, const std::vector<double>& edges, const std::vector<double>& fine,
                     const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
                     const std::vector<double>& range, const std::vector<size_t>& idx) {
-  return fit_picked(form, edges, fine, pick_cells(x, rc, base, range, idx, form == Form::RangeSlope));
+  return fit_picked(form, edges, fine, pick_cells(form, x, rc, base, range, idx));
 }
 
 std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feature, const std::vector<double>& edges) {
@@ -331,7 +334,7 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
   // `form` or its one-bin version (single: one bin, no edges) on the cells idx.
   auto fit = [&](Form fm, bool single, const std::vector<size_t>& idx) {
     if (binned(fm)) return fit_binned(fm, single ? std::vector<double>{} : edges, single ? nullptr : bin.data(), rc, p.base, idx);
-    const FitCells cells = pick_cells(x, rc, p.base, range, idx, fm == Form::RangeSlope);
+    const FitCells cells = pick_cells(fm, x, rc, p.base, range, idx);
     return single ? fit_picked(fm, {}, {}, cells) : fit_picked(fm, edges, fine, cells);
   };
   s.shown = fit(form, false, all);

@@ -250,15 +250,17 @@ struct WindowFit {
 };
 
 // Per slot, the sums inside [a, b] and outside it, of the folds' fit cells (f*) and of `fit` (h*).
+// held_m, held_n: `fit`'s prefix sums, laid out as WindowSums'. One scratch serves every group of a
+// call (allocated once: a few MB, which fresh pages per group would cost more to clear).
 struct WindowScratch {
-  std::vector<double> fmi, fni, fmo, fno, hmi, hni, hmo, hno, level;
-  explicit WindowScratch(size_t slots) {
-    for (auto* v : {&fmi, &fni, &fmo, &fno, &hmi, &hni, &hmo, &hno, &level}) v->assign(slots, 0.0);
+  std::vector<double> fmi, fni, fmo, fno, hmi, hni, hmo, hno, level, held_m, held_n;
+  explicit WindowScratch(const WindowSums& ws) {
+    for (auto* v : {&fmi, &fni, &fmo, &fno, &hmi, &hni, &hmo, &hno, &level}) v->assign(ws.slots, 0.0);
+    held_m.assign((ws.nb + 1) * ws.slots, 0.0), held_n.assign((ws.nb + 1) * ws.slots, 0.0);
   }
 };
 
-WindowFit fit_joint_window(const WindowSums& ws, const std::vector<double>& held_m, const std::vector<double>& held_n,
-                           size_t a, size_t b, WindowScratch& w) {
+WindowFit fit_joint_window(const WindowSums& ws, size_t a, size_t b, WindowScratch& w) {
   WindowFit out;
   out.a = a, out.b = b;
   const size_t S = ws.slots, nb = ws.nb;
@@ -267,7 +269,7 @@ WindowFit fit_joint_window(const WindowSums& ws, const std::vector<double>& held
     for (size_t k = 0; k < S; ++k) in[k] = hi[k] - lo[k], outside[k] = all[k] - in[k];
   };
   split(ws.fit_m, w.fmi, w.fmo), split(ws.fit_n, w.fni, w.fno);
-  split(held_m, w.hmi, w.hmo), split(held_n, w.hni, w.hno);
+  split(w.held_m, w.hmi, w.hmo), split(w.held_n, w.hni, w.hno);
   double g_in = 1, g_out = 1;
   const double *__restrict fmi = w.fmi.data(), *__restrict fmo = w.fmo.data();
   const double *__restrict fni = w.fni.data(), *__restrict fno = w.fno.data();
@@ -305,9 +307,10 @@ WindowFit fit_joint_window(const WindowSums& ws, const std::vector<double>& held
 
 // joint_window_gain over the folds' sums `ws`; `fine` the fine bins' edges.
 FittedForm joint_window(const WindowSums& ws, const JointIndex& ix, const Pooled& p, const std::vector<size_t>& fit,
-                        const std::vector<double>& fine) {
+                        const std::vector<double>& fine, WindowScratch& scratch) {
   const size_t nb = ws.nb, S = ws.slots;
-  std::vector<double> held_m((nb + 1) * S, 0.0), held_n((nb + 1) * S, 0.0);
+  std::vector<double>&held_m = scratch.held_m, &held_n = scratch.held_n;
+  std::fill(held_m.begin(), held_m.end(), 0.0), std::fill(held_n.begin(), held_n.end(), 0.0);
   // Keys without fit cells have no level (the plain lookup falls back to the class mean): left out
   // of the search, as they carry nothing of the window's contrast.
   long held = 0;
@@ -328,11 +331,10 @@ FittedForm joint_window(const WindowSums& ws, const JointIndex& ix, const Pooled
     const double n_in = held_total[b + 1] - held_total[a];
     return n_in >= kWindowMinShare * held && held - n_in >= kWindowMinShare * held;
   };
-  WindowScratch scratch(S);
   WindowFit best;
   auto consider = [&](size_t a, size_t b) {
     if (a > b || b >= nb || !valid(a, b)) return;
-    const WindowFit w = fit_joint_window(ws, held_m, held_n, a, b, scratch);
+    const WindowFit w = fit_joint_window(ws, a, b, scratch);
     if (w.sse < best.sse) best = w;
   };
   const size_t coarse = kWindowCoarse;
@@ -358,6 +360,7 @@ FittedForm joint_window(const WindowSums& ws, const JointIndex& ix, const Pooled
 std::vector<double> gain_per_bin(const std::vector<size_t>& fit, const std::vector<int>& bin, size_t bins,
                                  const Pooled& p, const std::vector<double>& level, double shrink = 5) {
   std::vector<double> r;
+  r.reserve(fit.size());
   for (size_t i : fit) r.push_back(p.measured[i] - level[i]);
   const Winsor w = winsor_limits(r);
   std::vector<double> xy(bins + 1, 0.0), xx(bins + 1, 0.0);  // the last: every fit cell (one bin)
@@ -384,7 +387,9 @@ FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, co
   BinnedTable fine_bins;
   fine_bins.edges = fine;
   const JointIndex ix = joint_index(folds, p, fine_bins, BinnedTable{});
-  return joint_window(window_sums(ix, fine.size() + 1), ix, p, fit, fine);
+  const WindowSums ws = window_sums(ix, fine.size() + 1);
+  WindowScratch scratch(ws);
+  return joint_window(ws, ix, p, fit, fine, scratch);
 }
 
 std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, const Pooled& p, Form form,
@@ -402,6 +407,7 @@ std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, con
   edge_bins.edges = edges;
   const JointIndex ix = joint_index(folds, p, window_bins, edge_bins);
   const WindowSums ws = form == Form::WindowGain ? window_sums(ix, window_bins.edges.size() + 1) : WindowSums{};
+  WindowScratch scratch(ws);
   for (int g = 0; g < cf.groups; ++g) {
     std::vector<size_t> fit;
     for (size_t i = 0; i < p.size(); ++i)
@@ -412,7 +418,7 @@ std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, con
       // The window and its edges fitted jointly with the levels (joint_window_gain). The groups
       // share their columns, so the window's edges hold for every group's cells (a gap of the
       // fit cells inside the window is still inside it).
-      const FittedForm f = joint_window(ws, ix, p, fit, window_bins.edges);
+      const FittedForm f = joint_window(ws, ix, p, fit, window_bins.edges, scratch);
       if (!f.ok()) continue;
       // 1 + f.delta(az, 1, 0), with the window's bin as BinnedTable::bin finds it on its two edges.
       const double lo = f.table.edges[0], hi = f.table.edges[1];
