@@ -266,6 +266,13 @@ struct Candidate {
   bool scenery_checked = false;  // score.r2 is then the lower of column_r2 and the crossed split's
   Decision decision = Decision::NotTried;
   std::string reason;  // in words a user acts on
+  // The column score's prediction per pooled cell and its MAE, as score_form with keep_corrected
+  // gives them for `refit_folds`: kept for the candidates of the best-ranked feature of a lookup
+  // base, whose refit reads them instead of scoring the form again.
+  std::vector<double> refit_corrected;
+  double refit_mae = 0;
+  bool kept = false;
+  const std::vector<Fold>* refit_folds = nullptr;
   std::string name() const { return form_name(form, per_row); }
 };
 

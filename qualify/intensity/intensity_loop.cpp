@@ -131,7 +131,15 @@ std::pair<std::vector<double>, std::vector<double>> feature_bins(const std::vect
 
 // Step 2: every feature in every form, scored on the pooled held-out residual; best first.
 void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, const std::vector<std::string>& added_before) {
+  // A lookup base's refit scores each form of the top feature again, keeping every cell's
+  // prediction: the same computation as here. So the predictions of the best feature so far
+  // (the best rankable form's R^2; the first of equals, as the stable sort below) are kept.
+  const bool keep = cx.base != Base::Unet;
+  const std::vector<Fold>* folds = joint_folds(cx, added_before);
+  std::string best_feature;
+  double best_r2 = 0;
   for (size_t f = 0; f < kIntensityFeatures.size(); ++f) {
+    const size_t first = r.candidates.size();
     const std::string& name = kIntensityFeatures[f];
     const bool per_row = name == "beam_row";
     const auto& x = cx.pool.feature[f];
@@ -140,8 +148,13 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       if (form == Form::RangeSlope && !range_interaction_applies(name)) continue;
       Candidate k;
       k.feature = name, k.form = form, k.per_row = per_row;
-      k.score = score_form(form, cx.pool, f, edges, fine, rc, false, joint_folds(cx, added_before));
+      k.score = score_form(form, cx.pool, f, edges, fine, rc, keep, folds);
       if (!k.score.shown.ok()) continue;  // a window needs 3 fine bins (depth_discontinuity has 2)
+      if (keep) {
+        k.refit_corrected = std::move(k.score.corrected), k.refit_mae = k.score.mae_after;
+        k.kept = true, k.refit_folds = folds;
+        k.score.corrected = {};
+      }
       k.reason = used_reason(cx.base, name, form, added_before);
       if (k.reason.empty()) check_across_scenery(k, cx.pool, f, edges, fine, rc);
       k.used = !k.reason.empty();
@@ -162,6 +175,16 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       if (form == Form::Table) r.residual_tables[name] = k.score.shown.table;
       r.candidates.push_back(std::move(k));
     }
+    if (!keep) continue;
+    bool rankable = false;
+    double r2 = 0;
+    for (size_t q = first; q < r.candidates.size(); ++q) {
+      const Candidate& k = r.candidates[q];
+      if (!k.used && !k.undecided && (!rankable || k.score.r2 > r2)) r2 = k.score.r2, rankable = true;
+    }
+    if (rankable && (best_feature.empty() || r2 > best_r2)) best_feature = name, best_r2 = r2;
+    for (Candidate& k : r.candidates)
+      if (k.kept && k.feature != best_feature) k.refit_corrected = {}, k.kept = false;
   }
   std::stable_sort(r.candidates.begin(), r.candidates.end(),
                    [](const Candidate& a, const Candidate& b) { return a.score.r2 > b.score.r2; });
@@ -244,7 +267,13 @@ std::vector<double> refit_lookup(RoundResult& r, const Context& cx, const std::v
   for (Candidate& k : r.candidates) {
     if (k.feature != r.top_feature || k.used) continue;
     const std::vector<Fold>* folds = cx.base == Base::Lookup && !has_prior ? &cx.folds : nullptr;
-    const FormScore s = score_form(k.form, cx.pool, tf, edges, fine, rc, true, folds);
+    FormScore s;
+    if (k.kept && k.refit_folds == folds) {
+      s.corrected = std::move(k.refit_corrected), s.mae_after = k.refit_mae;
+      k.kept = false;
+    } else {
+      s = score_form(k.form, cx.pool, tf, edges, fine, rc, true, folds);
+    }
     const bool joint = folds && joint_azimuth_gain(cx.pool, k.feature, k.form);
     const std::string name = k.name() + ": " + (joint ? "gain, the lookup refitted jointly with it" : refit_kind(k.form));
     r.refits.push_back({name, s.mae_after, true});
