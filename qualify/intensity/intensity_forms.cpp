@@ -12,6 +12,7 @@
 // implies: the held-out error of base + its correction.
 #include <algorithm>
 #include <cmath>
+#include <map>
 
 #include "data/baselines.h"
 #include "qualify/intensity/intensity_internal.h"
@@ -292,20 +293,29 @@ std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feat
     if (!c.held_out[i]) fit.push_back(i);
   const std::vector<double>&x = c.feature[feature], &range = c.feature[0];
   const std::vector<double> fallback = lookup_prediction(c);  // keys without fit cells: class, then global mean
-  auto key = [&](size_t i) { return long(c.cls[i]) * 1000 + data::range_bin(range[i]); };
+  // The lookup's key (class x range bin) of every cell, numbered densely once: class index x
+  // kRangeBins + range bin.
+  std::map<int, int> class_index;
+  for (size_t i = 0; i < c.size(); ++i)
+    if (i == 0 || c.cls[i] != c.cls[i - 1]) class_index.emplace(c.cls[i], 0);
+  int classes = 0;
+  for (auto& [cls, k] : class_index) k = classes++;
+  std::vector<int> key(c.size());
+  for (size_t i = 0; i < c.size(); ++i) key[i] = class_index.at(c.cls[i]) * data::kRangeBins + data::range_bin(range[i]);
+  std::vector<std::array<double, 2>> t;  // key -> (sum m g, sum g^2)
   std::vector<double> level = fallback, gain(c.size(), 1.0), resid(c.size(), 0.0);
   // Alternating least squares from the plain lookup: levels given the gains, then the slopes given
   // the levels. Each half-step lowers the fit cells' squared error; four rounds settle it (the
   // levels move by < 1e-4 after the third on the planted scans).
   for (int round = 0; round < 4; ++round) {
-    std::map<long, std::array<double, 2>> t;  // key -> (sum m g, sum g^2)
+    t.assign(classes * data::kRangeBins, {0.0, 0.0});  // a key without fit cells keeps sum g^2 = 0
     for (size_t i : fit) {
-      auto& e = t[key(i)];
+      auto& e = t[key[i]];
       e[0] += c.measured[i] * gain[i], e[1] += gain[i] * gain[i];
     }
     for (size_t i = 0; i < c.size(); ++i) {
-      const auto it = t.find(key(i));
-      level[i] = it != t.end() && it->second[1] > 0 ? it->second[0] / it->second[1] : fallback[i];
+      const auto& e = t[key[i]];
+      level[i] = e[1] > 0 ? e[0] / e[1] : fallback[i];
     }
     std::vector<double> r;
     for (size_t i : fit) r.push_back(c.measured[i] - level[i]);
@@ -358,11 +368,22 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
       b[0] += (rc[i] - d) * (rc[i] - d), b[1] += rc[i] * rc[i], b[2] += 1;
     }
   }
+  // Crossed groups (2 x class + row block) fit on the other row block only: its cells listed once.
+  std::vector<size_t> in_block[2];
+  if (cf.crossed && !joint)
+    for (size_t i = 0; i < p.size(); ++i) in_block[cf.group[i] % 2].push_back(i);
   for (int g = 0; g < (joint ? 0 : cf.groups); ++g) {
     std::vector<size_t> fit_cells, apply;
-    for (size_t i = 0; i < p.size(); ++i) {
-      if (cf.group[i] == g) apply.push_back(i);
-      else if (cf.fits(g, cf.group[i])) fit_cells.push_back(i);
+    if (cf.crossed) {
+      for (size_t i : in_block[g % 2])
+        if (cf.group[i] == g) apply.push_back(i);
+      for (size_t i : in_block[1 - g % 2])
+        if (cf.fits(g, cf.group[i])) fit_cells.push_back(i);
+    } else {
+      for (size_t i = 0; i < p.size(); ++i) {
+        if (cf.group[i] == g) apply.push_back(i);
+        else if (cf.fits(g, cf.group[i])) fit_cells.push_back(i);
+      }
     }
     if (fit_cells.empty() || apply.empty()) continue;
     const FittedForm f = fit(form, false, fit_cells);
