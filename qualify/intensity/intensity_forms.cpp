@@ -12,6 +12,7 @@
 // implies: the held-out error of base + its correction.
 #include <algorithm>
 #include <cmath>
+#include <map>
 
 #include "data/baselines.h"
 #include "qualify/intensity/intensity_internal.h"
@@ -54,8 +55,7 @@ const char* decision_name(Decision d) {
   return "?";
 }
 
-double FittedForm::delta(double x, double base, double range_m) const {
-  const int b = table.bin(x);
+double FittedForm::delta_in(int b, double base, double range_m) const {
   switch (form) {
     case Form::Table:
     case Form::Window: return table.value[b];
@@ -70,17 +70,20 @@ double FittedForm::delta(double x, double base, double range_m) const {
 namespace {
 
 // Per bin, ridge least squares of r on (1, base - centre): the offset shrunk like fit_table's mean
-// (n / (n + shrink)), the slope by `shrink` cells' worth of the bin's spread of the base.
-FittedForm fit_affine(const std::vector<double>& edges, const std::vector<double>& x, const std::vector<double>& r,
-                      const std::vector<double>& base, double shrink = 5) {
+// (n / (n + shrink)), the slope by `shrink` cells' worth of the bin's spread of the base. On the
+// cells idx; bin[i]: cell i's bin in `edges` (nullptr: one bin).
+FittedForm fit_affine(const std::vector<double>& edges, const int* bin, const std::vector<double>& r,
+                      const std::vector<double>& base, const std::vector<size_t>& idx, double shrink = 5) {
   FittedForm f;
   f.form = Form::AffineTable;
   f.table.edges = edges;
   const size_t nb = edges.size() + 1;
-  f.centre = base.empty() ? 0 : mean_of(base);
+  double sum = 0;  // mean_of the cells' base
+  for (size_t i : idx) sum += base[i];
+  f.centre = idx.empty() ? 0 : sum / idx.size();
   std::vector<double> n(nb, 0), sd(nb, 0), sdd(nb, 0), sr(nb, 0), srd(nb, 0);
-  for (size_t i = 0; i < x.size(); ++i) {
-    const int b = f.table.bin(x[i]);
+  for (size_t i : idx) {
+    const int b = bin ? bin[i] : 0;
     const double d = base[i] - f.centre;
     n[b] += 1, sd[b] += d, sdd[b] += d * d, sr[b] += r[i], srd[b] += r[i] * d;
   }
@@ -165,28 +168,123 @@ Form one_bin(Form f) {
 
 }  // namespace
 
-FittedForm fit_form(Form form, const std::vector<double>& edges, const std::vector<double>& fine,
-                    const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
-                    const std::vector<double>& range, const std::vector<size_t>& idx) {
-  const std::vector<double> xs = pick(x, idx), rs = pick(rc, idx), bs = pick(base, idx);
-  // Gains are fitted to the winsorised measurement (base + clamped residual), as the tables are.
-  std::vector<double> ms(xs.size());
-  for (size_t i = 0; i < ms.size(); ++i) ms[i] = bs[i] + rs[i];
+namespace {
+
+// The cells a form is fitted on, picked once for a form and its one-bin version. Gains are fitted
+// to the winsorised measurement (base + clamped residual), as the tables are.
+struct FitCells {
+  std::vector<double> x, r, base, measured, range;  // range: RangeSlope only
+};
+
+// What `form` reads: the additive window x and r only; RangeSlope the range too.
+FitCells pick_cells(Form form, const std::vector<double>& x, const std::vector<double>& rc,
+                    const std::vector<double>& base, const std::vector<double>& range, const std::vector<size_t>& idx) {
+  FitCells c{pick(x, idx), pick(rc, idx), {}, {}, {}};
+  if (form == Form::Window) return c;
+  c.base = pick(base, idx);
+  c.measured.resize(c.x.size());
+  for (size_t i = 0; i < c.measured.size(); ++i) c.measured[i] = c.base[i] + c.r[i];
+  if (form == Form::RangeSlope) c.range = pick(range, idx);
+  return c;
+}
+
+FittedForm fit_picked(Form form, const std::vector<double>& edges, const std::vector<double>& fine, const FitCells& c) {
   FittedForm f;
   f.form = form;
   switch (form) {
-    case Form::Table: f.table = fit_table(edges, xs, rs); break;
-    case Form::Window: f.table = fit_window(fine, xs, rs); break;
-    case Form::GainTable: f.table = fit_gain_table(edges, xs, ms, bs); break;
+    case Form::Table: f.table = fit_table(edges, c.x, c.r); break;
+    case Form::Window: f.table = fit_window(fine, c.x, c.r); break;
+    case Form::GainTable: f.table = fit_gain_table(edges, c.x, c.measured, c.base); break;
     case Form::WindowGain: {
-      const BinnedTable w = fit_window(fine, xs, rs);
-      if (!w.value.empty()) f.table = fit_window_gain(w, xs, ms, bs);
+      const BinnedTable w = fit_window(fine, c.x, c.r);
+      if (!w.value.empty()) f.table = fit_window_gain(w, c.x, c.measured, c.base);
       break;
     }
-    case Form::AffineTable: f = fit_affine(edges, xs, rs, bs); break;
-    case Form::RangeSlope: f = fit_range_slope(edges, xs, ms, bs, pick(range, idx)); break;
+    case Form::AffineTable: {
+      const BinnedTable t{edges, {}, {}};
+      std::vector<int> bin(c.x.size());
+      std::vector<size_t> all(c.x.size());
+      for (size_t i = 0; i < c.x.size(); ++i) bin[i] = t.bin(c.x[i]), all[i] = i;
+      f = fit_affine(edges, bin.data(), c.r, c.base, all);
+      break;
+    }
+    case Form::RangeSlope: f = fit_range_slope(edges, c.x, c.measured, c.base, c.range); break;
   }
   return f;
+}
+
+// The tables (additive, gain, affine) on the cells idx of the pooled arrays, with each cell's bin
+// in `edges` found once for every form and group (bin[i]; nullptr: one bin): fit_table's and
+// fit_gain_table's sums and shrinkage, in the same order, without copying the cells out.
+bool binned(Form f) { return f == Form::Table || f == Form::GainTable || f == Form::AffineTable; }
+
+FittedForm fit_binned(Form form, const std::vector<double>& edges, const int* bin, const std::vector<double>& r,
+                      const std::vector<double>& base, const std::vector<size_t>& idx, double shrink = 5) {
+  if (form == Form::AffineTable) return fit_affine(edges, bin, r, base, idx, shrink);
+  FittedForm f;
+  f.form = form;
+  BinnedTable& t = f.table;
+  t.edges = edges;
+  const size_t nb = edges.size() + 1;
+  std::vector<double> xy(nb, 0.0), xx(nb, 0.0);  // Table: xy = sum r
+  t.count.assign(nb, 0);
+  if (form == Form::Table) {
+    for (size_t i : idx) {
+      const int b = bin ? bin[i] : 0;
+      xy[b] += r[i];
+      ++t.count[b];
+    }
+    t.value.assign(nb, 0.0);
+    for (size_t b = 0; b < nb; ++b)
+      if (t.count[b] > 0) t.value[b] = xy[b] / (t.count[b] + shrink);
+    return f;
+  }
+  for (size_t i : idx) {  // GainTable: measured = base + clamped residual
+    const int b = bin ? bin[i] : 0;
+    const double m = base[i] + r[i];
+    xy[b] += m * base[i];
+    xx[b] += base[i] * base[i];
+    ++t.count[b];
+  }
+  t.value.assign(nb, 1.0);
+  for (size_t b = 0; b < nb; ++b) {
+    if (t.count[b] == 0 || xx[b] <= 0) continue;
+    const double prior = shrink * xx[b] / t.count[b];  // shrink pseudo-cells at gain 1
+    t.value[b] = (xy[b] + prior) / (xx[b] + prior);
+  }
+  return f;
+}
+
+// The bin of x in f's table when `edge_bin` is x's bin in the edges the form was fitted on: a
+// table's edges are those; a window's are its own two, (lo, hi), binned as BinnedTable::bin does.
+int form_bin(const FittedForm& f, double x, int edge_bin) {
+  if (!is_window(f.form)) return edge_bin;
+  return x < f.table.edges[1] ? (x < f.table.edges[0] ? 0 : 1) : 2;
+}
+
+// Bootstrap blocks numbered densely in increasing block order (as a map keyed by block visits them).
+std::vector<int> block_ids(const Pooled& p, int& blocks) {
+  std::map<long, int> id;
+  for (size_t i = 0; i < p.size(); ++i)
+    if (i == 0 || p.block[i] != p.block[i - 1]) id.emplace(p.block[i], 0);
+  blocks = 0;
+  for (auto& [b, i] : id) i = blocks++;
+  std::vector<int> out(p.size());
+  long last = 0;
+  int last_id = -1;
+  for (size_t i = 0; i < p.size(); ++i) {
+    if (last_id < 0 || p.block[i] != last) last = p.block[i], last_id = id.at(last);
+    out[i] = last_id;
+  }
+  return out;
+}
+
+}  // namespace
+
+FittedForm fit_form(Form form, const std::vector<double>& edges, const std::vector<double>& fine,
+                    const std::vector<double>& x, const std::vector<double>& rc, const std::vector<double>& base,
+                    const std::vector<double>& range, const std::vector<size_t>& idx) {
+  return fit_picked(form, edges, fine, pick_cells(form, x, rc, base, range, idx));
 }
 
 std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feature, const std::vector<double>& edges) {
@@ -195,20 +293,29 @@ std::vector<double> lookup_with_range_slope(const IntensityCells& c, size_t feat
     if (!c.held_out[i]) fit.push_back(i);
   const std::vector<double>&x = c.feature[feature], &range = c.feature[0];
   const std::vector<double> fallback = lookup_prediction(c);  // keys without fit cells: class, then global mean
-  auto key = [&](size_t i) { return long(c.cls[i]) * 1000 + data::range_bin(range[i]); };
+  // The lookup's key (class x range bin) of every cell, numbered densely once: class index x
+  // kRangeBins + range bin.
+  std::map<int, int> class_index;
+  for (size_t i = 0; i < c.size(); ++i)
+    if (i == 0 || c.cls[i] != c.cls[i - 1]) class_index.emplace(c.cls[i], 0);
+  int classes = 0;
+  for (auto& [cls, k] : class_index) k = classes++;
+  std::vector<int> key(c.size());
+  for (size_t i = 0; i < c.size(); ++i) key[i] = class_index.at(c.cls[i]) * data::kRangeBins + data::range_bin(range[i]);
+  std::vector<std::array<double, 2>> t;  // key -> (sum m g, sum g^2)
   std::vector<double> level = fallback, gain(c.size(), 1.0), resid(c.size(), 0.0);
   // Alternating least squares from the plain lookup: levels given the gains, then the slopes given
   // the levels. Each half-step lowers the fit cells' squared error; four rounds settle it (the
   // levels move by < 1e-4 after the third on the planted scans).
   for (int round = 0; round < 4; ++round) {
-    std::map<long, std::array<double, 2>> t;  // key -> (sum m g, sum g^2)
+    t.assign(classes * data::kRangeBins, {0.0, 0.0});  // a key without fit cells keeps sum g^2 = 0
     for (size_t i : fit) {
-      auto& e = t[key(i)];
+      auto& e = t[key[i]];
       e[0] += c.measured[i] * gain[i], e[1] += gain[i] * gain[i];
     }
     for (size_t i = 0; i < c.size(); ++i) {
-      const auto it = t.find(key(i));
-      level[i] = it != t.end() && it->second[1] > 0 ? it->second[0] / it->second[1] : fallback[i];
+      const auto& e = t[key[i]];
+      level[i] = e[1] > 0 ? e[0] / e[1] : fallback[i];
     }
     std::vector<double> r;
     for (size_t i : fit) r.push_back(c.measured[i] - level[i]);
@@ -230,10 +337,23 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
   FormScore s;
   std::vector<size_t> all(p.size());
   for (size_t i = 0; i < all.size(); ++i) all[i] = i;
-  s.shown = fit_form(form, edges, fine, x, rc, p.base, range, all);
+  // Each cell's bin, found once: in `edges` (the tables) or in `fine` (the windows' fine bins).
+  const BinnedTable bins{is_window(form) ? fine : edges, {}, {}};
+  std::vector<int> bin(p.size());
+  for (size_t i = 0; i < p.size(); ++i) bin[i] = bins.bin(x[i]);
+  // `form` or its one-bin version (single: one bin, no edges) on the cells idx.
+  auto fit = [&](Form fm, bool single, const std::vector<size_t>& idx) {
+    if (binned(fm)) return fit_binned(fm, single ? std::vector<double>{} : edges, single ? nullptr : bin.data(), rc, p.base, idx);
+    const FitCells cells = pick_cells(fm, x, rc, p.base, range, idx);
+    return single ? fit_picked(fm, {}, {}, cells) : fit_picked(fm, edges, fine, cells);
+  };
+  s.shown = fit(form, false, all);
   if (!s.shown.ok()) return s;
   s.corrected = p.base;
-  std::map<long, std::array<double, 3>> blocks;  // block -> (sse, sst, n)
+  int nblocks = 0;
+  const std::vector<int> block = block_ids(p, nblocks);
+  std::vector<std::array<double, 3>> blocks(nblocks, {0.0, 0.0, 0.0});  // block -> (sse, sst, n)
+  std::vector<char> seen(nblocks, 0);
   double abs_sum = 0;
   const CrossFit cf = cross ? *cross : cross_fit_for(p, kIntensityFeatures[feature]);
   const bool joint = folds && joint_azimuth_gain(p, kIntensityFeatures[feature], form);
@@ -243,34 +363,46 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
     s.corrected = lookup_with_azimuth_gain(*folds, p, form, edges, fine);
     for (size_t i = 0; i < p.size(); ++i) {
       const double d = s.corrected[i] - p.base[i];
-      auto& b = blocks[p.block[i]];
+      auto& b = blocks[block[i]];
+      seen[block[i]] = 1;
       b[0] += (rc[i] - d) * (rc[i] - d), b[1] += rc[i] * rc[i], b[2] += 1;
     }
   }
+  // Crossed groups (2 x class + row block) fit on the other row block only: its cells listed once.
+  std::vector<size_t> in_block[2];
+  if (cf.crossed && !joint)
+    for (size_t i = 0; i < p.size(); ++i) in_block[cf.group[i] % 2].push_back(i);
   for (int g = 0; g < (joint ? 0 : cf.groups); ++g) {
-    std::vector<size_t> fit, apply;
-    for (size_t i = 0; i < p.size(); ++i) {
-      if (cf.group[i] == g) apply.push_back(i);
-      else if (cf.fits(g, cf.group[i])) fit.push_back(i);
+    std::vector<size_t> fit_cells, apply;
+    if (cf.crossed) {
+      for (size_t i : in_block[g % 2])
+        if (cf.group[i] == g) apply.push_back(i);
+      for (size_t i : in_block[1 - g % 2])
+        if (cf.fits(g, cf.group[i])) fit_cells.push_back(i);
+    } else {
+      for (size_t i = 0; i < p.size(); ++i) {
+        if (cf.group[i] == g) apply.push_back(i);
+        else if (cf.fits(g, cf.group[i])) fit_cells.push_back(i);
+      }
     }
-    if (fit.empty() || apply.empty()) continue;
-    const FittedForm f = fit_form(form, edges, fine, x, rc, p.base, range, fit);
-    const FittedForm one = fit_form(one_bin(form), {}, {}, x, rc, p.base, range, fit);
+    if (fit_cells.empty() || apply.empty()) continue;
+    const FittedForm f = fit(form, false, fit_cells);
+    const FittedForm one = fit(one_bin(form), true, fit_cells);
     // Fit cells per fine bin: a window's level is known only where its fine bins had fit cells
     // (its edges may span azimuths another group holds out).
-    BinnedTable fine_bins;
-    fine_bins.edges = fine;
     std::vector<long> fine_count(fine.size() + 1, 0);
-    for (size_t i : fit) ++fine_count[fine_bins.bin(x[i])];
+    if (is_window(form))
+      for (size_t i : fit_cells) ++fine_count[bin[i]];
     for (size_t i : apply) {
       // A bin without fit cells (a range of the feature only this group has: azimuths another
-      // fold holds out) has no level of its own; the one-bin form stands in for it.
-      const double d0 = one.delta(x[i], p.base[i], range[i]);
-      const bool known = f.ok() && (is_window(form) ? fine_count[fine_bins.bin(x[i])] > 0
-                                                    : f.table.count[f.table.bin(x[i])] > 0);
-      const double d = known ? f.delta(x[i], p.base[i], range[i]) : d0;
+      // fold holds out) has no level of its own; the one-bin form stands in for it. (The one-bin
+      // form's table has no edges: every x is in its bin 0.)
+      const double d0 = one.delta_in(0, p.base[i], range[i]);
+      const bool known = f.ok() && (is_window(form) ? fine_count[bin[i]] > 0 : f.table.count[bin[i]] > 0);
+      const double d = known ? f.delta_in(form_bin(f, x[i], bin[i]), p.base[i], range[i]) : d0;
       s.corrected[i] = p.base[i] + d;
-      auto& b = blocks[p.block[i]];
+      auto& b = blocks[block[i]];
+      seen[block[i]] = 1;
       b[0] += (rc[i] - d) * (rc[i] - d);
       b[1] += (rc[i] - d0) * (rc[i] - d0);
       b[2] += 1;
@@ -278,9 +410,10 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
   }
   std::array<double, 3> total{0, 0, 0};
   BlockSums bl;
-  for (const auto& [k, v] : blocks) {
-    bl.push_back(v);
-    for (size_t q = 0; q < 3; ++q) total[q] += v[q];
+  for (int k = 0; k < nblocks; ++k) {
+    if (!seen[k]) continue;
+    bl.push_back(blocks[k]);
+    for (size_t q = 0; q < 3; ++q) total[q] += blocks[k][q];
   }
   s.r2 = r2_of_sums(total);
   s.interval = block_bootstrap_interval(bl, r2_of_sums, 1000);
@@ -291,7 +424,7 @@ FormScore score_form(Form form, const Pooled& p, size_t feature, const std::vect
     s.effect = s.shown.table.value[1] - s.shown.table.value[0];
   } else {
     double sq = 0;
-    for (size_t i = 0; i < p.size(); ++i) sq += std::pow(s.shown.delta(x[i], p.base[i], range[i]), 2);
+    for (size_t i = 0; i < p.size(); ++i) sq += std::pow(s.shown.delta_in(bin[i], p.base[i], range[i]), 2);
     s.effect = p.size() ? std::sqrt(sq / p.size()) : 0;
   }
   return s;

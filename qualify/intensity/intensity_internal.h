@@ -184,7 +184,8 @@ struct FittedForm {
   double centre = 0;
   Form form = Form::Table;
   bool ok() const { return !table.value.empty(); }
-  double delta(double x, double base, double range_m) const;
+  double delta(double x, double base, double range_m) const { return delta_in(table.bin(x), base, range_m); }
+  double delta_in(int bin, double base, double range_m) const;  // delta with x's bin of `table` given
 };
 
 // Fits `form` of the winsorised residual rc (= clamp(measured - base)) over x on the cells idx:
@@ -265,6 +266,13 @@ struct Candidate {
   bool scenery_checked = false;  // score.r2 is then the lower of column_r2 and the crossed split's
   Decision decision = Decision::NotTried;
   std::string reason;  // in words a user acts on
+  // The column score's prediction per pooled cell and its MAE, as score_form with keep_corrected
+  // gives them for `refit_folds`: kept for the candidates of the best-ranked feature of a lookup
+  // base, whose refit reads them instead of scoring the form again.
+  std::vector<double> refit_corrected;
+  double refit_mae = 0;
+  bool kept = false;
+  const std::vector<Fold>* refit_folds = nullptr;
   std::string name() const { return form_name(form, per_row); }
 };
 

@@ -118,20 +118,43 @@ std::string used_reason(Base base, const std::string& feature, Form form, const 
   return "";
 }
 
+// A feature's bins: the tables' (cx.o.bins equal-count bins, or one per beam row) and the windows'
+// fine bins (32). Equal-count edges depend only on the values, so both are found on one sorted
+// copy (sorting and binning sorted values is the cheap case).
+std::pair<std::vector<double>, std::vector<double>> feature_bins(const std::vector<double>& x, bool per_row,
+                                                                 const Context& cx) {
+  if (per_row) return {category_edges(cx.ds.rows()), category_edges(cx.ds.rows())};
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  return {equal_count_edges(sorted, cx.o.bins), equal_count_edges(sorted, 32)};
+}
+
 // Step 2: every feature in every form, scored on the pooled held-out residual; best first.
 void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, const std::vector<std::string>& added_before) {
+  // A lookup base's refit scores each form of the top feature again, keeping every cell's
+  // prediction: the same computation as here. So the predictions of the best feature so far
+  // (the best rankable form's R^2; the first of equals, as the stable sort below) are kept.
+  const bool keep = cx.base != Base::Unet;
+  const std::vector<Fold>* folds = joint_folds(cx, added_before);
+  std::string best_feature;
+  double best_r2 = 0;
   for (size_t f = 0; f < kIntensityFeatures.size(); ++f) {
+    const size_t first = r.candidates.size();
     const std::string& name = kIntensityFeatures[f];
     const bool per_row = name == "beam_row";
     const auto& x = cx.pool.feature[f];
-    const auto edges = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, cx.o.bins);
-    const auto fine = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, 32);
+    const auto [edges, fine] = feature_bins(x, per_row, cx);
     for (Form form : kForms) {
       if (form == Form::RangeSlope && !range_interaction_applies(name)) continue;
       Candidate k;
       k.feature = name, k.form = form, k.per_row = per_row;
-      k.score = score_form(form, cx.pool, f, edges, fine, rc, false, joint_folds(cx, added_before));
+      k.score = score_form(form, cx.pool, f, edges, fine, rc, keep, folds);
       if (!k.score.shown.ok()) continue;  // a window needs 3 fine bins (depth_discontinuity has 2)
+      if (keep) {
+        k.refit_corrected = std::move(k.score.corrected), k.refit_mae = k.score.mae_after;
+        k.kept = true, k.refit_folds = folds;
+        k.score.corrected = {};
+      }
       k.reason = used_reason(cx.base, name, form, added_before);
       if (k.reason.empty()) check_across_scenery(k, cx.pool, f, edges, fine, rc);
       k.used = !k.reason.empty();
@@ -152,6 +175,16 @@ void rank(RoundResult& r, const Context& cx, const std::vector<double>& rc, cons
       if (form == Form::Table) r.residual_tables[name] = k.score.shown.table;
       r.candidates.push_back(std::move(k));
     }
+    if (!keep) continue;
+    bool rankable = false;
+    double r2 = 0;
+    for (size_t q = first; q < r.candidates.size(); ++q) {
+      const Candidate& k = r.candidates[q];
+      if (!k.used && !k.undecided && (!rankable || k.score.r2 > r2)) r2 = k.score.r2, rankable = true;
+    }
+    if (rankable && (best_feature.empty() || r2 > best_r2)) best_feature = name, best_r2 = r2;
+    for (Candidate& k : r.candidates)
+      if (k.kept && k.feature != best_feature) k.refit_corrected = {}, k.kept = false;
   }
   std::stable_sort(r.candidates.begin(), r.candidates.end(),
                    [](const Candidate& a, const Candidate& b) { return a.score.r2 > b.score.r2; });
@@ -228,14 +261,19 @@ std::vector<double> refit_lookup(RoundResult& r, const Context& cx, const std::v
                     kIntensityFeatures.begin();
   const auto& x = cx.pool.feature[tf];
   const bool per_row = r.top_feature == "beam_row";
-  const auto edges = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, cx.o.bins);
-  const auto fine = per_row ? category_edges(cx.ds.rows()) : equal_count_edges(x, 32);
+  const auto [edges, fine] = feature_bins(x, per_row, cx);
   std::vector<double> best = cx.pool.base;
   double best_mae = errors(cx.pool.base, cx.pool.measured).mae;
   for (Candidate& k : r.candidates) {
     if (k.feature != r.top_feature || k.used) continue;
     const std::vector<Fold>* folds = cx.base == Base::Lookup && !has_prior ? &cx.folds : nullptr;
-    const FormScore s = score_form(k.form, cx.pool, tf, edges, fine, rc, true, folds);
+    FormScore s;
+    if (k.kept && k.refit_folds == folds) {
+      s.corrected = std::move(k.refit_corrected), s.mae_after = k.refit_mae;
+      k.kept = false;
+    } else {
+      s = score_form(k.form, cx.pool, tf, edges, fine, rc, true, folds);
+    }
     const bool joint = folds && joint_azimuth_gain(cx.pool, k.feature, k.form);
     const std::string name = k.name() + ": " + (joint ? "gain, the lookup refitted jointly with it" : refit_kind(k.form));
     r.refits.push_back({name, s.mae_after, true});

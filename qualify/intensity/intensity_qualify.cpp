@@ -98,6 +98,8 @@ IntensityCells intensity_cells(const data::Dataset& ds, const data::SectorSplit&
   const float* P = ds.pgm.data();
   const float* T = ds.target.data();
   const float* M = ds.mask.data();
+  std::vector<int> region_of_column(W);  // split.region_of, a search over the regions' columns, once per column
+  for (int col = 0; col < W; ++col) region_of_column[col] = split.region_of(col, W);
   for (int n = 0; n < N; ++n) {
     const auto roles = split.roles(W, n < static_cast<int>(ds.frames.size()) ? ds.frames[n] : "");
     auto ch = [&](int k, int r, int col) { return P[((static_cast<size_t>(n) * C + k) * H + r) * W + col]; };
@@ -111,7 +113,7 @@ IntensityCells intensity_cells(const data::Dataset& ds, const data::SectorSplit&
         // Bootstrap block: a held-out frame (a place) when whole frames are held out, else a strip.
         c.sector.push_back(split.validation_frames.empty() ? col / 16 : 100000 + n);
         const bool held = roles[col] == data::kValidation;
-        c.region.push_back(held ? std::max(0, split.region_of(col, W)) : -1);
+        c.region.push_back(held ? std::max(0, region_of_column[col]) : -1);
         c.row.push_back(r);
         c.held_out.push_back(held);
         c.cls.push_back(static_cast<int>(ch(ic, r, col)));

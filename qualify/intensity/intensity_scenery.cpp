@@ -110,25 +110,87 @@ void scenery_cross_fit(Pooled& p, const std::string& columns_reason) {
 
 namespace {
 
-// Per fold, the lookup's levels refitted with the gain G divided out: sum m G / sum G^2 per key
-// over the fold's fit cells; per pooled cell (any group) its level, the plain lookup where its
-// key has no fit cells.
-template <class Gain>
-std::vector<double> levels_with_gain(const std::vector<Fold>& folds, const Pooled& p, Gain gain, size_t iaz) {
-  std::vector<double> level = p.lookup;
-  for (size_t k = 0; k < folds.size(); ++k) {
-    const IntensityCells& c = folds[k].cells;
-    auto key = [&](size_t i) { return long(c.cls[i]) * 1000 + data::range_bin(c.feature[0][i]); };
-    std::map<long, std::array<double, 2>> t;  // key -> (sum m G, sum G^2)
+size_t azimuth_feature() {
+  return std::find(kIntensityFeatures.begin(), kIntensityFeatures.end(), "azimuth") - kIntensityFeatures.begin();
+}
+
+// The folds' cells as dense arrays, built once per lookup_with_azimuth_gain call: each group's
+// alternations pass over every fold's fit cells, a few hundred passes per call, and a pass that
+// reads arrays costs a small share of one that looks up a map and bins every azimuth anew. The
+// lookup's key (class x range bin) is numbered class index x kRangeBins + range bin.
+struct FoldIndex {
+  std::vector<int> fit_key, fit_fine, fit_edge;  // per fit cell of the fold, in cell order
+  std::vector<double> fit_measured, fit_azimuth;
+  std::vector<int> held_key;  // per held-out cell, in Fold::held order (= the fold's pooled cells)
+};
+struct JointIndex {
+  int keys = 0;  // every key is < keys
+  std::vector<FoldIndex> folds;
+  std::vector<int> pooled_key, pooled_fine, pooled_edge;  // per pooled cell
+};
+
+// `fine_bins`: the window search's fine bins; `edge_bins`: the gain table's bins.
+JointIndex joint_index(const std::vector<Fold>& folds, const Pooled& p, const BinnedTable& fine_bins,
+                       const BinnedTable& edge_bins) {
+  const size_t iaz = azimuth_feature();
+  std::map<int, int> class_index;
+  for (const Fold& f : folds)
+    for (int c : f.cells.cls) class_index.emplace(c, 0);
+  for (int c : p.cls) class_index.emplace(c, 0);
+  int classes = 0;
+  for (auto& [c, i] : class_index) i = classes++;
+  JointIndex ix;
+  ix.keys = classes * data::kRangeBins;
+  auto key = [&](int cls, double range) { return class_index.at(cls) * data::kRangeBins + data::range_bin(range); };
+  for (const Fold& fold : folds) {
+    const IntensityCells& c = fold.cells;
+    FoldIndex f;
     for (size_t i = 0; i < c.size(); ++i)
       if (!c.held_out[i]) {
-        const double G = gain(c.feature[iaz][i]);
-        auto& e = t[key(i)];
-        e[0] += c.measured[i] * G, e[1] += G * G;
+        const double az = c.feature[iaz][i];
+        f.fit_key.push_back(key(c.cls[i], c.feature[0][i]));
+        f.fit_fine.push_back(fine_bins.bin(az));
+        f.fit_edge.push_back(edge_bins.bin(az));
+        f.fit_measured.push_back(c.measured[i]);
+        f.fit_azimuth.push_back(az);
       }
-    for (size_t j = 0; j < folds[k].held.size(); ++j) {
-      const auto it = t.find(key(folds[k].held[j]));
-      if (it != t.end() && it->second[1] > 0) level[p.offset[k] + j] = it->second[0] / it->second[1];
+    for (size_t i : fold.held) f.held_key.push_back(key(c.cls[i], c.feature[0][i]));
+    ix.folds.push_back(std::move(f));
+  }
+  for (size_t i = 0; i < p.size(); ++i) {
+    ix.pooled_key.push_back(key(p.cls[i], p.feature[0][i]));
+    ix.pooled_fine.push_back(fine_bins.bin(p.feature[iaz][i]));
+    ix.pooled_edge.push_back(edge_bins.bin(p.feature[iaz][i]));
+  }
+  return ix;
+}
+
+// Per fold, the lookup's levels refitted with the gain G divided out: sum m G / sum G^2 per key
+// over the fold's fit cells; per pooled cell (any group) its level, the plain lookup where its
+// key has no fit cells. gain(fold, j): G of the fold's j-th fit cell.
+template <class Gain>
+std::vector<double> levels_with_gain(const JointIndex& ix, const Pooled& p, Gain gain) {
+  std::vector<double> level = p.lookup;
+  std::vector<std::array<double, 2>> t;  // key -> (sum m G, sum G^2)
+  for (size_t k = 0; k < ix.folds.size(); ++k) {
+    const FoldIndex& f = ix.folds[k];
+    t.assign(ix.keys, {0.0, 0.0});
+    // Neighbouring cells mostly share a key: its sums stay in registers over a run of them (the
+    // same additions in the same order as through t).
+    int run = -1;
+    double s0 = 0, s1 = 0;
+    for (size_t j = 0; j < f.fit_key.size(); ++j) {
+      if (f.fit_key[j] != run) {
+        if (run >= 0) t[run] = {s0, s1};
+        run = f.fit_key[j], s0 = t[run][0], s1 = t[run][1];
+      }
+      const double G = gain(k, j);
+      s0 += f.fit_measured[j] * G, s1 += G * G;
+    }
+    if (run >= 0) t[run] = {s0, s1};
+    for (size_t j = 0; j < f.held_key.size(); ++j) {
+      const auto& e = t[f.held_key[j]];
+      if (e[1] > 0) level[p.offset[k] + j] = e[0] / e[1];
     }
   }
   return level;
@@ -147,100 +209,132 @@ std::vector<double> levels_with_gain(const std::vector<Fold>& folds, const Poole
 // and the window with the lowest squared error on `fit` wins. Prefix sums over the fine bins per
 // (fold, key) make a window O(keys). Coarse search on every kWindowCoarse-th edge, then each edge
 // refined over the finer edges within one coarse bin.
-struct KeyBins {
-  std::vector<std::vector<double>> fit_m, fit_n, held_m, held_n;  // per (fold, key): prefix sums over fine bins
+//
+// The folds' side does not depend on `fit`: WindowSums holds it for every group of a call. A slot
+// is a (fold, key) with fit cells, numbered in order of first appearance over the folds' fit
+// cells; sums are prefix sums over the fine bins, stored [bin * slots + slot], so that a window
+// reads three contiguous rows.
+struct WindowSums {
+  size_t nb = 0, slots = 0;
+  std::vector<int> slot;  // [fold * keys + key] -> slot, -1: no fit cells
+  std::vector<double> fit_m, fit_n;
 };
+
+WindowSums window_sums(const JointIndex& ix, size_t nb) {
+  WindowSums s;
+  s.nb = nb;
+  s.slot.assign(ix.folds.size() * ix.keys, -1);
+  for (size_t k = 0; k < ix.folds.size(); ++k)
+    for (int key : ix.folds[k].fit_key) {
+      int& sl = s.slot[k * ix.keys + key];
+      if (sl < 0) sl = static_cast<int>(s.slots++);
+    }
+  const size_t S = s.slots;
+  s.fit_m.assign((nb + 1) * S, 0.0), s.fit_n.assign((nb + 1) * S, 0.0);
+  for (size_t k = 0; k < ix.folds.size(); ++k) {
+    const FoldIndex& f = ix.folds[k];
+    for (size_t j = 0; j < f.fit_key.size(); ++j) {
+      const size_t at = (f.fit_fine[j] + 1) * S + s.slot[k * ix.keys + f.fit_key[j]];
+      s.fit_m[at] += f.fit_measured[j], s.fit_n[at] += 1;
+    }
+  }
+  for (auto* v : {&s.fit_m, &s.fit_n})
+    for (size_t b = 1; b <= nb; ++b)
+      for (size_t q = 0; q < S; ++q) (*v)[b * S + q] += (*v)[(b - 1) * S + q];
+  return s;
+}
 
 struct WindowFit {
   size_t a = 0, b = 0;  // fine bins [a, b] inside
   double g_in = 1, g_out = 1, sse = 1e300;
 };
 
-WindowFit fit_joint_window(const KeyBins& kb, size_t nb, size_t a, size_t b) {
-  WindowFit w;
-  w.a = a, w.b = b;
-  const size_t keys = kb.fit_m.size();
-  std::vector<double> level(keys, 0.0);
+// Per slot, the sums inside [a, b] and outside it, of the folds' fit cells (f*) and of `fit` (h*).
+// held_m, held_n: `fit`'s prefix sums, laid out as WindowSums'. One scratch serves every group of a
+// call (allocated once: a few MB, which fresh pages per group would cost more to clear).
+struct WindowScratch {
+  std::vector<double> fmi, fni, fmo, fno, hmi, hni, hmo, hno, level, held_m, held_n;
+  explicit WindowScratch(const WindowSums& ws) {
+    for (auto* v : {&fmi, &fni, &fmo, &fno, &hmi, &hni, &hmo, &hno, &level}) v->assign(ws.slots, 0.0);
+    held_m.assign((ws.nb + 1) * ws.slots, 0.0), held_n.assign((ws.nb + 1) * ws.slots, 0.0);
+  }
+};
+
+WindowFit fit_joint_window(const WindowSums& ws, size_t a, size_t b, WindowScratch& w) {
+  WindowFit out;
+  out.a = a, out.b = b;
+  const size_t S = ws.slots, nb = ws.nb;
+  auto split = [&](const std::vector<double>& pre, std::vector<double>& in, std::vector<double>& outside) {
+    const double *lo = &pre[a * S], *hi = &pre[(b + 1) * S], *all = &pre[nb * S];
+    for (size_t k = 0; k < S; ++k) in[k] = hi[k] - lo[k], outside[k] = all[k] - in[k];
+  };
+  split(ws.fit_m, w.fmi, w.fmo), split(ws.fit_n, w.fni, w.fno);
+  split(w.held_m, w.hmi, w.hmo), split(w.held_n, w.hni, w.hno);
   double g_in = 1, g_out = 1;
-  auto in = [&](const std::vector<double>& pre) { return pre[b + 1] - pre[a]; };
+  const double *__restrict fmi = w.fmi.data(), *__restrict fmo = w.fmo.data();
+  const double *__restrict fni = w.fni.data(), *__restrict fno = w.fno.data();
+  double* __restrict level = w.level.data();
   for (int round = 0; round < kJointRounds; ++round) {
-    for (size_t k = 0; k < keys; ++k) {
-      const double mi = in(kb.fit_m[k]), ni = in(kb.fit_n[k]);
-      const double mo = kb.fit_m[k][nb] - mi, no = kb.fit_n[k][nb] - ni;
-      const double den = g_in * g_in * ni + g_out * g_out * no;
-      level[k] = den > 0 ? (g_in * mi + g_out * mo) / den : 0;
+    // Every slot has fit cells (fni + fno >= 1), so with both squared gains > 0 every den is > 0:
+    // that case is a loop without a branch, which runs on whole vectors.
+    const double a = g_in * g_in, c = g_out * g_out;
+    if (a > 0 && c > 0) {
+      for (size_t k = 0; k < S; ++k)
+        level[k] = (g_in * fmi[k] + g_out * fmo[k]) / (a * fni[k] + c * fno[k]);
+    } else {
+      for (size_t k = 0; k < S; ++k) {
+        const double den = a * fni[k] + c * fno[k];
+        level[k] = den > 0 ? (g_in * fmi[k] + g_out * fmo[k]) / den : 0;
+      }
     }
     double xy_in = 0, xx_in = 0, xy_out = 0, xx_out = 0;
-    for (size_t k = 0; k < keys; ++k) {
-      const double mi = in(kb.held_m[k]), ni = in(kb.held_n[k]);
-      xy_in += level[k] * mi, xx_in += level[k] * level[k] * ni;
-      xy_out += level[k] * (kb.held_m[k][nb] - mi), xx_out += level[k] * level[k] * (kb.held_n[k][nb] - ni);
+    for (size_t k = 0; k < S; ++k) {
+      const double l = w.level[k];
+      xy_in += l * w.hmi[k], xx_in += l * l * w.hni[k];
+      xy_out += l * w.hmo[k], xx_out += l * l * w.hno[k];
     }
-    if (!(xx_in > 0 && xx_out > 0)) return w;
+    if (!(xx_in > 0 && xx_out > 0)) return out;
     g_in = xy_in / xx_in, g_out = xy_out / xx_out;
   }
   double sse = 0;  // minus the constant sum of m^2
-  for (size_t k = 0; k < keys; ++k) {
-    const double mi = in(kb.held_m[k]), ni = in(kb.held_n[k]);
-    const double mo = kb.held_m[k][nb] - mi, no = kb.held_n[k][nb] - ni;
-    sse += -2 * level[k] * (g_in * mi + g_out * mo) + level[k] * level[k] * (g_in * g_in * ni + g_out * g_out * no);
+  for (size_t k = 0; k < S; ++k) {
+    const double l = w.level[k];
+    sse += -2 * l * (g_in * w.hmi[k] + g_out * w.hmo[k]) + l * l * (g_in * g_in * w.hni[k] + g_out * g_out * w.hno[k]);
   }
-  w.g_in = g_in, w.g_out = g_out, w.sse = sse;
-  return w;
+  out.g_in = g_in, out.g_out = g_out, out.sse = sse;
+  return out;
 }
 
-}  // namespace
-
-FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, const std::vector<size_t>& fit,
-                             const std::vector<double>& fine) {
-  const size_t iaz = std::find(kIntensityFeatures.begin(), kIntensityFeatures.end(), "azimuth") - kIntensityFeatures.begin();
-  BinnedTable bins;
-  bins.edges = fine;
-  const size_t nb = fine.size() + 1;
-  std::map<long, size_t> id;  // fold * 1e6 + class * 1000 + range bin -> key
-  auto key_of = [&](size_t fold, int cls, double range) {
-    return long(fold) * 1000000 + long(cls) * 1000 + data::range_bin(range);
-  };
-  KeyBins kb;
-  auto slot = [&](long key) {
-    const auto [it, fresh] = id.emplace(key, kb.fit_m.size());
-    if (fresh)
-      for (auto* v : {&kb.fit_m, &kb.fit_n, &kb.held_m, &kb.held_n}) v->push_back(std::vector<double>(nb + 1, 0.0));
-    return it->second;
-  };
+// joint_window_gain over the folds' sums `ws`; `fine` the fine bins' edges.
+FittedForm joint_window(const WindowSums& ws, const JointIndex& ix, const Pooled& p, const std::vector<size_t>& fit,
+                        const std::vector<double>& fine, WindowScratch& scratch) {
+  const size_t nb = ws.nb, S = ws.slots;
+  std::vector<double>&held_m = scratch.held_m, &held_n = scratch.held_n;
+  std::fill(held_m.begin(), held_m.end(), 0.0), std::fill(held_n.begin(), held_n.end(), 0.0);
   // Keys without fit cells have no level (the plain lookup falls back to the class mean): left out
   // of the search, as they carry nothing of the window's contrast.
-  for (size_t k = 0; k < folds.size(); ++k) {
-    const IntensityCells& c = folds[k].cells;
-    for (size_t i = 0; i < c.size(); ++i)
-      if (!c.held_out[i]) {
-        const size_t s = slot(key_of(k, c.cls[i], c.feature[0][i]));
-        const int b = bins.bin(c.feature[iaz][i]);
-        kb.fit_m[s][b + 1] += c.measured[i], kb.fit_n[s][b + 1] += 1;
-      }
-  }
   long held = 0;
   for (size_t i : fit) {
-    const auto it = id.find(key_of(p.fold[i], p.cls[i], p.feature[0][i]));
-    if (it == id.end()) continue;
-    const int b = bins.bin(p.feature[iaz][i]);
-    kb.held_m[it->second][b + 1] += p.measured[i], kb.held_n[it->second][b + 1] += 1, ++held;
+    const int sl = ws.slot[p.fold[i] * ix.keys + ix.pooled_key[i]];
+    if (sl < 0) continue;
+    const size_t at = (ix.pooled_fine[i] + 1) * S + sl;
+    held_m[at] += p.measured[i], held_n[at] += 1, ++held;
   }
-  for (auto* v : {&kb.fit_m, &kb.fit_n, &kb.held_m, &kb.held_n})
-    for (auto& pre : *v)
-      for (size_t b = 1; b <= nb; ++b) pre[b] += pre[b - 1];
-  std::vector<double> held_n(nb + 1, 0.0);  // prefix counts of `fit` cells over the fine bins
-  for (const auto& pre : kb.held_n)
-    for (size_t b = 0; b <= nb; ++b) held_n[b] += pre[b];
+  for (auto* v : {&held_m, &held_n})
+    for (size_t b = 1; b <= nb; ++b)
+      for (size_t q = 0; q < S; ++q) (*v)[b * S + q] += (*v)[(b - 1) * S + q];
+  std::vector<double> held_total(nb + 1, 0.0);  // prefix counts of `fit` cells over the fine bins
+  for (size_t q = 0; q < S; ++q)
+    for (size_t b = 0; b <= nb; ++b) held_total[b] += held_n[b * S + q];
   // A window needs cells inside and outside: kWindowMinShare of the fit cells on either side.
   auto valid = [&](size_t a, size_t b) {
-    const double n_in = held_n[b + 1] - held_n[a];
+    const double n_in = held_total[b + 1] - held_total[a];
     return n_in >= kWindowMinShare * held && held - n_in >= kWindowMinShare * held;
   };
   WindowFit best;
   auto consider = [&](size_t a, size_t b) {
     if (a > b || b >= nb || !valid(a, b)) return;
-    const WindowFit w = fit_joint_window(kb, nb, a, b);
+    const WindowFit w = fit_joint_window(ws, a, b, scratch);
     if (w.sse < best.sse) best = w;
   };
   const size_t coarse = kWindowCoarse;
@@ -255,61 +349,97 @@ FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, co
   f.table.edges = {best.a == 0 ? -1e300 : fine[best.a - 1], best.b + 1 >= nb ? 1e300 : fine[best.b]};
   // As gains about the outside level (which the refitted levels hold): outside 1, inside g_in / g_out.
   f.table.value = {1.0, best.g_in / best.g_out, 1.0};
-  f.table.count = {long(held - (held_n[best.b + 1] - held_n[best.a])), long(held_n[best.b + 1] - held_n[best.a]), 0};
+  const double n_in = held_total[best.b + 1] - held_total[best.a];
+  f.table.count = {long(held - n_in), long(n_in), 0};
   return f;
+}
+
+// fit_form's GainTable and its one-bin version (fit_gain_table's sums and shrinkage) on the cells
+// `fit`, binned by `bin`, measured = level + clamped residual as fit_form takes it: the gain G per
+// bin, the one-bin gain where the fit cells have none in a bin (as score_form).
+std::vector<double> gain_per_bin(const std::vector<size_t>& fit, const std::vector<int>& bin, size_t bins,
+                                 const Pooled& p, const std::vector<double>& level, double shrink = 5) {
+  std::vector<double> r;
+  r.reserve(fit.size());
+  for (size_t i : fit) r.push_back(p.measured[i] - level[i]);
+  const Winsor w = winsor_limits(r);
+  std::vector<double> xy(bins + 1, 0.0), xx(bins + 1, 0.0);  // the last: every fit cell (one bin)
+  std::vector<long> count(bins + 1, 0);
+  for (size_t i : fit) {
+    const double bs = level[i], ms = bs + w(p.measured[i] - level[i]);
+    for (size_t b : {size_t(bin[i]), bins}) xy[b] += ms * bs, xx[b] += bs * bs, ++count[b];
+  }
+  std::vector<double> value(bins + 1, 1.0), gain(bins);
+  for (size_t b = 0; b <= bins; ++b) {
+    if (count[b] == 0 || xx[b] <= 0) continue;
+    const double prior = shrink * xx[b] / count[b];
+    value[b] = (xy[b] + prior) / (xx[b] + prior);
+  }
+  // 1 + delta(az, base 1): 1 + 1 x (value - 1).
+  for (size_t b = 0; b < bins; ++b) gain[b] = 1 + 1.0 * ((count[b] > 0 ? value[b] : value[bins]) - 1);
+  return gain;
+}
+
+}  // namespace
+
+FittedForm joint_window_gain(const std::vector<Fold>& folds, const Pooled& p, const std::vector<size_t>& fit,
+                             const std::vector<double>& fine) {
+  BinnedTable fine_bins;
+  fine_bins.edges = fine;
+  const JointIndex ix = joint_index(folds, p, fine_bins, BinnedTable{});
+  const WindowSums ws = window_sums(ix, fine.size() + 1);
+  WindowScratch scratch(ws);
+  return joint_window(ws, ix, p, fit, fine, scratch);
 }
 
 std::vector<double> lookup_with_azimuth_gain(const std::vector<Fold>& folds, const Pooled& p, Form form,
                                              const std::vector<double>& edges, const std::vector<double>& fine) {
+  (void)fine;  // the gain table's bins are `edges`; the window's, equal-count bins of its own
   const CrossFit& cf = p.azimuth_scenery;
-  const size_t iaz = std::find(kIntensityFeatures.begin(), kIntensityFeatures.end(), "azimuth") - kIntensityFeatures.begin();
-  const std::vector<double>&x = p.feature[iaz], &range = p.feature[0];
+  const std::vector<double>& x = p.feature[azimuth_feature()];
   std::vector<double> out = p.lookup;
-  BinnedTable fine_bins;
-  fine_bins.edges = fine;
-  const std::vector<double> window_fine = equal_count_edges(x, kWindowFineBins);
+  BinnedTable window_bins, edge_bins;
+  if (form == Form::WindowGain) {
+    std::vector<double> sorted = x;  // equal-count edges depend on the values only: sorted is the cheap case
+    std::sort(sorted.begin(), sorted.end());
+    window_bins.edges = equal_count_edges(sorted, kWindowFineBins);
+  }
+  edge_bins.edges = edges;
+  const JointIndex ix = joint_index(folds, p, window_bins, edge_bins);
+  const WindowSums ws = form == Form::WindowGain ? window_sums(ix, window_bins.edges.size() + 1) : WindowSums{};
+  WindowScratch scratch(ws);
   for (int g = 0; g < cf.groups; ++g) {
     std::vector<size_t> fit;
     for (size_t i = 0; i < p.size(); ++i)
       if (cf.group[i] != g && cf.fits(g, cf.group[i])) fit.push_back(i);
     if (fit.empty()) continue;
-    std::vector<long> fine_count(fine.size() + 1, 0);
-    for (size_t i : fit) ++fine_count[fine_bins.bin(x[i])];
-    FittedForm f, one;
-    // As score_form: where the fit cells have none at an azimuth, the one-bin gain.
-    auto gain = [&](double az) {
-      if (!one.ok()) return 1.0;
-      const bool known = f.ok() && (form == Form::WindowGain ? fine_count[fine_bins.bin(az)] > 0
-                                                             : f.table.count[f.table.bin(az)] > 0);
-      return 1 + (known ? f : one).delta(az, 1.0, 0.0);
-    };
-    // Alternating least squares: the gain fitted on the fit cells (other classes, other rows) over the levels
-    // refitted with the previous gain (this group's own gain: no level of a fit cell comes from
-    // a gain fitted on this group's cells), then the levels with the new gain.
     std::vector<double> level = p.lookup;
     if (form == Form::WindowGain) {
       // The window and its edges fitted jointly with the levels (joint_window_gain). The groups
       // share their columns, so the window's edges hold for every group's cells (a gap of the
       // fit cells inside the window is still inside it).
-      f = joint_window_gain(folds, p, fit, window_fine);
+      const FittedForm f = joint_window(ws, ix, p, fit, window_bins.edges, scratch);
       if (!f.ok()) continue;
-      auto window_gain = [&](double az) { return 1 + f.delta(az, 1.0, 0.0); };
-      level = levels_with_gain(folds, p, window_gain, iaz);
+      // 1 + f.delta(az, 1, 0), with the window's bin as BinnedTable::bin finds it on its two edges.
+      const double lo = f.table.edges[0], hi = f.table.edges[1];
+      double gain_of[3];
+      for (int b = 0; b < 3; ++b) gain_of[b] = 1 + 1.0 * (f.table.value[b] - 1);
+      auto window_gain = [&](double az) { return gain_of[az < hi ? (az < lo ? 0 : 1) : 2]; };
+      level = levels_with_gain(ix, p, [&](size_t k, size_t j) { return window_gain(ix.folds[k].fit_azimuth[j]); });
       for (size_t i = 0; i < p.size(); ++i)
         if (cf.group[i] == g) out[i] = window_gain(x[i]) * level[i];
       continue;
     }
+    // Alternating least squares: the gain fitted on the fit cells (other classes, other rows) over the levels
+    // refitted with the previous gain (this group's own gain: no level of a fit cell comes from
+    // a gain fitted on this group's cells), then the levels with the new gain.
+    std::vector<double> gain;
     for (int round = 0; round < kJointRounds; ++round) {
-      std::vector<double> r(p.size(), 0.0), rf;
-      for (size_t i : fit) rf.push_back(p.measured[i] - level[i]);
-      const Winsor w = winsor_limits(rf);
-      for (size_t i : fit) r[i] = w(p.measured[i] - level[i]);
-      f = fit_form(form, edges, fine, x, r, level, range, fit);
-      one = fit_form(Form::GainTable, {}, {}, x, r, level, range, fit);
-      level = levels_with_gain(folds, p, gain, iaz);
+      gain = gain_per_bin(fit, ix.pooled_edge, edges.size() + 1, p, level);
+      level = levels_with_gain(ix, p, [&](size_t k, size_t j) { return gain[ix.folds[k].fit_edge[j]]; });
     }
     for (size_t i = 0; i < p.size(); ++i)
-      if (cf.group[i] == g) out[i] = gain(x[i]) * level[i];
+      if (cf.group[i] == g) out[i] = gain[ix.pooled_edge[i]] * level[i];
   }
   return out;
 }

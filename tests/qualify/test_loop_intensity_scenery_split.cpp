@@ -201,4 +201,34 @@ TEST(LoopIntensityScenerySplit, AnEffectOfHeightSharedAcrossClassesAndRowsPasses
   EXPECT_GT(k.score.r2, 0.5);
 }
 
+// score_form fits the tables (additive, gain, affine) from the pooled arrays with each cell's bin
+// found once (a fast variant); fit_form fits them through the shared kernels (fit_table,
+// fit_gain_table) on copied cells. Both must give the same table bit for bit: the loop's JSON
+// must not change with the speed-up.
+TEST(LoopIntensityScenerySplit, TablesFittedFromTheBinsAreTheSharedKernelsBitForBit) {
+  SplitScene s = split_build(4000, [](std::mt19937_64& rng, int i) {
+    std::uniform_real_distribution<double> u(0, 1);
+    SplitCellDraw d;
+    d.cls = 1 + i % 3, d.deg = 360 * u(rng), d.row = u(rng) < 0.5 ? 5 : 40;
+    d.height = 3 * u(rng), d.truth = 0.2 + 0.3 * u(rng);
+    return d;
+  });
+  const Pooled& p = s.pool;
+  const size_t ih = split_index_of("height");
+  std::vector<double> rc(p.size());
+  for (size_t i = 0; i < p.size(); ++i) rc[i] = p.measured[i] - p.base[i];
+  const auto edges = equal_count_edges(p.feature[ih], 16), fine = equal_count_edges(p.feature[ih], 32);
+  std::vector<size_t> all(p.size());
+  for (size_t i = 0; i < all.size(); ++i) all[i] = i;
+  for (Form form : {Form::Table, Form::GainTable, Form::AffineTable}) {
+    const FittedForm fast = score_form(form, p, ih, edges, fine, rc).shown;
+    const FittedForm plain = fit_form(form, edges, fine, p.feature[ih], rc, p.base, p.feature[0], all);
+    EXPECT_EQ(fast.table.edges, plain.table.edges) << form_name(form, false);
+    EXPECT_EQ(fast.table.value, plain.table.value) << form_name(form, false);
+    EXPECT_EQ(fast.table.count, plain.table.count) << form_name(form, false);
+    EXPECT_EQ(fast.slope, plain.slope) << form_name(form, false);
+    EXPECT_EQ(fast.centre, plain.centre) << form_name(form, false);
+  }
+}
+
 }  // namespace scenery_split_test
