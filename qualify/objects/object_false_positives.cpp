@@ -6,7 +6,9 @@
 #include <map>
 #include <sstream>
 
+#include "common/angles.h"
 #include "common/plot.h"
+#include "qualify/objects/object_fp_cell.h"
 #include "qualify/report.h"
 #include "sensor/kpi_fit.h"
 
@@ -68,6 +70,11 @@ std::vector<std::array<double, 3>> rate_pairs(const FpModel& m, const FpData& he
 
 std::string form_of(const FpModel& m, bool window) {
   std::ostringstream o;
+  if (m.cell_rate >= 0) {
+    o << "cell, range " << fmt(m.cell[0], 3) << "-" << fmt(m.cell[1], 3) << " m x azimuth " << fmt(m.cell[2] / kDeg, 3)
+      << "-" << fmt(m.cell[3] / kDeg, 3) << " deg; the cell's rate per frame " << fmt(m.cell_rate, 3);
+    return o.str();
+  }
   if (!window) {
     o << "table, " << m.cuts.size() + 1 << " bins";
     return o.str();
@@ -116,15 +123,16 @@ struct Blocks {
 // One candidate (feature, form, class) fitted on each fold's fit split (`fitted`) and judged on the
 // held-out blocks: on every class's cells, or on class `cls`'s only.
 FpCandidate judge_candidate(const std::array<Side, 2>& side, const std::array<Fold, 2>& folds, const Blocks& blocks,
-                            int f, bool window, int cls, int bins, std::array<FpModel, 2>& fitted) {
+                            int f, bool window, bool cell, int cls, int bins, std::array<FpModel, 2>& fitted) {
   FpCandidate c;
-  c.feature = f, c.window = window, c.cls = cls;
+  c.feature = f, c.window = window, c.cell = cell, c.cls = cls;
   BlockSums sums(blocks.n, {0, 0, 0});
   std::array<double, 3> total{0, 0, 0};
   std::array<std::vector<std::array<double, 3>>, 2> before, after;
   for (int k = 0; k < 2; ++k) {
     const Side& s = side[k];
-    fitted[k] = fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor, cls);
+    fitted[k] = cell ? fit_fp_cell(s.fit, folds[k].base, bins, s.g, s.floor, cls)
+                     : fit_fp_model(s.fit, folds[k].base, f, window, bins, s.g, s.floor, cls);
     const auto dev = block_deviance(fitted[k], s.held, blocks.n, s.g.cells(), cls);
     const auto& dev0 = s.dev_base[cls + 1];
     for (size_t b = 0; b < blocks.n; ++b) {
@@ -205,11 +213,20 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
       for (int cls = -1; cls < (f < kFpAttributeFeatures ? 3 : 0); ++cls) {
         if (cls >= 0 && !own[cls]) continue;
         std::array<FpModel, 2> fitted;
-        FpCandidate c = judge_candidate(side, folds, blocks, f, window, cls, bins, fitted);
+        FpCandidate c = judge_candidate(side, folds, blocks, f, window, false, cls, bins, fitted);
         c.fps = A.fps;
         A.candidates.push_back(c);
         models.push_back(std::move(fitted));
       }
+  // The joint range x azimuth cell (object_fp_cell.h), for every class and for each class alone.
+  for (int cls = -1; cls < kObjectClassCount; ++cls) {
+    if (cls >= 0 && !own[cls]) continue;
+    std::array<FpModel, 2> fitted;
+    FpCandidate c = judge_candidate(side, folds, blocks, 0, false, true, cls, bins, fitted);
+    c.fps = A.fps;
+    A.candidates.push_back(c);
+    models.push_back(std::move(fitted));
+  }
   // The best candidate on an attribute of the false detection (what the KPI model's fp_table holds).
   for (size_t i = 0; i < A.candidates.size(); ++i) {
     const FpCandidate& c = A.candidates[i];
@@ -248,7 +265,9 @@ FpAnalysis analyse_false_positives(const TrackingData& data, const std::array<Fo
 sensor::KpiModel with_fitted_fp_table(const sensor::KpiModel& m, const Fold& whole, const FpCandidate& c, int bins) {
   const FpGrid g = fp_grid(whole.fit_set);
   const FpData fit = fp_data(whole.fit_set, g);
-  return with_fp_table(m, fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, fp_floor(fit, g.cells()), c.cls));
+  const PerClass<double> floor = fp_floor(fit, g.cells());
+  return with_fp_table(m, c.cell ? fit_fp_cell(fit, whole.base, bins, g, floor, c.cls)
+                                 : fit_fp_model(fit, whole.base, c.feature, c.window, bins, g, floor, c.cls));
 }
 
 namespace {
@@ -256,7 +275,7 @@ namespace {
 // One rate candidate's entry in the report.
 nlohmann::json fp_candidate_json(const FpCandidate& c) {
   return {{"feature", kFpFeatures[c.feature]},
-          {"kind", c.window ? "fp_rate_window" : "fp_rate_table"},
+          {"kind", c.cell ? "fp_rate_cell" : c.window ? "fp_rate_window" : "fp_rate_table"},
           {"class", c.cls < 0 ? std::string("all") : kObjectClasses[c.cls]},
           {"form_fold1", c.form},
           {"effect_size", c.effect_size},

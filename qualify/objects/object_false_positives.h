@@ -84,6 +84,10 @@ struct FpModel {
   std::vector<double> cuts;  // bin k = [cuts[k-1], cuts[k])
   PerClass<std::vector<FpComponent>> comps;  // per class, per bin
   PerClass<std::vector<std::vector<double>>> mu;  // compiled: per class, bin, cell: expected count
+  // fp_rate_cell (object_fp_cell.h): the rectangle range [cell[0], cell[1]) x azimuth [cell[2], cell[3])
+  // and the cell's rate per frame summed over classes; cell_rate < 0: not a cell.
+  std::array<double, 4> cell{0, 0, 0, 0};
+  double cell_rate = -1;
   void compile(const FpGrid& g, const PerClass<double>& floor);
   int frame_bin(const FpData::Frame& f) const;
 };
@@ -113,6 +117,7 @@ sensor::KpiModel with_fp_table(const sensor::KpiModel& m, const FpModel& fp);
 struct FpCandidate {
   int feature = 0;
   bool window = false;
+  bool cell = false;  // fp_rate_cell (object_fp_cell.h): feature is range, the table's, with a rectangle in azimuth
   int cls = -1;  // -1: a table for every class, judged on all classes; else that class's, judged on it
   std::string form;  // fold 1's
   double effect_size = 0;  // fold 1: largest ratio of the candidate's to the base's expected count in a cell

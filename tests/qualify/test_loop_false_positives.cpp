@@ -84,8 +84,9 @@ TEST(LoopFalsePositivesStatistical, HotspotIsNamedByAWindowOfAzimuthOrRangeCutsT
   const double sb = fp["added"]["simulated_error_before"], sa = fp["added"]["simulated_error_after"];
   EXPECT_LE(sa, 0.7 * sb);
   // Every candidate tested is listed, frame features included: 10 for every class, 6 for Car alone
-  // (the only class with enough false positives for candidates of its own), and the persistence one.
-  EXPECT_EQ(fp["candidates"].size(), 17u);
+  // (the only class with enough false positives for candidates of its own), the range x azimuth cell
+  // for every class and for Car alone, and the persistence one.
+  EXPECT_EQ(fp["candidates"].size(), 19u);
   // The written Car table: the bin holding the spot's centre places its false positives in the spot's
   // extent of the other coordinate, at least at half the spot's rate.
   const sensor::FalsePositiveTable& t = run.model.classes.at("Car").fp_table;
