@@ -3,8 +3,18 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 namespace lidarsim::qualify::obj {
+
+double Refit::operator()(int cls, int rb, double x) const {
+  if (relative >= 0) throw std::logic_error("object loop: a relative term evaluated without the object's size");
+  return at(cls, rb, x, 1.0);
+}
+
+std::vector<double> relative_values(const Split& s, const Refit& f) {
+  return f.relative >= 0 ? s.column(f.relative) : std::vector<double>(s.r.size(), 1.0);
+}
 
 ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                              int bins) {
@@ -134,6 +144,12 @@ BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<doubl
     return t;
   }
   const double b = sxy / sxx, a = my - b * mx;
+  return line_table(a, b, q1, q99, x);
+}
+
+BinnedTable line_table(double a, double b, double q1, double q99, const std::vector<double>& x) {
+  BinnedTable t;
+  const double span = q99 - q1;
   const double lo = q1 - span, h = 3 * span / kLineBins;
   for (int k = 1; k < kLineBins; ++k) t.edges.push_back(lo + k * h);
   for (int k = 0; k < kLineBins; ++k) t.value.push_back(a + b * (lo + (k + 0.5) * h));
@@ -413,10 +429,11 @@ std::vector<sensor::ErrorSample> samples_without_term(const Refit& ref, int t, i
                                                       const std::vector<double>& x, const std::vector<int>& cls,
                                                       const std::vector<int>& cells) {
   std::vector<sensor::ErrorSample> out;
+  const auto s = relative_values(fit, ref);
   for (size_t i = 0; i < x.size(); ++i) {
     if (cls[i] != c) continue;
     const ObjectRecord& r = *fit.rec[i];
-    double v = r.value[t] - ref(c, cells[i], x[i]);
+    double v = r.value[t] - ref.at(c, cells[i], x[i], s[i]);
     if (kTargetParam[t] == sensor::KpiParam::Heading) v = wrap(v);
     if (std::isfinite(v)) out.push_back({r.seq, r.track, r.frame, r.range_bin, r.visibility_bin, v});
   }
@@ -439,12 +456,13 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
   const auto cls = fit.classes();
   const auto cells = fit.cells(t, nvis);
   const auto r = fit.clipped(w);
+  const auto rel = relative_values(fit, ref);
   for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || !classes[c]) continue;
     std::vector<double> vals, res;
     for (size_t i = 0; i < x.size(); ++i)
-      if (cls[i] == c) vals.push_back(ref(c, cells[i], x[i])), res.push_back(r[i]);
+      if (cls[i] == c) vals.push_back(ref.at(c, cells[i], x[i], rel[i])), res.push_back(r[i]);
     if (vals.size() < 20) continue;
     auto var = [](const std::vector<double>& v) {
       const double m = mean_of(v);
@@ -500,6 +518,7 @@ sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t
     // BinnedTable cut points -> the term's lower edges (bin 0 takes everything below edges[1]).
     sensor::ConditionalTerm ct;
     ct.feature = feature;
+    if (ref.relative >= 0) ct.relative_to = kObjectFeatures[ref.relative];
     ct.edges.push_back(bt.edges.empty() ? 0.0 : bt.edges.front() - 1);
     ct.edges.insert(ct.edges.end(), bt.edges.begin(), bt.edges.end());
     ct.bias = bt.value;
