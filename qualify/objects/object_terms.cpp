@@ -440,6 +440,18 @@ std::vector<sensor::ErrorSample> samples_without_term(const Refit& ref, int t, i
   return out;
 }
 
+// The variance of the per-track means of v (each record weighted alike), over the total count.
+double between_track_variance(const std::vector<double>& v, const std::vector<std::pair<int, int>>& track) {
+  std::map<std::pair<int, int>, std::pair<double, double>> acc;  // sum, n
+  double total = 0;
+  for (size_t i = 0; i < v.size(); ++i) acc[track[i]].first += v[i], acc[track[i]].second += 1, total += v[i];
+  if (v.empty()) return 0;
+  const double m = total / v.size();
+  double s = 0;
+  for (const auto& [id, a] : acc) s += a.second * std::pow(a.first / a.second - m, 2);
+  return s / v.size();
+}
+
 }  // namespace
 
 void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const std::string& feature, const Split& fit,
@@ -461,8 +473,11 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || !classes[c]) continue;
     std::vector<double> vals, res;
+    std::vector<std::pair<int, int>> track;  // (sequence, track) of each value
     for (size_t i = 0; i < x.size(); ++i)
-      if (cls[i] == c) vals.push_back(ref.at(c, cells[i], x[i], rel[i])), res.push_back(r[i]);
+      if (cls[i] == c)
+        vals.push_back(ref.at(c, cells[i], x[i], rel[i])), res.push_back(r[i]),
+            track.emplace_back(fit.rec[i]->seq, fit.rec[i]->track);
     if (vals.size() < 20) continue;
     auto var = [](const std::vector<double>& v) {
       const double m = mean_of(v);
@@ -474,8 +489,14 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
     double v = var(vals);
     if (V <= 0 || v <= 0) continue;
     sensor::ErrorModel& em = it->second.errors[int(param)];
-    if (track_constant) {
-      const double take = std::min(v, em.track_std * em.track_std);
+    // The part of the term that is constant along a track comes out of the per-track constant: the
+    // whole term for a feature constant along a track, else the variance of its per-track means
+    // (an aspect or a speed changes slowly along a track, so the base's track_std carried most of
+    // an effect on it; taken out of sigma alone, the re-simulated spread was term + the old
+    // track_std and the class's histogram got worse, which dropped a correct term).
+    const double between = track_constant ? v : between_track_variance(vals, track);
+    if (between > 0) {
+      const double take = std::min(between, em.track_std * em.track_std);
       em.track_std = std::sqrt(em.track_std * em.track_std - take);
       v -= take;
     }

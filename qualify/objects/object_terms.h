@@ -134,8 +134,9 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
 // A mean term on an error explains part of the spread the base model's noise was fitted to carry:
 // without this the refitted model's errors come out too wide (term + the old noise). Per class,
 // v = variance of the term's values (table + cell offsets) over the fit records, V = variance of
-// the winsorised fit residual; a feature constant along a track (size) takes v out of the per-track
-// constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
+// the winsorised fit residual; the term's part constant along a track (all of it for a feature
+// constant along a track, such as size; else the variance of its per-track means) comes out of the
+// per-track constant first (track_std^2 - that, at least 0), the rest out of sigma
 // (sigma x sqrt(1 - v_rest / V), at least 0.2 of it). The noise's shape, AR(1) and innovation, is
 // refitted (sensor::fit_error_model) on the fit records' errors minus the term (classes with at
 // least 40 of them), so correlation along a track or tails the term carried leave the noise.
