@@ -104,6 +104,9 @@ KpiManager::KpiManager(KpiModel model, std::uint64_t seed, KpiOptions options)
       samplers_.emplace_back(em.innovation);
       ar1_root_.push_back(std::sqrt(std::max(0.0, 1 - em.ar1 * em.ar1)));  // as ar1_step computes it
       error_feature_.push_back(em.conditional.present() ? static_cast<int>(feature_of(em.conditional.feature)) : -1);
+      error_relative_.push_back(em.conditional.present() && !em.conditional.relative_to.empty()
+                                    ? static_cast<int>(feature_of(em.conditional.relative_to))
+                                    : -1);
     }
     detection_feature_.push_back(
         cm->detection_conditional.present() ? static_cast<int>(feature_of(cm->detection_conditional.feature)) : -1);
@@ -314,6 +317,8 @@ void KpiManager::draw_errors(const Object& o, int slot, double range, TrackState
       const auto f = static_cast<Feature>(error_feature_[first + p]);
       const int b = em.conditional.bin(feature_value(f, o, range, frame_ - st.first_frame));
       bias = em.conditional.bias[b];
+      if (error_relative_[first + p] >= 0)
+        bias *= feature_value(static_cast<Feature>(error_relative_[first + p]), o, range, frame_ - st.first_frame);
       if (!em.conditional.scale.empty()) scale = em.conditional.scale[b];
     }
     inj.error[p] = options_.noise ? em.mean[rb] + bias + em.sigma[rb] * scale * em.visibility_std_scale[vb] * z +

@@ -10,7 +10,8 @@
 //   - 180-degree heading flips from a second chain (heading_flip_probability, flip_burst_mean);
 //   - a score drawn from the class's score quantiles;
 //   - optional conditional terms (kpi_model.h ConditionalTerm): a bias and sigma scale per bin
-//     of a feature computed from the truth object (and, for track_age, the id's state);
+//     of a feature computed from the truth object (and, for track_age, the id's state); a term
+//     with relative_to multiplies its bias by that feature of the same object;
 // and per frame a Poisson number of false positives per class (with the class's optional fp_table:
 // per bin of the table its own Poisson count, placed by the bin's quantiles; with the class's optional
 // fp_persistence last frame's false positives survive, keeping their id, and births come at the rate x
@@ -137,6 +138,7 @@ class KpiManager {
   std::vector<InnovationSampler> samplers_;
   std::vector<double> ar1_root_;
   std::vector<int> error_feature_;
+  std::vector<int> error_relative_;     // the term's relative_to feature (-1: an absolute bias)
   std::vector<int> detection_feature_;  // per slot
   std::array<bool, kNumObjectClasses> fp_own_model_{};  // the class has its own model (false positives drawn once per model)
   std::unordered_map<int, int> slot_of_id_;

@@ -208,6 +208,12 @@ void check_conditional(const ConditionalTerm& ct, const std::string& file, const
   check_vector(ct.bias, ct.edges.size(), file, cf + ".bias", detection ? -1 : -inf, detection ? 1 : inf);
   // A detection term's scale multiplies the cell's probability (a gain), its bias then shifts it.
   if (!ct.scale.empty()) check_vector(ct.scale, ct.edges.size(), file, cf + ".scale", detection ? 0 : 1e-6, inf);
+  if (ct.relative_to.empty()) return;
+  if (detection)
+    throw input_error(file, cf + ".relative_to", "is for error terms only (a detection term's bias is a probability)");
+  if (std::find(kConditionalFeatures.begin(), kConditionalFeatures.end(), ct.relative_to) == kConditionalFeatures.end())
+    throw input_error(file, cf + ".relative_to",
+                      "must be one of the features the KPI manager computes, got \"" + ct.relative_to + "\"");
 }
 
 ConditionalTerm read_conditional(const json& j, const std::string& file, const std::string& cf) {
@@ -219,12 +225,19 @@ ConditionalTerm read_conditional(const json& j, const std::string& file, const s
   ct.edges = numbers_at(j, "edges", file, cf, false);
   ct.bias = numbers_at(j, "bias", file, cf, false);
   ct.scale = numbers_at(j, "scale", file, cf, true);
+  if (j.contains("relative_to")) {
+    const json& rj = j["relative_to"];
+    if (!rj.is_string() || rj.get<std::string>().empty())
+      throw input_error(file, cf + ".relative_to", "must be a feature name, got " + rj.dump());
+    ct.relative_to = rj.get<std::string>();
+  }
   return ct;
 }
 
 json write_conditional(const ConditionalTerm& ct) {
   json j = {{"feature", ct.feature}, {"edges", ct.edges}, {"bias", ct.bias}};
   if (!ct.scale.empty()) j["scale"] = ct.scale;
+  if (!ct.relative_to.empty()) j["relative_to"] = ct.relative_to;
   return j;
 }
 

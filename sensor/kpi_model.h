@@ -56,11 +56,16 @@ struct Innovation {
 // conditional term on detection probability (ClassModel::detection_conditional): there `scale`
 // (optional, >= 0) multiplies the cell's probability (a gain: a dropout that removes a share of
 // detections wherever the cell's probability stands) and `bias` is then added (clamped to [0, 1]).
+// On an error, `relative_to` (optional, a kConditionalFeatures name) makes the bias relative: the
+// bin's bias times that feature of the same object, e.g. a length error that is a share of the
+// object's own length (relative_to "size"): a size error that scales with the size is common in
+// real detectors, and a bias per bin can only hold the class's mean share x its mean size.
 struct ConditionalTerm {
   std::string feature;        // empty: no term (the file has no "conditional")
   std::vector<double> edges;  // lower bin edges, increasing; values below edges[0] use bin 0
   std::vector<double> bias;   // per bin
   std::vector<double> scale;  // per bin, > 0; empty: 1 everywhere
+  std::string relative_to = {};  // errors only; empty: the bias as it is (the file has no "relative_to")
   bool present() const { return !feature.empty(); }
   int bin(double value) const;
 };

@@ -7,6 +7,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "common/error.h"
 #include "qualify/objects/object_false_positives.h"
 #include "qualify/objects/object_rate_gain.h"
 #include "qualify/objects/object_spread_forms.h"
@@ -27,9 +28,11 @@ std::string to_string(Kind k) {
     case Kind::SpreadGrowth: return "spread_growth";
     case Kind::SpreadLine: return "spread_line";
     case Kind::RateGain: return "rate_gain";
+    case Kind::MeanRelativeLine: return "mean_relative_line";
   }
   return "?";
 }
+bool is_mean_line(Kind k) { return k == Kind::MeanLine || k == Kind::MeanRelativeLine; }
 bool is_spread(Kind k) {
   return k == Kind::SpreadTable || k == Kind::SpreadWindow || k == Kind::SpreadGrowth || k == Kind::SpreadLine;
 }
@@ -38,8 +41,10 @@ bool is_window(Kind k) {
 }
 std::vector<Kind> kinds_for(int target) {
   if (target == kDetectionTarget) return {Kind::RateTable, Kind::RateWindow, Kind::RateGain};
-  return {Kind::MeanTable,    Kind::MeanWindow,   Kind::MeanLine,  Kind::SpreadTable,
-          Kind::SpreadWindow, Kind::SpreadGrowth, Kind::SpreadLine};
+  std::vector<Kind> kinds = {Kind::MeanTable,    Kind::MeanWindow,   Kind::MeanLine,  Kind::SpreadTable,
+                             Kind::SpreadWindow, Kind::SpreadGrowth, Kind::SpreadLine};
+  if (own_dimension(target) >= 0) kinds.push_back(Kind::MeanRelativeLine);
+  return kinds;
 }
 bool kind_applies(Kind kind, const std::string& feature) { return kind != Kind::SpreadGrowth || feature == "range"; }
 
@@ -119,7 +124,7 @@ bool used_by_model(const std::string& feature, int target, Kind kind) {
 }
 bool used_by_model(const Candidate& c) { return used_by_model(kObjectFeatures[c.feature], c.target, c.kind); }
 bool clears_selection(const Candidate& c) { return !(c.selection_lower <= 0); }
-bool line_over_table(const Candidate& c) { return c.kind != Kind::MeanLine || !(c.vs_table[0] <= 0); }
+bool line_over_table(const Candidate& c) { return !is_mean_line(c.kind) || !(c.vs_table[0] <= 0); }
 
 namespace {
 // Per block (line's after, table's after, before): the line's R^2 minus the table's.
@@ -128,7 +133,7 @@ double line_minus_table(const std::array<double, 3>& s) { return s[2] > 0 ? (s[1
 
 void compare_lines_with_tables(std::vector<Candidate>& cands) {
   for (Candidate& line : cands) {
-    if (line.kind != Kind::MeanLine) continue;
+    if (!is_mean_line(line.kind)) continue;
     for (const Candidate& table : cands) {
       if (table.kind != Kind::MeanTable || table.feature != line.feature || table.target != line.target ||
           table.fold_set != line.fold_set || table.blocks.size() != line.blocks.size())
@@ -213,10 +218,14 @@ double spread_score(const std::array<double, 3>& s) { return s[2] > 0 ? 1 - std:
 std::string form_of(const Effect& e) {
   const BinnedTable& t = is_spread(e.kind) ? e.scale : e.kind == Kind::RateGain ? e.bias.gain.pooled : e.bias.table.pooled;
   std::ostringstream o;
-  if (e.kind == Kind::MeanLine) {
+  if (is_mean_line(e.kind)) {
     // The pooled line's slope from two neighbouring bins of its table.
     const double slope = t.edges.size() >= 2 ? (t.value[2] - t.value[1]) / (t.edges[1] - t.edges[0]) : 0.0;
-    o << "line, pooled slope " << fmt(slope, 4) << " per unit (per class where >= 200 samples)";
+    if (e.kind == Kind::MeanRelativeLine)
+      o << "relative line: " << kObjectFeatures[e.bias.relative] << " x (share " << fmt(t.value[t.bin(0)], 4)
+        << " at 0, pooled slope " << fmt(slope, 4) << " per unit) (per class where >= 200 samples)";
+    else
+      o << "line, pooled slope " << fmt(slope, 4) << " per unit (per class where >= 200 samples)";
     return o.str();
   }
   if (e.kind == Kind::SpreadGrowth) {
@@ -287,6 +296,9 @@ Effect fit_effect(const Fold& k, int t, int f, Kind kind, int nvis, int bins) {
     case Kind::MeanLine:
       // Not shrunk by the track bootstrap: two numbers per class, not a bin per few tracks.
       e.bias = backfit_line(x, r, cls, cells, cell_prior);
+      break;
+    case Kind::MeanRelativeLine:  // not shrunk, as mean_line
+      e.bias = backfit_relative_line(x, r, s.column(own_dimension(t)), cls, cells, own_dimension(t));
       break;
     case Kind::MeanWindow:
     case Kind::RateWindow:
@@ -364,9 +376,10 @@ Losses held_losses(const Fold& k, const Effect& e, int nvis) {
   const auto r = h.clipped(k.win[t]);
   if (!is_spread(e.kind)) {
     const double m = mean_of(k.fit_r[t].clipped(k.win[t]));
+    const auto s = relative_values(h, e.bias);
     for (size_t i = 0; i < r.size(); ++i) {
       L.before[i] = std::pow(r[i] - m, 2);
-      L.after[i] = std::pow(r[i] - e.bias(cls[i], cells[i], x[i]), 2);
+      L.after[i] = std::pow(r[i] - e.bias.at(cls[i], cells[i], x[i], s[i]), 2);
     }
     return L;
   }
@@ -450,8 +463,9 @@ Candidate judge_candidate(const std::array<Fold, 2>& folds, int t, int f, Kind k
       const Split& h = folds[k].held_r[t];
       const auto x = h.column(f);
       const auto cls = h.classes(), cells = h.cells(t, nvis);
+      const auto s = relative_values(h, e.bias);
       for (size_t i = 0; i < h.r.size(); ++i)
-        raw_before.push_back(h.r[i]), raw_after.push_back(h.r[i] - e.bias(cls[i], cells[i], x[i]));
+        raw_before.push_back(h.r[i]), raw_after.push_back(h.r[i] - e.bias.at(cls[i], cells[i], x[i], s[i]));
     }
   }
   BlockSums used;
@@ -533,8 +547,12 @@ sensor::KpiModel refit_recipe(const TrackingData& data, const std::vector<int>& 
     const auto it = std::find(kObjectFeatures.begin(), kObjectFeatures.end(), ct->feature);
     if (it == kObjectFeatures.end()) continue;
     const int f = static_cast<int>(it - kObjectFeatures.begin());
+    if (!ct->relative_to.empty() && (own_dimension(t) < 0 || ct->relative_to != kObjectFeatures[own_dimension(t)]))
+      throw Error("refit of the model's terms: errors." + kObjectTargets[t] + ".conditional.relative_to is \"" +
+                  ct->relative_to + "\"; the object loop refits a relative term only as a share of the target's own size");
     const Kind kind = t == kDetectionTarget ? (ct->scale.empty() ? Kind::RateTable : Kind::RateGain)
                       : !ct->scale.empty()   ? (is_line_term(*ct) ? Kind::SpreadLine : Kind::SpreadTable)
+                      : !ct->relative_to.empty() ? Kind::MeanRelativeLine
                       : is_line_term(*ct)    ? Kind::MeanLine
                                              : Kind::MeanTable;
     const Effect e = fit_effect(fold, t, f, kind, nvis, bins);

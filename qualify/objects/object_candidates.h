@@ -5,6 +5,10 @@
 //   mean_table     per-class binned bias on an error (the loop's first form)     squared error
 //   mean_window    one bias inside a window of the feature with fitted edges    squared error
 //   mean_line      per-class straight line in the feature (object_terms.h)      squared error
+//   mean_relative_line  size targets only: the object's own size (length, width,  squared error
+//                  height) x a per-class straight line in the feature, a share of the size
+//                  (object_terms.h backfit_relative_line); carried in the KPI model as a term
+//                  with relative_to
 //   rate_table     per-class binned shift of the detection probability          Bernoulli deviance
 //   rate_window    one shift inside a window with fitted edges                  Bernoulli deviance
 //   rate_gain      the cell's probability x one gain inside a window with fitted  Bernoulli deviance
@@ -40,7 +44,9 @@
 namespace lidarsim::qualify::obj {
 
 enum class Kind { MeanTable, MeanWindow, RateTable, RateWindow, SpreadTable, SpreadWindow, MeanLine, SpreadGrowth,
-                  SpreadLine, RateGain };
+                  SpreadLine, RateGain, MeanRelativeLine };
+// The two line forms of a mean (mean_line, mean_relative_line), compared with the table.
+bool is_mean_line(Kind k);
 std::string to_string(Kind k);
 bool is_spread(Kind k);
 bool is_window(Kind k);
@@ -116,7 +122,7 @@ struct Candidate {
   double selection_lower = std::numeric_limits<double>::quiet_NaN();
   double selection_critical = 0;
   int selection_family = 0;
-  // mean_line only: basic block-bootstrap 95 % interval of its score minus the mean_table's of the
+  // mean_line and mean_relative_line only: basic block-bootstrap 95 % interval of its score minus the mean_table's of the
   // same feature and target, on the same held-out track blocks (NaN: not compared).
   std::array<double, 2> vs_table{std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN()};
 };
@@ -127,7 +133,8 @@ bool clears_selection(const Candidate& c);
 // the table on the same held-out tracks (vs_table above 0), so a line is never picked over the
 // table on the noise between two near-equal fits. True for every other form, and when not compared.
 bool line_over_table(const Candidate& c);
-// Sets vs_table of every mean_line in cands from the mean_table of its feature and target.
+// Sets vs_table of every mean_line and mean_relative_line in cands from the mean_table of its
+// feature and target.
 void compare_lines_with_tables(std::vector<Candidate>& cands);
 
 // A candidate's score from its held-out loss sums (after, before, n): the R^2 1 - after / before

@@ -26,6 +26,7 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
     const Split& h = S.folds[k].held_r[t];
     const auto xh = h.column(f);
     const auto ch = h.classes(), bh = h.cells(t, nvis);
+    const auto sh = relative_values(h, J.refs[k]);
     std::vector<double> a(h.r.size());
     for (size_t i = 0; i < h.r.size(); ++i) {
       // Detection: the probability as the KPI manager will clamp it; errors: the table's mean.
@@ -33,7 +34,7 @@ void held_out_residuals(const FoldSet& S, const Candidate& c, int nvis, Judged& 
           t == kDetectionTarget
               ? refit_probability(J.refs[k], ch[i], bh[i], xh[i], h.rec[i]->value[t] - h.r[i]) -
                     (h.rec[i]->value[t] - h.r[i])
-              : J.refs[k](ch[i], bh[i], xh[i]);
+              : J.refs[k].at(ch[i], bh[i], xh[i], sh[i]);
       a[i] = h.r[i] - fitted;
       auto& s = per_track[S.block[k][t][i]];
       if (t == kDetectionTarget) {

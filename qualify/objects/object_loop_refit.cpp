@@ -84,9 +84,21 @@ std::string write_top_plot(const LoopContext& L, const ObjectLoopResult& R) {
   const std::string plot = "residual_" + tn + "_vs_" + fn + ".png";
   fs::create_directories(L.options.plots_dir);
   const Split& h = L.set_of(top).folds[0].held_r[top.target];
-  write_residual_png(L.options.plots_dir / plot, R.top_judged.refs[0].table.pooled, h.column(top.feature), h.r,
-                     {"Held-out " + tn + " residual vs " + fn + " (fold 1)", feature_axis_label(fn),
-                      tn + " residual, measured - model " + target_unit(tn)});
+  const Refit& ref = R.top_judged.refs[0];
+  if (ref.relative < 0) {
+    write_residual_png(L.options.plots_dir / plot, ref.table.pooled, h.column(top.feature), h.r,
+                       {"Held-out " + tn + " residual vs " + fn + " (fold 1)", feature_axis_label(fn),
+                        tn + " residual, measured - model " + target_unit(tn)});
+    return plot;
+  }
+  // A relative term's table is a share of the object's size: the residual is drawn as one too.
+  const std::string& sn = kObjectFeatures[ref.relative];
+  std::vector<double> share = h.r;
+  const auto s = relative_values(h, ref);
+  for (size_t i = 0; i < share.size(); ++i) share[i] = s[i] > 0 ? share[i] / s[i] : 0.0;
+  write_residual_png(L.options.plots_dir / plot, ref.table.pooled, h.column(top.feature), share,
+                     {"Held-out " + tn + " residual / " + sn + " vs " + fn + " (fold 1)", feature_axis_label(fn),
+                      tn + " residual / the object's " + sn + " (share)"});
   return plot;
 }
 

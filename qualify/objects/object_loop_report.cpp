@@ -55,7 +55,7 @@ nlohmann::json candidates_json(const ObjectLoopResult& R) {
                   {"significant", c.interval[0] > 0},
                   {"selection_lower_bound", number_or_null(c.selection_lower)},
                   {"selection_family", c.selection_family},
-                  {"vs_table_interval95", c.kind == Kind::MeanLine ? nlohmann::json(c.vs_table) : nlohmann::json(nullptr)},
+                  {"vs_table_interval95", is_mean_line(c.kind) ? nlohmann::json(c.vs_table) : nlohmann::json(nullptr)},
                   {"error_metric", is_spread(c.kind)              ? "spread error"
                                    : c.target == kDetectionTarget ? "deviance per object"
                                                                   : "RMS residual"},
@@ -80,6 +80,11 @@ nlohmann::json bias_effect_json(const ObjectLoopResult& R) {
                                         ? ": one gain on the detection probability inside a window of the feature "
                                           "with fitted edges (pooled over classes), the range x visibility cells "
                                           "refitted with it by the base model's rule on every sequence"
+                                    : top.kind == Kind::MeanRelativeLine
+                                        ? ": the object's own size x a per-class line in the feature (pooled for "
+                                          "classes with < 200 fit samples), the bias a share of the size (\"bias\" "
+                                          "below: the share), refitted jointly with per-class range-bin offsets on "
+                                          "every sequence"
                                     : is_window(top.kind)
                                         ? ": one bias inside a window of the feature with fitted edges (pooled over "
                                           "classes), refitted jointly with per-class range-bin offsets on every sequence"
@@ -89,6 +94,7 @@ nlohmann::json bias_effect_json(const ObjectLoopResult& R) {
                       {"pooled", {{"edges", tab.pooled.edges}, {"bias", tab.pooled.value}}}};
   for (int c = 0; c < kObjectClassCount; ++c)
     if (tab.own[c]) e[kObjectClasses[c]] = {{"edges", tab.per_class[c].edges}, {"bias", tab.per_class[c].value}};
+  if (R.top_whole.relative >= 0) e["relative_to"] = kObjectFeatures[R.top_whole.relative];
   if (R.top_whole.has_gain())  // rate_gain: the cells are refitted with it, the gain multiplies them
     e["pooled"]["gain"] = R.top_whole.gain.pooled.value, e["pooled"]["edges"] = R.top_whole.gain.pooled.edges;
   if (R.options.shrink_terms != TermShrink::Off) {  // per bin: the share of the fitted (deviation) kept
@@ -286,8 +292,9 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
   j["threshold"] = o.threshold;
   j["distribution_seeds"] = o.distribution_seeds;  // of the per-class distribution check
   j["score_definition"] =
-      "every feature x target x form is a candidate (kinds: mean_table, mean_window, mean_line on an error; rate_table, "
-      "rate_window on detection; spread_table, spread_window, spread_growth (range only: sigma x (range / its range "
+      "every feature x target x form is a candidate (kinds: mean_table, mean_window, mean_line on an error, and on a size error "
+      "mean_relative_line (the object's own length, width or height x a line in the feature: a share of its size); "
+      "rate_table, rate_window, rate_gain on detection; spread_table, spread_window, spread_growth (range only: sigma x (range / its range "
       "bin's mean)^k), spread_line (sigma x (1 + b x) on x clamped to its 1-99 % range, with a level per class x range bin "
       "refitted with it) on an error's sigma). Each is fitted on a fold's fit "
       "sequences and scored on its held-out ones, pooled over the two-fold cross-fit (fit on the even-indexed "
@@ -298,7 +305,7 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "mean and sd. Tables: 10 equal-count bins on the fit split, shrunk by n/(n+5), per class where >= 200 "
       "samples; windows: the best contiguous run of 40 equal-count bins (a step when it touches an end); lines: a "
       "least-squares line per class (per class where >= 200 samples) on the feature clamped to its 1-99 % range, "
-      "carried as 64 equal-width bins over that range widened by its span on each side, ranked only where it beats "
+      "carried as 64 equal-width bins over that range widened by its span on each side, a line (absolute or relative) is ranked only where it beats "
       "the table (vs_table_interval95: block-bootstrap 95 % interval of its score minus the mean_table's on the "
       "same held-out tracks, above 0). Bias forms "
       "are refitted with per-class range-bin (detection: range x visibility) offsets, 4 backfitting passes. "

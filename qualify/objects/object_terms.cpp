@@ -3,8 +3,18 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 namespace lidarsim::qualify::obj {
+
+double Refit::operator()(int cls, int rb, double x) const {
+  if (relative >= 0) throw std::logic_error("object loop: a relative term evaluated without the object's size");
+  return at(cls, rb, x, 1.0);
+}
+
+std::vector<double> relative_values(const Split& s, const Refit& f) {
+  return f.relative >= 0 ? s.column(f.relative) : std::vector<double>(s.r.size(), 1.0);
+}
 
 ClassTables fit_class_tables(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                              int bins) {
@@ -134,6 +144,12 @@ BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<doubl
     return t;
   }
   const double b = sxy / sxx, a = my - b * mx;
+  return line_table(a, b, q1, q99, x);
+}
+
+BinnedTable line_table(double a, double b, double q1, double q99, const std::vector<double>& x) {
+  BinnedTable t;
+  const double span = q99 - q1;
   const double lo = q1 - span, h = 3 * span / kLineBins;
   for (int k = 1; k < kLineBins; ++k) t.edges.push_back(lo + k * h);
   for (int k = 0; k < kLineBins; ++k) t.value.push_back(a + b * (lo + (k + 0.5) * h));
@@ -413,14 +429,27 @@ std::vector<sensor::ErrorSample> samples_without_term(const Refit& ref, int t, i
                                                       const std::vector<double>& x, const std::vector<int>& cls,
                                                       const std::vector<int>& cells) {
   std::vector<sensor::ErrorSample> out;
+  const auto s = relative_values(fit, ref);
   for (size_t i = 0; i < x.size(); ++i) {
     if (cls[i] != c) continue;
     const ObjectRecord& r = *fit.rec[i];
-    double v = r.value[t] - ref(c, cells[i], x[i]);
+    double v = r.value[t] - ref.at(c, cells[i], x[i], s[i]);
     if (kTargetParam[t] == sensor::KpiParam::Heading) v = wrap(v);
     if (std::isfinite(v)) out.push_back({r.seq, r.track, r.frame, r.range_bin, r.visibility_bin, v});
   }
   return out;
+}
+
+// The variance of the per-track means of v (each record weighted alike), over the total count.
+double between_track_variance(const std::vector<double>& v, const std::vector<std::pair<int, int>>& track) {
+  std::map<std::pair<int, int>, std::pair<double, double>> acc;  // sum, n
+  double total = 0;
+  for (size_t i = 0; i < v.size(); ++i) acc[track[i]].first += v[i], acc[track[i]].second += 1, total += v[i];
+  if (v.empty()) return 0;
+  const double m = total / v.size();
+  double s = 0;
+  for (const auto& [id, a] : acc) s += a.second * std::pow(a.first / a.second - m, 2);
+  return s / v.size();
 }
 
 }  // namespace
@@ -439,12 +468,16 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
   const auto cls = fit.classes();
   const auto cells = fit.cells(t, nvis);
   const auto r = fit.clipped(w);
+  const auto rel = relative_values(fit, ref);
   for (int c = 0; c < kObjectClassCount; ++c) {
     const auto it = m.classes.find(kObjectClasses[c]);
     if (it == m.classes.end() || !classes[c]) continue;
     std::vector<double> vals, res;
+    std::vector<std::pair<int, int>> track;  // (sequence, track) of each value
     for (size_t i = 0; i < x.size(); ++i)
-      if (cls[i] == c) vals.push_back(ref(c, cells[i], x[i])), res.push_back(r[i]);
+      if (cls[i] == c)
+        vals.push_back(ref.at(c, cells[i], x[i], rel[i])), res.push_back(r[i]),
+            track.emplace_back(fit.rec[i]->seq, fit.rec[i]->track);
     if (vals.size() < 20) continue;
     auto var = [](const std::vector<double>& v) {
       const double m = mean_of(v);
@@ -456,8 +489,14 @@ void shrink_noise_for_term(sensor::KpiModel& m, const Refit& ref, int t, const s
     double v = var(vals);
     if (V <= 0 || v <= 0) continue;
     sensor::ErrorModel& em = it->second.errors[int(param)];
-    if (track_constant) {
-      const double take = std::min(v, em.track_std * em.track_std);
+    // The part of the term that is constant along a track comes out of the per-track constant: the
+    // whole term for a feature constant along a track, else the variance of its per-track means
+    // (an aspect or a speed changes slowly along a track, so the base's track_std carried most of
+    // an effect on it; taken out of sigma alone, the re-simulated spread was term + the old
+    // track_std and the class's histogram got worse, which dropped a correct term).
+    const double between = track_constant ? v : between_track_variance(vals, track);
+    if (between > 0) {
+      const double take = std::min(between, em.track_std * em.track_std);
       em.track_std = std::sqrt(em.track_std * em.track_std - take);
       v -= take;
     }
@@ -500,6 +539,7 @@ sensor::KpiModel with_term(const sensor::KpiModel& base, const Refit& ref, int t
     // BinnedTable cut points -> the term's lower edges (bin 0 takes everything below edges[1]).
     sensor::ConditionalTerm ct;
     ct.feature = feature;
+    if (ref.relative >= 0) ct.relative_to = kObjectFeatures[ref.relative];
     ct.edges.push_back(bt.edges.empty() ? 0.0 : bt.edges.front() - 1);
     ct.edges.insert(ct.edges.end(), bt.edges.begin(), bt.edges.end());
     ct.bias = bt.value;

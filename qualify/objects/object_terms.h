@@ -48,11 +48,20 @@ struct Refit {
   // probability, applied before the table's shift (empty pooled.value: none).
   ClassTables gain;
   bool has_gain() const { return !gain.pooled.value.empty(); }
-  double operator()(int cls, int rb, double x) const {
+  // mean_relative_line (backfit_relative_line): the kObjectFeatures index of the object's own size
+  // that the table's value is a share of, so the term is table(cls, x) x that size; -1: absolute.
+  int relative = -1;
+  // The term at a record: cell offset + table (x the record's relative_to value s when relative).
+  double at(int cls, int rb, double x, double s) const {
     const auto it = d.find({cls, rb});
-    return (it == d.end() ? 0.0 : it->second) + table(cls, x);
+    return (it == d.end() ? 0.0 : it->second) + table(cls, x) * (relative >= 0 ? s : 1.0);
   }
+  // An absolute term only: a relative term needs each record's size (at; relative_values).
+  double operator()(int cls, int rb, double x) const;
 };
+
+// What each record of `s` multiplies f's table by: the relative_to column, or 1 for an absolute term.
+std::vector<double> relative_values(const Split& s, const Refit& f);
 
 Refit backfit(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
               const std::vector<int>& rb, int bins, double cell_prior = 0);
@@ -78,9 +87,29 @@ Refit backfit_window(const std::vector<double>& x, const std::vector<double>& r,
 inline constexpr int kLineBins = 64;
 BinnedTable fit_line_table(const std::vector<double>& x, const std::vector<double>& y);
 ClassTables fit_class_lines(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& cls);
+// The table fit_line_table lays out for the line a + b x fitted on x clamped to [q1, q99].
+BinnedTable line_table(double a, double b, double q1, double q99, const std::vector<double>& x);
 // backfit with the lines in place of the per-class tables.
 Refit backfit_line(const std::vector<double>& x, const std::vector<double>& r, const std::vector<int>& cls,
                    const std::vector<int>& rb, double cell_prior = 0);
+
+// A relative line (object_terms_relative.cpp): an error that is a share of the object's own size
+// (`size`: its length, width or height, > 0), the share a straight line in x, per class (pooled for
+// classes with fewer than 200 samples): y ~ s (a + b x) by least squares (y / s on x with weights
+// s^2), x clamped to its 1-99 % quantiles, laid out as fit_line_table's table of the share. A table
+// or line of the absolute error holds only the class's mean share x its mean size, so it misses on
+// every object whose size differs from the mean (a pedestrian pooled with cars, a van among cars).
+BinnedTable fit_relative_line_table(const std::vector<double>& x, const std::vector<double>& y,
+                                    const std::vector<double>& size);
+ClassTables fit_class_relative_lines(const std::vector<double>& x, const std::vector<double>& y,
+                                     const std::vector<double>& size, const std::vector<int>& cls);
+// backfit with the relative lines: r ~ d[class][cell] + size x line(class, x); Refit::relative set
+// to `relative_feature` (the kObjectFeatures index of `size`).
+Refit backfit_relative_line(const std::vector<double>& x, const std::vector<double>& r, const std::vector<double>& size,
+                            const std::vector<int>& cls, const std::vector<int>& rb, int relative_feature);
+// The kObjectFeatures index of target t's own dimension (length: size, width: box_width, height:
+// box_height), -1 for the other targets.
+int own_dimension(int t);
 
 // Shrinks a fitted bias term (table or window) towards 0 by its own sampling uncertainty, so that
 // a bin carried by a few tracks is trusted less than one carried by hundreds. The bins' standard
@@ -105,8 +134,9 @@ void shrink_by_track_bootstrap(Refit& f, const std::vector<double>& x, const std
 // A mean term on an error explains part of the spread the base model's noise was fitted to carry:
 // without this the refitted model's errors come out too wide (term + the old noise). Per class,
 // v = variance of the term's values (table + cell offsets) over the fit records, V = variance of
-// the winsorised fit residual; a feature constant along a track (size) takes v out of the per-track
-// constant first (track_std^2 - v), the rest, or any other feature's, out of sigma
+// the winsorised fit residual; the term's part constant along a track (all of it for a feature
+// constant along a track, such as size; else the variance of its per-track means) comes out of the
+// per-track constant first (track_std^2 - that, at least 0), the rest out of sigma
 // (sigma x sqrt(1 - v_rest / V), at least 0.2 of it). The noise's shape, AR(1) and innovation, is
 // refitted (sensor::fit_error_model) on the fit records' errors minus the term (classes with at
 // least 40 of them), so correlation along a track or tails the term carried leave the noise.
