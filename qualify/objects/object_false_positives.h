@@ -33,6 +33,7 @@
 // Frame features (truth_count, frame_index) keep the class's placement and give each frame bin its own
 // rate; they are tested and reported, but the KPI model's fp_table is over a false positive's own
 // attribute, so only range, azimuth and score can be added.
+#include <algorithm>
 #include <array>
 #include <filesystem>
 #include <cstdint>
@@ -50,6 +51,12 @@ inline const std::vector<std::string> kFpFeatures = {"range", "azimuth", "score"
 inline constexpr int kFpAttributeFeatures = 3;  // the first three: attributes of the false detection
 inline constexpr int kFpBlockFrames = 100;      // bootstrap block: consecutive frames of one sequence
 inline constexpr long kFpWindowSide = 30;       // fit false positives inside a window, at least
+inline constexpr int kFpQuantiles = 21;         // placement quantiles, as lidar-calibrate stores them
+
+// The bin of x among sorted cut points: 0 below the first, cuts.size() from the last on.
+inline int fp_cut_bin(const std::vector<double>& cuts, double x) {
+  return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x) - cuts.begin());
+}
 
 // The cells the rate is judged on: cut points of range, azimuth and score.
 struct FpGrid {

@@ -11,7 +11,6 @@ namespace lidarsim::qualify::obj {
 
 namespace {
 
-constexpr int kQuantiles = 21;       // as lidar-calibrate stores them
 constexpr int kUniformPoints = 64;   // a uniform stretch as weighted points (its quantiles are exact)
 constexpr double kPriorCount = 1;    // pseudo false positives a background share is shrunk with
 // A hot spot, not a modulation: the rectangle spans at most kCellSide of the range and of the
@@ -24,10 +23,6 @@ constexpr double kPriorCount = 1;    // pseudo false positives a background shar
 constexpr double kCellContrast = 3;
 constexpr double kCellBackgroundShare = 0.25;
 constexpr double kCellSide = 0.5;
-
-int cut_bin(const std::vector<double>& cuts, double x) {
-  return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x) - cuts.begin());
-}
 
 // One class's fit false positives on the fine grid: counts per (range bin, azimuth bin), with the
 // row and column sums as prefix sums so a rectangle's outside sums cost O(K).
@@ -185,10 +180,10 @@ std::vector<double> weighted_quantiles(std::vector<std::pair<double, double>> v)
   double before = 0;
   for (size_t k = 0; k < v.size(); ++k) t[k] = (before + v[k].second / 2) / total, before += v[k].second;
   t.front() = 0, t.back() = 1;
-  std::vector<double> q(kQuantiles);
+  std::vector<double> q(kFpQuantiles);
   size_t k = 0;
-  for (int i = 0; i < kQuantiles; ++i) {
-    const double p = double(i) / (kQuantiles - 1);
+  for (int i = 0; i < kFpQuantiles; ++i) {
+    const double p = double(i) / (kFpQuantiles - 1);
     while (k + 2 < v.size() && t[k + 1] < p) ++k;
     const double f = t[k + 1] > t[k] ? std::clamp((p - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0) : 0.0;
     q[i] = v[k].first + f * (v[k + 1].first - v[k].first);
@@ -211,7 +206,7 @@ FpModel fit_fp_cell(const FpData& fit, const sensor::KpiModel& base, int bins, c
   const std::vector<double> wr = bin_widths(er, *rlo, *rhi), wa = bin_widths(ea, *alo, *ahi);
   PerClass<std::vector<std::array<int, 2>>> cells;
   for (const auto& r : fit.fps)
-    if (cls < 0 || r.cls == cls) cells[r.cls].push_back({cut_bin(er, r.range), cut_bin(ea, r.azimuth)});
+    if (cls < 0 || r.cls == cls) cells[r.cls].push_back({fp_cut_bin(er, r.range), fp_cut_bin(ea, r.azimuth)});
   std::vector<ClassGrid> grids;
   for (int c = 0; c < kObjectClassCount; ++c)
     if (!cells[c].empty()) grids.push_back(class_grid(cells[c], kr, ka));

@@ -12,19 +12,14 @@ namespace lidarsim::qualify::obj {
 
 namespace {
 
-constexpr int kQuantiles = 21;  // as lidar-calibrate stores them
 constexpr double kPriorWeight = 20;  // pseudo false positives a bin's placement is shrunk with
-
-int cut_bin(const std::vector<double>& cuts, double x) {
-  return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x) - cuts.begin());
-}
 
 std::vector<double> quantiles(std::vector<double> v) {
   if (v.size() < 2) return {};
   std::sort(v.begin(), v.end());
-  std::vector<double> q(kQuantiles);
-  for (int i = 0; i < kQuantiles; ++i) {
-    const double x = double(i) / (kQuantiles - 1) * (v.size() - 1);
+  std::vector<double> q(kFpQuantiles);
+  for (int i = 0; i < kFpQuantiles; ++i) {
+    const double x = double(i) / (kFpQuantiles - 1) * (v.size() - 1);
     const size_t k = std::min(static_cast<size_t>(x), v.size() - 2);
     q[i] = v[k] + (x - k) * (v[k + 1] - v[k]);
   }
@@ -62,9 +57,9 @@ double feature_of(const FalsePositiveRecord& r, int feature) {
 int FpGrid::cells() const { return static_cast<int>((range.size() + 1) * (azimuth.size() + 1) * (score.size() + 1)); }
 
 int FpGrid::cell(double r, double a, double s) const {
-  return (cut_bin(range, r) * static_cast<int>(azimuth.size() + 1) + cut_bin(azimuth, a)) *
+  return (fp_cut_bin(range, r) * static_cast<int>(azimuth.size() + 1) + fp_cut_bin(azimuth, a)) *
              static_cast<int>(score.size() + 1) +
-         cut_bin(score, s);
+         fp_cut_bin(score, s);
 }
 
 FpGrid fp_grid(const ObjectSet& fit) {
@@ -98,7 +93,7 @@ FpData fp_data(const ObjectSet& set, const FpGrid& g) {
 
 int FpModel::frame_bin(const FpData::Frame& f) const {
   if (feature < kFpAttributeFeatures) return 0;
-  return cut_bin(cuts, f.feature[feature - kFpAttributeFeatures]);
+  return fp_cut_bin(cuts, f.feature[feature - kFpAttributeFeatures]);
 }
 
 void FpModel::compile(const FpGrid& g, const PerClass<double>& floor) {
@@ -203,10 +198,10 @@ std::vector<double> shrunk_quantiles(const std::vector<double>& own, const std::
   double before = 0;
   for (size_t k = 0; k < v.size(); ++k) t[k] = before + v[k].second / 2, before += v[k].second;
   const double lo = t.front(), span = t.back() - t.front();
-  std::vector<double> q(kQuantiles);
+  std::vector<double> q(kFpQuantiles);
   size_t k = 0;
-  for (int n = 0; n < kQuantiles; ++n) {
-    const double p = lo + span * n / (kQuantiles - 1);
+  for (int n = 0; n < kFpQuantiles; ++n) {
+    const double p = lo + span * n / (kFpQuantiles - 1);
     while (k + 2 < v.size() && t[k + 1] < p) ++k;
     const double f = t[k + 1] > t[k] ? std::clamp((p - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0) : 0.0;
     q[n] = v[k].first + f * (v[k + 1].first - v[k].first);
@@ -243,7 +238,7 @@ FpFitContext fit_context(const FpData& fit, const sensor::KpiModel& base) {
 void attribute_components(FpModel& m, const FpData& fit, const FpFitContext& ctx, int cls) {
   const int nb = static_cast<int>(m.cuts.size() + 1);
   std::vector<int> bin(fit.fps.size());
-  for (size_t i = 0; i < fit.fps.size(); ++i) bin[i] = cut_bin(m.cuts, feature_of(fit.fps[i], m.feature));
+  for (size_t i = 0; i < fit.fps.size(); ++i) bin[i] = fp_cut_bin(m.cuts, feature_of(fit.fps[i], m.feature));
   std::vector<std::array<std::vector<double>, kFpAttributeFeatures>> pooled(nb);
   PerClass<std::vector<std::array<std::vector<double>, kFpAttributeFeatures>>> own;
   for (auto& v : own) v.resize(nb);
@@ -341,7 +336,7 @@ FpModel fit_fp_model(const FpData& fit, const sensor::KpiModel& base, int featur
   const std::vector<double> fine = equal_count_edges(x, 2 * bins);
   const int K = static_cast<int>(fine.size() + 1);
   std::vector<long> cum(K + 1, 0);
-  for (double v : x) ++cum[cut_bin(fine, v) + 1];
+  for (double v : x) ++cum[fp_cut_bin(fine, v) + 1];
   for (int k = 0; k < K; ++k) cum[k + 1] += cum[k];
   FpModel best = ctx.b0;
   best.compile(g, floor);
