@@ -300,7 +300,7 @@ TEST(QualifyRealDataStatistical, ObjectLoopOnTheMeasuredDataRefitsTheShippedTerm
   fs::remove_all(out);
 }
 
-// The lookup base (about a second); the UNet loop on these scans takes minutes (docs/objects-and-loop.md).
+// The lookup base (about a second); the UNet loop on these scans takes minutes (docs/loop.md).
 TEST(QualifyRealDataStatistical, IntensityLoopOnTheMeasuredScansStartsFromTheClassRangeLookup) {
   LIDARSIM_REQUIRE_SHARED_DATA(sk, "semantickitti-seq00-sample");
   const fs::path out = fs::temp_directory_path() / ("lidarsim_qcli_real_int_" + std::to_string(::getpid()));
