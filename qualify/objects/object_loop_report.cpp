@@ -23,7 +23,8 @@ nlohmann::json ranked(const ObjectLoopResult& R, const std::vector<int>& list) {
     const Candidate& c = R.candidates[i];
     out.push_back({{"feature", kObjectFeatures[c.feature]}, {"score", c.score},
                    {"target", kObjectTargets[c.target]}, {"kind", to_string(c.kind)}, {"interval95", c.interval},
-                   {"selection_lower_bound", number_or_null(c.selection_lower)}});
+                   {"selection_lower_bound", number_or_null(c.selection_lower)},
+                   {"passes_ranking_tests", passes_ranking(c, R.options.threshold)}});
   }
   return out;
 }
@@ -313,6 +314,9 @@ nlohmann::json report_json(const ObjectLoopResult& R) {
       "selection_lower_bound = the score's lower bound simultaneous over its family (every bias form the base model "
       "does not hold, or every such spread form), single-step max-T block bootstrap at 97.5 %: it holds whichever "
       "candidate the scores pick, and a candidate is ranked for adding only when it lies above 0. "
+      "ranking: per feature its best form; those that pass the ranking's tests (passes_ranking_tests: score at "
+      "least the threshold, interval95 and selection_lower_bound above 0, a line over its table) first, each "
+      "group by score. "
       "The top bias form is added when its score is at least the threshold and the refit lowers the held-out loss "
       "(winsorised RMS; detection: deviance) with a block-bootstrap 95% interval of the change below 0; each "
       "further bias form (the best of every other target) passes the same test; on an error, each (top or "
