@@ -12,6 +12,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "qualify/intensity/intensity.h"
+#include "qualify/intensity/intensity_spread_loop.h"
 #include "qualify/objects/object_false_positives.h"
 #include "qualify/objects/objects.h"
 #include "qualify/range_noise/range_noise_cli.h"
@@ -34,6 +35,7 @@ const char* kUsage =
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup|lookup-beam] [--folds 1|4] [--out-model CK.h5]\n"
     "  lidar-qualify range-noise --semantickitti DIR --out M.json              range noise fitted on measured scans\n"
     "  lidar-qualify loop range-noise --semantickitti DIR --report R.json [--out-model M.json] [--rounds N]\n"
+    "  lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds N]\n"
     "  lidar-qualify returns   --place NAME=FORMAT:DIR ... --out R [--out-model M.json]   return model held out by place\n"
     "add --help after a command for its options\n";
 
@@ -326,6 +328,8 @@ int run(int argc, char** argv) {
   int shift = 1;
   if (cmd == "loop" && argc >= 3 && std::string(argv[2]) == "returns") return qualify::run_loop_returns(argc - 2, argv + 2);
   if (cmd == "loop" && argc >= 3 && std::string(argv[2]) == "range-noise") return qualify::run_loop_range_noise(argc - 2, argv + 2);
+  if (cmd == "loop" && argc >= 3 && std::string(argv[2]) == "intensity-spread")
+    return qualify::run_loop_intensity_spread(argc - 2, argv + 2);
   if (cmd == "loop") {
     if (argc < 3) throw Error("loop: expected `objects` or `intensity` after `loop`");
     sub = argv[2];

@@ -498,7 +498,7 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
     r.b_after = r.b_before;
   }
   r.error_after = log_scale_error(target, r.b_after);
-  r.model = model_of(target, std::move(model_terms), extra);
+  if (o.fit_range_model) r.model = model_of(target, std::move(model_terms), extra);
   return r;
 }
 
@@ -521,13 +521,13 @@ json to_json(const RangeLoopResult& r) {
   return j;
 }
 
-std::string to_markdown(const RangeLoopResult& r, const std::string& command) {
+std::string to_markdown(const RangeLoopResult& r, const std::string& command, const std::string& subject) {
   auto f4 = [](double v) {
     char b[32];
     std::snprintf(b, sizeof b, "%.4f", v);
     return std::string(b);
   };
-  std::string md = "# Closed loop: range noise\n\nCommand: `" + command +
+  std::string md = "# Closed loop: " + subject + "\n\nCommand: `" + command +
                    "`\n\nMetric: held-out mean (log|e| - predicted log-scale)^2 per residual (a right Gaussian spread gives "
                    "1.234); folds are rotated azimuth sectors with guard bands (" + std::to_string(r.scans) + " scans, " +
                    std::to_string(r.residuals) + " residuals, " + std::to_string(r.scored) + " scored, " +

@@ -59,6 +59,8 @@ struct RangeLoopOptions {
   std::uint64_t seed = 23;
   // Features the base carries as tables (the model's terms); "range growth" = the growth form.
   std::vector<std::string> base_terms;
+  // Fit RangeLoopResult::model (false: the residuals are not ranges, e.g. the intensity-spread loop).
+  bool fit_range_model = true;
 };
 
 struct RangeCandidate {
@@ -83,7 +85,7 @@ struct RangeLoopResult {
   // after (NaN where not scored).
   std::vector<int> fold;
   std::vector<float> b_before, b_after;
-  sensor::RangeNoiseModel model;  // the range table refitted with the base terms and the added one
+  sensor::RangeNoiseModel model;  // the range table refitted with the base terms and the added one (fit_range_model)
 };
 
 // The loop; `reference` = the residuals the base is fitted on (the target itself for a loop on
@@ -98,7 +100,8 @@ std::string base_term_name(const RangeCandidate& c);
 double log_scale_error(const std::vector<LoopResidual>& target, const std::vector<float>& b);
 
 nlohmann::json to_json(const RangeLoopResult& r);
-std::string to_markdown(const RangeLoopResult& r, const std::string& command);
+// subject: what the residuals are, in the title ("range noise", "intensity spread").
+std::string to_markdown(const RangeLoopResult& r, const std::string& command, const std::string& subject = "range noise");
 
 // `lidar-qualify loop range-noise --semantickitti DIR --report R.json [--out-model M.json] [--rounds N]`.
 int run_loop_range_noise(int argc, char** argv);

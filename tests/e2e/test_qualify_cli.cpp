@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <string>
 
@@ -321,4 +322,29 @@ TEST(QualifyRealDataStatistical, IntensityLoopOnTheMeasuredScansStartsFromTheCla
   std::ifstream in(out / "i.json");
   EXPECT_NEAR(nlohmann::json::parse(in)["before"].get<double>(), 0.0851, 0.0005);
   fs::remove_all(out);
+}
+
+// The loop on the spread of intensity: its report (JSON and Markdown) on the reference scans, and
+// one clear error for each bad input.
+TEST_F(QualifyCli, LoopIntensitySpreadWritesItsReportAndRefusesBadInput) {
+  const fs::path sk = scans();
+  const CliRun a = run("loop intensity-spread --semantickitti " + sk.string() + " --report " + (dir_ / "s.json").string());
+  ASSERT_EQ(a.code, 0) << a.out;
+  std::ifstream in(dir_ / "s.json");
+  const auto report = nlohmann::json::parse(in);
+  ASSERT_EQ(report["rounds"].size(), 1u);
+  const auto& round = report["rounds"][0];
+  EXPECT_GT(round["scored"].get<long>(), 1000);
+  EXPECT_GE(round["candidates"].size(), 13u);
+  for (const auto& c : round["candidates"]) EXPECT_FALSE(c["reason"].get<std::string>().empty()) << c.dump();
+  std::ifstream md(dir_ / "s.md");
+  const std::string text((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(text.rfind("# Closed loop: intensity spread", 0), 0u) << text.substr(0, 80);
+  expect_one_error(run("loop intensity-spread --semantickitti " + sk.string()), "--report");
+  expect_one_error(run("loop intensity-spread --semantickitti " + sk.string() + " --report " + (dir_ / "t.json").string() +
+                       " --base-terms lasers"),
+                   "--base-terms");
+  expect_one_error(run("loop intensity-spread --semantickitti " + (dir_ / "missing").string() + " --report " +
+                       (dir_ / "t.json").string()),
+                   "missing");
 }

@@ -1,0 +1,108 @@
+// lidar-qualify loop intensity-spread: the closed loop on the spread of intensity of one place's
+// labelled scans (qualify/intensity/intensity_spread_loop.h).
+//   lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds 1]
+//       [--base-terms laser,...] [--folds 4] [--sectors 64] [--guard-deg 0.5] [--min-gain 0.002]
+// --rounds N reruns the loop with each added term in the base until nothing more is added.
+#include <cxxopts.hpp>
+
+#include <filesystem>
+#include <iostream>
+#include <sstream>
+
+#include "common/atomic_file.h"
+#include "common/error.h"
+#include "qualify/intensity/intensity.h"
+#include "qualify/intensity/intensity_spread_loop.h"
+
+namespace lidarsim::qualify {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+cxxopts::Options intensity_spread_cli_options() {
+  cxxopts::Options opts("lidar-qualify loop intensity-spread",
+                        "The closed loop on the spread of intensity: log|measured - out-of-fold class x range lookup| "
+                        "against every feature, held out on rotated azimuth folds with guard bands (docs/intensity.md).");
+  opts.add_options()
+    ("semantickitti", "labelled scans: SemanticKITTI (velodyne + labels) or a KITTI object folder", cxxopts::value<std::string>())
+    ("split", "the intensity folds' split of the columns", cxxopts::value<std::string>()->default_value("guarded"))
+    ("intensity-folds", "rotated guarded folds for the out-of-fold mean (1 or 4)", cxxopts::value<int>()->default_value("4"))
+    ("base-terms", "features the spread's base already carries, comma-separated", cxxopts::value<std::string>()->default_value(""))
+    ("rounds", "rerun with the added term in the base, up to this many times", cxxopts::value<int>()->default_value("1"))
+    ("folds", "azimuth folds of the spread loop", cxxopts::value<int>()->default_value("4"))
+    ("sectors", "azimuth sectors (a multiple of --folds)", cxxopts::value<int>()->default_value("64"))
+    ("guard-deg", "guard band at each boundary between folds, deg", cxxopts::value<double>()->default_value("0.5"))
+    ("min-gain", "smallest held-out cut added", cxxopts::value<double>()->default_value("0.002"))
+    ("report", "report JSON (a Markdown beside it)", cxxopts::value<std::string>())
+    ("h,help", "this help");
+  return opts;
+}
+
+std::vector<std::string> comma_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string x; std::getline(ss, x, ',');)
+    if (!x.empty()) out.push_back(x);
+  return out;
+}
+
+}  // namespace
+
+int run_loop_intensity_spread(int argc, char** argv) {
+  cxxopts::Options opts = intensity_spread_cli_options();
+  const auto a = opts.parse(argc, argv);
+  if (a.count("help")) {
+    std::cout << opts.help() << "\n";
+    return 0;
+  }
+  if (!a.unmatched().empty()) throw Error("loop intensity-spread: unexpected argument \"" + a.unmatched().front() + "\"");
+  if (!a.count("semantickitti")) throw Error("--semantickitti: required (the labelled scans)");
+  if (!a.count("report")) throw Error("--report: required (the loop's report JSON)");
+  IntensitySpreadOptions o;
+  o.split = a["split"].as<std::string>(), o.folds = a["intensity-folds"].as<int>();
+  o.loop.folds = a["folds"].as<int>(), o.loop.sectors = a["sectors"].as<int>();
+  o.loop.guard_deg = a["guard-deg"].as<double>(), o.loop.min_gain = a["min-gain"].as<double>();
+  if (!(o.loop.guard_deg >= 0) || o.loop.guard_deg * 2 >= 360.0 / std::max(1, o.loop.sectors))
+    throw Error("--guard-deg: must be >= 0 and less than half a sector");
+  o.loop.base_terms = comma_list(a["base-terms"].as<std::string>());
+  for (const auto& t : o.loop.base_terms)
+    if (t != "laser" && t != "range" && t != "class" && t != "material" && t != "azimuth" && t != "incidence" &&
+        t != "intensity" && t != "range growth")
+      throw Error("--base-terms: unknown feature \"" + t +
+                  "\" (laser, range, class, material, azimuth, incidence, intensity, range growth)");
+  const std::string dir = a["semantickitti"].as<std::string>();
+  const data::Dataset ds = import_for_qualify(dir);
+  std::string command = "lidar-qualify loop intensity-spread";
+  for (int i = 1; i < argc; ++i) command += std::string(" ") + argv[i];
+  nlohmann::json report = {{"command", command}, {"data", dir}, {"rounds", nlohmann::json::array()}};
+  std::string md;
+  const int rounds = std::max(1, a["rounds"].as<int>());
+  for (int k = 0; k < rounds; ++k) {
+    const RangeLoopResult r = loop_intensity_spread(ds, o);
+    nlohmann::json j = intensity_spread_json(r);
+    j["base_terms"] = o.loop.base_terms;
+    report["rounds"].push_back(j);
+    std::string terms;
+    for (const auto& t : o.loop.base_terms) terms += (terms.empty() ? "" : ", ") + t;
+    md += to_markdown(r, command, "intensity spread") + "\nBase terms (round " + std::to_string(k + 1) + "): " + (terms.empty() ? "none" : terms) + "\n\n";
+    std::cout << "round " << k + 1 << ": " << r.scans << " scans, " << r.residuals << " returns (" << r.scored
+              << " scored); held-out log-scale error " << r.error_before << " -> " << r.error_after << ", added: "
+              << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
+    for (const auto& c : r.candidates)
+      std::cout << "  " << c.feature << " " << to_string(c.form) << ": cut " << c.score << " (bound " << c.selection_lower
+                << ") " << c.decision << ": " << c.reason << "\n";
+    if (r.added < 0) break;
+    o.loop.base_terms.push_back(base_term_name(r.candidates[r.added]));
+  }
+  const fs::path out = a["report"].as<std::string>();
+  if (out.has_parent_path()) fs::create_directories(out.parent_path());
+  write_file_atomically(out, report.dump(2) + "\n");
+  fs::path md_path = out;
+  md_path.replace_extension(".md");
+  write_file_atomically(md_path, md);
+  std::cout << "wrote " << out.string() << "\n";
+  return 0;
+}
+
+}  // namespace lidarsim::qualify
