@@ -35,7 +35,7 @@ const char* kUsage =
     "  lidar-qualify loop intensity --semantickitti DIR --report R.json [--base unet|lookup|lookup-beam] [--folds 1|4] [--out-model CK.h5]\n"
     "  lidar-qualify range-noise --semantickitti DIR --out M.json              range noise fitted on measured scans\n"
     "  lidar-qualify loop range-noise --semantickitti DIR --report R.json [--out-model M.json] [--rounds N]\n"
-    "  lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds N]\n"
+    "  lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--model CK.h5] [--rounds N]\n"
     "  lidar-qualify returns   --place NAME=FORMAT:DIR ... --out R [--out-model M.json]   return model held out by place\n"
     "add --help after a command for its options\n";
 

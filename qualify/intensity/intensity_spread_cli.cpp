@@ -1,6 +1,6 @@
 // lidar-qualify loop intensity-spread: the closed loop on the spread of intensity of one place's
 // labelled scans (qualify/intensity/intensity_spread_loop.h).
-//   lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds 1]
+//   lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds 1] [--model CK.h5]
 //       [--base-terms laser,...] [--folds 4] [--sectors 64] [--guard-deg 0.5] [--min-gain 0.002]
 // --rounds N reruns the loop with each added term in the base until nothing more is added.
 #include <cxxopts.hpp>
@@ -26,6 +26,7 @@ cxxopts::Options intensity_spread_cli_options() {
                         "against every feature, held out on rotated azimuth folds with guard bands (docs/intensity.md).");
   opts.add_options()
     ("semantickitti", "labelled scans: SemanticKITTI (velodyne + labels) or a KITTI object folder", cxxopts::value<std::string>())
+    ("model", "a checkpoint with a spread head: the residual against its mean, its spread the base (scans of places it did not train on)", cxxopts::value<std::string>())
     ("split", "the intensity folds' split of the columns", cxxopts::value<std::string>()->default_value("guarded"))
     ("intensity-folds", "rotated guarded folds for the out-of-fold mean (1 or 4)", cxxopts::value<int>()->default_value("4"))
     ("base-terms", "features the spread's base already carries, comma-separated", cxxopts::value<std::string>()->default_value(""))
@@ -61,6 +62,7 @@ int run_loop_intensity_spread(int argc, char** argv) {
   if (!a.count("report")) throw Error("--report: required (the loop's report JSON)");
   IntensitySpreadOptions o;
   o.split = a["split"].as<std::string>(), o.folds = a["intensity-folds"].as<int>();
+  if (a.count("model")) o.model = a["model"].as<std::string>();
   o.loop.folds = a["folds"].as<int>(), o.loop.sectors = a["sectors"].as<int>();
   o.loop.guard_deg = a["guard-deg"].as<double>(), o.loop.min_gain = a["min-gain"].as<double>();
   if (!(o.loop.guard_deg >= 0) || o.loop.guard_deg * 2 >= 360.0 / std::max(1, o.loop.sectors))
@@ -75,7 +77,9 @@ int run_loop_intensity_spread(int argc, char** argv) {
   const data::Dataset ds = import_for_qualify(dir);
   std::string command = "lidar-qualify loop intensity-spread";
   for (int i = 1; i < argc; ++i) command += std::string(" ") + argv[i];
-  nlohmann::json report = {{"command", command}, {"data", dir}, {"rounds", nlohmann::json::array()}};
+  nlohmann::json report = {{"command", command}, {"data", dir}, {"rounds", nlohmann::json::array()},
+                           {"base", o.model.empty() ? "the class x range lookup's out-of-fold mean; spread: a log-scale per 5 m range bin"
+                                                    : "the checkpoint " + o.model + ": its mean and its spread head"}};
   std::string md;
   const int rounds = std::max(1, a["rounds"].as<int>());
   for (int k = 0; k < rounds; ++k) {

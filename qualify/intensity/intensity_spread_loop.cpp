@@ -10,6 +10,7 @@
 
 #include "common/error.h"
 #include "data/baselines.h"
+#include "infer/intensity_model.h"
 #include "pgm/materials.h"
 #include "qualify/intensity/intensity.h"
 #include "qualify/intensity/intensity_internal.h"
@@ -35,9 +36,55 @@ double degrees_0_360(double rad) { return std::fmod(rad * 180 / kSpreadPi + 720.
 
 }  // namespace
 
+namespace {
+
+// Residuals against a checkpoint's mean, each with the log-scale its spread head predicts.
+std::vector<LoopResidual> model_residuals(const data::Dataset& ds, const std::string& checkpoint) {
+  infer::IntensityModel model = infer::IntensityModel::load(checkpoint);
+  const auto head = model.spread();
+  if (!head)
+    throw Error(checkpoint + ": /config/unet.heads: no spread head (train with --heads mean,log_scale_laplace)");
+  // E log|Z| of the head's unit shape: Laplace -Euler's gamma, Gaussian -0.635. A residual table
+  // changes the shape, not by feature: the loop's range levels take the difference.
+  const double shape = *head == nn::HeadKind::log_scale_laplace ? -0.5772157 : kGaussianLogScale;
+  const int ir = ds.channel_index("range"), ic = ds.channel_index("class"), im = ds.channel_index("material"),
+            iaz = ds.channel_index("azimuth"), iinc = ds.channel_index("incidence");
+  const auto s = ds.pgm.shape();
+  const std::size_t plane = static_cast<std::size_t>(s.h) * s.w;
+  std::vector<LoopResidual> out;
+  std::vector<float> mean, scale;
+  for (int n = 0; n < s.n; ++n) {
+    model.predict_distribution(ds.frame_pgm(n), mean, scale);
+    auto ch = [&](int k, std::size_t cell) { return ds.pgm.data()[(static_cast<std::size_t>(n) * s.c + k) * plane + cell]; };
+    for (std::size_t cell = 0; cell < plane; ++cell) {
+      if (!(ds.mask.data()[n * plane + cell] > 0) || !(scale[cell] > 0)) continue;
+      LoopResidual x;
+      x.scan = n;
+      x.r.range = ch(ir, cell);
+      x.r.residual = ds.target.data()[n * plane + cell] - mean[cell];
+      x.r.incidence = ch(iinc, cell);
+      x.r.intensity = mean[cell];
+      x.r.class_id = static_cast<int>(ch(ic, cell));
+      x.r.material = static_cast<int>(ch(im, cell));
+      x.r.row = static_cast<int>(cell / s.w);
+      x.r.azimuth_deg = static_cast<float>(degrees_0_360(ch(iaz, cell)));
+      x.offset = static_cast<float>(std::log(scale[cell]) + shape);
+      out.push_back(x);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
 std::vector<LoopResidual> intensity_spread_residuals(const data::Dataset& ds, const IntensitySpreadOptions& o) {
   const std::string where = "loop intensity-spread";
   for (const char* c : {"range", "class", "material", "azimuth", "incidence"}) spread_channel(ds, c, where);
+  if (!o.model.empty()) {
+    auto out = model_residuals(ds, o.model);
+    if (out.empty()) throw Error(where + ": the scans have no returns");
+    return out;
+  }
   const data::SectorSplit split = intensity_split(ds, o.split);
   const auto folds = intensity_detail::make_folds(ds, split, o.folds);
   const auto at = [](const char* name) {

@@ -30,10 +30,15 @@ struct IntensitySpreadOptions {
   RangeLoopOptions loop;
   std::string split = "guarded";  // the intensity folds' split (data::parse_split)
   int folds = 4;                  // intensity folds (rotated guarded regions) for the out-of-fold mean
+  // A checkpoint with a spread head (lidar-train --heads mean,log_scale_laplace): the residual is
+  // against its mean, and its predicted log-scale is each residual's offset, so the loop finds what
+  // the spread the simulation samples from lacks. Its scans must be of places it did not train on.
+  std::string model;
 };
 
-// One residual per cell with a return (every cell is held out once by the intensity folds), with
-// the cell's features; scan = the frame index.
+// One residual per cell with a return (every cell is held out once by the intensity folds; with
+// a model, every cell with a return and a predicted scale), with the cell's features; scan = the
+// frame index.
 std::vector<LoopResidual> intensity_spread_residuals(const data::Dataset& ds, const IntensitySpreadOptions& o = {});
 
 // The loop on the residuals of ds (its own cells are the reference: each spread fold's base sees

@@ -69,6 +69,8 @@ struct Spec {
 };
 
 double log_abs(float e) { return std::log(std::max<double>(std::abs(e), kFloor)); }
+// What the loop models: log|e| less the residual's own predicted log-scale (LoopResidual::offset).
+double log_scale_of(const LoopResidual& x) { return log_abs(x.r.residual) - x.offset; }
 
 // The features, their bin widths from the data where the scale is the sensor's (intensity: 20
 // bins up to the 99th percentile) and the row count.
@@ -187,7 +189,7 @@ Data data_of(const std::vector<LoopResidual>& x, const std::vector<Feature>& fea
   Data d;
   d.bins.assign(features.size(), std::vector<int>(x.size()));
   for (std::size_t i = 0; i < x.size(); ++i) {
-    d.y.push_back(log_abs(x[i].r.residual));
+    d.y.push_back(log_scale_of(x[i]));
     d.range.push_back(x[i].r.range);
     for (std::size_t f = 0; f < features.size(); ++f) d.bins[f][i] = features[f].bin(x[i].r);
   }
@@ -341,7 +343,7 @@ void block_losses(const std::vector<LoopResidual>& target, const std::vector<std
   cand_loss.assign(pred.size(), std::vector<double>(B, 0.0));
   for (std::size_t i = 0; i < target.size(); ++i) {
     if (block_of[i] < 0) continue;
-    const double y = log_abs(target[i].r.residual);
+    const double y = log_scale_of(target[i]);
     base_loss[block_of[i]] += (y - r.b_before[i]) * (y - r.b_before[i]);
     for (std::size_t j = 0; j < pred.size(); ++j) cand_loss[j][block_of[i]] += (y - pred[j][i]) * (y - pred[j][i]);
   }
@@ -421,7 +423,7 @@ double log_scale_error(const std::vector<LoopResidual>& target, const std::vecto
   double e = 0;
   long long n = 0;
   for (std::size_t i = 0; i < target.size(); ++i)
-    if (std::isfinite(b[i])) e += std::pow(log_abs(target[i].r.residual) - b[i], 2), ++n;
+    if (std::isfinite(b[i])) e += std::pow(log_scale_of(target[i]) - b[i], 2), ++n;
   return n ? e / n : 0;
 }
 

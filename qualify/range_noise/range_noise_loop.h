@@ -41,6 +41,10 @@ namespace lidarsim::qualify {
 struct LoopResidual {
   int scan = 0;  // unique over the loop's input
   RangeResidual r;
+  // A model's own predicted log-scale E log|e| for this residual (0: none). The loop then models
+  // log|e| - offset: its base and terms are what the model's spread lacks (the intensity-spread
+  // loop on a checkpoint's spread head). The growth form assumes offset 0.
+  float offset = 0;
 };
 
 // The loop's input from labelled scans: residuals of every planar class (default fit options).
@@ -96,7 +100,7 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
 // The name under which an added candidate enters the next round's base_terms.
 std::string base_term_name(const RangeCandidate& c);
 
-// Held-out error (mean (y - b)^2) over the residuals where b is finite.
+// Held-out error (mean (y - b)^2, y = log|e| - offset) over the residuals where b is finite.
 double log_scale_error(const std::vector<LoopResidual>& target, const std::vector<float>& b);
 
 nlohmann::json to_json(const RangeLoopResult& r);

@@ -5,13 +5,21 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <cmath>
 #include <string>
 
 #include "common/error.h"
 #include "data/planted_scans.h"
+#include "nn/checkpoint.h"
+#include "nn/heads.h"
+#include "nn/unet.h"
+#include "pgm/encoder.h"
 #include "qualify/intensity/intensity_spread_loop.h"
+#include "qualify/similarity.h"
 #include "tests/support/reference_scans.h"
+#include "tests/support/shared_data.h"
+#include "tests/support/temp_path.h"
 
 using namespace lidarsim;
 
@@ -42,7 +50,91 @@ SpreadRun run_spread(const qualify::PlantedSpread& e, std::uint64_t seed) {
   return r;
 }
 
+// A checkpoint whose every output is its head's bias: mean 0.3 and a Laplace scale of 0.02 at
+// every cell (the weights 0), so its spread is known exactly.
+std::filesystem::path constant_spread_checkpoint() {
+  const std::filesystem::path dir = lidarsim::testing::temp_path("spread_loop_model");
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  pgm::EncoderConfig encoder;
+  encoder.channels = {"range", "class", "material"};
+  nn::UNetConfig config{encoder.input_channels(), 2, 4, 2, 0};
+  config.heads = {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace};
+  nn::UNet model(config);
+  std::fill(model.params().values(), model.params().values() + model.params().size(), 0.f);
+  float* bias = model.params().value(model.params().find("head/bias"));
+  bias[0] = 0.3f, bias[1] = std::log(0.02f);
+  nn::Checkpoint meta;
+  meta.attributes["encoder"] = encoder.to_json();
+  nn::save_checkpoint(dir / "ck.h5", model, nullptr, meta);
+  return dir / "ck.h5";
+}
+
+// The geometry with intensity 0.3 + Laplace(0.02 x factor(row)) at every return.
+template <class Factor>
+data::Dataset laplace_around_constant(Factor&& factor, std::uint64_t seed) {
+  data::Dataset ds = spread_geometry();
+  qualify::SplitMix rng(seed);
+  const auto s = ds.pgm.shape();
+  const std::size_t plane = static_cast<std::size_t>(s.h) * s.w;
+  for (int n = 0; n < s.n; ++n)
+    for (std::size_t cell = 0; cell < plane; ++cell) {
+      const double u = rng.uniform() - 0.5;
+      const double z = -(u < 0 ? -1.0 : 1.0) * std::log(1 - 2 * std::abs(u));  // a unit Laplace
+      ds.target.data()[n * plane + cell] = static_cast<float>(0.3 + 0.02 * factor(static_cast<int>(cell / s.w)) * z);
+    }
+  return ds;
+}
+
 }  // namespace
+
+// With a checkpoint, the residual is against its mean and its spread head is the base: a spread
+// the head predicts adds nothing, a block of lasers it does not is named.
+TEST(LoopIntensitySpread, AgainstACheckpointsSpreadHeadNamesOnlyWhatTheHeadLacks) {
+  qualify::IntensitySpreadOptions o;
+  o.model = constant_spread_checkpoint().string();
+  const auto as_predicted = laplace_around_constant([](int) { return 1.0; }, 7);
+  const auto residuals = qualify::intensity_spread_residuals(as_predicted, o);
+  ASSERT_FALSE(residuals.empty());
+  EXPECT_NEAR(residuals[0].offset, std::log(0.02) - 0.5772157, 1e-4);
+  const auto control = qualify::loop_intensity_spread(as_predicted, o);
+  EXPECT_EQ(control.added_feature, "");
+  EXPECT_NEAR(control.error_before, 1.645, 0.1);  // a right Laplace's: the variance of log Exp(1), pi^2 / 6
+  const auto wider = laplace_around_constant([](int row) { return row >= 30 && row < 40 ? 2.5 : 1.0; }, 8);
+  EXPECT_EQ(qualify::loop_intensity_spread(wider, o).added_feature, "laser");
+}
+
+// The loop models log|e| less each residual's offset: a spread per laser that the offsets hold
+// adds nothing, the same residuals without them name the laser.
+TEST(LoopIntensitySpread, ResidualsOffsetsAreTheBaseTheLoopJudgesAgainst) {
+  qualify::SplitMix rng(9);
+  std::vector<qualify::LoopResidual> with, without;
+  for (int s = 0; s < 2; ++s)
+    for (int row = 0; row < 32; ++row)
+      for (int k = 0; k < 720; ++k) {
+        qualify::LoopResidual x;
+        x.scan = s, x.r.row = row, x.r.azimuth_deg = static_cast<float>((k + 0.5) * 0.5);
+        x.r.range = static_cast<float>(5 + 50 * rng.uniform()), x.r.class_id = k % 3, x.r.incidence = 0.5f;
+        const double sigma = 0.02 * (row < 8 ? 3.0 : 1.0);
+        x.r.residual = static_cast<float>(sigma * rng.normal());
+        without.push_back(x);
+        x.offset = static_cast<float>(std::log(sigma));
+        with.push_back(x);
+      }
+  EXPECT_EQ(qualify::loop_range_noise(without, without).added_feature, "laser");
+  EXPECT_EQ(qualify::loop_range_noise(with, with).added_feature, "");
+}
+
+TEST(LoopIntensitySpread, ACheckpointWithoutASpreadHeadIsRefusedNamingTheField) {
+  qualify::IntensitySpreadOptions o;
+  o.model = (lidarsim::testing::source_dir() / "data/models/intensity_unet.h5").string();
+  try {
+    qualify::intensity_spread_residuals(spread_geometry(), o);
+    FAIL() << "expected an error";
+  } catch (const Error& err) {
+    EXPECT_NE(std::string(err.what()).find("unet.heads"), std::string::npos) << err.what();
+  }
+}
 
 TEST(LoopIntensitySpread, NamesABlockOfNoisyLasersAndCutsTheErrorAgainstTheTruth) {
   qualify::PlantedSpread e = qualify::draw_planted_spread(qualify::PlantedSpreadFamily::LaserBlock, 3, spread_geometry(), 0.03);
