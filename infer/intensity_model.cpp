@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "infer/intensity_spread_terms.h"
 #include "nn/checkpoint_weights.h"
 #include "pgm/projection.h"
 
@@ -113,6 +114,7 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
   // that are not 0 (the residual table was fitted around the same centre).
   const int zc = nn::head_channel(model_.config().heads, nn::HeadKind::zero_logit);
   const float* zero_logit = zc >= 0 ? output_.data() + static_cast<std::size_t>(zc) * pgm.cells() : nullptr;
+  const SpreadTermFactor terms(spread_terms_, pgm);
   for (std::size_t i = 0; i < pgm.cells(); ++i) {
     if (mask[i] <= 0) continue;
     float centre = mean[i];
@@ -124,7 +126,7 @@ void IntensityModel::predict(const pgm::PolarGridMap& pgm, std::vector<float>& o
       }
       centre = static_cast<float>(nn::nonzero_center(mean[i], p_zero));
     }
-    const float scale = scale_of(log_scale[i]);
+    const float scale = scale_of(log_scale[i]) * static_cast<float>(terms.at(i, mean[i]));
     out[i] = empirical ? sample_intensity_empirical(residual, centre, scale, *sampling_, frame, i)
                        : sample_intensity(*spread(), centre, scale, *sampling_, frame, i);
   }
@@ -139,8 +141,9 @@ void IntensityModel::predict_distribution(const pgm::PolarGridMap& pgm, std::vec
   const float* log_scale = log_scale_channel(pgm.cells());
   mean.assign(pgm.cells(), 0.f);
   scale.assign(pgm.cells(), 0.f);
+  const SpreadTermFactor terms(spread_terms_, pgm);
   for (std::size_t i = 0; i < pgm.cells(); ++i)
-    if (mask[i] > 0) mean[i] = output_.data()[i], scale[i] = scale_of(log_scale[i]);
+    if (mask[i] > 0) mean[i] = output_.data()[i], scale[i] = scale_of(log_scale[i]) * static_cast<float>(terms.at(i, mean[i]));
 }
 
 }  // namespace lidarsim::infer

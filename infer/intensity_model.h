@@ -14,6 +14,7 @@
 #include "pgm/beam_layout.h"
 #include "pgm/encoder.h"
 #include "pgm/polar_grid_map.h"
+#include "sensor/range_noise.h"
 
 namespace lidarsim::infer {
 
@@ -42,6 +43,9 @@ class IntensityModel {
   void sample_from_spread(const IntensitySampling& sampling, const std::string& where,
                           std::optional<float> scale_factor = std::nullopt);
   bool sampling() const { return sampling_.has_value(); }
+  // From now on the spread head's scale is multiplied by these terms' factors at each cell
+  // (infer/intensity_spread_terms.h), in predict()'s draws and in predict_distribution().
+  void set_spread_terms(std::vector<sensor::RangeNoiseTerm> terms) { spread_terms_ = std::move(terms); }
 
   // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0. By
   // default the mean (channel 0); with sample_from_spread, a draw per cell depending only on
@@ -73,6 +77,7 @@ class IntensityModel {
   nn::Tensor input_, output_;
   std::optional<IntensitySampling> sampling_;
   float spread_scale_ = 1.f;  // applied to the spread head's scale: the checkpoint's, or sample_from_spread's
+  std::vector<sensor::RangeNoiseTerm> spread_terms_;
 };
 
 }  // namespace lidarsim::infer

@@ -16,6 +16,7 @@
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "common/progress.h"
+#include "infer/intensity_spread_terms.h"
 #include "infer/osi_command.h"
 #include "infer/scan_prediction.h"
 #include "infer/frame_writer.h"
@@ -56,6 +57,8 @@ int run_predict(int argc, char** argv) {
     ("sample-intensity", "with a spread head (lidar-train --heads mean,log_scale_...): draw each cell's intensity from the "
      "predicted distribution, seeded by --seed, scan index and cell, clamped to 0..1 (default: the mean)")
     ("seed", "seed of --sample-intensity", cxxopts::value<std::uint64_t>()->default_value("1"))
+    ("spread-terms", "with --sample-intensity: factors on the sampled spread (lidar-qualify loop intensity-spread --out-terms)",
+     cxxopts::value<std::string>())
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
@@ -79,6 +82,7 @@ int run_predict(int argc, char** argv) {
   o.progress = !args.count("quiet");
   o.sample_intensity = args.count("sample-intensity") > 0;
   o.seed = args["seed"].as<std::uint64_t>();
+  if (args.count("spread-terms")) o.spread_terms = args["spread-terms"].as<std::string>();
   if (args.count("seed") && !o.sample_intensity)
     throw Error("lidar-infer predict: --seed only seeds --sample-intensity (the mean needs no seed)");
   if (o.max_frames < 0) throw Error("lidar-infer predict: --max-frames must be >= 0, got " + std::to_string(o.max_frames));
@@ -125,6 +129,8 @@ cxxopts::Options sim_options_spec() {
      cxxopts::value<std::string>())
     ("sample-intensity", "with a spread head (lidar-train --heads mean,log_scale_...): draw each cell's intensity from the "
      "predicted distribution (seed, frame, cell), clamped to 0..1 (default: the mean)")
+    ("spread-terms", "with --sample-intensity: factors on the sampled spread (lidar-qualify loop intensity-spread --out-terms)",
+     cxxopts::value<std::string>())
     ("no-outputs", "only time the pipeline: write nothing but the summary")
     ("every", "write the outputs of every N-th frame only (the UNet then runs on those frames only)", cxxopts::value<int>()->default_value("1"))
     ("sync-outputs", "write outputs on the pipeline's thread (default: a writer thread)")
@@ -180,6 +186,8 @@ SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
     a.sim_options.range_noise = std::make_shared<const sensor::RangeNoiseModel>(
         sensor::load_range_noise_model(args["range-noise"].as<std::string>()));
   a.sim_options.sample_intensity = args.count("sample-intensity") > 0;
+  if (args.count("spread-terms"))
+    a.sim_options.spread_terms = infer::load_intensity_spread_terms(args["spread-terms"].as<std::string>()).terms;
   if (args.count("sensor")) a.sim_options.sensor = pgm::BeamLayout::from_file(args["sensor"].as<std::string>());
   if (args.count("returns"))
     a.sim_options.returns = std::make_shared<sensor::ReturnModel>(sensor::ReturnModel::load(args["returns"].as<std::string>()));

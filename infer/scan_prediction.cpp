@@ -17,6 +17,7 @@
 #include "data/semantickitti.h"
 #include "data/velodyne.h"
 #include "infer/intensity_model.h"
+#include "infer/intensity_spread_terms.h"
 #include "pgm/materials.h"
 #include "pgm/projection.h"
 
@@ -203,6 +204,10 @@ PredictSummary predict_scans(const PredictOptions& o) {
   if (o.format != "pcd" && o.format != "ply") throw Error("lidar-infer predict: --format must be pcd or ply");
   IntensityModel model = IntensityModel::load(o.model);
   if (o.sample_intensity) model.sample_from_spread({o.seed}, "lidar-infer predict: --sample-intensity");
+  if (!o.spread_terms.empty()) {
+    if (!o.sample_intensity) throw Error("lidar-infer predict: --spread-terms needs --sample-intensity (the mean has no spread)");
+    model.set_spread_terms(load_intensity_spread_terms(o.spread_terms).terms);
+  }
   const ScanSource source = list_sources(o);
   std::filesystem::create_directories(o.out);
 

@@ -32,6 +32,8 @@ struct PredictOptions {
   // = the scan's index) instead of the mean (infer/intensity_sampling.h).
   bool sample_intensity = false;
   std::uint64_t seed = 1;
+  // Terms on the sampled spread (infer/intensity_spread_terms.h); needs sample_intensity.
+  std::string spread_terms;
 };
 
 struct ClassError {

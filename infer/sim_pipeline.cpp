@@ -68,6 +68,10 @@ SimPipeline::SimPipeline(sensor::Scenario scenario, sensor::KpiModel kpi_model,
   if (intensity_) extra_channels_ = intensity_->extra_channels();
   if (options_.sample_intensity && options_.intensity)
     intensity_->sample_from_spread({options_.seed}, "sim pipeline: --sample-intensity");
+  if (!options_.spread_terms.empty()) {
+    if (!options_.sample_intensity) throw Error("sim pipeline: --spread-terms needs --sample-intensity (the mean has no spread)");
+    if (intensity_) intensity_->set_spread_terms(options_.spread_terms);
+  }
   // Generous first reservations, so the first frames do not grow buffers piecemeal.
   detections_.reserve(64);
   tracked_.reserve(64);

@@ -48,6 +48,8 @@ struct SimOptions {
   // With a spread head (lidar-train --heads mean,log_scale_...): intensity drawn from the predicted
   // distribution, per (seed, frame, cell), instead of the mean (infer/intensity_sampling.h).
   bool sample_intensity = false;
+  // Terms on the sampled spread (infer/intensity_spread_terms.h); needs sample_intensity.
+  std::vector<sensor::RangeNoiseTerm> spread_terms;
   // Another sensor (lidar-infer sim --sensor FILE.json): replaces the scenario's beams, and its
   // vertical field of view and range limits follow the layout's beams and ranges.
   std::optional<pgm::BeamLayout> sensor;

@@ -11,6 +11,7 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
+#include "infer/intensity_spread_terms.h"
 #include "qualify/intensity/intensity.h"
 #include "qualify/intensity/intensity_spread_loop.h"
 
@@ -27,6 +28,8 @@ cxxopts::Options intensity_spread_cli_options() {
   opts.add_options()
     ("semantickitti", "labelled scans: SemanticKITTI (velodyne + labels) or a KITTI object folder", cxxopts::value<std::string>())
     ("model", "a checkpoint with a spread head: the residual against its mean, its spread the base (scans of places it did not train on)", cxxopts::value<std::string>())
+    ("spread-terms", "with --model: terms its spread carries already (a previous run's --out-terms)", cxxopts::value<std::string>())
+    ("out-terms", "with --model: the terms its spread needs (the given ones, the range level and the last round's), for lidar-infer --spread-terms", cxxopts::value<std::string>())
     ("split", "the intensity folds' split of the columns", cxxopts::value<std::string>()->default_value("guarded"))
     ("intensity-folds", "rotated guarded folds for the out-of-fold mean (1 or 4)", cxxopts::value<int>()->default_value("4"))
     ("base-terms", "features the spread's base already carries, comma-separated", cxxopts::value<std::string>()->default_value(""))
@@ -63,6 +66,9 @@ int run_loop_intensity_spread(int argc, char** argv) {
   IntensitySpreadOptions o;
   o.split = a["split"].as<std::string>(), o.folds = a["intensity-folds"].as<int>();
   if (a.count("model")) o.model = a["model"].as<std::string>();
+  if ((a.count("spread-terms") || a.count("out-terms")) && !a.count("model"))
+    throw Error("--spread-terms, --out-terms: need --model (terms on a checkpoint's spread head)");
+  if (a.count("spread-terms")) o.spread_terms = infer::load_intensity_spread_terms(a["spread-terms"].as<std::string>()).terms;
   o.loop.folds = a["folds"].as<int>(), o.loop.sectors = a["sectors"].as<int>();
   o.loop.guard_deg = a["guard-deg"].as<double>(), o.loop.min_gain = a["min-gain"].as<double>();
   if (!(o.loop.guard_deg >= 0) || o.loop.guard_deg * 2 >= 360.0 / std::max(1, o.loop.sectors))
@@ -82,8 +88,9 @@ int run_loop_intensity_spread(int argc, char** argv) {
                                                     : "the checkpoint " + o.model + ": its mean and its spread head"}};
   std::string md;
   const int rounds = std::max(1, a["rounds"].as<int>());
+  RangeLoopResult r;
   for (int k = 0; k < rounds; ++k) {
-    const RangeLoopResult r = loop_intensity_spread(ds, o);
+    r = loop_intensity_spread(ds, o);
     nlohmann::json j = intensity_spread_json(r);
     j["base_terms"] = o.loop.base_terms;
     report["rounds"].push_back(j);
@@ -106,6 +113,18 @@ int run_loop_intensity_spread(int argc, char** argv) {
   md_path.replace_extension(".md");
   write_file_atomically(md_path, md);
   std::cout << "wrote " << out.string() << "\n";
+  if (a.count("out-terms")) {
+    // The model's spread times: the terms it had, its range level, the base terms and the added one.
+    infer::IntensitySpreadTerms t;
+    t.source = command;
+    t.terms = o.spread_terms;
+    t.terms.push_back(r.range_level);
+    for (const auto& x : r.terms) t.terms.push_back(x);
+    const fs::path tp = a["out-terms"].as<std::string>();
+    if (tp.has_parent_path()) fs::create_directories(tp.parent_path());
+    write_file_atomically(tp, infer::intensity_spread_terms_json(t));
+    std::cout << "wrote " << tp.string() << " (" << t.terms.size() << " terms)\n";
+  }
   return 0;
 }
 

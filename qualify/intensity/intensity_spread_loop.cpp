@@ -39,8 +39,10 @@ double degrees_0_360(double rad) { return std::fmod(rad * 180 / kSpreadPi + 720.
 namespace {
 
 // Residuals against a checkpoint's mean, each with the log-scale its spread head predicts.
-std::vector<LoopResidual> model_residuals(const data::Dataset& ds, const std::string& checkpoint) {
+std::vector<LoopResidual> model_residuals(const data::Dataset& ds, const std::string& checkpoint,
+                                          const std::vector<sensor::RangeNoiseTerm>& terms) {
   infer::IntensityModel model = infer::IntensityModel::load(checkpoint);
+  model.set_spread_terms(terms);
   const auto head = model.spread();
   if (!head)
     throw Error(checkpoint + ": /config/unet.heads: no spread head (train with --heads mean,log_scale_laplace)");
@@ -80,8 +82,10 @@ std::vector<LoopResidual> model_residuals(const data::Dataset& ds, const std::st
 std::vector<LoopResidual> intensity_spread_residuals(const data::Dataset& ds, const IntensitySpreadOptions& o) {
   const std::string where = "loop intensity-spread";
   for (const char* c : {"range", "class", "material", "azimuth", "incidence"}) spread_channel(ds, c, where);
+  if (o.model.empty() && !o.spread_terms.empty())
+    throw Error(where + ": spread terms apply to a model's spread head: give the model too");
   if (!o.model.empty()) {
-    auto out = model_residuals(ds, o.model);
+    auto out = model_residuals(ds, o.model, o.spread_terms);
     if (out.empty()) throw Error(where + ": the scans have no returns");
     return out;
   }

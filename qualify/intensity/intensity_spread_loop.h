@@ -22,6 +22,7 @@
 
 #include "data/dataset.h"
 #include "data/planted_scans.h"
+#include "sensor/range_noise.h"
 #include "qualify/range_noise/range_noise_loop.h"
 
 namespace lidarsim::qualify {
@@ -34,6 +35,9 @@ struct IntensitySpreadOptions {
   // against its mean, and its predicted log-scale is each residual's offset, so the loop finds what
   // the spread the simulation samples from lacks. Its scans must be of places it did not train on.
   std::string model;
+  // Terms the model's spread carries already (infer/intensity_spread_terms.h): the loop judges
+  // what the head with them lacks. Only with a model.
+  std::vector<sensor::RangeNoiseTerm> spread_terms;
 };
 
 // One residual per cell with a return (every cell is held out once by the intensity folds; with

@@ -500,6 +500,17 @@ RangeLoopResult loop_range_noise(const std::vector<LoopResidual>& target, const 
     r.b_after = r.b_before;
   }
   r.error_after = log_scale_error(target, r.b_after);
+  r.terms = model_terms;
+  {
+    // The range level relative to its mean over the residuals: a spread by range, not a global scale.
+    double mean = 0;
+    long long n = 0;
+    for (std::size_t i = 0; i < target.size(); ++i)
+      if (const int k = dt.bins[0][i]; k >= 0) mean += full.table[0][k], ++n;
+    std::vector<double> level = full.table[0];
+    for (double& v : level) v -= n ? mean / n : 0.0;
+    r.range_level = term_of(base_features[0], level, "the base's log-scale per range bin relative to its mean, as a factor");
+  }
   if (o.fit_range_model) r.model = model_of(target, std::move(model_terms), extra);
   return r;
 }

@@ -90,6 +90,11 @@ struct RangeLoopResult {
   std::vector<int> fold;
   std::vector<float> b_before, b_after;
   sensor::RangeNoiseModel model;  // the range table refitted with the base terms and the added one (fit_range_model)
+  // The base terms refitted on every residual and the added one (the model's terms), and the base's
+  // range level exp(log-scale per range bin less its mean over the residuals): with offsets, the
+  // factor by which the model's spread by range is off.
+  std::vector<sensor::RangeNoiseTerm> terms;
+  sensor::RangeNoiseTerm range_level;
 };
 
 // The loop; `reference` = the residuals the base is fitted on (the target itself for a loop on

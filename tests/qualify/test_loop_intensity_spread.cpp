@@ -101,7 +101,13 @@ TEST(LoopIntensitySpread, AgainstACheckpointsSpreadHeadNamesOnlyWhatTheHeadLacks
   EXPECT_EQ(control.added_feature, "");
   EXPECT_NEAR(control.error_before, 1.645, 0.1);  // a right Laplace's: the variance of log Exp(1), pi^2 / 6
   const auto wider = laplace_around_constant([](int row) { return row >= 30 && row < 40 ? 2.5 : 1.0; }, 8);
-  EXPECT_EQ(qualify::loop_intensity_spread(wider, o).added_feature, "laser");
+  const auto found = qualify::loop_intensity_spread(wider, o);
+  EXPECT_EQ(found.added_feature, "laser");
+  // Closing the loop: with the term it found on the head's spread, nothing is left to add.
+  o.spread_terms = {found.candidates[found.added].term};
+  const auto closed = qualify::loop_intensity_spread(wider, o);
+  EXPECT_EQ(closed.added_feature, "");
+  EXPECT_LT(closed.error_before, found.error_before);
 }
 
 // The loop models log|e| less each residual's offset: a spread per laser that the offsets hold
