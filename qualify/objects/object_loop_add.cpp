@@ -4,6 +4,7 @@
 #include <algorithm>
 
 #include "qualify/objects/object_loop.h"
+#include "qualify/objects/object_spread_forms.h"
 #include "qualify/report.h"
 
 namespace lidarsim::qualify::obj {
@@ -163,9 +164,11 @@ void add_further(LoopContext& L, ObjectLoopResult& R) {
 // block-bootstrap interval lies above 0 and the KPI manager can compute its feature.
 void add_spread(const LoopContext& L, ObjectLoopResult& R) {
   if (R.top_added() || R.spread_ranking.empty()) return;
-  const int i = R.spread_ranking.front();
+  const int first = R.spread_ranking.front();
+  const Candidate& picked = R.candidates[first];
+  if (picked.score < R.options.threshold || picked.interval[0] <= 0 || !clears_selection(picked)) return;
+  const int i = best_form_of_picked(R.candidates, first, R.options.threshold);  // object_spread_forms.h
   const Candidate& sp = R.candidates[i];
-  if (sp.score < R.options.threshold || sp.interval[0] <= 0 || !clears_selection(sp)) return;
   if (!in_manager(kObjectFeatures[sp.feature])) {
     R.decisions[i] = {DecisionKind::NotInManager, "not added: the KPI manager cannot compute \"" +
                                                       kObjectFeatures[sp.feature] +
@@ -176,7 +179,11 @@ void add_spread(const LoopContext& L, ObjectLoopResult& R) {
   R.decisions[i] = {DecisionKind::Added, "added: the held-out spread error of " + kObjectTargets[sp.target] +
                                              " falls from " + fmt(sp.error_before, 4) + " to " +
                                              fmt(sp.error_after, 4) + "; score " + fmt(sp.score, 3) +
-                                             " with 95 % interval " + interval_text(sp.interval) + " above 0"};
+                                             " with 95 % interval " + interval_text(sp.interval) + " above 0" +
+                                             (i == first ? std::string()
+                                                         : "; the best form of " + kObjectFeatures[sp.feature] +
+                                                               " on this target, whose " + name_of(picked) +
+                                                               " clears the bound over the spread forms")};
   R.spread = AddedSpread{};
   R.spread->candidate = i;
   // The form's sigma per held-out record, before and after, as the candidate was judged.
@@ -210,7 +217,9 @@ void settle_untried(ObjectLoopResult& R) {
                                                "look feature-dependent" + again};
       else
         d = {DecisionKind::OneSpreadForm, "not tried: only the best spread form is tried per run, and " +
-                                              name_of(R.candidates[R.spread_ranking.front()]) + " ranks first" +
+                                              name_of(R.candidates[R.spread ? R.spread->candidate
+                                                                            : R.spread_ranking.front()]) +
+                                              " ranks first" +
                                               again};
     } else if (c.target != top.target && !in_manager(fn)) {
       d = {DecisionKind::NotInManager, "not added: the KPI manager cannot compute \"" + fn +

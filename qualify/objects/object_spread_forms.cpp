@@ -74,4 +74,18 @@ ScaleLine fit_scale_line(const std::vector<double>& x, const std::vector<double>
   return out;
 }
 
+int best_form_of_picked(const std::vector<Candidate>& cands, int picked, double threshold) {
+  if (picked < 0 || picked >= static_cast<int>(cands.size())) return picked;
+  const Candidate& p = cands[picked];
+  int best = picked;
+  for (size_t i = 0; i < cands.size(); ++i) {
+    const Candidate& c = cands[i];
+    if (!is_spread(c.kind) || c.feature != p.feature || c.target != p.target || c.fold_set != p.fold_set ||
+        used_by_model(c))
+      continue;
+    if (c.score >= threshold && c.interval[0] > 0 && c.score > cands[best].score) best = static_cast<int>(i);
+  }
+  return best;
+}
+
 }  // namespace lidarsim::qualify::obj

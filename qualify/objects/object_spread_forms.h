@@ -13,6 +13,7 @@
 // held-out score of the form is its gain over the model.
 #include <vector>
 
+#include "qualify/objects/object_candidates.h"
 #include "qualify/residual.h"
 
 namespace lidarsim::qualify::obj {
@@ -28,5 +29,19 @@ struct ScaleLine {
 // x: the feature; u2: squared residual in units of its cell's sd; group[i] in [0, groups).
 ScaleLine fit_scale_line(const std::vector<double>& x, const std::vector<double>& u2, const std::vector<int>& group,
                          int groups);
+
+// The spread form to add once `picked` (a spread form whose score clears `threshold`, whose own 95 %
+// interval lies above 0 and whose selection-aware bound does too) has been picked: of the spread
+// forms of its feature and target, the one with the best held-out score whose score clears the
+// threshold and whose own interval lies above 0 (picked itself when none scores higher). The bound
+// (object_selection.h) answers "does any of some 240 spread forms explain a spread?", and it is the
+// winner's curse over all of them that it corrects; once one form of a feature x target clears
+// it, which of that feature's few forms (table, window, line) to add is a choice among forms
+// judged on the same held-out tracks. A line's bootstrap interval is wider than the table's (it
+// rests on the few objects at the feature's far end, where it differs from the table most), so
+// a line that beats the table held out could fail the bound the table clears (a speed spread:
+// line 0.237 [0.111, 0.488], table 0.206 [0.171, 0.246]; against the truth the line cuts the
+// sigma error to 0.42 x, the table to 0.70 x).
+int best_form_of_picked(const std::vector<Candidate>& cands, int picked, double threshold);
 
 }  // namespace lidarsim::qualify::obj
