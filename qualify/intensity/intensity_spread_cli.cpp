@@ -7,13 +7,13 @@
 
 #include <filesystem>
 #include <iostream>
-#include <sstream>
 
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "infer/intensity_spread_terms.h"
 #include "qualify/intensity/intensity.h"
 #include "qualify/intensity/intensity_spread_loop.h"
+#include "qualify/range_noise/loop_rounds.h"
 
 namespace lidarsim::qualify {
 
@@ -32,23 +32,10 @@ cxxopts::Options intensity_spread_cli_options() {
     ("out-terms", "with --model: the terms its spread needs (the given ones, the range level and the last round's), for lidar-infer --spread-terms", cxxopts::value<std::string>())
     ("split", "the intensity folds' split of the columns", cxxopts::value<std::string>()->default_value("guarded"))
     ("intensity-folds", "rotated guarded folds for the out-of-fold mean (1 or 4)", cxxopts::value<int>()->default_value("4"))
-    ("base-terms", "features the spread's base already carries, comma-separated", cxxopts::value<std::string>()->default_value(""))
-    ("rounds", "rerun with the added term in the base, up to this many times", cxxopts::value<int>()->default_value("1"))
-    ("folds", "azimuth folds of the spread loop", cxxopts::value<int>()->default_value("4"))
-    ("sectors", "azimuth sectors (a multiple of --folds)", cxxopts::value<int>()->default_value("64"))
-    ("guard-deg", "guard band at each boundary between folds, deg", cxxopts::value<double>()->default_value("0.5"))
-    ("min-gain", "smallest held-out cut added", cxxopts::value<double>()->default_value("0.002"))
     ("report", "report JSON (a Markdown beside it)", cxxopts::value<std::string>())
     ("h,help", "this help");
+  add_loop_round_options(opts);
   return opts;
-}
-
-std::vector<std::string> comma_list(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty()) out.push_back(x);
-  return out;
 }
 
 }  // namespace
@@ -69,16 +56,7 @@ int run_loop_intensity_spread(int argc, char** argv) {
   if ((a.count("spread-terms") || a.count("out-terms")) && !a.count("model"))
     throw Error("--spread-terms, --out-terms: need --model (terms on a checkpoint's spread head)");
   if (a.count("spread-terms")) o.spread_terms = infer::load_intensity_spread_terms(a["spread-terms"].as<std::string>()).terms;
-  o.loop.folds = a["folds"].as<int>(), o.loop.sectors = a["sectors"].as<int>();
-  o.loop.guard_deg = a["guard-deg"].as<double>(), o.loop.min_gain = a["min-gain"].as<double>();
-  if (!(o.loop.guard_deg >= 0) || o.loop.guard_deg * 2 >= 360.0 / std::max(1, o.loop.sectors))
-    throw Error("--guard-deg: must be >= 0 and less than half a sector");
-  o.loop.base_terms = comma_list(a["base-terms"].as<std::string>());
-  for (const auto& t : o.loop.base_terms)
-    if (t != "laser" && t != "range" && t != "class" && t != "material" && t != "azimuth" && t != "incidence" &&
-        t != "intensity" && t != "range growth")
-      throw Error("--base-terms: unknown feature \"" + t +
-                  "\" (laser, range, class, material, azimuth, incidence, intensity, range growth)");
+  o.loop = loop_options_from(a);
   const std::string dir = a["semantickitti"].as<std::string>();
   const data::Dataset ds = import_for_qualify(dir);
   std::string command = "lidar-qualify loop intensity-spread";
@@ -87,25 +65,9 @@ int run_loop_intensity_spread(int argc, char** argv) {
                            {"base", o.model.empty() ? "the class x range lookup's out-of-fold mean; spread: a log-scale per 5 m range bin"
                                                     : "the checkpoint " + o.model + ": its mean and its spread head"}};
   std::string md;
-  const int rounds = std::max(1, a["rounds"].as<int>());
-  RangeLoopResult r;
-  for (int k = 0; k < rounds; ++k) {
-    r = loop_intensity_spread(ds, o);
-    nlohmann::json j = intensity_spread_json(r);
-    j["base_terms"] = o.loop.base_terms;
-    report["rounds"].push_back(j);
-    std::string terms;
-    for (const auto& t : o.loop.base_terms) terms += (terms.empty() ? "" : ", ") + t;
-    md += to_markdown(r, command, "intensity spread") + "\nBase terms (round " + std::to_string(k + 1) + "): " + (terms.empty() ? "none" : terms) + "\n\n";
-    std::cout << "round " << k + 1 << ": " << r.scans << " scans, " << r.residuals << " returns (" << r.scored
-              << " scored); held-out log-scale error " << r.error_before << " -> " << r.error_after << ", added: "
-              << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
-    for (const auto& c : r.candidates)
-      std::cout << "  " << c.feature << " " << to_string(c.form) << ": cut " << c.score << " (bound " << c.selection_lower
-                << ") " << c.decision << ": " << c.reason << "\n";
-    if (r.added < 0) break;
-    o.loop.base_terms.push_back(base_term_name(r.candidates[r.added]));
-  }
+  const RangeLoopResult r = run_loop_rounds(
+      a, o.loop, [&](const RangeLoopOptions& lo) { IntensitySpreadOptions x = o; x.loop = lo; return loop_intensity_spread(ds, x); },
+      [](const RangeLoopResult& x) { return intensity_spread_json(x); }, command, "intensity spread", "returns", report, md);
   const fs::path out = a["report"].as<std::string>();
   if (out.has_parent_path()) fs::create_directories(out.parent_path());
   write_file_atomically(out, report.dump(2) + "\n");

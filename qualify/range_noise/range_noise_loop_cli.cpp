@@ -9,11 +9,11 @@
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
-#include <sstream>
 
 #include "common/atomic_file.h"
 #include "common/error.h"
 #include "qualify/range_noise/range_noise_cli.h"
+#include "qualify/range_noise/loop_rounds.h"
 #include "qualify/range_noise/range_noise_loop.h"
 
 namespace lidarsim::qualify {
@@ -32,24 +32,11 @@ cxxopts::Options loop_options() {
     ("sensor", "beam layout JSON (default for SemanticKITTI: the built-in HDL-64E)", cxxopts::value<std::string>())
     ("class-table", "foreign ontology -> ours (data/ontologies/*.csv)", cxxopts::value<std::string>())
     ("max-scans", "at most this many scans (0: all)", cxxopts::value<int>()->default_value("0"))
-    ("base-terms", "features the base already carries, comma-separated", cxxopts::value<std::string>()->default_value(""))
-    ("rounds", "rerun with the added term in the base, up to this many times", cxxopts::value<int>()->default_value("1"))
-    ("folds", "azimuth folds", cxxopts::value<int>()->default_value("4"))
-    ("sectors", "azimuth sectors (a multiple of --folds)", cxxopts::value<int>()->default_value("64"))
-    ("guard-deg", "guard band at each boundary between folds, deg", cxxopts::value<double>()->default_value("0.5"))
-    ("min-gain", "smallest held-out cut added", cxxopts::value<double>()->default_value("0.002"))
     ("report", "report JSON (a Markdown beside it)", cxxopts::value<std::string>())
     ("out-model", "range-noise model with the terms (version 2 when it has any)", cxxopts::value<std::string>())
     ("h,help", "this help");
+  add_loop_round_options(opts);
   return opts;
-}
-
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty()) out.push_back(x);
-  return out;
 }
 
 }  // namespace
@@ -70,18 +57,7 @@ int run_loop_range_noise(int argc, char** argv) {
   if (dataset != "semantickitti" && (!a.count("sensor") || !a.count("class-table")))
     throw Error("--sensor, --class-table: required for --nuscenes-lidarseg");
   const pgm::BeamLayout layout = a.count("sensor") ? pgm::BeamLayout::from_file(a["sensor"].as<std::string>()) : pgm::BeamLayout::hdl64e();
-  RangeLoopOptions o;
-  o.folds = a["folds"].as<int>(), o.sectors = a["sectors"].as<int>();
-  o.guard_deg = a["guard-deg"].as<double>(), o.min_gain = a["min-gain"].as<double>();
-  if (!(o.guard_deg >= 0) || o.guard_deg * 2 >= 360.0 / std::max(1, o.sectors))
-    throw Error("--guard-deg: must be >= 0 and less than half a sector");
-  o.base_terms = split(a["base-terms"].as<std::string>());
-  for (const auto& t : o.base_terms) {
-    const auto& known = sensor::range_noise_term_features();
-    if (t != "range growth" && std::find(known.begin(), known.end(), t) == known.end())
-      throw Error("--base-terms: unknown feature \"" + t + "\" (laser, range, class, material, azimuth, incidence, intensity, range growth)");
-  }
-  const int rounds = std::max(1, a["rounds"].as<int>());
+  RangeLoopOptions o = loop_options_from(a);
   const auto scans = read_labelled_scans(dataset, dir, a.count("class-table") ? a["class-table"].as<std::string>() : "",
                                          a["max-scans"].as<int>());
   std::vector<LoopResidual> target;
@@ -93,24 +69,9 @@ int run_loop_range_noise(int argc, char** argv) {
   for (int i = 0; i < argc; ++i) command += std::string(" ") + (i == 0 ? "loop range-noise" : argv[i]);
   nlohmann::json report = {{"command", command}, {"data", dir}, {"rounds", nlohmann::json::array()}};
   std::string md;
-  RangeLoopResult r;
-  for (int k = 0; k < rounds; ++k) {
-    r = loop_range_noise(target, target, o);
-    nlohmann::json j = to_json(r);
-    j["base_terms"] = o.base_terms;
-    report["rounds"].push_back(j);
-    std::string terms;
-    for (const auto& t : o.base_terms) terms += (terms.empty() ? "" : ", ") + t;
-    md += to_markdown(r, command) + "\nBase terms (round " + std::to_string(k + 1) + "): " + (terms.empty() ? "none" : terms) + "\n\n";
-    std::cout << "round " << k + 1 << ": " << r.scans << " scans, " << r.residuals << " residuals (" << r.scored
-              << " scored); held-out log-scale error " << r.error_before << " -> " << r.error_after << ", added: "
-              << (r.added_feature.empty() ? "nothing" : r.added_feature) << "\n";
-    for (const auto& c : r.candidates)
-      std::cout << "  " << c.feature << " " << to_string(c.form) << ": cut " << c.score << " (bound " << c.selection_lower << ") "
-                << c.decision << ": " << c.reason << "\n";
-    if (r.added < 0) break;
-    o.base_terms.push_back(base_term_name(r.candidates[r.added]));
-  }
+  const RangeLoopResult r = run_loop_rounds(
+      a, o, [&](const RangeLoopOptions& lo) { return loop_range_noise(target, target, lo); },
+      [](const RangeLoopResult& x) { return to_json(x); }, command, "range noise", "residuals", report, md);
   const fs::path out = a["report"].as<std::string>();
   if (out.has_parent_path()) fs::create_directories(out.parent_path());
   write_file_atomically(out, report.dump(2) + "\n");
