@@ -12,35 +12,12 @@
 #include "common/error.h"
 #include "infer/intensity_model.h"
 #include "infer/intensity_spread_terms.h"
-#include "nn/checkpoint.h"
-#include "nn/heads.h"
-#include "nn/unet.h"
-#include "pgm/encoder.h"
 #include "pgm/materials.h"
-#include "tests/support/temp_path.h"
+#include "tests/support/constant_spread_checkpoint.h"
 
 using namespace lidarsim;
 
 namespace {
-
-// Every output is the head's bias: mean 0.4, Laplace scale 0.02.
-std::filesystem::path spread_terms_checkpoint() {
-  const std::filesystem::path dir = lidarsim::testing::temp_path("spread_terms");
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  pgm::EncoderConfig encoder;
-  encoder.channels = {"range", "class", "material"};
-  nn::UNetConfig config{encoder.input_channels(), 2, 4, 2, 0};
-  config.heads = {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace};
-  nn::UNet model(config);
-  std::fill(model.params().values(), model.params().values() + model.params().size(), 0.f);
-  float* bias = model.params().value(model.params().find("head/bias"));
-  bias[0] = 0.4f, bias[1] = std::log(0.02f);
-  nn::Checkpoint meta;
-  meta.attributes["encoder"] = encoder.to_json();
-  nn::save_checkpoint(dir / "ck.h5", model, nullptr, meta);
-  return dir / "ck.h5";
-}
 
 pgm::PolarGridMap spread_terms_map() {
   pgm::PolarGridMap map(pgm::BeamLayout::uniform(16, 2.0, -24.0, 64), {"range", "class", "material", "intensity", "mask"});
@@ -82,7 +59,9 @@ TEST(IntensitySpreadTerms, RoundTripAndErrorsNameTheField) {
 
 TEST(IntensitySpreadTerms, FactorsMultiplyTheHeadsScaleAndTheDrawsFollow) {
   const pgm::PolarGridMap map = spread_terms_map();
-  infer::IntensityModel model = infer::IntensityModel::load(spread_terms_checkpoint());
+  // Mean 0.4, Laplace scale 0.02 at every cell.
+  infer::IntensityModel model =
+      infer::IntensityModel::load(lidarsim::testing::constant_spread_checkpoint("spread_terms", 0.4f, 0.02f));
   std::vector<float> mean, plain, scaled;
   model.predict_distribution(map, mean, plain);
   // Rows 0-7 at 3 x, and cars (columns 0-31) at 2 x: the two multiply.

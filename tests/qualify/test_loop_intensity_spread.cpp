@@ -5,21 +5,17 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <filesystem>
 #include <cmath>
+#include <filesystem>
 #include <string>
 
 #include "common/error.h"
 #include "data/planted_scans.h"
-#include "nn/checkpoint.h"
-#include "nn/heads.h"
-#include "nn/unet.h"
-#include "pgm/encoder.h"
 #include "qualify/intensity/intensity_spread_loop.h"
 #include "qualify/similarity.h"
+#include "tests/support/constant_spread_checkpoint.h"
 #include "tests/support/reference_scans.h"
 #include "tests/support/shared_data.h"
-#include "tests/support/temp_path.h"
 
 using namespace lidarsim;
 
@@ -50,26 +46,6 @@ SpreadRun run_spread(const qualify::PlantedSpread& e, std::uint64_t seed) {
   return r;
 }
 
-// A checkpoint whose every output is its head's bias: mean 0.3 and a Laplace scale of 0.02 at
-// every cell (the weights 0), so its spread is known exactly.
-std::filesystem::path constant_spread_checkpoint() {
-  const std::filesystem::path dir = lidarsim::testing::temp_path("spread_loop_model");
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  pgm::EncoderConfig encoder;
-  encoder.channels = {"range", "class", "material"};
-  nn::UNetConfig config{encoder.input_channels(), 2, 4, 2, 0};
-  config.heads = {nn::HeadKind::mean, nn::HeadKind::log_scale_laplace};
-  nn::UNet model(config);
-  std::fill(model.params().values(), model.params().values() + model.params().size(), 0.f);
-  float* bias = model.params().value(model.params().find("head/bias"));
-  bias[0] = 0.3f, bias[1] = std::log(0.02f);
-  nn::Checkpoint meta;
-  meta.attributes["encoder"] = encoder.to_json();
-  nn::save_checkpoint(dir / "ck.h5", model, nullptr, meta);
-  return dir / "ck.h5";
-}
-
 // The geometry with intensity 0.3 + Laplace(0.02 x factor(row)) at every return.
 template <class Factor>
 data::Dataset laplace_around_constant(Factor&& factor, std::uint64_t seed) {
@@ -92,7 +68,7 @@ data::Dataset laplace_around_constant(Factor&& factor, std::uint64_t seed) {
 // the head predicts adds nothing, a block of lasers it does not is named.
 TEST(LoopIntensitySpread, AgainstACheckpointsSpreadHeadNamesOnlyWhatTheHeadLacks) {
   qualify::IntensitySpreadOptions o;
-  o.model = constant_spread_checkpoint().string();
+  o.model = lidarsim::testing::constant_spread_checkpoint("spread_loop_model", 0.3f, 0.02f).string();
   const auto as_predicted = laplace_around_constant([](int) { return 1.0; }, 7);
   const auto residuals = qualify::intensity_spread_residuals(as_predicted, o);
   ASSERT_FALSE(residuals.empty());
