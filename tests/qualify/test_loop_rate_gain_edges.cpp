@@ -55,3 +55,37 @@ TEST(RateGainEdges, ADropoutWhoseRateDriftsBeyondTheEdgeIsAStepAndCarriesItsGain
   EXPECT_LT(p45, 0.25) << "beyond the fit records the dropout goes on (the base gave " << q[0][4] << ")";
   EXPECT_GT(p45, 0.05);
 }
+
+// A dropout beyond 15.5 m, in the middle of one of the 40 equal-count bins (1 m each) the window is
+// searched on: the edge is refined on bins 4 times finer, so the objects between 15 and 16 m are on
+// the right side of it and the gain is the dropout's (found on the coarse bins alone: an edge at 15
+// or 16 m, and a gain fitted against the row the objects share).
+TEST(RateGainEdges, TheEdgeIsRefinedWithinTheBinItWasFoundIn) {
+  GainEdgesRecords r;
+  int i_before = 0, i_beyond = 0;
+  for (int i = 0; i < 1600; ++i) {
+    const double x = 0.0125 + 40.0 * i / 1600;
+    const bool beyond = x >= 15.5;
+    const double p = beyond ? 0.09 : 0.9;
+    const int k = beyond ? i_beyond++ : i_before++;
+    r.x.push_back(x), r.y.push_back(std::floor((k + 1) * p) - std::floor(k * p));
+    r.cls.push_back(0), r.cell.push_back(static_cast<int>(x / 10));
+  }
+  sensor::KpiModel base;
+  base.range_bin_edges = {0, 10, 20, 30};
+  base.visibility_bin_edges = {0};
+  const auto q = rate_gain_cells(r.y, std::vector<double>(r.y.size(), 1.0), r.cls, r.cell, 4, 1);
+  base.classes["Car"].detection_probability = {{q[0][0]}, {q[0][1]}, {q[0][2]}, {q[0][3]}};
+  const Refit f = fit_rate_gain(r.x, r.y, r.cls, r.cell, base, 1, 40, 30);
+  ASSERT_TRUE(f.has_gain());
+  const BinnedTable& g = f.gain.pooled;
+  ASSERT_EQ(g.edges.size(), 1u);
+  EXPECT_NEAR(g.edges[0], 15.5, 0.15) << "refined within the 1 m bin";
+  EXPECT_NEAR(g.value[1], 0.1, 0.02) << "the gain beyond the edge";
+  auto predicted = [&](double x) {
+    const int row = static_cast<int>(x / 10);
+    return refit_probability(f, 0, row, x, base.classes.at("Car").detection_probability[row][0]);
+  };
+  EXPECT_NEAR(predicted(15.2), 0.9, 0.05);
+  EXPECT_NEAR(predicted(15.8), 0.09, 0.03);
+}
