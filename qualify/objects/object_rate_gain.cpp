@@ -103,6 +103,25 @@ Grouped group_records(const std::vector<double>& x, const std::vector<double>& y
   return out;
 }
 
+// The cells q as offsets from the base's, for every cell of every class the base models and the
+// groups hold.
+std::map<std::pair<int, int>, double> cell_offsets(const std::vector<Group>& groups,
+                                                   const PerClass<std::vector<double>>& q,
+                                                   const sensor::KpiModel& base, int nvis) {
+  std::map<std::pair<int, int>, double> d;
+  PerClass<bool> fitted{};
+  for (const Group& G : groups) fitted[G.cls] = true;
+  for (int c = 0; c < kObjectClassCount; ++c) {
+    const auto it = base.classes.find(kObjectClasses[c]);
+    if (it == base.classes.end() || !fitted[c]) continue;
+    const auto& dp = it->second.detection_probability;
+    for (int r = 0; r < base.range_bins() && r < static_cast<int>(dp.size()); ++r)
+      for (int v = 0; v < nvis && v < static_cast<int>(dp[r].size()); ++v)
+        d[{c, r * nvis + v}] = q[c][r * nvis + v] - dp[r][v];
+  }
+  return d;
+}
+
 }  // namespace
 
 PerClass<std::vector<double>> rate_gain_cells(const std::vector<double>& y, const std::vector<double>& g,
@@ -188,17 +207,7 @@ Refit fit_rate_gain(const std::vector<double>& x, const std::vector<double>& y, 
     if (b4 < K4 - 1)
       w.edges.push_back(finer.edges[b4]), w.value.push_back(1.0), w.count.push_back(F.N[K4] - F.N[b4 + 1]);
   }
-  // The cells as offsets from the base's, for every cell of every class the base models.
-  PerClass<bool> fitted{};
-  for (const Group& G : groups) fitted[G.cls] = true;
-  for (int c = 0; c < kObjectClassCount; ++c) {
-    const auto it = base.classes.find(kObjectClasses[c]);
-    if (it == base.classes.end() || !fitted[c]) continue;
-    const auto& dp = it->second.detection_probability;
-    for (int r = 0; r < nrange && r < static_cast<int>(dp.size()); ++r)
-      for (int v = 0; v < nvis && v < static_cast<int>(dp[r].size()); ++v)
-        out.d[{c, r * nvis + v}] = best.q[c][r * nvis + v] - dp[r][v];
-  }
+  out.d = cell_offsets(groups, best.q, base, nvis);
   return out;
 }
 

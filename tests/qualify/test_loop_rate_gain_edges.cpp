@@ -48,7 +48,8 @@ TEST(RateGainEdges, ADropoutWhoseRateDriftsBeyondTheEdgeIsAStepAndCarriesItsGain
   const Refit f = fit_rate_gain(r.x, r.y, r.cls, r.cell, base, 1, 40, 30);
   ASSERT_TRUE(f.has_gain());
   const BinnedTable& g = f.gain.pooled;
-  ASSERT_EQ(g.edges.size(), 1u) << "a step, not a window with a far edge at " << (g.edges.size() > 1 ? g.edges[1] : 0.0);
+  ASSERT_EQ(g.edges.size(), 1u) << "a step, not a window with a far edge at "
+                                << (g.edges.size() > 1 ? g.edges[1] : 0.0);
   EXPECT_NEAR(g.edges[0], 15, 0.5);
   EXPECT_LT(g.value[1], 0.2);
   const double p45 = refit_probability(f, 0, 4, 45.0, base.classes.at("Car").detection_probability[4][0]);
