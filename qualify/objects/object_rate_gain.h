@@ -14,7 +14,9 @@
 // that the base's cells miss in the fit split (the row straddling the edge), not the cells it gets
 // wrong elsewhere.
 // The window is chosen on the fit records: every run of up to `fine_bins` equal-count bins of x with
-// at least `min_side` records inside and outside, by the Bernoulli log-likelihood of the joint fit.
+// at least `min_side` records inside and outside, by the Bernoulli log-likelihood of the joint fit,
+// each edge costing the log of the fit records (a change point's BIC); each edge then refined on
+// equal-count bins 4 times finer, within one bin of where it was found.
 #include <vector>
 
 #include "qualify/objects/object_terms.h"
