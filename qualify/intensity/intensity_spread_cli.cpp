@@ -67,7 +67,7 @@ int run_loop_intensity_spread(int argc, char** argv) {
   std::string md;
   const RangeLoopResult r = run_loop_rounds(
       a, o.loop, [&](const RangeLoopOptions& lo) { IntensitySpreadOptions x = o; x.loop = lo; return loop_intensity_spread(ds, x); },
-      [](const RangeLoopResult& x) { return intensity_spread_json(x); }, command, "intensity spread", "returns", report, md);
+      [&](const RangeLoopResult& x) { return intensity_spread_json(x, !o.model.empty()); }, command, "intensity spread", "returns", report, md);
   const fs::path out = a["report"].as<std::string>();
   if (out.has_parent_path()) fs::create_directories(out.parent_path());
   write_file_atomically(out, report.dump(2) + "\n");

@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
-#include <numeric>
 
 #include "common/error.h"
 #include "data/baselines.h"
@@ -33,10 +32,6 @@ int spread_channel(const data::Dataset& ds, const char* name, const std::string&
 }
 
 double degrees_0_360(double rad) { return std::fmod(rad * 180 / kSpreadPi + 720.0, 360.0); }
-
-}  // namespace
-
-namespace {
 
 // Residuals against a checkpoint's mean, each with the log-scale its spread head predicts.
 std::vector<LoopResidual> model_residuals(const data::Dataset& ds, const std::string& checkpoint,
@@ -133,11 +128,12 @@ RangeLoopResult loop_intensity_spread(const data::Dataset& ds, const IntensitySp
   return loop_range_noise(residuals, residuals, lo);
 }
 
-nlohmann::json intensity_spread_json(const RangeLoopResult& r) {
+nlohmann::json intensity_spread_json(const RangeLoopResult& r, bool model) {
   nlohmann::json j = to_json(r);
-  j["metric"] =
-      "held-out mean (log|e| - predicted log-scale)^2 per return, e = measured intensity - the class x range lookup's "
-      "mean fitted out of fold; folds = rotated azimuth sectors with guard bands";
+  j["metric"] = model ? "held-out mean (log|e| - the spread head's log-scale - the loop's base)^2 per return, e = measured "
+                        "intensity - the checkpoint's mean; folds = rotated azimuth sectors with guard bands"
+                      : "held-out mean (log|e| - predicted log-scale)^2 per return, e = measured intensity - the class x "
+                        "range lookup's mean fitted out of fold; folds = rotated azimuth sectors with guard bands";
   for (auto* list : {&j["candidates"], j.contains("added") ? &j["added"] : nullptr}) {
     if (!list) continue;
     auto fix = [](nlohmann::json& c) {

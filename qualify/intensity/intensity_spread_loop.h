@@ -49,8 +49,9 @@ std::vector<LoopResidual> intensity_spread_residuals(const data::Dataset& ds, co
 // only its fit sectors). Throws when ds has no return or lacks a channel it needs.
 RangeLoopResult loop_intensity_spread(const data::Dataset& ds, const IntensitySpreadOptions& o = {});
 
-// The range-noise loop's JSON in intensity's words (growth in intensity per metre).
-nlohmann::json intensity_spread_json(const RangeLoopResult& r);
+// The range-noise loop's JSON in intensity's words (growth in intensity per metre); model: the
+// residuals were against a checkpoint (IntensitySpreadOptions::model).
+nlohmann::json intensity_spread_json(const RangeLoopResult& r, bool model = false);
 
 // `lidar-qualify loop intensity-spread --semantickitti DIR --report R.json [--rounds N]`.
 int run_loop_intensity_spread(int argc, char** argv);
