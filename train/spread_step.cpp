@@ -5,6 +5,8 @@
 #include <cmath>
 #include <string>
 
+#include "nn/loss.h"
+
 namespace lidarsim::train {
 
 namespace {
@@ -25,7 +27,8 @@ std::vector<std::pair<std::size_t, std::size_t>> channel_slices(const nn::ParamA
 }  // namespace
 
 double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& heads, const nn::Tensor& x,
-                             const nn::Tensor& y, const nn::Tensor& m, float spread_weight, SpreadStepBuffers& b) {
+                             const nn::Tensor& y, const nn::Tensor& m, float spread_weight, float lambda, double* l2,
+                             SpreadStepBuffers& b) {
   nn::Tensor &pred = b.pred, &d_pred = b.d_pred, &d_spread = b.d_spread;
   std::vector<float>& spread_grads = b.spread_grads;
   model.forward(x, pred);
@@ -59,12 +62,15 @@ double spread_step_gradients(nn::UNet& model, const std::vector<nn::HeadKind>& h
     for (const auto& slice : channel_slices(params, c, k)) slices.push_back(slice);
   for (const auto& [offset, count] : slices) spread_grads.insert(spread_grads.end(), params.grads() + offset, params.grads() + offset + count);
   params.zero_grads();
+  *l2 = nn::l2_penalty(params, lambda, true);
+  // The L2 term of the other heads' own parameters, added to their gradients below.
+  std::vector<float>& l2_grads = b.l2_grads;
+  l2_grads.clear();
+  for (const auto& [offset, count] : slices) l2_grads.insert(l2_grads.end(), params.grads() + offset, params.grads() + offset + count);
   model.backward(d_pred);  // the mean's MSE: every shared layer, and channel 0's own parameters
   std::size_t at = 0;
-  for (const auto& [offset, count] : slices) {
-    std::copy_n(spread_grads.data() + at, count, params.grads() + offset);
-    at += count;
-  }
+  for (const auto& [offset, count] : slices)
+    for (std::size_t i = 0; i < count; ++i, ++at) params.grads()[offset + i] = spread_grads[at] + l2_grads[at];
   return loss.total;
 }
 

@@ -97,7 +97,7 @@ class TrainingRun {
   data::Metrics validate();
   SpreadMetrics validate_spread_now(const data::SectorSplit* region);
   double train_step(Prefetcher<Batch>& batches, bool& stop);
-  double spread_step(const Batch& batch);
+  double spread_step(const Batch& batch, double& l2);  // sets l2 to the L2 penalty
   EpochReport end_epoch(double epoch_loss, int epoch_steps, std::chrono::steady_clock::time_point epoch_start);
 
   const TrainConfig& config;
@@ -457,8 +457,7 @@ double TrainingRun::train_step(Prefetcher<Batch>& batches, bool& stop) {
       l2 = nn::l2_penalty(model->params(), config.lambda, true);
       model->backward(d_pred);
     } else {
-      data_loss = spread_step(*batch);
-      l2 = nn::l2_penalty(model->params(), config.lambda, true);
+      data_loss = spread_step(*batch, l2);
     }
   } else {
     static const nn::Tensor none;
@@ -472,9 +471,10 @@ double TrainingRun::train_step(Prefetcher<Batch>& batches, bool& stop) {
   return data_loss + l2;
 }
 
-double TrainingRun::spread_step(const Batch& batch) {
+double TrainingRun::spread_step(const Batch& batch, double& l2) {
   if (step == 0) start_spread_at(*model, batch.y, batch.m);
-  return spread_step_gradients(*model, arch.heads, batch.x, batch.y, batch.m, config.spread_weight, spread_buffers);
+  return spread_step_gradients(*model, arch.heads, batch.x, batch.y, batch.m, config.spread_weight, config.lambda, &l2,
+                               spread_buffers);
 }
 
 // The epoch's report: its mean loss and timing, and its validation (with early stopping the inner

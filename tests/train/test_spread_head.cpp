@@ -201,8 +201,12 @@ train::TrainConfig cli_defaults() {
 // the same settings on the same data (its lidar-train, loaded here: format 1). The bits depend on
 // the kernel path (nn/cpu_features.h): the AVX-512 kernels (direct, Winograd) and the AVX2 path
 // (its own Winograd kernels where a batch has >= 1024 pixels per channel, im2col + GEMM below) sum
-// in other orders. dad6902's hash is the AVX-512 one; the AVX2 one is what the AVX2 Winograd
-// kernels give (AMD EPYC, AVX2 only), a pin against changes of that path.
+// in other orders. The AVX2 one is what the AVX2 Winograd kernels give (AMD EPYC, AVX2 only), a
+// pin against changes of that path. The AVX-512 one moved once, with the x86-64-v3 baseline
+// (c9e21c8): the code around the kernels (Eigen, the loss, the optimizer) is compiled for
+// x86-64-v3 since, no longer for the host's AVX-512, and sums in other orders. Measured on an Intel
+// Xeon with AVX-512: dad6902 and c9e21c8's parent, built native, write 9dee35e88d5962fb (dad6902's
+// hash on an AMD EPYC); c9e21c8 and later write the value below.
 TEST(SpreadHead, MeanAloneIsTodaysModelBitForBit) {
   const fs::path dir = temp_dir("bit");
   data::write_dataset(dir / "noisy.h5", noisy_dataset(3, 5));
@@ -227,7 +231,7 @@ TEST(SpreadHead, MeanAloneIsTodaysModelBitForBit) {
   // checked for memory errors there.
   if (lidarsim::testing::kSanitized) GTEST_SKIP() << "weights pin is for the optimised build";
   const bool wide = nn::isa_at_least(nn::Isa::avx512);
-  EXPECT_EQ(hash, wide ? 0x9dee35e88d5962fbull : 0xec1239ed7ed466a0ull) << std::hex << hash << " on the "
+  EXPECT_EQ(hash, wide ? 0x5d019720b159c1fdull : 0xec1239ed7ed466a0ull) << std::hex << hash << " on the "
                                                                       << nn::to_string(nn::active_isa()) << " path";
 }
 
