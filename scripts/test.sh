@@ -11,8 +11,8 @@
 #                   datasets, OSI and the FMU, the commands' bad input, the loops' smoke runs),
 #                   with LIDARSIM_ISA=avx2: the baseline kernels (nn/cpu_features.h), so the AVX2
 #                   path is tested on every machine and the normal pass tests the CPU's widest
-#   at avx2         labels unit and area:nn or area:train again with LIDARSIM_ISA=avx2, on CPUs with
-#                   AVX-512 (the normal pass ran their widest kernels)
+#   at avx2         labels unit:nn and unit:train again with LIDARSIM_ISA=avx2, on CPUs with AVX-512
+#                   (the normal pass ran their widest kernels); labels are <kind>:<folder>
 #   never here      label long: scripts/bench.sh --long, or ctest -L long
 # Budget: CI gives 90 minutes; the whole run must take at most half of that on a 2-core machine
 # three times slower than the fastest we have (measured: docs/testing.md). The time of each phase
@@ -53,10 +53,10 @@ status=0
 phase "tests" ctest --test-dir "$build_dir" --output-on-failure -j"$(nproc)" --timeout 120 -LE long || status=1
 # The normal pass ran the CPU's widest kernels; where the CPU has more than the baseline, the
 # engine's unit tests (kernels, gradient checks, training bits) run again on the AVX2 kernels, so
-# every machine tests the path every x86-64-v3 CPU runs (labels area:nn and area:train).
+# every machine tests the path every x86-64-v3 CPU runs (labels unit:nn and unit:train).
 if grep -qw avx512f /proc/cpuinfo 2>/dev/null; then
   LIDARSIM_ISA=avx2 phase "tests at avx2 (nn, train)" ctest --test-dir "$build_dir" --output-on-failure -j"$(nproc)" \
-    --timeout 120 -L '^unit$' -L '^area:(nn|train)$' || status=1
+    --timeout 120 -L '^unit:(nn|train)$' || status=1
 fi
 
 if [ "$asan" = 1 ]; then
