@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/bf16_round.h"
 #include "nn/big_alloc.h"
 #include "nn/cpu_features.h"
 #include "nn/parallel.h"
@@ -98,14 +99,6 @@ struct Buf {
 // Scratch of one call, per thread: a pure cache, and models running in several threads at once must
 // not share it (only the calling thread touches these objects; the workers get the pointers).
 thread_local Buf tl_pad, tl_wpack;
-
-// Round to nearest even, as the hardware conversion does for the activations.
-std::uint32_t bf16_bits(float f) {
-  std::uint32_t u;
-  std::memcpy(&u, &f, 4);
-  if ((u & 0x7fffffffu) > 0x7f800000u) return (u >> 16) | 0x40u;  // NaN stays NaN
-  return (u + 0x7fffu + ((u >> 16) & 1u)) >> 16;
-}
 
 // Weights [co, ci, 3, 3] -> [out blocks][ci pairs][9][kCB] lanes {bf16 w[o][2p][k], w[o][2p+1][k]}
 // (channel 2p in the low half, as in the input lanes), zero past the last channel.

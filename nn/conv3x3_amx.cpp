@@ -1,0 +1,368 @@
+// GCC 12's AVX-512 intrinsic headers trip its own -W(maybe-)uninitialized (see conv3x3.cpp).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#include "nn/conv3x3_amx.h"
+
+#include "nn/avx512_util.h"
+#include "nn/bf16_round.h"
+#include "nn/big_alloc.h"
+#include "nn/conv3x3_bf16.h"
+#include "nn/cpu_features.h"
+#include "nn/parallel.h"
+#include "nn/staged_tile.h"
+#include "nn/weight_cache.h"
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <vector>
+
+#if LIDARSIM_AVX512_KERNELS
+#include <immintrin.h>
+#endif
+
+namespace lidarsim::nn::detail {
+
+bool conv3x3_amx_available() { return isa_at_least(Isa::amx_bf16); }
+
+void conv3x3_bf16_dispatch(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
+                           const float* weight, const float* bias, int co, bool relu, WeightCache* cache) {
+  if (conv3x3_takes_amx(n, ca + cb, co, h, w))
+    conv3x3_amx_forward_cat(out, a, ca, b, cb, n, h, w, weight, bias, co, relu, cache);
+  else
+    conv3x3_bf16_forward_cat(out, a, ca, b, cb, n, h, w, weight, bias, co, relu, cache);
+}
+
+#if !LIDARSIM_AVX512_KERNELS
+void conv3x3_amx_forward_cat(float*, const float*, int, const float*, int, int, int, int, const float*, const float*,
+                             int, bool, WeightCache*) {}
+bool conv3x3_takes_amx(int, int, int, int, int) { return false; }
+#else
+
+bool conv3x3_takes_amx(int, int, int, int, int) { return conv3x3_amx_available(); }
+
+namespace {
+
+constexpr int kK = 32;            // bf16 per A tile row (64 bytes): the K of one tile step
+constexpr int kN = 16;            // output channels per C tile
+constexpr int kM = 16;            // pixels per C tile
+constexpr int kChunk = 256;       // pixels per task (a multiple of both blocks below)
+// Staged pixels past the last row: the widest pixel block (64) plus the up to 8 neighbours a
+// narrow step reads.
+constexpr int kSlack = 64 + 8;
+constexpr int kStageStride = 64;  // floats per output channel in the write-out stage
+
+// How the 9 taps x ci channels of a pixel's sum are cut into steps of kK products (one A tile
+// row each, read at one pixel offset). With few channels, 32 per step would mostly multiply
+// zeros, so the narrow mode packs pixels tighter:
+//   wide    ci > 16: channels padded to ps = 32 k per pixel, steps (tap, 32-channel block);
+//   narrow  ci <= 16: ps = 4, 8 or 16 channels per pixel, so the 32 bf16 read from pixel p are
+//           32 / ps neighbours in a row, i.e. taps dx .. dx + 32 / ps - 1 of one dy (weights of
+//           taps past dx 2 are zero): 3 steps (ci <= 8) or 6 (ci <= 16) instead of 9.
+// (A tap-folded im2col staging of ci <= 3, one step, measured slower: its staging cost more
+// than the two steps it saved.)
+enum class Mode { wide, narrow };
+
+// The padded pixel space of conv3x3_bf16 (rows of ws = w + 2, h + 2 rows, no front): pixel
+// (y, x) is q = (y + 1) ws + x + 1; tap (dy, dx) of q reads q + (dy - 1) ws + dx - 1. The input
+// is staged there as q-major bf16, ps values per pixel (zeros past ci); step s of pixel q reads
+// kK values from element q ps + aoff[s].
+struct Geom {
+  int h, w, ws, ci;
+  Mode mode;
+  int ps, row_steps = 0;   // values per pixel; narrow: steps per tap row dy
+  long q0, q_end, pixels;  // first valid q, one past the last, staged pixels per image
+  std::vector<long> aoff;
+  Geom(int h_, int w_, int ci_) : h(h_), w(w_), ws(w_ + 2), ci(ci_) {
+    mode = ci <= 16 ? Mode::narrow : Mode::wide;
+    ps = ci <= 4 ? 4 : ci <= 8 ? 8 : (ci + kK - 1) / kK * kK;
+    if (mode == Mode::narrow && ci > 8) ps = 16;
+    q0 = ws + 1;
+    q_end = static_cast<long>(h) * ws + w + 1;
+    pixels = static_cast<long>(h + 2) * ws + kSlack;
+    const auto off = [&](int dy, int dx) { return static_cast<long>(dy - 1) * ws + dx - 1; };
+    if (mode == Mode::narrow) {
+      const int span = kK / ps;  // taps per step
+      row_steps = (3 + span - 1) / span;
+      for (int dy = 0; dy < 3; ++dy)
+        for (int k = 0; k < row_steps; ++k) aoff.push_back(off(dy, k * span) * ps);
+    } else {
+      for (int t = 0; t < 9; ++t)
+        for (int k = 0; k < ps; k += kK) aoff.push_back(off(t / 3, t % 3) * ps + k);
+    }
+  }
+  int steps() const { return static_cast<int>(aoff.size()); }
+  // Which tap and input channel product e (0 .. kK - 1) of step s is; false for a zero.
+  bool tap_channel(int s, int e, int* tap, int* c) const {
+    if (mode == Mode::narrow) {
+      const int dx = s % row_steps * (kK / ps) + e / ps;
+      *tap = 3 * (s / row_steps) + dx, *c = e % ps;
+      return dx < 3 && *c < ci;
+    }
+    const int blocks = ps / kK;
+    *tap = s / blocks, *c = s % blocks * kK + e;
+    return *c < ci;
+  }
+};
+
+// Grow-only, 64-byte aligned scratch (per calling thread, as in conv3x3_bf16.cpp).
+struct Buf {
+  void* p = nullptr;
+  std::size_t n = 0;
+  void* get(std::size_t bytes) {
+    if (bytes > n) {
+      std::free(p);
+      p = nullptr;
+      n = 0;
+      p = aligned_storage(bytes);
+      n = bytes;
+    }
+    return p;
+  }
+  ~Buf() { std::free(p); }
+};
+thread_local Buf tl_in, tl_wpack;
+
+// Weights [co, ci, 3, 3] -> B tiles [co block of 16][step]: 16 rows x 16 columns (output
+// channels) of {bf16 product 2 r, product 2 r + 1} of the step, the pair layout tdpbf16ps
+// multiplies with an A row of kK values; zeros past co and where the step has no product.
+void pack_weights(std::uint32_t* dst, const float* w, int co, const Geom& g) {
+  const int blocks = (co + kN - 1) / kN, steps = g.steps();
+  const auto bits = [&](int o, int s, int e) {
+    int t = 0, c = 0;
+    if (o >= co || !g.tap_channel(s, e, &t, &c)) return 0u;
+    return bf16_bits(w[(static_cast<std::size_t>(o) * g.ci + c) * 9 + t]);
+  };
+  for (int b = 0; b < blocks; ++b)
+    for (int s = 0; s < steps; ++s)
+      for (int r = 0; r < 16; ++r)
+        for (int j = 0; j < kN; ++j) {
+          const int o = b * kN + j;
+          dst[((static_cast<std::size_t>(b) * steps + s) * 16 + r) * kN + j] =
+              bits(o, s, 2 * r) | bits(o, s, 2 * r + 1) << 16;
+        }
+}
+
+}  // namespace
+
+// Everything from here to the pop uses AVX-512 and AMX; only the functions of namespace
+// avx512_amx do (the ISA scan, tests/isa, accepts them by that name).
+#if defined(__clang__)
+#pragma clang attribute push(                                                                            \
+    __attribute__((target("avx512f,avx512bw,avx512vl,avx512dq,avx512bf16,amx-tile,amx-bf16"))), \
+    apply_to = function)
+#else
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512bw,avx512vl,avx512dq,avx512bf16,amx-tile,amx-bf16")
+#endif
+namespace avx512_amx {
+namespace {
+
+// Palette 1, all 8 tiles 16 rows x 64 bytes: C (16 pixels x 16 fp32), A (16 pixels x 32 bf16),
+// B (16 channel pairs x 16 outputs x 2 bf16) all have that shape. A constant in memory: GCC's
+// _tile_loadconfig tells the compiler it reads 8 bytes only, so stores to a local config
+// could be dropped (they were: SIGILL at the first tile instruction).
+struct alignas(64) TileConfig {
+  std::uint8_t palette, start_row, reserved[14];
+  std::uint16_t colsb[16];
+  std::uint8_t rows[16];
+};
+constexpr TileConfig kTileConfig = {1, 0, {}, {64, 64, 64, 64, 64, 64, 64, 64}, {16, 16, 16, 16, 16, 16, 16, 16}};
+static_assert(sizeof(TileConfig) == 64, "the 64-byte tile configuration");
+
+void load_tile_config() { _tile_loadconfig(&kTileConfig); }
+
+// The borders of row y's staged pixels zeroed (pixels (y, -1) and (y, w)), and with the first /
+// last row the top border row / the bottom border row and slack: every staged pixel is written.
+void zero_borders(std::uint16_t* x, const Geom& g, int y) {
+  const std::size_t ps = g.ps;
+  std::uint16_t* row = x + static_cast<std::size_t>(y + 1) * g.ws * ps;  // pixel (y, -1)
+  if (y == 0) std::memset(x, 0, static_cast<std::size_t>(g.ws) * ps * 2);
+  if (y == g.h - 1) {
+    const std::size_t from = static_cast<std::size_t>(g.h + 1) * g.ws * ps;
+    std::memset(x + from, 0, (g.pixels * ps - from) * 2);
+  }
+  std::memset(row, 0, ps * 2);
+  std::memset(row + (g.w + 1) * ps, 0, ps * 2);
+}
+
+// One row of the input (channel pointers ch[0, ci) of one image) into the staged buffer x of
+// that image: 16 pixels x 16 channels at a time, transposed and rounded to bf16 by the hardware
+// conversion (round to nearest even, as conv3x3_bf16's); ps < 16: the first ps channels.
+void stage_row(std::uint16_t* x, const float* const* ch, const Geom& g, int y) {
+  const std::size_t ps = g.ps;
+  zero_borders(x, g, y);
+  std::uint16_t* row = x + (static_cast<std::size_t>(y + 1) * g.ws + 1) * ps;  // pixel (y, 0)
+  const std::size_t at = static_cast<std::size_t>(y) * g.w;
+  const __mmask16 cmask = static_cast<__mmask16>(g.ps >= 16 ? 0xffffu : (1u << g.ps) - 1);
+  for (int x0 = 0; x0 < g.w; x0 += 16) {
+    const int nv = std::min(16, g.w - x0);
+    const __mmask16 m = static_cast<__mmask16>((1u << nv) - 1);
+    std::uint16_t* px = row + x0 * ps;
+    for (int c0 = 0; c0 < g.ps; c0 += 16) {
+      __m512 r[16], col[16];
+      for (int j = 0; j < 16; ++j)
+        r[j] = c0 + j < g.ci ? _mm512_maskz_loadu_ps(m, ch[c0 + j] + at + x0) : _mm512_setzero_ps();
+      avx512::transpose16(r, col);  // col[p]: pixel p's 16 channels
+      for (int p = 0; p < nv; ++p)
+        _mm256_mask_storeu_epi16(px + p * ps + c0, cmask, reinterpret_cast<__m256i>(_mm512_cvtneps_pbh(col[p])));
+    }
+  }
+}
+
+// C tile t holds 16 pixels (rows) x 16 outputs; into the stage as outputs (rows) x pixels.
+void tile_to_stage(float* stage, const float* c) {
+  __m512 r[16], col[16];
+  for (int i = 0; i < 16; ++i) r[i] = _mm512_load_ps(c + 16 * i);
+  avx512::transpose16(r, col);
+  for (int o = 0; o < 16; ++o) _mm512_store_ps(stage + o * kStageStride, col[o]);
+}
+
+// 32 pixels from q x 32 outputs (B tiles of two output blocks): C tiles 0-3 (pixel half i, output
+// half j: tile 2 i + j), A tiles 4-5, B tiles 6-7; every output sums its steps in order, so the
+// bits do not depend on the block or the thread that computes it.
+void block_2x2(float* stage, const std::uint16_t* x, const Geom& g, const std::uint32_t* w0,
+               const std::uint32_t* w1, long q) {
+  const long stride = g.ps * 2L, a16 = 16L * g.ps;  // bytes per pixel; elements per 16 pixels
+  const std::uint16_t* xq = x + q * g.ps;
+  const long* aoff = g.aoff.data();
+  const int steps = g.steps();
+  _tile_zero(0);
+  _tile_zero(1);
+  _tile_zero(2);
+  _tile_zero(3);
+  for (int s = 0; s < steps; ++s) {
+    const std::uint16_t* a = xq + aoff[s];
+    _tile_loadd(4, a, stride);
+    _tile_loadd(6, w0 + s * 256, 64);
+    _tile_loadd(5, a + a16, stride);
+    _tile_loadd(7, w1 + s * 256, 64);
+    _tile_dpbf16ps(0, 4, 6);
+    _tile_dpbf16ps(1, 4, 7);
+    _tile_dpbf16ps(2, 5, 6);
+    _tile_dpbf16ps(3, 5, 7);
+  }
+  alignas(64) float c[4][256];
+  _tile_stored(0, c[0], 64);
+  _tile_stored(1, c[1], 64);
+  _tile_stored(2, c[2], 64);
+  _tile_stored(3, c[3], 64);
+  for (int i = 0; i < 2; ++i)
+    for (int j = 0; j < 2; ++j) tile_to_stage(stage + 16 * j * kStageStride + 16 * i, c[2 * i + j]);
+}
+
+// 64 pixels from q x 16 outputs (one output block: co 16, or the odd last block): C tiles 0-3
+// (pixel quarters), B tile 4, A tiles 5-7 in turn; the same sum order as block_2x2.
+void block_4x1(float* stage, const std::uint16_t* x, const Geom& g, const std::uint32_t* w0, long q) {
+  const long stride = g.ps * 2L, a16 = 16L * g.ps;
+  const std::uint16_t* xq = x + q * g.ps;
+  const long* aoff = g.aoff.data();
+  const int steps = g.steps();
+  _tile_zero(0);
+  _tile_zero(1);
+  _tile_zero(2);
+  _tile_zero(3);
+  for (int s = 0; s < steps; ++s) {
+    const std::uint16_t* a = xq + aoff[s];
+    _tile_loadd(4, w0 + s * 256, 64);
+    _tile_loadd(5, a, stride);
+    _tile_loadd(6, a + a16, stride);
+    _tile_loadd(7, a + 2 * a16, stride);
+    _tile_dpbf16ps(0, 5, 4);
+    _tile_dpbf16ps(1, 6, 4);
+    _tile_loadd(5, a + 3 * a16, stride);
+    _tile_dpbf16ps(2, 7, 4);
+    _tile_dpbf16ps(3, 5, 4);
+  }
+  alignas(64) float c[4][256];
+  _tile_stored(0, c[0], 64);
+  _tile_stored(1, c[1], 64);
+  _tile_stored(2, c[2], 64);
+  _tile_stored(3, c[3], 64);
+  for (int i = 0; i < 4; ++i) tile_to_stage(stage + 16 * i, c[i]);
+}
+
+// One task: pixels [q0 + chunk kChunk, + kChunk) of one image for output blocks 2 grp and
+// 2 grp + 1 (or the last block alone), written out with bias and ReLU.
+void run_task(float* out, const std::uint16_t* x, const Geom& g, const std::uint32_t* wp, const float* bias,
+              bool relu, int co, int grp, int chunk) {
+  alignas(64) float stage[2 * kN * kStageStride];
+  const int blocks = (co + kN - 1) / kN, b0 = 2 * grp, nb = std::min(2, blocks - b0);
+  const std::size_t wblock = static_cast<std::size_t>(g.steps()) * 16 * kN;
+  const std::uint32_t* w0 = wp + b0 * wblock;
+  const long qs = g.q0 + static_cast<long>(chunk) * kChunk, qe = std::min(g.q_end, qs + kChunk);
+  const int step = nb == 2 ? 2 * kM : 4 * kM;
+  const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
+  for (long q = qs; q < qe; q += step) {
+    if (nb == 2)
+      block_2x2(stage, x, g, w0, w0 + wblock, q);
+    else
+      block_4x1(stage, x, g, w0, q);
+    write_staged_tile([&](int o) { return out + o * oplane; }, stage, kStageStride, b0 * kN,
+                      std::min(nb * kN, co - b0 * kN), bias, relu, static_cast<int>(q),
+                      static_cast<int>(std::min(q + step, qe)), g.h, g.w, g.ws);
+  }
+}
+
+}  // namespace
+
+void forward(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w, const float* weight,
+             const float* bias, int co, bool relu, WeightCache* cache) {
+  const int ci = ca + cb;
+  const Geom g(h, w, ci);
+  const std::size_t plane = static_cast<std::size_t>(h) * w;
+  std::vector<const float*> ch(static_cast<std::size_t>(n) * ci);
+  for (int img = 0; img < n; ++img)
+    for (int c = 0; c < ci; ++c)
+      ch[static_cast<std::size_t>(img) * ci + c] = c < ca ? a + (static_cast<std::size_t>(img) * ca + c) * plane
+                                                          : b + (static_cast<std::size_t>(img) * cb + c - ca) * plane;
+  const std::size_t img_elems = static_cast<std::size_t>(g.pixels) * g.ps;
+  auto* x = static_cast<std::uint16_t*>(tl_in.get(img_elems * n * 2));
+  const bool stage_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
+  parallel_for(static_cast<long>(n) * h, stage_par, [&](long t) {
+    const int img = static_cast<int>(t / h), y = static_cast<int>(t % h);
+    stage_row(x + img * img_elems, ch.data() + static_cast<std::size_t>(img) * ci, g, y);
+  });
+  const int blocks = (co + kN - 1) / kN, groups = (blocks + 1) / 2;
+  const std::size_t wbytes = static_cast<std::size_t>(blocks) * g.steps() * 16 * kN * 4;
+  bool valid = false;
+  auto* wp = static_cast<std::uint32_t*>(
+      cache ? cache->get(WeightForm::amx, weight, static_cast<std::size_t>(co) * ci * 9, co, ci, wbytes, &valid)
+            : tl_wpack.get(wbytes));
+  if (!valid) pack_weights(wp, weight, co, g);
+  const int chunks = static_cast<int>((g.q_end - g.q0 + kChunk - 1) / kChunk);
+  const long tasks = static_cast<long>(n) * groups * chunks;
+  const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
+  // Tasks ordered image, output group, chunk: a thread's run of tasks keeps one group's weights
+  // in cache. Each thread configures its own tiles once per call and releases them at the end.
+  parallel_shared(tasks, par, [&](int tid, int nt, Shares& shares) {
+    load_tile_config();
+    shares.run(tid, nt, [&](long t) {
+      const int img = static_cast<int>(t / (static_cast<long>(groups) * chunks));
+      const int grp = static_cast<int>(t / chunks % groups), chunk = static_cast<int>(t % chunks);
+      run_task(out + static_cast<std::size_t>(img) * co * plane, x + img * img_elems, g, wp, bias, relu, co, grp,
+               chunk);
+    });
+    _tile_release();
+  });
+}
+
+}  // namespace avx512_amx
+#if defined(__clang__)
+#pragma clang attribute pop
+#else
+#pragma GCC pop_options
+#endif
+
+void conv3x3_amx_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
+                             const float* weight, const float* bias, int co, bool relu, WeightCache* cache) {
+  avx512_amx::forward(out, a, ca, b, cb, n, h, w, weight, bias, co, relu, cache);
+}
+
+#endif
+
+}  // namespace lidarsim::nn::detail
