@@ -6,6 +6,7 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_amx.h"
 #include "nn/bf16_round.h"
 #include "nn/big_alloc.h"
 #include "nn/cpu_features.h"
@@ -43,6 +44,8 @@ bool conv3x3_takes_bf16(int, int, int, int, int, Conv3x3Path) { return false; }
 bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w, Conv3x3Path path) {
   // Path direct: bf16 everywhere; winograd: Winograd (fp32) wherever it applies.
   if (path == Conv3x3Path::winograd && winograd_available()) return false;
+  // With AMX every layer: the AMX kernel beat fp32 Winograd on each of unet-ref's (conv3x3_takes_amx).
+  if (conv3x3_takes_amx(n, ci, co, h, w)) return true;
   // The fp32 rule's 16-channel Winograd layers (enc1.conv1) run faster still in bf16 (1.2-1.3x at
   // batch 4, even at batch 1).
   if (!conv3x3_takes_winograd(ci, co, path) || std::min(ci, co) < 32) return true;
