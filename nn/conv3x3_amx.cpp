@@ -60,6 +60,9 @@ constexpr int kChunk = 256;       // pixels per task (a multiple of both blocks 
 // narrow step reads.
 constexpr int kSlack = 64 + 8;
 constexpr int kStageStride = 64;  // floats per output channel in the write-out stage
+// Image rows per task when an image has at least 2 kBand rows: such a task stages its rows (and
+// the halo rows above and below) itself, into a buffer that stays in its core's L2 cache.
+constexpr int kBand = 8;
 
 // How the 9 taps x ci channels of a pixel's sum are cut into steps of kK products (one A tile
 // row each, read at one pixel offset). With few channels, 32 per step would mostly multiply
@@ -113,6 +116,10 @@ struct Geom {
     return *c < ci;
   }
 };
+
+// Staged pixels of a band's buffer: kBand rows, the two halo rows, the row the last block's
+// taps overrun into, and the slack.
+std::size_t band_pixels(const Geom& g) { return static_cast<std::size_t>(kBand + 3) * g.ws + kSlack; }
 
 // Grow-only, 64-byte aligned scratch (per calling thread, as in conv3x3_bf16.cpp).
 struct Buf {
@@ -181,27 +188,15 @@ static_assert(sizeof(TileConfig) == 64, "the 64-byte tile configuration");
 
 void load_tile_config() { _tile_loadconfig(&kTileConfig); }
 
-// The borders of row y's staged pixels zeroed (pixels (y, -1) and (y, w)), and with the first /
-// last row the top border row / the bottom border row and slack: every staged pixel is written.
-void zero_borders(std::uint16_t* x, const Geom& g, int y) {
+// Row y of the input (channel pointers ch[0, ci) of one image) staged at `row`, the place of
+// pixel (y, -1) in a buffer of the padded layout: its two border pixels zeroed, its w pixels 16 x
+// 16 channels at a time, transposed and rounded to bf16 by the hardware conversion (round to
+// nearest even, as conv3x3_bf16's); ps < 16: the first ps channels.
+void stage_row(std::uint16_t* row, const float* const* ch, const Geom& g, int y) {
   const std::size_t ps = g.ps;
-  std::uint16_t* row = x + static_cast<std::size_t>(y + 1) * g.ws * ps;  // pixel (y, -1)
-  if (y == 0) std::memset(x, 0, static_cast<std::size_t>(g.ws) * ps * 2);
-  if (y == g.h - 1) {
-    const std::size_t from = static_cast<std::size_t>(g.h + 1) * g.ws * ps;
-    std::memset(x + from, 0, (g.pixels * ps - from) * 2);
-  }
   std::memset(row, 0, ps * 2);
   std::memset(row + (g.w + 1) * ps, 0, ps * 2);
-}
-
-// One row of the input (channel pointers ch[0, ci) of one image) into the staged buffer x of
-// that image: 16 pixels x 16 channels at a time, transposed and rounded to bf16 by the hardware
-// conversion (round to nearest even, as conv3x3_bf16's); ps < 16: the first ps channels.
-void stage_row(std::uint16_t* x, const float* const* ch, const Geom& g, int y) {
-  const std::size_t ps = g.ps;
-  zero_borders(x, g, y);
-  std::uint16_t* row = x + (static_cast<std::size_t>(y + 1) * g.ws + 1) * ps;  // pixel (y, 0)
+  row += ps;  // pixel (y, 0)
   const std::size_t at = static_cast<std::size_t>(y) * g.w;
   const __mmask16 cmask = static_cast<__mmask16>(g.ps >= 16 ? 0xffffu : (1u << g.ps) - 1);
   for (int x0 = 0; x0 < g.w; x0 += 16) {
@@ -227,13 +222,12 @@ void tile_to_stage(float* stage, const float* c) {
   for (int o = 0; o < 16; ++o) _mm512_store_ps(stage + o * kStageStride, col[o]);
 }
 
-// 32 pixels from q x 32 outputs (B tiles of two output blocks): C tiles 0-3 (pixel half i, output
+// 32 pixels from xq (staged pixel q) x 32 outputs (B tiles of two output blocks): C tiles 0-3 (pixel half i, output
 // half j: tile 2 i + j), A tiles 4-5, B tiles 6-7; every output sums its steps in order, so the
 // bits do not depend on the block or the thread that computes it.
-void block_2x2(float* stage, const std::uint16_t* x, const Geom& g, const std::uint32_t* w0,
-               const std::uint32_t* w1, long q) {
+void block_2x2(float* stage, const std::uint16_t* xq, const Geom& g, const std::uint32_t* w0,
+               const std::uint32_t* w1) {
   const long stride = g.ps * 2L, a16 = 16L * g.ps;  // bytes per pixel; elements per 16 pixels
-  const std::uint16_t* xq = x + q * g.ps;
   const long* aoff = g.aoff.data();
   const int steps = g.steps();
   _tile_zero(0);
@@ -260,11 +254,10 @@ void block_2x2(float* stage, const std::uint16_t* x, const Geom& g, const std::u
     for (int j = 0; j < 2; ++j) tile_to_stage(stage + 16 * j * kStageStride + 16 * i, c[2 * i + j]);
 }
 
-// 64 pixels from q x 16 outputs (one output block: co 16, or the odd last block): C tiles 0-3
+// 64 pixels from xq x 16 outputs (one output block: co 16, or the odd last block): C tiles 0-3
 // (pixel quarters), B tile 4, A tiles 5-7 in turn; the same sum order as block_2x2.
-void block_4x1(float* stage, const std::uint16_t* x, const Geom& g, const std::uint32_t* w0, long q) {
+void block_4x1(float* stage, const std::uint16_t* xq, const Geom& g, const std::uint32_t* w0) {
   const long stride = g.ps * 2L, a16 = 16L * g.ps;
-  const std::uint16_t* xq = x + q * g.ps;
   const long* aoff = g.aoff.data();
   const int steps = g.steps();
   _tile_zero(0);
@@ -291,26 +284,48 @@ void block_4x1(float* stage, const std::uint16_t* x, const Geom& g, const std::u
   for (int i = 0; i < 4; ++i) tile_to_stage(stage + 16 * i, c[i]);
 }
 
-// One task: pixels [q0 + chunk kChunk, + kChunk) of one image for output blocks 2 grp and
-// 2 grp + 1 (or the last block alone), written out with bias and ReLU.
-void run_task(float* out, const std::uint16_t* x, const Geom& g, const std::uint32_t* wp, const float* bias,
-              bool relu, int co, int grp, int chunk) {
+// Pixels [qs, qe) of one image (staged pixel qs at xs) for output blocks 2 grp and 2 grp + 1 (or
+// the last block alone), written out with bias and ReLU.
+void run_blocks(float* out, const std::uint16_t* xs, const Geom& g, const std::uint32_t* wp, const float* bias,
+                bool relu, int co, int grp, long qs, long qe) {
   alignas(64) float stage[2 * kN * kStageStride];
   const int blocks = (co + kN - 1) / kN, b0 = 2 * grp, nb = std::min(2, blocks - b0);
   const std::size_t wblock = static_cast<std::size_t>(g.steps()) * 16 * kN;
   const std::uint32_t* w0 = wp + b0 * wblock;
-  const long qs = g.q0 + static_cast<long>(chunk) * kChunk, qe = std::min(g.q_end, qs + kChunk);
   const int step = nb == 2 ? 2 * kM : 4 * kM;
   const std::size_t oplane = static_cast<std::size_t>(g.h) * g.w;
   for (long q = qs; q < qe; q += step) {
+    const std::uint16_t* xq = xs + (q - qs) * g.ps;
     if (nb == 2)
-      block_2x2(stage, x, g, w0, w0 + wblock, q);
+      block_2x2(stage, xq, g, w0, w0 + wblock);
     else
-      block_4x1(stage, x, g, w0, q);
+      block_4x1(stage, xq, g, w0);
     write_staged_tile([&](int o) { return out + o * oplane; }, stage, kStageStride, b0 * kN,
                       std::min(nb * kN, co - b0 * kN), bias, relu, static_cast<int>(q),
                       static_cast<int>(std::min(q + step, qe)), g.h, g.w, g.ws);
   }
+}
+
+// Rows [y0, y0 + kBand) of one image: staged with their halo rows into buf (a thread's own, kept in
+// its L2 cache: the staged input never goes through memory), then every output group.
+void run_band(float* out, std::uint16_t* buf, const float* const* ch, const Geom& g, const std::uint32_t* wp,
+              const float* bias, bool relu, int co, int y0) {
+  const int y1 = std::min(g.h, y0 + kBand);
+  const std::size_t row = static_cast<std::size_t>(g.ws) * g.ps;  // elements per padded row
+  // buf row r is padded row y0 + r (image row y0 + r - 1); rows past y1 + 1 only feed discarded
+  // pixels of the last block but are zeroed all the same.
+  for (int y = y0 - 1; y <= y1; ++y) {
+    std::uint16_t* r = buf + (y - y0 + 1) * row;
+    if (y < 0 || y >= g.h)
+      std::memset(r, 0, row * 2);
+    else
+      stage_row(r, ch, g, y);
+  }
+  std::memset(buf + (y1 - y0 + 2) * row, 0, (band_pixels(g) * g.ps - (y1 - y0 + 2) * row) * 2);
+  const long qs = static_cast<long>(y0 + 1) * g.ws + 1, qe = static_cast<long>(y1) * g.ws + g.w + 1;
+  const int groups = ((co + kN - 1) / kN + 1) / 2;
+  for (int grp = 0; grp < groups; ++grp)
+    run_blocks(out, buf + (qs - static_cast<long>(y0) * g.ws) * g.ps, g, wp, bias, relu, co, grp, qs, qe);
 }
 
 }  // namespace
@@ -325,13 +340,6 @@ void forward(float* out, const float* a, int ca, const float* b, int cb, int n, 
     for (int c = 0; c < ci; ++c)
       ch[static_cast<std::size_t>(img) * ci + c] = c < ca ? a + (static_cast<std::size_t>(img) * ca + c) * plane
                                                           : b + (static_cast<std::size_t>(img) * cb + c - ca) * plane;
-  const std::size_t img_elems = static_cast<std::size_t>(g.pixels) * g.ps;
-  auto* x = static_cast<std::uint16_t*>(tl_in.get(img_elems * n * 2));
-  const bool stage_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
-  parallel_for(static_cast<long>(n) * h, stage_par, [&](long t) {
-    const int img = static_cast<int>(t / h), y = static_cast<int>(t % h);
-    stage_row(x + img * img_elems, ch.data() + static_cast<std::size_t>(img) * ci, g, y);
-  });
   const int blocks = (co + kN - 1) / kN, groups = (blocks + 1) / 2;
   const std::size_t wbytes = static_cast<std::size_t>(blocks) * g.steps() * 16 * kN * 4;
   bool valid = false;
@@ -339,9 +347,38 @@ void forward(float* out, const float* a, int ca, const float* b, int cb, int n, 
       cache ? cache->get(WeightForm::amx, weight, static_cast<std::size_t>(co) * ci * 9, co, ci, wbytes, &valid)
             : tl_wpack.get(wbytes));
   if (!valid) pack_weights(wp, weight, co, g);
+  const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
+  if (h >= 2 * kBand) {
+    // Large images: one task per band of rows, staged by the thread that computes it.
+    const int bands = (h + kBand - 1) / kBand, threads = par ? team_threads() : 1;
+    const std::size_t band_elems = band_pixels(g) * g.ps;
+    auto* bufs = static_cast<std::uint16_t*>(tl_in.get(band_elems * threads * 2));
+    parallel_shared(static_cast<long>(n) * bands, par, [&](int tid, int nt, Shares& shares) {
+      if (tid >= threads) return;  // (a team grown since: the others take this thread's share)
+      load_tile_config();
+      shares.run(tid, nt, [&](long t) {
+        const int img = static_cast<int>(t / bands), band = static_cast<int>(t % bands);
+        run_band(out + static_cast<std::size_t>(img) * co * plane, bufs + tid * band_elems,
+                 ch.data() + static_cast<std::size_t>(img) * ci, g, wp, bias, relu, co, band * kBand);
+      });
+      _tile_release();
+    });
+    return;
+  }
+  // Small images: the whole input staged first (in parallel over rows), then tasks of kChunk
+  // pixels x one output group.
+  const std::size_t img_elems = static_cast<std::size_t>(g.pixels) * g.ps, row = static_cast<std::size_t>(g.ws) * g.ps;
+  auto* x = static_cast<std::uint16_t*>(tl_in.get(img_elems * n * 2));
+  const bool stage_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
+  parallel_for(static_cast<long>(n) * h, stage_par, [&](long t) {
+    const int img = static_cast<int>(t / h), y = static_cast<int>(t % h);
+    std::uint16_t* xi = x + img * img_elems;
+    if (y == 0) std::memset(xi, 0, row * 2);  // the top border row
+    if (y == h - 1) std::memset(xi + (h + 1) * row, 0, (img_elems - (h + 1) * row) * 2);  // bottom row, slack
+    stage_row(xi + (y + 1) * row, ch.data() + static_cast<std::size_t>(img) * ci, g, y);
+  });
   const int chunks = static_cast<int>((g.q_end - g.q0 + kChunk - 1) / kChunk);
   const long tasks = static_cast<long>(n) * groups * chunks;
-  const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
   // Tasks ordered image, output group, chunk: a thread's run of tasks keeps one group's weights
   // in cache. Each thread configures its own tiles once per call and releases them at the end.
   parallel_shared(tasks, par, [&](int tid, int nt, Shares& shares) {
@@ -349,8 +386,9 @@ void forward(float* out, const float* a, int ca, const float* b, int cb, int n, 
     shares.run(tid, nt, [&](long t) {
       const int img = static_cast<int>(t / (static_cast<long>(groups) * chunks));
       const int grp = static_cast<int>(t / chunks % groups), chunk = static_cast<int>(t % chunks);
-      run_task(out + static_cast<std::size_t>(img) * co * plane, x + img * img_elems, g, wp, bias, relu, co, grp,
-               chunk);
+      const long qs = g.q0 + static_cast<long>(chunk) * kChunk, qe = std::min(g.q_end, qs + kChunk);
+      run_blocks(out + static_cast<std::size_t>(img) * co * plane, x + img * img_elems + qs * g.ps, g, wp, bias, relu,
+                 co, grp, qs, qe);
     });
     _tile_release();
   });

@@ -4,7 +4,8 @@
 // they may differ only by the order of the fp32 sums. Shapes: input channels 3, 16, 48 (not a
 // multiple of the 32-channel tile step) and 96 as a concat (split inside a step), outputs 1, 16,
 // 40 (partial 16-channel tiles, an odd tile), widths 1, 17, 64, 1000 (partial 16- and 64-pixel
-// blocks, rows wrapping inside a block), heights 1 and 5, batches 1 and 3.
+// blocks, rows wrapping inside a block), heights 1 and 5 (the input staged whole) and 16-21 (staged
+// per band of rows), batches 1 and 3.
 #include <gtest/gtest.h>
 #include <omp.h>
 
@@ -37,7 +38,9 @@ struct Case {
 
 const Case kCases[] = {{1, 3, 0, 16, 5, 1000}, {3, 3, 0, 1, 5, 17},   {1, 16, 0, 16, 5, 64},  {3, 16, 0, 40, 1, 17},
                        {1, 48, 0, 40, 5, 17},  {1, 48, 0, 16, 1, 1000}, {3, 48, 48, 40, 5, 64}, {1, 48, 48, 1, 1, 1},
-                       {3, 16, 0, 1, 1, 1},    {1, 20, 28, 40, 5, 17},  {1, 3, 0, 40, 1, 64},   {3, 48, 48, 16, 5, 1}};
+                       {3, 16, 0, 1, 1, 1},    {1, 20, 28, 40, 5, 17},  {1, 3, 0, 40, 1, 64},   {3, 48, 48, 16, 5, 1},
+                       // At least 16 rows: staged per band of 8 rows (the last one partial here).
+                       {1, 3, 0, 16, 21, 64},  {3, 16, 0, 40, 17, 17},  {1, 48, 48, 40, 19, 33}, {1, 16, 0, 1, 16, 1}};
 
 std::string name(const Case& c) {
   return "n " + std::to_string(c.n) + " ci " + std::to_string(c.ca) + "+" + std::to_string(c.cb) + " co " +
