@@ -2,10 +2,11 @@
 // AMX variant of the bf16 forward 3x3 convolution (nn/conv3x3_bf16.h), for inference only: the
 // same contract, the same rounding of inputs and weights to bf16 (round to nearest even), fp32
 // sums, but as an implicit GEMM on the AMX tiles (_tile_dpbf16ps: 16 pixels x 16 output channels
-// per tile, 32 input channels per step). The input is staged once per call as zero-padded
-// pixel-major bf16 (channels padded to 32), so a tile of 16 pixels x 32 channels is one strided
-// tile load at any of the 9 tap offsets; weights are packed once into the tiles' pair layout
-// (kept in the model's WeightCache). Runs only at Isa::amx_bf16 (nn/cpu_features.h).
+// per tile, 32 input values per step). The input is staged as zero-padded pixel-major bf16
+// (channels padded to 32, or 4-16 for narrow layers), so a tile of 16 pixels x 32 values is one
+// strided tile load at any tap offset: whole before the products for small images, per band of
+// rows by the task that computes it for large ones. Weights are packed once into the tiles' pair
+// layout (kept in the model's WeightCache). Runs only at Isa::amx_bf16 (nn/cpu_features.h).
 #include "nn/conv_settings.h"
 
 namespace lidarsim::nn::detail {
