@@ -6,7 +6,7 @@
 #include "nn/conv3x3_amx.h"
 
 #include "nn/avx512_util.h"
-#include "nn/bf16_round.h"
+#include "nn/conv3x3_amx_layout.h"
 #include "nn/big_alloc.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/cpu_features.h"
@@ -52,74 +52,11 @@ bool conv3x3_takes_amx(int, int, int, int, int) { return conv3x3_amx_available()
 
 namespace {
 
-constexpr int kK = 32;            // bf16 per A tile row (64 bytes): the K of one tile step
-constexpr int kN = 16;            // output channels per C tile
+using namespace amx_layout;
+
 constexpr int kM = 16;            // pixels per C tile
-constexpr int kChunk = 256;       // pixels per task (a multiple of both blocks below)
-// Staged pixels past the last row: the widest pixel block (64) plus the up to 8 neighbours a
-// narrow step reads.
-constexpr int kSlack = 64 + 8;
+constexpr int kChunk = 256;       // pixels per task of a small image (a multiple of both blocks)
 constexpr int kStageStride = 64;  // floats per output channel in the write-out stage
-// Image rows per task when an image has at least 2 kBand rows: such a task stages its rows (and
-// the halo rows above and below) itself, into a buffer that stays in its core's L2 cache.
-constexpr int kBand = 8;
-
-// How the 9 taps x ci channels of a pixel's sum are cut into steps of kK products (one A tile
-// row each, read at one pixel offset). With few channels, 32 per step would mostly multiply
-// zeros, so the narrow mode packs pixels tighter:
-//   wide    ci > 16: channels padded to ps = 32 k per pixel, steps (tap, 32-channel block);
-//   narrow  ci <= 16: ps = 4, 8 or 16 channels per pixel, so the 32 bf16 read from pixel p are
-//           32 / ps neighbours in a row, i.e. taps dx .. dx + 32 / ps - 1 of one dy (weights of
-//           taps past dx 2 are zero): 3 steps (ci <= 8) or 6 (ci <= 16) instead of 9.
-// (A tap-folded im2col staging of ci <= 3, one step, measured slower: its staging cost more
-// than the two steps it saved.)
-enum class Mode { wide, narrow };
-
-// The padded pixel space of conv3x3_bf16 (rows of ws = w + 2, h + 2 rows, no front): pixel
-// (y, x) is q = (y + 1) ws + x + 1; tap (dy, dx) of q reads q + (dy - 1) ws + dx - 1. The input
-// is staged there as q-major bf16, ps values per pixel (zeros past ci); step s of pixel q reads
-// kK values from element q ps + aoff[s].
-struct Geom {
-  int h, w, ws, ci;
-  Mode mode;
-  int ps, row_steps = 0;   // values per pixel; narrow: steps per tap row dy
-  long q0, q_end, pixels;  // first valid q, one past the last, staged pixels per image
-  std::vector<long> aoff;
-  Geom(int h_, int w_, int ci_) : h(h_), w(w_), ws(w_ + 2), ci(ci_) {
-    mode = ci <= 16 ? Mode::narrow : Mode::wide;
-    ps = ci <= 4 ? 4 : ci <= 8 ? 8 : (ci + kK - 1) / kK * kK;
-    if (mode == Mode::narrow && ci > 8) ps = 16;
-    q0 = ws + 1;
-    q_end = static_cast<long>(h) * ws + w + 1;
-    pixels = static_cast<long>(h + 2) * ws + kSlack;
-    const auto off = [&](int dy, int dx) { return static_cast<long>(dy - 1) * ws + dx - 1; };
-    if (mode == Mode::narrow) {
-      const int span = kK / ps;  // taps per step
-      row_steps = (3 + span - 1) / span;
-      for (int dy = 0; dy < 3; ++dy)
-        for (int k = 0; k < row_steps; ++k) aoff.push_back(off(dy, k * span) * ps);
-    } else {
-      for (int t = 0; t < 9; ++t)
-        for (int k = 0; k < ps; k += kK) aoff.push_back(off(t / 3, t % 3) * ps + k);
-    }
-  }
-  int steps() const { return static_cast<int>(aoff.size()); }
-  // Which tap and input channel product e (0 .. kK - 1) of step s is; false for a zero.
-  bool tap_channel(int s, int e, int* tap, int* c) const {
-    if (mode == Mode::narrow) {
-      const int dx = s % row_steps * (kK / ps) + e / ps;
-      *tap = 3 * (s / row_steps) + dx, *c = e % ps;
-      return dx < 3 && *c < ci;
-    }
-    const int blocks = ps / kK;
-    *tap = s / blocks, *c = s % blocks * kK + e;
-    return *c < ci;
-  }
-};
-
-// Staged pixels of a band's buffer: kBand rows, the two halo rows, the row the last block's
-// taps overrun into, and the slack.
-std::size_t band_pixels(const Geom& g) { return static_cast<std::size_t>(kBand + 3) * g.ws + kSlack; }
 
 // Grow-only, 64-byte aligned scratch (per calling thread, as in conv3x3_bf16.cpp).
 struct Buf {
@@ -138,26 +75,6 @@ struct Buf {
   ~Buf() { std::free(p); }
 };
 thread_local Buf tl_in, tl_wpack;
-
-// Weights [co, ci, 3, 3] -> B tiles [co block of 16][step]: 16 rows x 16 columns (output
-// channels) of {bf16 product 2 r, product 2 r + 1} of the step, the pair layout tdpbf16ps
-// multiplies with an A row of kK values; zeros past co and where the step has no product.
-void pack_weights(std::uint32_t* dst, const float* w, int co, const Geom& g) {
-  const int blocks = (co + kN - 1) / kN, steps = g.steps();
-  const auto bits = [&](int o, int s, int e) {
-    int t = 0, c = 0;
-    if (o >= co || !g.tap_channel(s, e, &t, &c)) return 0u;
-    return bf16_bits(w[(static_cast<std::size_t>(o) * g.ci + c) * 9 + t]);
-  };
-  for (int b = 0; b < blocks; ++b)
-    for (int s = 0; s < steps; ++s)
-      for (int r = 0; r < 16; ++r)
-        for (int j = 0; j < kN; ++j) {
-          const int o = b * kN + j;
-          dst[((static_cast<std::size_t>(b) * steps + s) * 16 + r) * kN + j] =
-              bits(o, s, 2 * r) | bits(o, s, 2 * r + 1) << 16;
-        }
-}
 
 }  // namespace
 
