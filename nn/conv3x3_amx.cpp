@@ -105,6 +105,29 @@ static_assert(sizeof(TileConfig) == 64, "the 64-byte tile configuration");
 
 void load_tile_config() { _tile_loadconfig(&kTileConfig); }
 
+// ps 4 (ci <= 4): 16 pixels from two conversions (channels 0 | 1 and 2 | 3, 16 words each) and
+// two word permutes into pixel order, instead of a 16 x 16 transpose of mostly zero channels.
+void stage_pixels4(std::uint16_t* px, const float* const* ch, const Geom& g, std::size_t at) {
+  alignas(64) std::uint16_t idx[2][32];
+  for (int h = 0; h < 2; ++h)
+    for (int p = 0; p < 8; ++p)
+      for (int k = 0; k < 4; ++k) idx[h][4 * p + k] = static_cast<std::uint16_t>(16 * k + 8 * h + p);
+  const __m512i lo = _mm512_load_si512(idx[0]), hi = _mm512_load_si512(idx[1]);
+  for (int x0 = 0; x0 < g.w; x0 += 16) {
+    const int nv = std::min(16, g.w - x0);
+    const __mmask16 m = static_cast<__mmask16>((1u << nv) - 1);
+    __m512 v[4];
+    for (int c = 0; c < 4; ++c) v[c] = c < g.ci ? _mm512_maskz_loadu_ps(m, ch[c] + at + x0) : _mm512_setzero_ps();
+    const __m512i a = reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(v[1], v[0]));  // words 16 c + p
+    const __m512i b = reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(v[3], v[2]));  // (c - 2 in b)
+    const auto words = [](int pixels) {
+      return pixels >= 8 ? static_cast<__mmask32>(0xffffffffu) : static_cast<__mmask32>((1u << (4 * pixels)) - 1);
+    };
+    _mm512_mask_storeu_epi16(px + x0 * 4, words(nv), _mm512_permutex2var_epi16(a, lo, b));
+    if (nv > 8) _mm512_mask_storeu_epi16(px + x0 * 4 + 32, words(nv - 8), _mm512_permutex2var_epi16(a, hi, b));
+  }
+}
+
 // Row y of the input (channel pointers ch[0, ci) of one image) staged at `row`, the place of
 // pixel (y, -1) in a buffer of the padded layout: its two border pixels zeroed, its w pixels 16 x
 // 16 channels at a time, transposed and rounded to bf16 by the hardware conversion (round to
@@ -115,6 +138,10 @@ void stage_row(std::uint16_t* row, const float* const* ch, const Geom& g, int y)
   std::memset(row + (g.w + 1) * ps, 0, ps * 2);
   row += ps;  // pixel (y, 0)
   const std::size_t at = static_cast<std::size_t>(y) * g.w;
+  if (g.ps == 4) {
+    stage_pixels4(row, ch, g, at);
+    return;
+  }
   const __mmask16 cmask = static_cast<__mmask16>(g.ps >= 16 ? 0xffffu : (1u << g.ps) - 1);
   for (int x0 = 0; x0 < g.w; x0 += 16) {
     const int nv = std::min(16, g.w - x0);
