@@ -45,9 +45,10 @@ bool conv3x3_takes_amx(int, int, int, int, int) { return false; }
 
 // Every layer bf16 inference takes, and with AMX it takes them all (conv3x3_takes_bf16): from
 // bench_conv3x3 --forward-only (unet-ref, batch 1 and 4, CPU time of 2 threads; Intel Xeon,
-// Sapphire Rapids class, 2 cores shared with other work, load average 1.3-3.3; three runs), AMX
-// took 1.5-17x less time than the AVX-512 BF16 kernel and less than fp32 Winograd on every layer:
-// 1.05-1.6x on enc1.conv1 (3 -> 16 at 64 x 1024: 3 steps of mostly zeros), 1.3-6x elsewhere.
+// Sapphire Rapids class, 2 cores shared with other work, load average 1.1-3.3; four runs over
+// the kernel's versions), AMX took 1.5-17x less time than the AVX-512 BF16 kernel and less than
+// fp32 Winograd on every layer: 1.05-1.6x on enc1.conv1 (3 -> 16 at 64 x 1024, 1.2-1.5x in the
+// last run), 1.3-6x elsewhere.
 bool conv3x3_takes_amx(int, int, int, int, int) { return conv3x3_amx_available(); }
 
 namespace {
