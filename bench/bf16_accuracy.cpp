@@ -17,6 +17,7 @@
 #include "data/split.h"
 #include "infer/intensity_model.h"
 #include "nn/checkpoint.h"
+#include "nn/cpu_features.h"
 #include "nn/precision.h"
 #include "qualify/intensity/intensity.h"
 
@@ -97,7 +98,9 @@ int main(int argc, char** argv) {
                 mae[1], delta, std::abs(delta) < 5e-4 ? "pass" : "FAIL");
     std::printf("|bf16 - fp32| prediction: max %.2e over held-out cells, max %.2e and mean %.2e over all %ld cells\n",
                 max_held, max_all, sum_all / std::max(all, 1L), all);
-    std::printf("process CPU time per scan: fp32 %.4f s, bf16 %.4f s (%.2fx)\n", cpu[0], cpu[1], cpu[0] / cpu[1]);
+    std::printf("process CPU time per scan: fp32 %.4f s, bf16 %.4f s (%.2fx); bf16 on %s (level %s)\n", cpu[0],
+                cpu[1], cpu[0] / cpu[1], nn::isa_at_least(nn::Isa::amx_bf16) ? "AMX" : "AVX-512 BF16",
+                nn::to_string(nn::active_isa()));
     return std::abs(delta) < 5e-4 ? 0 : 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());

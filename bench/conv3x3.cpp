@@ -7,7 +7,11 @@
 // in the network (LIDARSIM_PROFILE=cpu). Where the CPU has AVX-512 BF16,
 // also the bf16 inference kernel's forward pass (nn/conv3x3_bf16.h): its time, its speed-up over
 // the fp32 direct and Winograd forward passes, and its difference from the direct output; the
-// rule conv3x3_takes_bf16 comes from these columns.
+// rule conv3x3_takes_bf16 comes from these columns. Where the CPU has AMX-BF16, also the AMX
+// kernel's forward pass (nn/conv3x3_amx.h): its time, its speed-up over the fp32 direct,
+// Winograd and AVX-512 BF16 forward passes, and its difference from the direct output; the rule
+// conv3x3_takes_amx comes from these. Both bf16 kernels keep their packed weights in a
+// WeightCache, as UNet::predict does.
 #include <omp.h>
 
 #include <algorithm>
@@ -24,8 +28,10 @@
 
 #include "common/error.h"
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_amx.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/layers.h"
+#include "nn/weight_cache.h"
 #include "nn/winograd.h"
 
 using namespace lidarsim;
@@ -75,13 +81,13 @@ double rel_diff(const Tensor& a, const Tensor& ref) {
 // and bf16 forward where the CPU has it; prints one table row.
 struct ShapeRun {
   int reps = 5;
-  bool wall = false, fwd_only = false, bf16 = false;
+  bool wall = false, fwd_only = false, bf16 = false, amx = false;
 };
 
 void measure_shape(int n, int ci, int co, int h, int w, const ShapeRun& run, std::mt19937& rng,
                    std::normal_distribution<float>& normal) {
   const int reps = run.reps;
-  const bool wall = run.wall, fwd_only = run.fwd_only, bf16 = run.bf16;
+  const bool wall = run.wall, fwd_only = run.fwd_only, bf16 = run.bf16, amx = run.amx;
   Tensor x(n, ci, h, w);
   for (float& v : x) v = std::max(normal(rng), 0.f);
   std::vector<float> wt(static_cast<std::size_t>(co) * ci * 9), bias(static_cast<std::size_t>(co), 0.01f);
@@ -106,15 +112,24 @@ void measure_shape(int n, int ci, int co, int h, int w, const ShapeRun& run, std
         },
         reps, wall);
   }
-  Tensor y16(n, co, h, w);
+  Tensor y16(n, co, h, w), yamx(n, co, h, w);
+  detail::WeightCache cache16, cache_amx;
   const double t_b16 =
       bf16 ? median_seconds(
                  [&] {
                    detail::conv3x3_bf16_forward_cat(y16.data(), x.data(), ci, nullptr, 0, n, h, w, wt.data(),
-                                                    bias.data(), co, true);
+                                                    bias.data(), co, true, &cache16);
                  },
                  reps, wall)
            : 0;
+  const double t_amx =
+      amx ? median_seconds(
+                [&] {
+                  detail::conv3x3_amx_forward_cat(yamx.data(), x.data(), ci, nullptr, 0, n, h, w, wt.data(),
+                                                  bias.data(), co, true, &cache_amx);
+                },
+                reps, wall)
+          : 0;
   Tensor dw0(1, 1, 1, static_cast<int>(wt.size())), dw1(1, 1, 1, static_cast<int>(wt.size()));
   std::copy(d_w[0].begin(), d_w[0].end(), dw0.begin());
   std::copy(d_w[1].begin(), d_w[1].end(), dw1.begin());
@@ -125,6 +140,9 @@ void measure_shape(int n, int ci, int co, int h, int w, const ShapeRun& run, std
   if (bf16)
     std::printf(" %8.3f %8.2f %8.2f %9.1e", 1e3 * t_b16, t_fwd[0] / t_b16, t_fwd[1] / t_b16,
                 rel_diff(y16, y[0]));
+  if (amx)
+    std::printf(" %8.3f %7.2f %7.2f %8.2f %8.1e", 1e3 * t_amx, t_fwd[0] / t_amx, t_fwd[1] / t_amx, t_b16 / t_amx,
+                rel_diff(yamx, y[0]));
   std::printf("\n");
   std::fflush(stdout);
 }
@@ -157,17 +175,18 @@ int main(int argc, char** argv) {
     const double cpu0 = cpu_seconds();
     const bool wall = opt.count("wall") > 0, fwd_only = opt.count("forward-only") > 0;
     const int base = 16, depth = 4;
-    const bool bf16 = detail::conv3x3_bf16_available();
+    const bool bf16 = detail::conv3x3_bf16_available(), amx = detail::conv3x3_amx_available();
     if (!detail::conv3x3_available())
       std::printf("(no AVX-512 kernels at this level: \"dir\" is im2col + Eigen GEMM, \"win\" the AVX2 Winograd port)\n");
     std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s", "batch", "ci", "co", "h", "w",
                 "fwd dir", "fwd win", "speedup", "dgr dir", "dgr win", "speedup", "wgr dir", "wgr win", "speedup",
                 "fwd diff", "dgr diff", "wgr diff");
     if (bf16) std::printf(" %8s %8s %8s %9s", "fwd bf16", "dir/bf16", "win/bf16", "bf16 diff");
+    if (amx) std::printf(" %8s %7s %7s %8s %8s", "fwd amx", "dir/amx", "win/amx", "bf16/amx", "amx diff");
     std::printf("\n");
     std::mt19937 rng(1);
     std::normal_distribution<float> normal;
-    const ShapeRun run{reps, wall, fwd_only, bf16};
+    const ShapeRun run{reps, wall, fwd_only, bf16, amx};
     for (int n : opt["batch"].as<std::vector<int>>()) {
       for (int l = 0; l <= depth; ++l) {
         if (opt["level"].as<int>() >= 0 && l != opt["level"].as<int>()) continue;

@@ -29,6 +29,7 @@
 
 #include "common/atomic_file.h"
 #include "common/error.h"
+#include "nn/cpu_features.h"
 #include "nn/loss.h"
 #include "nn/optim.h"
 #include "nn/precision.h"
@@ -417,7 +418,9 @@ int main(int argc, char** argv) {
       std::printf("GEMM %d^3 fp32 (Eigen, %d threads over columns): %.3f s, %.1f GFLOP/s\n", o.gemm_n, o.threads,
                   gemm_s, gf);
     }
-    std::printf("forward: %.3f GFLOP per image\n", model.forward_flops(1, o.rows, o.cols) * 1e-9);
+    std::printf("forward: %.3f GFLOP per image; kernels at level %s (bf16 rows on %s)\n",
+                model.forward_flops(1, o.rows, o.cols) * 1e-9, to_string(active_isa()),
+                isa_at_least(Isa::amx_bf16) ? "AMX" : "AVX-512 BF16");
     if (o.with_torch) print_peer(peer);
     std::printf("load average before / after: %s / %s (numbers are only meaningful on an idle machine)\n",
                 load_before.c_str(), load_after.c_str());

@@ -6,6 +6,8 @@
 #include "nn/conv3x3_bf16.h"
 
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_amx.h"
+#include "nn/bf16_round.h"
 #include "nn/big_alloc.h"
 #include "nn/cpu_features.h"
 #include "nn/parallel.h"
@@ -42,6 +44,8 @@ bool conv3x3_takes_bf16(int, int, int, int, int, Conv3x3Path) { return false; }
 bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w, Conv3x3Path path) {
   // Path direct: bf16 everywhere; winograd: Winograd (fp32) wherever it applies.
   if (path == Conv3x3Path::winograd && winograd_available()) return false;
+  // With AMX every layer: the AMX kernel beat fp32 Winograd on each of unet-ref's (conv3x3_takes_amx).
+  if (conv3x3_takes_amx(n, ci, co, h, w)) return true;
   // The fp32 rule's 16-channel Winograd layers (enc1.conv1) run faster still in bf16 (1.2-1.3x at
   // batch 4, even at batch 1).
   if (!conv3x3_takes_winograd(ci, co, path) || std::min(ci, co) < 32) return true;
@@ -98,14 +102,6 @@ struct Buf {
 // Scratch of one call, per thread: a pure cache, and models running in several threads at once must
 // not share it (only the calling thread touches these objects; the workers get the pointers).
 thread_local Buf tl_pad, tl_wpack;
-
-// Round to nearest even, as the hardware conversion does for the activations.
-std::uint32_t bf16_bits(float f) {
-  std::uint32_t u;
-  std::memcpy(&u, &f, 4);
-  if ((u & 0x7fffffffu) > 0x7f800000u) return (u >> 16) | 0x40u;  // NaN stays NaN
-  return (u + 0x7fffu + ((u >> 16) & 1u)) >> 16;
-}
 
 // Weights [co, ci, 3, 3] -> [out blocks][ci pairs][9][kCB] lanes {bf16 w[o][2p][k], w[o][2p+1][k]}
 // (channel 2p in the low half, as in the input lanes), zero past the last channel.

@@ -22,7 +22,8 @@ void conv3x3_bf16_forward_cat(float* out, const float* a, int ca, const float* b
                               const float* weight, const float* bias, int co, bool relu, WeightCache* cache = nullptr);
 
 // Whether a conv of ci -> co channels on n images of h x w takes the bf16 kernel under bf16
-// inference (else the fp32 rule of conv3x3_takes_winograd under `path`).
+// inference (else the fp32 rule of conv3x3_takes_winograd under `path`); with AMX every layer
+// (nn/conv3x3_amx.h) unless `path` forces Winograd.
 bool conv3x3_takes_bf16(int n, int ci, int co, int h, int w, Conv3x3Path path = conv3x3_path());
 
 }  // namespace lidarsim::nn::detail

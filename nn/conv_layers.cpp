@@ -15,6 +15,7 @@
 
 #include "common/error.h"
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_amx.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/conv_transpose2x2.h"
 #include "nn/layers_internal.h"
@@ -159,10 +160,10 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
     throw Error("conv2d_forward: kernel: k " + std::to_string(k) + ", pad " + std::to_string(pad) +
                 " does not fit input " + s.str());
   ensure(out, Shape{s.n, co, ho, wo});
-  // UNet::predict in bf16 (nn/precision.h): the bf16 kernel, where it is the faster choice.
+  // UNet::predict in bf16 (nn/precision.h): a bf16 kernel (AVX-512 BF16 or AMX), where it is the faster choice.
   if (k == 3 && pad == 1 && cs.bf16 && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w, cs.conv3x3)) {
-    detail::conv3x3_bf16_forward_cat(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu,
-                                     cs.weight_cache);
+    detail::conv3x3_bf16_dispatch(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu,
+                                  cs.weight_cache);
     return;
   }
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
@@ -352,8 +353,8 @@ void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const flo
   const Shape sa = a.shape();
   if (cs.bf16 && detail::conv3x3_takes_bf16(sa.n, sa.c + b.shape().c, co, sa.h, sa.w, cs.conv3x3)) {
     ensure(out, Shape{sa.n, co, sa.h, sa.w});
-    detail::conv3x3_bf16_forward_cat(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias,
-                                     co, relu, cs.weight_cache);
+    detail::conv3x3_bf16_dispatch(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias,
+                                  co, relu, cs.weight_cache);
     return;
   }
   const Shape sb = b.shape();

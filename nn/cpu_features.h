@@ -6,9 +6,9 @@
 //
 // active_isa() is what the CPU reports (__builtin_cpu_supports, which also checks that the OS
 // saves the registers), capped by LIDARSIM_ISA when set: `avx2` forces the baseline kernels
-// everywhere (the sanitized CI pass runs so), `avx512` / `avx512_bf16` require that level (a CPU
-// without it is an error, not a silent fallback), `auto` or empty is the CPU's own level. Read
-// once, on first use, so a bad value is the command's one-line error.
+// everywhere (the sanitized CI pass runs so), `avx512` / `avx512_bf16` / `amx_bf16` require that
+// level (a CPU without it is an error, not a silent fallback), `auto` or empty is the CPU's own
+// level. Read once, on first use, so a bad value is the command's one-line error.
 #include <string>
 
 // Whether this compiler and target can build the AVX-512 kernels at all (x86-64, GCC or clang).
@@ -32,13 +32,14 @@ enum class Isa {
   avx2,         // the build's baseline (x86-64-v3)
   avx512,       // AVX-512 F, BW, VL, DQ: the fp32 direct, Winograd, transposed-conv, pooling kernels
   avx512_bf16,  // plus AVX-512 BF16: bf16 inference (nn/conv3x3_bf16.h)
+  amx_bf16,     // plus AMX-TILE and AMX-BF16, enabled by the OS for this process: nn/conv3x3_amx.h
 };
-constexpr int kIsaCount = 3;
+constexpr int kIsaCount = 4;
 extern const char* const kIsaNames[kIsaCount];
-static_assert(static_cast<int>(Isa::avx512_bf16) + 1 == kIsaCount, "kIsaNames lists every Isa");
+static_assert(static_cast<int>(Isa::amx_bf16) + 1 == kIsaCount, "kIsaNames lists every Isa");
 
 const char* to_string(Isa isa);
-// "avx2", "avx512" or "avx512_bf16"; anything else throws Error naming `field`.
+// "avx2", "avx512", "avx512_bf16" or "amx_bf16"; anything else throws Error naming `field`.
 Isa parse_isa(const std::string& text, const std::string& field);
 
 // The widest level this CPU (and this build) runs.

@@ -1,5 +1,5 @@
 #pragma once
-// Derived forms of convolution weights (packed for the direct or the bf16 kernel) kept across
+// Derived forms of convolution weights (packed for the direct, the bf16 or the AMX kernel) kept across
 // UNet::predict calls: the weights do not change between them, and packing them every call cost
 // 4-7 % of a bf16 inference at batch 1. The Winograd-transformed weights stay per call: cached
 // they took as much CPU time as they saved (one shared buffer stays in cache, a transformed copy
@@ -15,7 +15,7 @@
 namespace lidarsim::nn::detail {
 
 // Which derived form; together with the weight pointer, count and the two shape numbers the key.
-enum class WeightForm { direct, bf16 };
+enum class WeightForm { direct, bf16, amx };
 
 class WeightCache {
  public:

@@ -2,7 +2,8 @@
 // Finds instructions beyond x86-64-v3 in the disassembly of a binary (objdump -d -C -w): any
 // EVEX-encoded instruction (first opcode byte 0x62, which 64-bit mode gives to EVEX alone: every
 // AVX-512 instruction, whatever its registers) and anything naming a zmm register, xmm16-31 /
-// ymm16-31, an opmask register k0-k7 (the VEX-encoded mask instructions) or an AMX tile.
+// ymm16-31, an opmask register k0-k7 (the VEX-encoded mask instructions) or an AMX tile, and the
+// AMX instructions that name no tile (ldtilecfg, sttilecfg, tilerelease).
 // Functions whose name contains "avx512" are the dispatched kernels (nn/isa_avx512_begin.h) and
 // may use them; every other function must not.
 #include <cctype>
@@ -29,6 +30,9 @@ inline bool beyond_v3(const std::string& bytes, const std::string& text) {
   while (in >> b && (b == "67" || b == "26" || b == "2e" || b == "36" || b == "3e" || b == "64" || b == "65")) {
   }
   if (b == "62") return true;
+  const std::size_t m = text.find_first_not_of(' ');
+  const std::string mnemonic = m == std::string::npos ? "" : text.substr(m, text.find_first_of(" \t", m) - m);
+  if (mnemonic == "ldtilecfg" || mnemonic == "sttilecfg" || mnemonic == "tilerelease") return true;
   // Registers as AT&T syntax prints them: %zmm5, %ymm17, %k1, %tmm0.
   for (std::size_t at = text.find('%'); at != std::string::npos; at = text.find('%', at + 1)) {
     std::size_t end = at + 1;

@@ -67,12 +67,24 @@ TEST(IsaScan, FindsAvx512OutsideTheKernelsAndNothingElse) {
       "0000000000001040 <high_ymm(float*)>:\n"
       "    1040:\t67 62 e1 7c 28 10 07 \tvmovups (%edi),%ymm16\n"
       "0000000000001050 <std::vector<float>::resize(unsigned long)>:\n"
-      "    1050:\tc5 f8 77             \tvzeroupper\n");
+      "    1050:\tc5 f8 77             \tvzeroupper\n"
+      "0000000000001060 <lidarsim::nn::detail::avx512_amx::forward(float*)>:\n"
+      "    1060:\tc4 e2 78 49 07       \tldtilecfg (%rdi)\n"
+      "    1065:\tc4 e2 7b 4b 04 3e    \ttileloadd (%rsi,%rdi,1),%tmm0\n"
+      "0000000000001070 <tile_config(void const*)>:\n"
+      "    1070:\tc4 e2 78 49 07       \tldtilecfg (%rdi)\n"
+      "0000000000001080 <tile_release()>:\n"
+      "    1080:\tc4 e2 78 49 c0       \ttilerelease\n"
+      "0000000000001090 <tile_dot()>:\n"
+      "    1090:\tc4 e2 72 5c c2       \ttdpbf16ps %tmm1,%tmm2,%tmm0\n");
   const auto found = scan_disassembly(dis);
-  ASSERT_EQ(found.size(), 3u);
+  ASSERT_EQ(found.size(), 6u);
   EXPECT_EQ(found[0].function, "evex_with_low_registers(float*)");
   EXPECT_EQ(found[1].function, "mask_op(int)");
   EXPECT_EQ(found[2].function, "high_ymm(float*)");
+  EXPECT_EQ(found[3].function, "tile_config(void const*)");
+  EXPECT_EQ(found[4].function, "tile_release()");
+  EXPECT_EQ(found[5].function, "tile_dot()");
 }
 
 TEST(IsaScan, ShippedBinariesUseNothingBeyondX86_64V3OutsideTheKernels) {

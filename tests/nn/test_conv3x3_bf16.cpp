@@ -14,8 +14,10 @@
 #include <string>
 #include <vector>
 
+#include "bf16_bound.h"
 #include "conv_path.h"
 #include "nn/conv3x3_bf16.h"
+#include "nn/cpu_features.h"
 #include "nn/layers.h"
 #include "nn/precision.h"
 #include "nn/unet.h"
@@ -25,22 +27,7 @@ namespace {
 
 using conv_paths::Conv3x3PathGuard;
 using detail::Conv3x3Path;
-
-Tensor activations(Shape s, std::uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<float> normal;
-  Tensor t(s);
-  for (float& v : t) v = std::max(normal(rng), 0.f);
-  return t;
-}
-
-std::vector<float> he_weights(int co, int ci, std::uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<float> normal(0.f, std::sqrt(2.f / (9.f * ci)));
-  std::vector<float> w(static_cast<std::size_t>(co) * ci * 9);
-  for (float& v : w) v = normal(rng);
-  return w;
-}
+using namespace bf16_bound;
 
 // Sets the requested precision for a scope.
 struct PrecisionGuard {
@@ -55,32 +42,6 @@ struct Case {
 
 const Case kCases[] = {{1, 3, 0, 5, 7, 13},   {2, 17, 0, 9, 5, 50},  {1, 16, 0, 16, 9, 33}, {1, 1, 0, 8, 1, 1},
                        {3, 7, 0, 11, 6, 3},   {1, 12, 0, 40, 2, 100}, {2, 5, 6, 11, 6, 21}, {1, 16, 16, 16, 4, 64}};
-
-// sum over the 3x3 window and input channels of |w| |x| (zero padding), per output element.
-std::vector<double> magnitude(const std::vector<const Tensor*>& ins, const std::vector<float>& w, int co) {
-  const Shape s = ins[0]->shape();
-  int ci = 0;
-  for (const Tensor* t : ins) ci += t->shape().c;
-  std::vector<double> m(static_cast<std::size_t>(s.n) * co * s.h * s.w, 0.0);
-  for (int n = 0; n < s.n; ++n)
-    for (int o = 0; o < co; ++o)
-      for (int y = 0; y < s.h; ++y)
-        for (int x = 0; x < s.w; ++x) {
-          double acc = 0;
-          int c = 0;
-          for (const Tensor* t : ins)
-            for (int tc = 0; tc < t->shape().c; ++tc, ++c)
-              for (int ky = 0; ky < 3; ++ky)
-                for (int kx = 0; kx < 3; ++kx) {
-                  const int yy = y + ky - 1, xx = x + kx - 1;
-                  if (yy < 0 || yy >= s.h || xx < 0 || xx >= s.w) continue;
-                  acc += std::abs(w[(static_cast<std::size_t>(o) * ci + c) * 9 + ky * 3 + kx]) *
-                         std::abs(t->channel(n, tc)[yy * s.w + xx]);
-                }
-          m[((static_cast<std::size_t>(n) * co + o) * s.h + y) * s.w + x] = acc;
-        }
-  return m;
-}
 
 // Runs one case in fp32 (direct path) and bf16; returns the worst |bf16 - fp32| / bound and
 // the worst |bf16 - fp32| / max |fp32| through out parameters. swap01 feeds the bf16 kernel
@@ -103,6 +64,7 @@ void run_case(const Case& c, bool relu, double* worst_bound, double* worst_rel, 
   if (swap01)
     for (int n = 0; n < c.n; ++n) std::swap_ranges(a16.channel(n, 0), a16.channel(n, 0) + c.h * c.w, a16.channel(n, 1));
   {
+    testhook::ScopedIsa isa(Isa::avx512_bf16);  // this kernel, not AMX (test_conv3x3_amx.cpp)
     detail::ConvSettings cs;
     cs.bf16 = true;  // the layer functions route to the bf16 kernel
     if (c.cb)
@@ -179,6 +141,7 @@ TEST(Conv3x3Bf16, WholeUNetPredictStaysCloseToFp32AndTrainingForwardIsUntouched)
   }
   {
     PrecisionGuard p(InferencePrecision::bf16);
+    testhook::ScopedIsa isa(Isa::avx512_bf16);
     model.predict(x, y16);
     model.forward(x, yf);  // training's forward pass stays fp32, bit for bit
   }

@@ -15,6 +15,7 @@
 #include "common/error.h"
 #include "conv_path.h"
 #include "nn/conv3x3.h"
+#include "nn/conv3x3_amx.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/conv_transpose2x2.h"
 #include "nn/cpu_features.h"
@@ -51,8 +52,13 @@ TEST_P(IsaPath, OffersExactlyTheKernelsOfItsLevel) {
   EXPECT_EQ(detail::conv3x3_available(), wide);
   EXPECT_EQ(detail::winograd_available(), wide || LIDARSIM_AVX2_KERNELS);  // at avx2: the AVX2 port
   EXPECT_EQ(detail::conv_transpose2x2_available(), wide);
-  EXPECT_EQ(detail::conv3x3_bf16_available(), GetParam() == Isa::avx512_bf16);
-  EXPECT_EQ(bf16_supported(), GetParam() == Isa::avx512_bf16);
+  const bool bf16 = static_cast<int>(GetParam()) >= static_cast<int>(Isa::avx512_bf16);
+  EXPECT_EQ(detail::conv3x3_bf16_available(), bf16);
+  EXPECT_EQ(bf16_supported(), bf16);
+  EXPECT_EQ(detail::conv3x3_amx_available(), GetParam() == Isa::amx_bf16);
+  if (GetParam() != Isa::amx_bf16) {
+    EXPECT_FALSE(detail::conv3x3_takes_amx(1, 64, 64, 64, 256));
+  }
 }
 
 struct Errors {
@@ -187,7 +193,8 @@ TEST_P(IsaPath, UNetGradientsAreTheSameBitsRunToRunAtEachThreadCount) {
   omp_set_num_threads(saved);
 }
 
-INSTANTIATE_TEST_SUITE_P(EveryLevel, IsaPath, ::testing::Values(Isa::avx2, Isa::avx512, Isa::avx512_bf16),
+INSTANTIATE_TEST_SUITE_P(EveryLevel, IsaPath,
+                         ::testing::Values(Isa::avx2, Isa::avx512, Isa::avx512_bf16, Isa::amx_bf16),
                          [](const ::testing::TestParamInfo<Isa>& i) { return std::string(to_string(i.param)); });
 
 TEST(CpuFeatures, ParsesTheLevelNamesAndRejectsTheRest) {
@@ -196,12 +203,13 @@ TEST(CpuFeatures, ParsesTheLevelNamesAndRejectsTheRest) {
     parse_isa("avx9", "environment: LIDARSIM_ISA");
     FAIL() << "accepted avx9";
   } catch (const Error& e) {
-    EXPECT_STREQ(e.what(), "environment: LIDARSIM_ISA: expected auto, avx2, avx512 or avx512_bf16, got \"avx9\"");
+    EXPECT_STREQ(e.what(),
+                 "environment: LIDARSIM_ISA: expected auto, avx2, avx512, avx512_bf16 or amx_bf16, got \"avx9\"");
   }
 }
 
 TEST(CpuFeatures, ALevelAboveTheCpuIsAnErrorNotASilentFallback) {
-  if (cpu_isa() == Isa::avx512_bf16) GTEST_SKIP() << "this CPU has every level";
+  if (cpu_isa() == Isa::amx_bf16) GTEST_SKIP() << "this CPU has every level";
   const Isa above = static_cast<Isa>(static_cast<int>(cpu_isa()) + 1);
   EXPECT_THROW(testhook::set_isa(above), Error);
   EXPECT_NE(active_isa(), above);
@@ -222,7 +230,8 @@ TEST(CpuFeaturesDeathTest, BadLidarsimIsaIsOneClearError) {
         }
         std::exit(0);
       },
-      ::testing::ExitedWithCode(2), "error: environment: LIDARSIM_ISA: expected auto, avx2, avx512 or avx512_bf16");
+      ::testing::ExitedWithCode(2),
+      "error: environment: LIDARSIM_ISA: expected auto, avx2, avx512, avx512_bf16 or amx_bf16");
 }
 
 }  // namespace
