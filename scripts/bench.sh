@@ -11,7 +11,9 @@
 # Installs the peer's Debian packages when missing (python3-torch, python3-h5py, and
 # libopenblas0-openmp, which becomes the system libblas.so.3 that Debian's torch links, instead of
 # the slow reference BLAS). Options: --reps N (engine rows, default 7), --runs N (pipeline runs,
-# default 5), --rounds N (default 3), --growth, --write-readme, --out DIR (JSON results, default build/bench-results),
+# default 5), --rounds N (default 3), --growth, --write-readme, --write-docs (the table also into
+# docs/performance.md's tables per CPU family, keyed by vendor, family and model: one table per
+# CPU kind, replaced when the same kind is measured again), --out DIR (JSON results, default build/bench-results),
 # --no-build (use the benches already built, e.g. while another build runs in the same tree);
 # anything after -- goes to bench_unet_vs_torch (e.g. -- --threads 2).
 # --long runs the statistical campaigns instead (the tests labelled long, tests/CMakeLists.txt:
@@ -20,7 +22,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-reps=7 runs=5 rounds=3 growth=0 write_readme=0 build=1 out="" long=0
+reps=7 runs=5 rounds=3 growth=0 write_readme=0 write_docs=0 build=1 out="" long=0
 extra=()
 while (($#)); do
   case "$1" in
@@ -29,6 +31,7 @@ while (($#)); do
     --rounds) rounds=$2; shift 2 ;;
     --growth) growth=1; shift ;;
     --write-readme) write_readme=1; shift ;;
+    --write-docs) write_docs=1; shift ;;
     --no-build) build=0; shift ;;
     --out) out=$2; shift 2 ;;
     --long) long=1; shift ;;
@@ -82,9 +85,11 @@ cpu=$(lscpu 2>/dev/null | sed -n 's/^Model name: *//p' | head -1)
 flags=$(grep -m1 '^flags' /proc/cpuinfo 2>/dev/null | tr ' ' '\n' |
   grep -xE 'avx2|fma|avx512f|avx512bw|avx512vl|avx512dq|avx512_bf16|amx_bf16|amx_tile' | tr '\n' ' ' | sed 's/ $//') || flags=""
 isa="${LIDARSIM_ISA:-auto}"
-python3 - "$out" "$rounds" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" "$flags" "$isa" <<'PY'
+# The CPU kind a table is kept per: vendor, family and model as /proc/cpuinfo gives them.
+cpu_key=$(awk -F': *' '/^vendor_id/ {v=$2} /^cpu family/ {f=$2} /^model[ \t]*:/ {m=$2} END {print v "-" f "-" m}' /proc/cpuinfo 2>/dev/null) || cpu_key=unknown
+python3 - "$out" "$rounds" "$growth" "$write_readme" "$cpu" "$(nproc)" "$load_before" "$load_after" "$blas" "$flags" "$isa" "$write_docs" "$cpu_key" <<'PY'
 import json, os, sys, datetime, statistics
-out, rounds, growth, write_readme, cpu, ncpu, load_before, load_after, blas, flags, isa = sys.argv[1:]
+out, rounds, growth, write_readme, cpu, ncpu, load_before, load_after, blas, flags, isa, write_docs, cpu_key = sys.argv[1:]
 rounds = int(rounds)
 us = [json.load(open(os.path.join(out, f"round{i}", "unet_vs_torch.json"))) for i in range(1, rounds + 1)]
 ps = [json.load(open(os.path.join(out, f"round{i}", "pipeline.json"))) for i in range(1, rounds + 1)]
@@ -93,6 +98,8 @@ names = {"train_b1": "training step, batch 1", "train_b4": "training step, batch
          "infer_b1": "inference, batch 1", "infer_b4": "inference, batch 4",
          "infer_b1_bf16": "inference in bf16 (peer: its fp32), batch 1",
          "infer_b4_bf16": "inference in bf16 (peer: its fp32), batch 4"}
+# The bf16 rows twice more: against the peer's own bf16 (torch.autocast) and against our fp32.
+bf16_against = {"infer_b1_bf16": "infer_b1", "infer_b4_bf16": "infer_b4"}
 u = us[0]
 torch = u.get("torch") or {}
 lines = []
@@ -117,6 +124,15 @@ for r in u["table"]:
     else:
         peer, ratio = "–", "–"
     lines.append(f"| unet-ref {names.get(r['row'], r['row'])} | {ours:.3f} s | {peer} | {ratio} | {gflops:.0f} |")
+    if r["row"] in bf16_against and all(x.get("torch_bf16_s") for x in rows):
+        ratios = [x["ours_s"] / x["torch_bf16_s"] for x in rows]
+        lines.append(f"| unet-ref inference in bf16 (peer: its bf16 autocast), batch {r['row'][7]} | {ours:.3f} s | "
+                     f"{med([x['torch_bf16_s'] for x in rows]):.3f} s | **{med(ratios):.2f}** ({min(ratios):.2f}–{max(ratios):.2f}) | |")
+    if r["row"] in bf16_against:
+        fp32 = [next(x for x in ui["table"] if x["row"] == bf16_against[r["row"]]) for ui in us]
+        ratios = [b["ours_s"] / f["ours_s"] for b, f in zip(rows, fp32)]
+        lines.append(f"| unet-ref inference in bf16 against our fp32, batch {r['row'][7]} | {ours:.3f} s | "
+                     f"{med([f['ours_s'] for f in fp32]):.3f} s (ours, fp32) | **{med(ratios):.2f}** ({min(ratios):.2f}–{max(ratios):.2f}) | |")
 w = {k: med([p["whole"][k] for p in ps]) for k in ("fps",)}
 w0 = ps[0]["whole"]
 unet_ms = med([p["whole"]["stage_ms"]["unet"] for p in ps])
@@ -152,4 +168,22 @@ if write_readme == "1":
     open(tmp, "w").write(head + begin + "\n" + table + "\n" + end + tail)
     os.replace(tmp, "README.md")
     print("bench.sh: README.md table updated", file=sys.stderr)
+if write_docs == "1":
+    doc, end_all = "docs/performance.md", "<!-- bench.sh cpu tables: end -->"
+    begin, end = f"<!-- bench.sh cpu {cpu_key}: begin -->", f"<!-- bench.sh cpu {cpu_key}: end -->"
+    text = open(doc).read()
+    if end_all not in text:
+        sys.exit(f"bench.sh: {doc} has no '{end_all}' marker")
+    parts = cpu_key.split("-")
+    kind = f"{parts[0]} family {parts[1]} model {parts[2]}" if len(parts) == 3 else cpu_key
+    section = f"{begin}\n### {cpu or 'unknown CPU'} ({kind})\n\n{table}\n{end}"
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + section + rest.split(end, 1)[1]
+    else:
+        text = text.replace(end_all, section + "\n\n" + end_all)
+    tmp = doc + ".bench-tmp"
+    open(tmp, "w").write(text)
+    os.replace(tmp, doc)
+    print(f"bench.sh: {doc} table for {cpu_key} updated", file=sys.stderr)
 PY

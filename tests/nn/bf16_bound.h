@@ -9,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "nn/precision.h"
 #include "nn/tensor.h"
 
 namespace lidarsim::nn::bf16_bound {
@@ -54,5 +55,12 @@ inline std::vector<double> magnitude(const std::vector<const Tensor*>& ins, cons
         }
   return m;
 }
+
+// Sets the process's inference precision for a scope.
+struct PrecisionGuard {
+  explicit PrecisionGuard(InferencePrecision p) : old(inference_precision()) { set_inference_precision(p); }
+  ~PrecisionGuard() { set_inference_precision(old); }
+  InferencePrecision old;
+};
 
 }  // namespace lidarsim::nn::bf16_bound

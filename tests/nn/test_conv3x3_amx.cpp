@@ -32,11 +32,11 @@ using namespace bf16_bound;
 
 constexpr const char* kNoAmx = "this CPU (or LIDARSIM_ISA) has no AMX-BF16: no AMX path to test";
 
-struct Case {
+struct AmxCase {
   int n, ca, cb, co, h, w;  // input = concat of ca and cb channels (cb 0: plain)
 };
 
-const Case kCases[] = {{1, 3, 0, 16, 5, 1000}, {3, 3, 0, 1, 5, 17},   {1, 16, 0, 16, 5, 64},  {3, 16, 0, 40, 1, 17},
+const AmxCase kAmxCases[] = {{1, 3, 0, 16, 5, 1000}, {3, 3, 0, 1, 5, 17},   {1, 16, 0, 16, 5, 64},  {3, 16, 0, 40, 1, 17},
                        {1, 48, 0, 40, 5, 17},  {1, 48, 0, 16, 1, 1000}, {3, 48, 48, 40, 5, 64}, {1, 48, 48, 1, 1, 1},
                        {3, 16, 0, 1, 1, 1},    {1, 20, 28, 40, 5, 17},  {1, 3, 0, 40, 1, 64},   {3, 48, 48, 16, 5, 1},
                        // At least 16 rows: staged per band of 8 rows (the last one partial here).
@@ -44,7 +44,7 @@ const Case kCases[] = {{1, 3, 0, 16, 5, 1000}, {3, 3, 0, 1, 5, 17},   {1, 16, 0,
                        // 4 and 8 values per staged pixel (ci <= 4, ci <= 8).
                        {1, 4, 0, 16, 17, 17},  {3, 5, 3, 16, 5, 33},    {1, 7, 0, 9, 16, 20}};
 
-std::string name(const Case& c) {
+std::string name(const AmxCase& c) {
   return "n " + std::to_string(c.n) + " ci " + std::to_string(c.ca) + "+" + std::to_string(c.cb) + " co " +
          std::to_string(c.co) + " " + std::to_string(c.h) + "x" + std::to_string(c.w);
 }
@@ -52,21 +52,21 @@ std::string name(const Case& c) {
 struct Inputs {
   Tensor a, b;
   std::vector<float> w, bias;
-  explicit Inputs(const Case& c)
+  explicit Inputs(const AmxCase& c)
       : a(activations(Shape{c.n, c.ca, c.h, c.w}, 1)),
         b(c.cb ? activations(Shape{c.n, c.cb, c.h, c.w}, 2) : Tensor()),
         w(he_weights(c.co, c.ca + c.cb, 3)),
         bias(static_cast<std::size_t>(c.co)) {
     for (int o = 0; o < c.co; ++o) bias[o] = 0.05f * (o % 5) - 0.1f;
   }
-  std::vector<double> mag(const Case& c) const {
+  std::vector<double> mag(const AmxCase& c) const {
     std::vector<const Tensor*> ins{&a};
     if (c.cb) ins.push_back(&b);
     return magnitude(ins, w, c.co);
   }
 };
 
-Tensor run_amx(const Case& c, const Inputs& in, bool with_bias, bool relu) {
+Tensor run_amx(const AmxCase& c, const Inputs& in, bool with_bias, bool relu) {
   Tensor y(c.n, c.co, c.h, c.w);
   detail::conv3x3_amx_forward_cat(y.data(), in.a.data(), c.ca, c.cb ? in.b.data() : nullptr, c.cb, c.n, c.h, c.w,
                                   in.w.data(), with_bias ? in.bias.data() : nullptr, c.co, relu);
@@ -74,7 +74,7 @@ Tensor run_amx(const Case& c, const Inputs& in, bool with_bias, bool relu) {
 }
 
 // The fp32 reference: the direct kernel through the layer function (as test_conv3x3_bf16.cpp).
-Tensor run_fp32(const Case& c, const Inputs& in, bool with_bias, bool relu) {
+Tensor run_fp32(const AmxCase& c, const Inputs& in, bool with_bias, bool relu) {
   conv_paths::Conv3x3PathGuard direct(detail::Conv3x3Path::direct);
   Tensor y;
   const float* bias = with_bias ? in.bias.data() : nullptr;
@@ -86,7 +86,7 @@ Tensor run_fp32(const Case& c, const Inputs& in, bool with_bias, bool relu) {
 }
 
 // Worst |got - ref| / (scale x mag + 2^-20 (mag + |bias|)) over the outputs.
-double worst_ratio(const Case& c, const Tensor& got, const Tensor& ref, const std::vector<double>& mag,
+double worst_ratio(const AmxCase& c, const Tensor& got, const Tensor& ref, const std::vector<double>& mag,
                    const std::vector<float>& bias, bool with_bias, double scale) {
   double worst = 0;
   const std::size_t plane = static_cast<std::size_t>(c.h) * c.w;
@@ -101,7 +101,7 @@ double worst_ratio(const Case& c, const Tensor& got, const Tensor& ref, const st
 TEST(Conv3x3Amx, MatchesFp32WithinBf16RoundingOnOddSizesAndConcats) {
   if (!detail::conv3x3_amx_available()) GTEST_SKIP() << kNoAmx;
   double worst = 0;
-  for (const Case& c : kCases) {
+  for (const AmxCase& c : kAmxCases) {
     const Inputs in(c);
     const std::vector<double> mag = in.mag(c);
     for (bool with_bias : {false, true})
@@ -124,7 +124,7 @@ TEST(Conv3x3Amx, MatchesFp32WithinBf16RoundingOnOddSizesAndConcats) {
 TEST(Conv3x3Amx, AgreesWithTheAvx512Bf16KernelUpToSumOrder) {
   if (!detail::conv3x3_amx_available()) GTEST_SKIP() << kNoAmx;
   double worst = 0;
-  for (const Case& c : kCases) {
+  for (const AmxCase& c : kAmxCases) {
     SCOPED_TRACE(name(c));
     const Inputs in(c);
     const std::vector<double> mag = in.mag(c);
@@ -144,7 +144,7 @@ TEST(Conv3x3Amx, SameBitsAtOneAndTwoThreads) {
   if (!detail::conv3x3_amx_available()) GTEST_SKIP() << kNoAmx;
   const int saved = omp_get_max_threads();
   // The large case keeps both threads busy (a worker that wakes late may find no task left).
-  for (const Case& c : {Case{3, 48, 48, 40, 5, 64}, Case{1, 3, 0, 16, 5, 1000}, Case{2, 40, 24, 48, 32, 512}}) {
+  for (const AmxCase& c : {AmxCase{3, 48, 48, 40, 5, 64}, AmxCase{1, 3, 0, 16, 5, 1000}, AmxCase{2, 40, 24, 48, 32, 512}}) {
     SCOPED_TRACE(name(c));
     const Inputs in(c);
     omp_set_num_threads(1);
@@ -157,12 +157,6 @@ TEST(Conv3x3Amx, SameBitsAtOneAndTwoThreads) {
   }
   omp_set_num_threads(saved);
 }
-
-struct PrecisionGuard {
-  explicit PrecisionGuard(InferencePrecision p) : old(inference_precision()) { set_inference_precision(p); }
-  ~PrecisionGuard() { set_inference_precision(old); }
-  InferencePrecision old;
-};
 
 // A whole predict in bf16 with AMX against fp32, with the bound of test_conv3x3_bf16.cpp's UNet
 // test; and not the AVX-512 BF16 kernel's bits (AMX ran).

@@ -29,13 +29,6 @@ using conv_paths::Conv3x3PathGuard;
 using detail::Conv3x3Path;
 using namespace bf16_bound;
 
-// Sets the requested precision for a scope.
-struct PrecisionGuard {
-  explicit PrecisionGuard(InferencePrecision p) : old(inference_precision()) { set_inference_precision(p); }
-  ~PrecisionGuard() { set_inference_precision(old); }
-  InferencePrecision old;
-};
-
 struct Case {
   int n, ca, cb, co, h, w;  // input = concat of ca and cb channels (cb 0: plain)
 };
