@@ -1,5 +1,6 @@
 #include "nn/kernel_plan.h"
 
+#include <chrono>
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
@@ -97,7 +98,9 @@ ConvAlgo KernelPlan::lookup(const ConvKey& key) {
       const ConvAlgo fwd = key.pass == ConvPass::bf16_forward
                                ? lookup(ConvKey{ConvPass::forward, key.n, key.ci, key.co, key.h, key.w, key.isa})
                                : ConvAlgo::direct;
+      const auto t0 = std::chrono::steady_clock::now();
       entry = calibrate(key, fwd);
+      calibration_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       disk->second[key] = entry;
       write_kernel_cache(key.isa, disk->second);
     }

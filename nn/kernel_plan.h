@@ -67,6 +67,8 @@ class KernelPlan {
   void set(const ConvKey& key, ConvAlgo algo);
   void record(const ConvKey& key, const PlanEntry& entry) { entries_[key] = entry; }
   const std::map<ConvKey, PlanEntry>& entries() const { return entries_; }
+  // Wall time this plan spent measuring (callers that time their own work leave it out).
+  double calibration_seconds() const { return calibration_seconds_; }
 
   // {"mode": ..., "choices": [{"pass", "n", "ci", "co", "h", "w", "isa", "algo", "seconds"}...]}.
   std::string to_json() const;
@@ -80,6 +82,7 @@ class KernelPlan {
   std::map<ConvKey, PlanEntry> entries_;
   std::map<Isa, std::map<ConvKey, PlanEntry>> disk_;  // the cache files read so far, per ISA level
   bool announced_ = false;                            // the stderr line of the first calibration
+  double calibration_seconds_ = 0;
 };
 
 namespace detail {
