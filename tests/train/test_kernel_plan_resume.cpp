@@ -58,7 +58,7 @@ data::Dataset resume_plan_dataset(int frames) {
   return d;
 }
 
-std::string file_bytes(const fs::path& p) {
+std::string resume_plan_bytes(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
   return {std::istreambuf_iterator<char>(in), {}};
 }
@@ -66,7 +66,7 @@ std::string file_bytes(const fs::path& p) {
 // Every fp32 choice in the cache file swapped (direct <-> winograd): what a cache measured under
 // other load, or on another machine of the same kind, might hold.
 void flip_cache(const fs::path& path) {
-  nlohmann::json j = nlohmann::json::parse(file_bytes(path));
+  nlohmann::json j = nlohmann::json::parse(resume_plan_bytes(path));
   for (auto& c : j.at("choices")) {
     const std::string a = c.at("algo");
     if (a == "direct") c["algo"] = "winograd";
@@ -107,14 +107,14 @@ TEST(KernelPlanResume, AResumeTakesTheCheckpointsPlanAfterTheCacheChanged) {
   flip_cache(cache_file);
   c.resume = true;
   train::train(c);
-  EXPECT_TRUE(file_bytes(dir / "through.h5") == file_bytes(dir / "resumed.h5"))
+  EXPECT_TRUE(resume_plan_bytes(dir / "through.h5") == resume_plan_bytes(dir / "resumed.h5"))
       << "the resumed run did not take the checkpoint's kernel plan";
 
   // The changed cache does change the bits of a run that reads it: the check above can fail.
   c.resume = false;
   c.out = dir / "flipped.h5";
   train::train(c);
-  EXPECT_FALSE(file_bytes(dir / "through.h5") == file_bytes(dir / "flipped.h5"));
+  EXPECT_FALSE(resume_plan_bytes(dir / "through.h5") == resume_plan_bytes(dir / "flipped.h5"));
 }
 
 TEST(KernelPlanResume, RuleModeIsRecordedToo) {
