@@ -30,6 +30,8 @@
 #include "nn/conv3x3.h"
 #include "nn/conv3x3_amx.h"
 #include "nn/conv3x3_bf16.h"
+#include "nn/kernel_cache.h"
+#include "nn/kernel_plan.h"
 #include "nn/layers.h"
 #include "nn/weight_cache.h"
 #include "nn/winograd.h"
@@ -161,6 +163,10 @@ int main(int argc, char** argv) {
       ("level", "only this UNet level (-1: all)", cxxopts::value<int>()->default_value("-1"))
       ("wall", "time wall clock instead of process CPU time")
       ("forward-only", "time only the forward passes (gradient columns print 0)")
+      ("kernels", "calibrated: instead of the table, the plan a calibrated model picks for each shape and pass "
+       "(nn/kernel_plan.h), with each candidate's minimum wall time and the rule's choice; read from the kernel cache "
+       "where it has the shape (point LIDARSIM_KERNEL_CACHE at an empty folder to measure afresh)",
+       cxxopts::value<std::string>())
       ("h,help", "show help");
     const auto opt = options.parse(argc, argv);
     if (opt.count("help")) {
@@ -176,6 +182,40 @@ int main(int argc, char** argv) {
     const bool wall = opt.count("wall") > 0, fwd_only = opt.count("forward-only") > 0;
     const int base = 16, depth = 4;
     const bool bf16 = detail::conv3x3_bf16_available(), amx = detail::conv3x3_amx_available();
+    if (opt.count("kernels")) {
+      if (parse_plan_mode(opt["kernels"].as<std::string>(), "bench_conv3x3: --kernels") != PlanMode::calibrated)
+        throw Error("bench_conv3x3: --kernels: only calibrated prints a plan (rule is the table's rule column)");
+      KernelPlan plan(PlanMode::calibrated);
+      int changed = 0, total = 0;
+      const double wall0 = wall_seconds();
+      for (int n : opt["batch"].as<std::vector<int>>())
+        for (int l = 0; l <= depth; ++l) {
+          const int c = base << l, h = rows >> l, w = cols >> l;
+          std::vector<std::pair<int, int>> shapes{{l == 0 ? 3 : c / 2, c}, {c, c}};
+          if (l < depth) shapes.push_back({2 * c, c});
+          for (const auto& [ci, co] : shapes)
+            for (const ConvPass pass : {ConvPass::forward, ConvPass::input_grad, ConvPass::weight_grad, ConvPass::bf16_forward}) {
+              if (pass == ConvPass::bf16_forward && !bf16) continue;
+              if (pass == ConvPass::input_grad && l == 0 && ci == 3) continue;  // enc0.conv1 has no input gradient
+              const ConvKey key{pass, n, ci, co, h, w, active_isa()};
+              changed += plan.lookup(key) != rule_choice(key);
+              ++total;
+            }
+        }
+      std::printf("kernel plan (calibrated) on %s, %s, %d threads; cache %s; %.1f s\n", cpu_name().c_str(),
+                  to_string(active_isa()), opt["threads"].as<int>(), kernel_cache_path(active_isa()).c_str(),
+                  wall_seconds() - wall0);
+      for (const auto& [key, entry] : plan.entries()) {
+        const ConvAlgo rule = rule_choice(key);
+        std::printf("  %-12s n%d %3d->%-3d %2dx%-4d %-11s (rule %s)", to_string(key.pass), key.n, key.ci, key.co, key.h,
+                    key.w, to_string(entry.algo), to_string(rule));
+        for (const auto& [name, sec] : entry.seconds) std::printf("  %s %.3f ms", name.c_str(), sec * 1e3);
+        std::printf("\n");
+      }
+      std::printf("%d of %d choices differ from the rule; load average before / after: %s / %s\n", changed, total,
+                  load_before.c_str(), loadavg().c_str());
+      return 0;
+    }
     if (!detail::conv3x3_available())
       std::printf("(no AVX-512 kernels at this level: \"dir\" is im2col + Eigen GEMM, \"win\" the AVX2 Winograd port)\n");
     std::printf("%-5s %4s %4s %4s %5s %8s %8s %7s %8s %8s %7s %8s %8s %7s %8s %8s %8s", "batch", "ci", "co", "h", "w",

@@ -156,6 +156,7 @@ struct BenchOptions {
   std::string python, torch_script, torch_settings, json;
   std::vector<std::string> wait_policies;
   bool with_torch = true, want_bf16 = true, infer_only = false, bf16_only = false, train_only = false;
+  PlanMode kernels = PlanMode::rule;  // the model's kernel plan (nn/kernel_plan.h)
 };
 
 // Returns nullopt after printing the help.
@@ -182,6 +183,8 @@ std::optional<BenchOptions> parse_options(int argc, char** argv) {
     ("train-only", "only the training rows (with --no-torch: e.g. for LIDARSIM_PROFILE=cpu)")
     ("batch", "only the rows of this batch size (0: all)", cxxopts::value<int>()->default_value("0"))
     ("gemm", "size of the GEMM peak line (0 = skip)", cxxopts::value<int>()->default_value("4096"))
+    ("kernels", "our model's kernel choices: rule (the fixed rules) or calibrated (measured on this CPU, cached; "
+     "the warm-up runs take the calibration)", cxxopts::value<std::string>()->default_value("rule"))
     ("json", "also write the results as JSON to this file", cxxopts::value<std::string>())
     ("h,help", "show help");
   const auto opt = options.parse(argc, argv);
@@ -191,6 +194,7 @@ std::optional<BenchOptions> parse_options(int argc, char** argv) {
   }
   BenchOptions o;
   o.reps = opt["reps"].as<int>();
+  o.kernels = parse_plan_mode(opt["kernels"].as<std::string>(), "bench_unet_vs_torch: --kernels");
   o.warmup = opt["warmup"].as<int>();
   o.threads = opt["threads"].as<int>();
   o.rows = opt["rows"].as<int>();
@@ -398,6 +402,7 @@ int main(int argc, char** argv) {
     const UNetConfig cfg{3, 1, 16, 4};
     UNet model(cfg);
     model.init(1);
+    model.set_kernel_plan(KernelPlan(o.kernels));
     const bool bf16 = o.want_bf16 && bf16_supported();
     if (o.want_bf16 && !bf16) std::cerr << "bench: this CPU has no AVX-512 BF16: no bf16 rows\n";
     std::vector<Row> table = select_rows(o, bf16);

@@ -46,6 +46,9 @@ class IntensityModel {
   // From now on the spread head's scale is multiplied by these terms' factors at each cell
   // (infer/intensity_spread_terms.h), in predict()'s draws and in predict_distribution().
   void set_spread_terms(std::vector<sensor::RangeNoiseTerm> terms) { spread_terms_ = std::move(terms); }
+  // How the UNet's 3x3 kernels are chosen (nn/kernel_plan.h; rule until set), and what it chose.
+  void set_kernel_mode(nn::PlanMode mode) { model_.set_kernel_plan(nn::KernelPlan(mode)); }
+  const nn::KernelPlan& kernel_plan() const { return model_.kernel_plan(); }
 
   // Predicted target (intensity) per cell, [rows * cols]; cells without a return get 0. By
   // default the mean (channel 0); with sample_from_spread, a draw per cell depending only on

@@ -62,6 +62,9 @@ int run_predict(int argc, char** argv) {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
+    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
+     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in code)",
+     cxxopts::value<std::string>()->default_value("calibrated"))
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
@@ -91,6 +94,7 @@ int run_predict(int argc, char** argv) {
   omp_set_num_threads(args["threads"].as<int>());
   if (args.count("precision"))
     nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer predict: --precision"));
+  o.kernels = nn::parse_plan_mode(args["kernels"].as<std::string>(), "lidar-infer predict: --kernels");
   const auto summary = infer::predict_scans(o);
   std::printf("%zu scans: MAE %.4f RMSE %.4f over %ld cells, %.3f s per scan (%s); outputs in %s (summary.md)\n",
               summary.scans.size(), summary.mae, summary.rmse, summary.cells, summary.seconds_per_scan,
@@ -123,6 +127,9 @@ cxxopts::Options sim_options_spec() {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
+    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
+     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in code)",
+     cxxopts::value<std::string>()->default_value("calibrated"))
     ("seed", "seed of the KPI noise, --range-noise, --returns and --sample-intensity", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("range-noise", "range noise model JSON (lidar-qualify range-noise, e.g. data/models/range_noise_hdl64e.json): "
      "each return's range scatters along its beam, drawn from --seed, the frame and the cell; default exact ranges",
@@ -181,6 +188,7 @@ SimArgs parse_sim_args(const cxxopts::ParseResult& args) {
   omp_set_num_threads(a.threads);
   if (args.count("precision"))
     nn::set_inference_precision(nn::parse_inference_precision(args["precision"].as<std::string>(), "lidar-infer sim: --precision"));
+  a.sim_options.kernels = nn::parse_plan_mode(args["kernels"].as<std::string>(), "lidar-infer sim: --kernels");
   a.sim_options.seed = args["seed"].as<std::uint64_t>();
   if (args.count("range-noise"))
     a.sim_options.range_noise = std::make_shared<const sensor::RangeNoiseModel>(
@@ -288,6 +296,15 @@ int run_sim(int argc, char** argv) {
   const SimLoopTimes t = run_sim_frames(pipeline, a, frames, stats);
   report_sim(a, pipeline, stats, frames, t,
              std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count());
+  if (const auto* m = pipeline.intensity_model()) {  // the kernels the UNet took, on one line
+    std::string choices;
+    for (const auto& [k, e] : m->kernel_plan().entries())
+      choices += std::string(choices.empty() ? "" : "; ") + nn::to_string(k.pass) + " n" + std::to_string(k.n) + " " +
+                 std::to_string(k.ci) + "->" + std::to_string(k.co) + " " + std::to_string(k.h) + "x" +
+                 std::to_string(k.w) + ": " + nn::to_string(e.algo);
+    std::fprintf(stderr, "lidar-infer sim: kernels %s (%s): %s\n", nn::to_string(m->kernel_plan().mode()),
+                 nn::to_string(nn::active_isa()), choices.c_str());
+  }
   return 0;
 }
 

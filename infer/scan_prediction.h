@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "common/image.h"
+#include "nn/kernel_plan.h"
 
 namespace lidarsim::pgm {
 class PolarGridMap;
@@ -34,6 +35,8 @@ struct PredictOptions {
   std::uint64_t seed = 1;
   // Terms on the sampled spread (infer/intensity_spread_terms.h); needs sample_intensity.
   std::string spread_terms;
+  // How the UNet's 3x3 kernels are chosen (nn/kernel_plan.h); the plan goes into summary.json.
+  nn::PlanMode kernels = nn::PlanMode::rule;
 };
 
 struct ClassError {
@@ -55,6 +58,7 @@ struct PredictSummary {
   double mae = 0, rmse = 0;
   long cells = 0;
   double seconds_per_scan = 0;  // projection + inference, outputs excluded
+  std::string kernel_plan;      // the kernels the UNet took (nn::KernelPlan::to_json)
 };
 
 PredictSummary predict_scans(const PredictOptions& options);

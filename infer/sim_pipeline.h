@@ -59,6 +59,8 @@ struct SimOptions {
   // Return model (lidar-infer sim --returns FILE.json): which beams that meet geometry return,
   // drawn from (seed, frame, cell); null = every such beam returns.
   std::shared_ptr<const sensor::ReturnModel> returns;
+  // How the intensity UNet's 3x3 kernels are chosen (nn/kernel_plan.h).
+  nn::PlanMode kernels = nn::PlanMode::rule;
 };
 
 // Puts `layout` in the scenario's sensor (beams, vertical field of view, range limits).

@@ -14,7 +14,10 @@ SimPipeline SimPipeline::from_files(const std::filesystem::path& scenario, const
   if (options.sensor) use_sensor(s, *options.sensor);
   sensor::KpiModel k = sensor::load_kpi_model(kpi_model);
   std::unique_ptr<IntensityModel> m;
-  if (options.intensity && options.point_cloud) m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
+  if (options.intensity && options.point_cloud) {
+    m = std::make_unique<IntensityModel>(IntensityModel::load(intensity_checkpoint));
+    m->set_kernel_mode(options.kernels);
+  }
   return SimPipeline(std::move(s), std::move(k), std::move(m), options);
 }
 

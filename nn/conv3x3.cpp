@@ -19,6 +19,7 @@
 #include "nn/avx512_util.h"
 #include "nn/big_alloc.h"
 #include "nn/cpu_features.h"
+#include "nn/kernel_plan.h"
 #include "nn/parallel.h"
 #include "nn/weight_cache.h"
 #include "nn/staged_tile.h"
@@ -341,7 +342,7 @@ void conv3x3_forward(float* out, const float* in, int n, int ci, int h, int w, c
 void conv3x3_forward_cat(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w,
                          const float* weight, const float* bias, int co, bool relu, const ConvSettings& cs) {
   const int ci = ca + cb;
-  if (conv3x3_takes_winograd(ci, co, cs.conv3x3)) {
+  if (conv_choice(cs, ConvPass::forward, n, ci, co, h, w) == ConvAlgo::winograd) {
     avx512::winograd_conv3x3(OutPlaneSet{out, co}, PlaneSet{a, ca, b, cb}, nullptr, n, h, w, weight, false, bias, relu);
     return;
   }
@@ -371,8 +372,9 @@ void conv3x3_backward_cat(float* d_a, float* d_b, float* d_weight, float* d_bias
   const Geom g(h, w);
   const int ci = ca + cb;
   const bool par = static_cast<std::size_t>(n) * co * h * w > (1u << 15);
-  const bool wino_w = d_weight && conv3x3_takes_winograd(ci, co, cs.conv3x3);
-  const bool wino_d = d_a && conv3x3_takes_winograd(co, ci, cs.conv3x3);
+  // Chosen before any scratch is touched: a calibrating plan runs these kernels itself.
+  const bool wino_w = d_weight && conv_choice(cs, ConvPass::weight_grad, n, ci, co, h, w) == ConvAlgo::winograd;
+  const bool wino_d = d_a && conv_choice(cs, ConvPass::input_grad, n, ci, co, h, w) == ConvAlgo::winograd;
   // gp: the ReLU-masked output gradient, padded (zeros in the borders: junk pixels add nothing),
   // for the direct kernels; with only Winograd ones the bias needs just its sums (same order),
   // which the by-phase copy for Winograd's weight gradient also gives.

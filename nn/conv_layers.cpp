@@ -18,6 +18,7 @@
 #include "nn/conv3x3_amx.h"
 #include "nn/conv3x3_bf16.h"
 #include "nn/conv_transpose2x2.h"
+#include "nn/kernel_plan.h"
 #include "nn/layers_internal.h"
 #include "nn/parallel.h"
 #include "nn/winograd.h"
@@ -143,10 +144,26 @@ void conv_core(float* out, const float* in, int n, int ci, int h, int w, const f
   });
 }
 
-// Below AVX-512 (no direct kernel), the 3x3 layers the AVX2 rule gives to Winograd take its port
-// (nn/winograd.h); the others stay on im2col + GEMM.
-bool avx2_winograd(int ci, int co, Shape s, const detail::ConvSettings& cs) {
-  return !detail::conv3x3_available() && detail::conv3x3_avx2_takes_winograd(ci, co, s.n, s.h, s.w, cs.conv3x3);
+// Below AVX-512 (no direct kernel), the 3x3 layers the plan (or the AVX2 rule) gives to Winograd
+// take its port (nn/winograd.h); the others stay on im2col + GEMM. The backward pass is one
+// choice there (its two gradients share one by-phase copy): weight_grad's, or input_grad's
+// when there is no weight gradient.
+bool avx2_winograd(int ci, int co, Shape s, const detail::ConvSettings& cs, ConvPass pass) {
+  return !detail::conv3x3_available() &&
+         detail::conv_choice(cs, pass, s.n, ci, co, s.h, s.w) == ConvAlgo::winograd;
+}
+ConvPass backward_pass(const float* d_weight) { return d_weight ? ConvPass::weight_grad : ConvPass::input_grad; }
+
+// bf16 inference's forward (cs.bf16): whether a bf16 kernel (AVX-512 BF16 or AMX) takes this conv, and runs it.
+bool bf16_forward(float* out, const float* a, int ca, const float* b, int cb, int n, int h, int w, const float* weight,
+                  const float* bias, int co, bool relu, const detail::ConvSettings& cs) {
+  if (!cs.bf16) return false;
+  const ConvAlgo algo = detail::conv_choice(cs, ConvPass::bf16_forward, n, ca + cb, co, h, w);
+  if (algo == ConvAlgo::amx)
+    detail::conv3x3_amx_forward_cat(out, a, ca, b, cb, n, h, w, weight, bias, co, relu, cs.weight_cache);
+  else if (algo == ConvAlgo::avx512_bf16)
+    detail::conv3x3_bf16_forward_cat(out, a, ca, b, cb, n, h, w, weight, bias, co, relu, cs.weight_cache);
+  return algo != ConvAlgo::fp32;
 }
 
 }  // namespace
@@ -161,16 +178,13 @@ void conv2d_forward(Tensor& out, const Tensor& in, const float* weight, const fl
                 " does not fit input " + s.str());
   ensure(out, Shape{s.n, co, ho, wo});
   // UNet::predict in bf16 (nn/precision.h): a bf16 kernel (AVX-512 BF16 or AMX), where it is the faster choice.
-  if (k == 3 && pad == 1 && cs.bf16 && detail::conv3x3_takes_bf16(s.n, s.c, co, s.h, s.w, cs.conv3x3)) {
-    detail::conv3x3_bf16_dispatch(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu,
-                                  cs.weight_cache);
+  if (k == 3 && pad == 1 && bf16_forward(out.data(), in.data(), s.c, nullptr, 0, s.n, s.h, s.w, weight, bias, co, relu, cs))
     return;
-  }
   if (k == 3 && pad == 1 && detail::conv3x3_available()) {
     detail::conv3x3_forward(out.data(), in.data(), s.n, s.c, s.h, s.w, weight, bias, co, relu, cs);
     return;
   }
-  if (k == 3 && pad == 1 && avx2_winograd(s.c, co, s, cs)) {
+  if (k == 3 && pad == 1 && avx2_winograd(s.c, co, s, cs, ConvPass::forward)) {
     detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{in.data(), s.c}, nullptr, s.n, s.h,
                              s.w, weight, false, bias, relu);
     return;
@@ -314,7 +328,7 @@ void conv2d_backward(Tensor* d_in, float* d_weight, float* d_bias, const Tensor&
     inject_conv2d_faults(d_in, d_weight, d_bias, static_cast<std::size_t>(kdim) * co, co);
     return;
   }
-  if (k == 3 && pad == 1 && avx2_winograd(ci, co, s, cs)) {
+  if (k == 3 && pad == 1 && avx2_winograd(ci, co, s, cs, backward_pass(d_weight))) {
     if (d_in) ensure(*d_in, s);
     winograd_conv_backward(detail::OutPlaneSet{d_in ? d_in->data() : nullptr, ci}, d_weight, d_bias, d_out,
                            relu ? &out : nullptr, detail::PlaneSet{in.data(), ci}, weight);
@@ -351,14 +365,11 @@ void conv2d_cat_forward(Tensor& out, const Tensor& a, const Tensor& b, const flo
                         bool relu, const detail::ConvSettings& cs) {
   check_cat(a, b, "conv2d_cat_forward");
   const Shape sa = a.shape();
-  if (cs.bf16 && detail::conv3x3_takes_bf16(sa.n, sa.c + b.shape().c, co, sa.h, sa.w, cs.conv3x3)) {
-    ensure(out, Shape{sa.n, co, sa.h, sa.w});
-    detail::conv3x3_bf16_dispatch(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias,
-                                  co, relu, cs.weight_cache);
+  ensure(out, Shape{sa.n, co, sa.h, sa.w});
+  if (bf16_forward(out.data(), a.data(), sa.c, b.data(), b.shape().c, sa.n, sa.h, sa.w, weight, bias, co, relu, cs))
     return;
-  }
   const Shape sb = b.shape();
-  if (avx2_winograd(sa.c + sb.c, co, sa, cs)) {
+  if (avx2_winograd(sa.c + sb.c, co, sa, cs, ConvPass::forward)) {
     ensure(out, Shape{sa.n, co, sa.h, sa.w});
     detail::winograd_conv3x3(detail::OutPlaneSet{out.data(), co}, detail::PlaneSet{a.data(), sa.c, b.data(), sb.c},
                              nullptr, sa.n, sa.h, sa.w, weight, false, bias, relu);
@@ -381,7 +392,7 @@ void conv2d_cat_backward(Tensor& d_a, Tensor& d_b, float* d_weight, float* d_bia
   const Shape sa = a.shape(), sb = b.shape(), so = d_out.shape();
   if (so.n != sa.n || so.h != sa.h || so.w != sa.w || (relu && !(out.shape() == so)))
     throw Error("conv2d_cat_backward: d_out: shape " + so.str() + " does not match input " + sa.str());
-  if (avx2_winograd(sa.c + sb.c, so.c, sa, cs)) {
+  if (avx2_winograd(sa.c + sb.c, so.c, sa, cs, backward_pass(d_weight))) {
     ensure(d_a, sa);
     ensure(d_b, sb);
     winograd_conv_backward(detail::OutPlaneSet{d_a.data(), sa.c, d_b.data(), sb.c}, d_weight, d_bias, d_out,

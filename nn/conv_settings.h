@@ -3,7 +3,10 @@
 // whether the forward pass takes the bf16 kernel, and the model's own cache of packed weights.
 // None of it is process-wide, so models running in several threads at once (the FMU: one
 // instance per lidar) each run with their own. Ops called outside a model (tests, benches) get a
-// default-constructed one: the process default algorithm, fp32, no cache.
+// default-constructed one: the process default algorithm, fp32, no cache, no plan (the rules).
+namespace lidarsim::nn {
+class KernelPlan;  // nn/kernel_plan.h
+}
 namespace lidarsim::nn::detail {
 
 // Which algorithm the forward pass, the input gradient and the weight gradient take. automatic:
@@ -23,6 +26,9 @@ struct ConvSettings {
   Conv3x3Path conv3x3 = conv3x3_path();
   bool bf16 = false;                   // 3x3 forward passes in bf16 where that kernel is faster (inference)
   WeightCache* weight_cache = nullptr;  // packed weights kept across calls (inference; null: pack per call)
+  // The model's kernel choices per conv shape and pass (nn/kernel_plan.h), consulted when conv3x3
+  // is automatic; null: the fixed rules.
+  KernelPlan* plan = nullptr;
 };
 
 }  // namespace lidarsim::nn::detail

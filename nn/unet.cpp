@@ -360,6 +360,7 @@ void UNet::forward_head(const Tensor& below, Tensor& y) {
 detail::ConvSettings UNet::conv_settings(bool inference) const {
   detail::ConvSettings cs;
   cs.conv3x3 = has_conv3x3_ ? conv3x3_ : detail::conv3x3_path();
+  cs.plan = plan_.get();
   if (inference) {
     const InferencePrecision p = has_precision_ ? precision_ : inference_precision();
     cs.bf16 = effective_inference_precision(p) == InferencePrecision::bf16;

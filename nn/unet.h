@@ -36,6 +36,7 @@
 #include <vector>
 
 #include "nn/heads.h"
+#include "nn/kernel_plan.h"
 #include "nn/layers.h"
 #include "nn/params.h"
 #include "nn/precision.h"
@@ -92,6 +93,12 @@ class UNet {
   // different models may run in different threads at once; one model runs one call at a time.
   void set_inference_precision(InferencePrecision p) { precision_ = p; has_precision_ = true; }
   void set_conv3x3_path(detail::Conv3x3Path p) { conv3x3_ = p; has_conv3x3_ = true; }
+  // This model's kernel choices (nn/kernel_plan.h): rule mode until set. Every conv shape the
+  // model runs is recorded in it; a run saves it and a resumed run sets it back, so both take
+  // the same kernels.
+  KernelPlan& kernel_plan() { return *plan_; }
+  const KernelPlan& kernel_plan() const { return *plan_; }
+  void set_kernel_plan(KernelPlan plan) { *plan_ = std::move(plan); }
   // dy: [N, out_channels, H, W] of the last forward(); accumulates (+=) into params().grads().
   void backward(const Tensor& dy);
 
@@ -104,6 +111,7 @@ class UNet {
   std::unique_ptr<Workspace> ws_;
   InferencePrecision precision_ = InferencePrecision::fp32;
   bool has_precision_ = false;
+  std::unique_ptr<KernelPlan> plan_ = std::make_unique<KernelPlan>();  // a pointer: ConvSettings holds it
   detail::Conv3x3Path conv3x3_ = detail::Conv3x3Path::automatic;
   bool has_conv3x3_ = false;
   // What the conv ops of one call run with (inference: precision and the packed-weight cache).

@@ -78,6 +78,10 @@ cxxopts::Options command_line() {
      "in 0, 0.05, ..., 1 with the lowest inner MAE (0: the table, 1: the network as trained)")
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
+    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
+     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in "
+     "code); the choices go into the checkpoint and --resume takes them again",
+     cxxopts::value<std::string>()->default_value("calibrated"))
     ("no-augment", "no azimuth roll or mirror")
     ("out", "checkpoint (HDF5), written every epoch", cxxopts::value<std::string>()->default_value("checkpoint.h5"))
     ("resume", "continue from --out if it exists (refused when a setting differs from the checkpoint's)")
@@ -123,6 +127,7 @@ lidarsim::train::TrainConfig config_from(const cxxopts::ParseResult& args) {
     throw lidarsim::Error("lidar-train: --inner-columns, --inner-frames and --patience need --early-stop");
   config.seed = args["seed"].as<std::uint64_t>();
   config.threads = args["threads"].as<int>();
+  config.kernels = lidarsim::nn::parse_plan_mode(args["kernels"].as<std::string>(), "lidar-train: --kernels");
   config.augment_roll = config.augment_mirror = !args.count("no-augment");
   config.out = args["out"].as<std::string>();
   config.resume = args.count("resume") > 0;
@@ -158,6 +163,12 @@ void lock_outputs(std::optional<lidarsim::OutputLock>& lock, const lidarsim::tra
 // Rank 0's summary of a finished run on stdout: the residual scale, the chosen epoch, the final figures.
 void print_summary(const lidarsim::train::TrainResult& result, const lidarsim::train::TrainConfig& config,
                    int half_width) {
+  if (result.model) {  // the kernels the run took, held fixed for it (also in the checkpoint's /config/kernel_plan)
+    const lidarsim::nn::KernelPlan& plan = result.model->kernel_plan();
+    std::printf("kernels: %s, %zu choices (the checkpoint's /config/kernel_plan; listed on stderr)\n",
+                lidarsim::nn::to_string(plan.mode()), plan.entries().size());
+    std::fprintf(stderr, "lidar-train: kernel plan (%s):\n%s", lidarsim::nn::to_string(plan.mode()), plan.describe().c_str());
+  }
   if (result.residual_scale) {
     std::string tried;
     for (const auto& [factor, mae] : result.residual_scale_inner_mae) {

@@ -32,6 +32,9 @@
 namespace lidarsim::train {
 namespace {
 
+// The /config attribute holding the run's kernel plan (nn/kernel_plan.h to_json).
+constexpr const char* kPlanAttribute = "kernel_plan";
+
 float learning_rate(const TrainConfig& c, std::int64_t step, std::int64_t total_steps) {
   const double progress = total_steps > 1 ? static_cast<double>(step) / (total_steps - 1) : 0.0;
   const double floor = c.final_lr_fraction;
@@ -94,6 +97,7 @@ class TrainingRun {
   void resume_from_checkpoint();
   nn::Checkpoint checkpoint_meta() const;
   void save(std::int64_t at_step);
+  void record_plan();  // the model's kernel plan into meta (every checkpoint of the run carries it)
   data::Metrics validate();
   SpreadMetrics validate_spread_now(const data::SectorSplit* region);
   double train_step(Prefetcher<Batch>& batches, bool& stop);
@@ -291,6 +295,7 @@ void TrainingRun::plan_frames() {
 void TrainingRun::build_model() {
   model = std::make_shared<nn::UNet>(arch);
   model->init(config.seed);
+  model->set_kernel_plan(nn::KernelPlan(config.kernels));
   nn::OptimizerConfig opt_config;
   opt_config.kind = nn::OptimizerKind::Adam;
   opt_config.lr = config.lr;
@@ -314,6 +319,9 @@ void TrainingRun::resume_from_checkpoint() {
     throw input_error(config.out.string(), "/config/encoder", "input encoding differs from the requested one");
   check_resume_settings(config, stored);
   nn::load_checkpoint(config.out, *model, &*optimizer);
+  // The kernels the run took so far, held (checkpoints before the plan: config.kernels).
+  if (const auto plan = stored.attributes.find(kPlanAttribute); plan != stored.attributes.end())
+    model->set_kernel_plan(nn::KernelPlan::from_json(plan->second, config.out.string() + ": /config/" + kPlanAttribute));
   step = stored.state.step;
   if (dist.root())
     std::fprintf(stderr, "lidar-train: resuming %s at step %lld (epoch %lld)\n", config.out.c_str(),
@@ -341,7 +349,10 @@ nn::Checkpoint TrainingRun::checkpoint_meta() const {
   return m;
 }
 
+void TrainingRun::record_plan() { meta.attributes[kPlanAttribute] = model->kernel_plan().to_json(); }
+
 void TrainingRun::save(std::int64_t at_step) {
+  record_plan();
   meta.state.step = at_step;
   meta.state.epoch = at_step / steps_per_epoch;
   meta.state.rng = "counter-based: seed " + std::to_string(config.seed) + ", step " + std::to_string(at_step);
@@ -524,6 +535,7 @@ void TrainingRun::keep_chosen_epoch() {
   meta.state.step = static_cast<std::int64_t>(result.chosen_epoch) * steps_per_epoch;
   meta.state.epoch = result.chosen_epoch;
   meta.attributes["early_stop"] = inner_text + "; chosen epoch " + std::to_string(result.chosen_epoch);
+  record_plan();
   agreed([&] {
     if (checkpoints && dist.root()) nn::save_checkpoint(config.out, *model, nullptr, meta);
   });
@@ -550,6 +562,7 @@ void TrainingRun::calibrate_spread_on_inner() {
 }
 
 TrainResult TrainingRun::finish() {
+  record_plan();
   if (!result.interrupted) {
     bar->finish();
     if (config.export_weights) {

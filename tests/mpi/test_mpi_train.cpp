@@ -63,10 +63,13 @@ std::string exe(const std::string& folder, const std::string& name) {
   return (lidarsim::testing::binary_dir() / folder / name).string();
 }
 
-// 8 steps of 4 crops on a small UNet, 1 thread per rank.
+// 8 steps of 4 crops on a small UNet, 1 thread per rank. --kernels rule: each rank runs its share
+// of the batch, so the kernel keys (which hold the batch) differ between rank counts and a
+// calibrated plan may take another kernel for each (measured: 4e-4 apart); the rule set the tolerance.
 std::string train_args(const fs::path& data, const fs::path& out, const std::string& extra = "") {
   return exe("train", "lidar-train") + " --quiet --data " + data.string() + " --out " + out.string() +
-         " --base 4 --depth 2 --epochs 4 --steps-per-epoch 2 --batch 4 --crop 256 --threads 1 --seed 3 " + extra;
+         " --base 4 --depth 2 --epochs 4 --steps-per-epoch 2 --batch 4 --crop 256 --threads 1 --seed 3 --kernels rule " +
+         extra;
 }
 
 // Open MPI refuses root without these; two ranks may share fewer cores (--oversubscribe).
