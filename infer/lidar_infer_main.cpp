@@ -62,9 +62,10 @@ int run_predict(int argc, char** argv) {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
-    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
-     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in code)",
-     cxxopts::value<std::string>()->default_value("calibrated"))
+    ("kernels", "how each 3x3 conv's kernel is chosen: rule (the fixed rules in code; the default) or "
+     "calibrated (time the candidates this CPU has the first time a layer shape runs here, cached in "
+     "$LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim)",
+     cxxopts::value<std::string>()->default_value("rule"))
     ("quiet", "no progress bar")
     ("h,help", "show this help");
   // clang-format on
@@ -127,9 +128,10 @@ cxxopts::Options sim_options_spec() {
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
     ("precision", "UNet inference precision: fp32, or bf16 (3x3 convolutions in bf16 with fp32 sums, where the CPU has "
      "AVX-512 BF16; else fp32 with a note). Default: LIDARSIM_INFER_PRECISION, else fp32", cxxopts::value<std::string>())
-    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
-     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in code)",
-     cxxopts::value<std::string>()->default_value("calibrated"))
+    ("kernels", "how each 3x3 conv's kernel is chosen: rule (the fixed rules in code; the default) or "
+     "calibrated (time the candidates this CPU has the first time a layer shape runs here, cached in "
+     "$LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim)",
+     cxxopts::value<std::string>()->default_value("rule"))
     ("seed", "seed of the KPI noise, --range-noise, --returns and --sample-intensity", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("range-noise", "range noise model JSON (lidar-qualify range-noise, e.g. data/models/range_noise_hdl64e.json): "
      "each return's range scatters along its beam, drawn from --seed, the frame and the cell; default exact ranges",

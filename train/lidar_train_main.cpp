@@ -78,10 +78,10 @@ cxxopts::Options command_line() {
      "in 0, 0.05, ..., 1 with the lowest inner MAE (0: the table, 1: the network as trained)")
     ("seed", "random seed", cxxopts::value<std::uint64_t>()->default_value("1"))
     ("threads", "OpenMP threads", cxxopts::value<int>()->default_value("2"))
-    ("kernels", "how each 3x3 conv's kernel is chosen: calibrated (time the candidates this CPU has the first time "
-     "a layer shape runs here, cached in $LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim) or rule (the fixed rules in "
-     "code); the choices go into the checkpoint and --resume takes them again",
-     cxxopts::value<std::string>()->default_value("calibrated"))
+    ("kernels", "how each 3x3 conv's kernel is chosen: rule (the fixed rules in code; the default) or "
+     "calibrated (time the candidates this CPU has the first time a layer shape runs here, cached in "
+     "$LIDARSIM_KERNEL_CACHE or ~/.cache/lidarsim); the choices go into the checkpoint and --resume takes them again",
+     cxxopts::value<std::string>()->default_value("rule"))
     ("no-augment", "no azimuth roll or mirror")
     ("out", "checkpoint (HDF5), written every epoch", cxxopts::value<std::string>()->default_value("checkpoint.h5"))
     ("resume", "continue from --out if it exists (refused when a setting differs from the checkpoint's)")

@@ -1,6 +1,7 @@
 // lidar-infer predict --precision: bf16 inference (nn/precision.h) on the bundled scan and model
 // keeps the MAE within the gate (0.0005) of fp32, and a bad value is one line.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -26,11 +27,15 @@ namespace {
 // Runs lidar-infer with `args`; returns the exit code, stdout in `out`, stderr in `err`.
 int run_infer_capturing(const std::string& args, std::string& out, std::string& err) {
   const fs::path exe = lidarsim::testing::binary_dir() / "infer" / "lidar-infer";
-  const fs::path out_file = fs::temp_directory_path() / "lidarsim_precision_out.txt";
-  const fs::path err_file = fs::temp_directory_path() / "lidarsim_precision_err.txt";
+  // Per process: ctest runs this file's tests side by side.
+  const std::string pid = std::to_string(::getpid());
+  const fs::path out_file = fs::temp_directory_path() / ("lidarsim_precision_out_" + pid + ".txt");
+  const fs::path err_file = fs::temp_directory_path() / ("lidarsim_precision_err_" + pid + ".txt");
   const int rc = std::system((exe.string() + " " + args + " >" + out_file.string() + " 2>" + err_file.string()).c_str());
   out = read_bytes(out_file);
   err = read_bytes(err_file);
+  fs::remove(out_file);
+  fs::remove(err_file);
   return WEXITSTATUS(rc);
 }
 
