@@ -12,25 +12,27 @@ namespace lidarsim::nn::detail {
 // Throws std::bad_alloc when out of memory.
 void* aligned_storage(std::size_t bytes);
 
-// Grow-only, 64-byte aligned float scratch (the convolution kernels' per-op buffers): reused
-// across steps, so steady-state steps allocate nothing.
-struct GrowBuffer {
-  float* p = nullptr;
+// Grow-only, 64-byte aligned scratch of T (the kernels' per-op buffers: floats, bf16 pairs, bytes):
+// reused across steps, so steady-state steps allocate nothing.
+template <typename T>
+struct GrowArray {
+  T* p = nullptr;
   std::size_t n = 0;
-  float* get(std::size_t want) {
+  T* get(std::size_t want) {
     if (want > n) {
       std::free(p);
       p = nullptr;  // a throw below leaves an empty buffer
       n = 0;
-      p = static_cast<float*>(aligned_storage(want * sizeof(float)));
+      p = static_cast<T*>(aligned_storage(want * sizeof(T)));
       n = want;
     }
     return p;
   }
-  GrowBuffer() = default;
-  GrowBuffer(const GrowBuffer&) = delete;
-  GrowBuffer& operator=(const GrowBuffer&) = delete;
-  ~GrowBuffer() { std::free(p); }
+  GrowArray() = default;
+  GrowArray(const GrowArray&) = delete;
+  GrowArray& operator=(const GrowArray&) = delete;
+  ~GrowArray() { std::free(p); }
 };
+using GrowBuffer = GrowArray<float>;
 
 }  // namespace lidarsim::nn::detail

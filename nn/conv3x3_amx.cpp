@@ -59,23 +59,9 @@ constexpr int kM = 16;            // pixels per C tile
 constexpr int kChunk = 256;       // pixels per task of a small image (a multiple of both blocks)
 constexpr int kStageStride = 64;  // floats per output channel in the write-out stage
 
-// Grow-only, 64-byte aligned scratch (per calling thread, as in conv3x3_bf16.cpp).
-struct Buf {
-  void* p = nullptr;
-  std::size_t n = 0;
-  void* get(std::size_t bytes) {
-    if (bytes > n) {
-      std::free(p);
-      p = nullptr;
-      n = 0;
-      p = aligned_storage(bytes);
-      n = bytes;
-    }
-    return p;
-  }
-  ~Buf() { std::free(p); }
-};
-thread_local Buf tl_in, tl_wpack;
+// Per calling thread (nn/big_alloc.h): the staged bf16 input and the packed weights' pairs.
+thread_local GrowArray<std::uint16_t> tl_in;
+thread_local GrowArray<std::uint32_t> tl_wpack;
 
 }  // namespace
 
@@ -290,14 +276,14 @@ void forward(float* out, const float* a, int ca, const float* b, int cb, int n, 
   bool valid = false;
   auto* wp = static_cast<std::uint32_t*>(
       cache ? cache->get(WeightForm::amx, weight, static_cast<std::size_t>(co) * ci * 9, co, ci, wbytes, &valid)
-            : tl_wpack.get(wbytes));
+            : tl_wpack.get(wbytes / 4));
   if (!valid) pack_weights(wp, weight, co, g);
   const bool par = 2.0 * n * (g.q_end - g.q0) * ci * 9 * co > 2e6;
   if (h >= 2 * kBand) {
     // Large images: one task per band of rows, staged by the thread that computes it.
     const int bands = (h + kBand - 1) / kBand, threads = par ? team_threads() : 1;
     const std::size_t band_elems = band_pixels(g) * g.ps;
-    auto* bufs = static_cast<std::uint16_t*>(tl_in.get(band_elems * threads * 2));
+    std::uint16_t* bufs = tl_in.get(band_elems * threads);
     parallel_shared(static_cast<long>(n) * bands, par, [&](int tid, int nt, Shares& shares) {
       if (tid >= threads) return;  // (a team grown since: the others take this thread's share)
       load_tile_config();
@@ -313,7 +299,7 @@ void forward(float* out, const float* a, int ca, const float* b, int cb, int n, 
   // Small images: the whole input staged first (in parallel over rows), then tasks of kChunk
   // pixels x one output group.
   const std::size_t img_elems = static_cast<std::size_t>(g.pixels) * g.ps, row = static_cast<std::size_t>(g.ws) * g.ps;
-  auto* x = static_cast<std::uint16_t*>(tl_in.get(img_elems * n * 2));
+  std::uint16_t* x = tl_in.get(img_elems * n);
   const bool stage_par = static_cast<std::size_t>(n) * ci * plane > (1u << 15);
   parallel_for(static_cast<long>(n) * h, stage_par, [&](long t) {
     const int img = static_cast<int>(t / h), y = static_cast<int>(t % h);

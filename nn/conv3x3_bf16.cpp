@@ -83,24 +83,7 @@ struct Geom {
   }
 };
 
-// Grow-only, 64-byte aligned scratch of 32-bit lanes.
-struct Buf {
-  std::uint32_t* p = nullptr;
-  std::size_t n = 0;
-  std::uint32_t* get(std::size_t want) {
-    if (want > n) {
-      std::free(p);
-      p = nullptr;  // a throw below leaves an empty buffer
-      n = 0;
-      p = static_cast<std::uint32_t*>(aligned_storage(want * 4));
-      n = want;
-    }
-    return p;
-  }
-  ~Buf() { std::free(p); }
-};
-// Scratch of one call, per thread: a pure cache, and models running in several threads at once must
-// not share it (only the calling thread touches these objects; the workers get the pointers).
+using Buf = GrowArray<std::uint32_t>;  // scratch of 32-bit lanes (channel pairs)
 thread_local Buf tl_pad, tl_wpack;
 
 // Weights [co, ci, 3, 3] -> [out blocks][ci pairs][9][kCB] lanes {bf16 w[o][2p][k], w[o][2p+1][k]}
