@@ -105,9 +105,9 @@ struct TrainConfig {
   bool augment_mirror = true;  // left-right mirror
   std::filesystem::path out = "checkpoint.h5";  // empty: no checkpoints (train_on only)
   bool resume = false;         // continue from `out` if it exists
-  // How the model's 3x3 kernels are chosen (nn/kernel_plan.h): rule (the fixed rules; library
-  // callers and tests) or calibrated (measured on this CPU, cached; lidar-train's default). Not
-  // in train_config: a resume takes the checkpoint's recorded plan, whatever this says.
+  // How the model's 3x3 kernels are chosen (nn/kernel_plan.h): rule (the fixed rules; the default
+  // everywhere) or calibrated (measured on this CPU, cached; lidar-train --kernels calibrated).
+  // Not in train_config: a resume takes the checkpoint's recorded plan, whatever this says.
   nn::PlanMode kernels = nn::PlanMode::rule;
   // Settings that may differ from the checkpoint's on resume (names as in its train_config,
   // e.g. "epochs", "lr"); any other difference is refused. Every field above that changes the
